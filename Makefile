@@ -1,0 +1,29 @@
+# Two commands for a fresh machine (each sets everything up first):
+#   make demo   reconstruct the bundled sample scan and print the quality summary
+#   make test   run the test-suite
+PY := .venv/bin/python
+OPRECON := .venv/bin/oprecon
+
+.PHONY: setup demo test lint format bench refresh-references clean
+
+setup:
+	@bash scripts/setup.sh
+
+demo: setup
+	@mkdir -p demo_output
+	$(OPRECON) info sample_data/bunny-sparse.ply
+	$(OPRECON) normals sample_data/bunny-sparse.ply -o demo_output/bunny-sparse-normals.ply
+
+test: setup
+	$(PY) -m pytest -q
+
+lint: setup
+	$(PY) -m ruff check recon cli tests benchmarks scripts
+	$(PY) -m ruff format --check recon cli tests benchmarks scripts
+
+format: setup
+	$(PY) -m ruff format recon cli tests benchmarks scripts
+	$(PY) -m ruff check --fix recon cli tests benchmarks scripts
+
+clean:
+	rm -rf demo_output bench_output .pytest_cache

@@ -1,0 +1,1 @@
+"""The ``oprecon`` command-line application (click)."""

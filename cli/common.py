@@ -1,0 +1,112 @@
+"""Shared pieces of the CLI: error handling, logging, configuration options."""
+
+from __future__ import annotations
+
+import functools
+import logging
+import sys
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import click
+
+from recon.config import ReconConfig, load_config
+from recon.errors import OpreconError
+
+EXIT_OK = 0
+EXIT_CHECK_FAILED = 1
+EXIT_BAD_INPUT = 2
+EXIT_INTERRUPTED = 130
+
+PRESET_DIR = Path(__file__).resolve().parent.parent / "configs"
+
+
+def fail(message: str, code: int = EXIT_BAD_INPUT) -> None:
+    """Print ``oprecon: error: message`` on stderr and exit with ``code``."""
+    click.echo(f"oprecon: error: {message}", err=True)
+    sys.exit(code)
+
+
+def setup_logging(quiet: bool = False, verbose: bool = False) -> None:
+    level = logging.WARNING if quiet else (logging.DEBUG if verbose else logging.INFO)
+    root = logging.getLogger("recon")
+    root.handlers.clear()
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(logging.Formatter("%(message)s"))
+    root.addHandler(handler)
+    root.setLevel(level)
+    root.propagate = False
+
+
+def available_presets() -> list[str]:
+    return sorted(p.stem for p in PRESET_DIR.glob("*.yaml")) if PRESET_DIR.is_dir() else []
+
+
+def resolve_preset(name: str) -> Path:
+    path = PRESET_DIR / f"{name}.yaml"
+    if not path.is_file():
+        names = ", ".join(available_presets()) or "none installed"
+        raise OpreconError(f"unknown preset '{name}' (available: {names})")
+    return path
+
+
+def config_options(func: Callable[..., Any]) -> Callable[..., Any]:
+    """``--config``, ``--preset`` and ``--set`` for commands that take a pipeline config."""
+
+    @click.option("--config", "config_path", type=click.Path(dir_okay=False, path_type=Path),
+                  help="YAML configuration file (see `oprecon config show`).")
+    @click.option("--preset", help="Named preset from configs/, e.g. open_scan, sparse, noisy.")
+    @click.option("--set", "overrides", multiple=True, metavar="SECTION.KEY=VALUE",
+                  help="Override one key, e.g. --set dynamics.dt=0.1 (repeatable).")
+    @functools.wraps(func)
+    def wrapper(*args: Any, **kwargs: Any) -> Any:
+        return func(*args, **kwargs)
+
+    return wrapper
+
+
+def build_config(config_path: Path | None, preset: str | None,
+                 overrides: tuple[str, ...] = ()) -> ReconConfig:
+    """Defaults < preset/config file < --set overrides. CLI options are applied by the caller."""
+    if config_path is not None and preset is not None:
+        raise click.UsageError("--config and --preset are exclusive; give one")
+    path = resolve_preset(preset) if preset is not None else config_path
+    return load_config(path, list(overrides))
+
+
+def common_run_options(func: Callable[..., Any]) -> Callable[..., Any]:
+    """``--quiet`` and ``--verbose`` for commands that do work."""
+
+    @click.option("-q", "--quiet", is_flag=True, help="Only errors on stderr (no progress, no log).")
+    @click.option("-v", "--verbose", is_flag=True, help="Debug log on stderr.")
+    @functools.wraps(func)
+    def wrapper(*args: Any, quiet: bool = False, verbose: bool = False, **kwargs: Any) -> Any:
+        setup_logging(quiet=quiet, verbose=verbose)
+        return func(*args, quiet=quiet, **kwargs)
+
+    return wrapper
+
+
+def catch_errors(func: Callable[..., Any]) -> Callable[..., Any]:
+    """Turn library errors into one-line messages with the documented exit codes."""
+
+    @functools.wraps(func)
+    def wrapper(*args: Any, **kwargs: Any) -> Any:
+        ctx = click.get_current_context()
+        debug = bool((ctx.find_root().obj or {}).get("debug"))
+        try:
+            return func(*args, **kwargs)
+        except OpreconError as exc:
+            if debug:
+                raise
+            fail(str(exc), EXIT_BAD_INPUT)
+        except KeyboardInterrupt:
+            click.echo("oprecon: interrupted", err=True)
+            sys.exit(EXIT_INTERRUPTED)
+        except MemoryError:
+            if debug:
+                raise
+            fail("out of memory (lower dynamics.max_particles or thin the input)", EXIT_BAD_INPUT)
+
+    return wrapper

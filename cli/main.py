@@ -1,0 +1,55 @@
+"""Entry point: the ``oprecon`` command group."""
+
+from __future__ import annotations
+
+import sys
+
+import click
+
+from recon import __version__
+
+from .common import EXIT_INTERRUPTED
+
+CONTEXT_SETTINGS = {"help_option_names": ["-h", "--help"], "max_content_width": 100}
+
+
+@click.group(context_settings=CONTEXT_SETTINGS)
+@click.version_option(__version__, "--version", prog_name="oprecon")
+@click.option("--debug", is_flag=True, help="Show Python tracebacks for errors.")
+@click.pass_context
+def app(ctx: click.Context, debug: bool) -> None:
+    """Turn scattered 3-D points into clean triangle meshes with oriented particle systems.
+
+    \b
+    Typical use:
+      oprecon info scan.ply                    what is in the file
+      oprecon normals scan.ply -o oriented.ply consistently oriented normals
+      oprecon config show                      every setting with its default
+
+    Exit codes: 0 success, 1 a completed run failed a check, 2 bad input or usage,
+    130 interrupted.
+    """
+    ctx.ensure_object(dict)
+    ctx.obj["debug"] = debug
+
+
+def _register() -> None:
+    from . import config_cmd, info, normals
+
+    for module in (info, normals, config_cmd):
+        app.add_command(module.command)
+
+
+_register()
+
+
+def main() -> None:
+    try:
+        app.main(prog_name="oprecon", standalone_mode=True)
+    except KeyboardInterrupt:
+        click.echo("oprecon: interrupted", err=True)
+        sys.exit(EXIT_INTERRUPTED)
+
+
+if __name__ == "__main__":
+    main()

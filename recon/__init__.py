@@ -1,0 +1,16 @@
+"""oprecon: surface reconstruction from point clouds with oriented particle systems.
+
+References
+----------
+[ST92] R. Szeliski, D. Tonnesen. "Surface Modeling with Oriented Particle Systems".
+       SIGGRAPH '92, Computer Graphics 26(2):185-194, 1992. Equation numbers refer to this
+       edition (not the DEC CRL 91/14 technical report).
+[T00]  D. Tonnesen. "Dynamically Coupled Particle Systems for Geometric Modeling,
+       Reconstruction, and Animation". PhD thesis, University of Toronto, 1998/2000, chapter 4.
+"""
+
+from .errors import ConfigError, InputError, OpreconError
+
+__version__ = "0.1.0"
+
+__all__ = ["ConfigError", "InputError", "OpreconError", "__version__"]

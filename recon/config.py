@@ -1,0 +1,455 @@
+"""Typed pipeline configuration: the only home of defaults.
+
+Every YAML section maps to one frozen dataclass inside :class:`ReconConfig`. Each field carries
+its documentation and its allowed range in ``dataclasses.field(metadata=...)``, so that
+validation, ``oprecon config show`` and ``configs/default.yaml`` all come from one place.
+
+Lengths in the ``seeds``, ``dynamics``, ``potentials``, ``growth`` and ``triangulation``
+sections are in units of the rest spacing r0 (``spacing``) unless the key name says otherwise.
+Angles end in ``_deg``.
+
+Precedence (highest first): command-line options > ``--set section.key=value`` >
+``--config file.yaml`` > the defaults below.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import math
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field, fields, is_dataclass
+from pathlib import Path
+from typing import Any, Union, get_args, get_origin, get_type_hints
+
+import yaml
+
+from .errors import ConfigError
+
+CONFIG_VERSION = 1
+
+
+def _f(default: Any, doc: str, lo: float | None = None, hi: float | None = None,
+       choices: tuple[Any, ...] | None = None, lo_open: bool = False) -> Any:
+    """A dataclass field with documentation and an allowed range."""
+    meta = {"doc": doc, "min": lo, "max": hi, "choices": choices, "min_open": lo_open}
+    if isinstance(default, (list, dict)):
+        return field(default_factory=lambda d=default: type(d)(d), metadata=meta)
+    return field(default=default, metadata=meta)
+
+
+@dataclass(frozen=True)
+class IOConfig:
+    ascii: bool = _f(False, "Write PLY files as ASCII instead of binary little-endian.")
+    merge_duplicates: bool = _f(True, "Merge exactly repeated points on reading.")
+    max_points: int = _f(50_000_000, "Refuse inputs with more points than this.", 4, None)
+
+
+@dataclass(frozen=True)
+class NormalsConfig:
+    mode: str = _f("auto", "auto: use the file's normals when present and valid, else estimate; "
+                   "estimate: always estimate; input: require normals in the file.",
+                   choices=("auto", "estimate", "input"))
+    k: int = _f(20, "Neighbours for the PCA normal estimate.", 3, 500)
+    radius: float | None = _f(None, "Optional PCA radius [input length units]; null = k-NN only.",
+                              0.0, None, lo_open=True)
+    orient_k: int = _f(10, "Neighbours in the orientation graph (Hoppe et al. 1992 MST).", 3, 100)
+    orientation: str = _f("auto", "Global sign: auto (outward if the surface looks closed, else "
+                          "toward the viewpoint or +z), outward, viewpoint, or none.",
+                          choices=("auto", "outward", "viewpoint", "none"))
+    viewpoint: list[float] | None = _f(None, "Scanner position [x, y, z] for range scans "
+                                       "(input length units); implies orientation toward it.")
+
+
+@dataclass(frozen=True)
+class SeedsConfig:
+    spacing: float | None = _f(None, "Absolute rest spacing r0 [input length units]; "
+                               "null = derived from the data.", 0.0, None, lo_open=True)
+    spacing_relative: float | None = _f(None, "Rest spacing r0 as a fraction of the bounding-box "
+                                        "diagonal; null = derived from the data.",
+                                        0.0, 1.0, lo_open=True)
+    spacing_factor: float = _f(1.5, "r0 = spacing_factor x median nearest-neighbour distance "
+                               "of the input (used when spacing and spacing_relative are null).",
+                               0.1, 100.0)
+    thinning: float = _f(1.0, "Seeds are Poisson-disk thinned to this distance [r0].", 0.3, 5.0)
+
+
+@dataclass(frozen=True)
+class DynamicsConfig:
+    dt: float = _f(0.2, "Time step [r0-units of time; m = I = 1].", 0.0, 1.0, lo_open=True)
+    max_steps: int = _f(3000, "Hard cap on dynamics steps over all phases.", 1, None)
+    max_particles: int = _f(2_000_000, "Hard cap on the particle count.", 4, None)
+    damping_linear: float = _f(2.0, "beta_0: linear velocity damping.", 0.0, None)
+    damping_angular: float = _f(2.0, "beta_2: angular velocity damping.", 0.0, None)
+    damping_relative_linear: float = _f(0.0, "beta_1: relative damping between neighbours "
+                                        "(T-thesis eq. 4.10 sign).", 0.0, None)
+    damping_relative_angular: float = _f(0.0, "beta_3: relative angular damping.", 0.0, None)
+    max_displacement: float = _f(0.1, "Per-step displacement cap [r0].", 0.0, 10.0, lo_open=True)
+    max_rotation_deg: float = _f(17.0, "Per-step rotation cap [degrees].", 0.0, 180.0,
+                                 lo_open=True)
+    skin: float = _f(0.4, "Neighbour-list skin [r0]; lists are rebuilt after skin/2 motion.",
+                     0.0, 5.0, lo_open=True)
+    relax_steps: int = _f(15, "Relaxation steps after each growth round.", 1, 10_000)
+    release_steps: int = _f(100, "Steps after the seeds are released (smoothing).", 0, 100_000)
+    fidelity: float = _f(1.0, "Point-to-plane pull toward the data (0 = pure smoothing).",
+                         0.0, 100.0)
+    fidelity_normal: float = _f(0.5, "Torque aligning particle normals with data normals.",
+                                0.0, 100.0)
+    time_limit: float | None = _f(None, "Wall-clock limit for one fit [s]; null = none.",
+                                  0.0, None, lo_open=True)
+
+
+@dataclass(frozen=True)
+class PotentialsConfig:
+    w_lj: float = _f(1.0, "alpha_LJ: weight of the spacing (Lennard-Jones 4-2) potential.",
+                     0.0, None)
+    w_planarity: float = _f(1.0, "alpha_P: co-planarity weight (S&T92 eq. 3).", 0.0, None)
+    w_normality: float = _f(1.0, "alpha_N: co-normality weight (S&T92 eq. 4).", 0.0, None)
+    w_circularity: float = _f(0.0, "alpha_C: co-circularity weight (S&T92 eq. 5).", 0.0, None)
+    cutoff: float = _f(2.0, "Interaction cutoff [r0] (LJ shifted-force truncation and psi).",
+                       1.2, 5.0)
+    weighting: str = _f("poly", "psi: poly (1-(d/rc)^2)^2, gaussian exp(-d^2/(2 s^2)), or "
+                        "anisotropic (S&T92 eq. 7 in the particle frame).",
+                        choices=("poly", "gaussian", "anisotropic"))
+    influence_radius: float = _f(1.0, "sigma of the gaussian/anisotropic weight [r0].",
+                                 0.0, 5.0, lo_open=True)
+    anisotropy: float = _f(2.0, "Anisotropic weight: normal-direction sigma divisor "
+                           "(sigma_n = influence_radius / anisotropy).", 1.0, 20.0)
+
+
+@dataclass(frozen=True)
+class GrowthConfig:
+    enabled: bool = _f(True, "Run the growing and stretching rules.")
+    max_rounds: int = _f(40, "Cap on growth rounds.", 0, 10_000)
+    grow_radius: float = _f(1.5, "Neighbours within this distance count for the growing rule [r0].",
+                            0.5, 5.0)
+    gap_angle_deg: float = _f(100.0, "An angular gap wider than this gets new particles.",
+                              30.0, 359.0)
+    gap_step_deg: float = _f(60.0, "One new particle per this many degrees of gap.", 10.0, 180.0)
+    min_neighbors: int = _f(0, "Growing rule applies to particles with at least this many "
+                            "neighbours.", 0, 50)
+    max_neighbors: int = _f(5, "... and at most this many.", 1, 50)
+    stretch_min: float = _f(2.0, "Stretching rule: pair distance lower bound [r0].", 1.0, 10.0)
+    stretch_max: float = _f(2.5, "Stretching rule: pair distance upper bound [r0].", 1.0, 10.0)
+    reject_radius: float = _f(0.8, "Reject a candidate this close to a particle [r0].", 0.1, 2.0)
+    max_gap: float = _f(4.0, "Holes wider than this are not filled; candidates farther than "
+                        "max_gap/2 from the data are rejected [r0].", 0.5, 100.0)
+    tangent_tolerance: float = _f(0.5, "Reject a candidate farther than this from the local data "
+                                  "plane [r0].", 0.01, 5.0)
+    min_add_fraction: float = _f(0.005, "Stop growing when a round adds fewer than this "
+                                 "fraction of the particles.", 0.0, 1.0)
+
+
+@dataclass(frozen=True)
+class TriangulationConfig:
+    method: str = _f("ball_pivoting", "ball_pivoting (manifold, default) or circumsphere "
+                     "(S&T92 empty-circumsphere test, for comparison).",
+                     choices=("ball_pivoting", "circumsphere"))
+    radii: list[float] = _f([0.7, 1.0, 1.4, 2.0], "Ball-pivoting radii [r0].")
+    fill_holes: bool = _f(True, "Fill holes whose perimeter is below pi * max_hole.")
+    max_hole: float | None = _f(None, "Largest hole diameter to fill [r0]; null = growth.max_gap.",
+                                0.0, None)
+    trim_distance: float = _f(1.0, "Drop particles farther than this from the data [r0].",
+                              0.0, None, lo_open=True)
+
+
+@dataclass(frozen=True)
+class OutputConfig:
+    write_report: bool = _f(True, "Write <mesh>.report.json beside the mesh.")
+    vertex_normals: bool = _f(True, "Write per-vertex normals.")
+
+
+@dataclass(frozen=True)
+class ReconConfig:
+    version: int = _f(CONFIG_VERSION, "Configuration format version.", 1, 1)
+    seed: int = _f(0, "Random seed: same input, config and seed give the same mesh.", 0, None)
+    io: IOConfig = field(default_factory=IOConfig, metadata={"doc": "Reading and writing."})
+    normals: NormalsConfig = field(default_factory=NormalsConfig,
+                                   metadata={"doc": "Normal estimation and orientation."})
+    seeds: SeedsConfig = field(default_factory=SeedsConfig,
+                               metadata={"doc": "Rest spacing r0 and pinned seed particles."})
+    dynamics: DynamicsConfig = field(default_factory=DynamicsConfig,
+                                     metadata={"doc": "Integrator, damping, caps, data fidelity."})
+    potentials: PotentialsConfig = field(default_factory=PotentialsConfig,
+                                         metadata={"doc": "Pair potentials and weighting."})
+    growth: GrowthConfig = field(default_factory=GrowthConfig,
+                                 metadata={"doc": "Growing and stretching rules, gap control."})
+    triangulation: TriangulationConfig = field(default_factory=TriangulationConfig,
+                                               metadata={"doc": "Meshing the particles."})
+    output: OutputConfig = field(default_factory=OutputConfig,
+                                 metadata={"doc": "What is written beside the mesh."})
+
+
+SECTIONS: tuple[str, ...] = tuple(
+    f.name for f in fields(ReconConfig) if is_dataclass(f.default_factory)  # type: ignore[arg-type]
+)
+
+
+# --------------------------------------------------------------------------------------------
+# validation
+
+
+def _suggest(name: str, valid: Iterable[str]) -> str:
+    close = difflib.get_close_matches(name, list(valid), n=1, cutoff=0.5)
+    return f" (did you mean '{close[0]}'?)" if close else ""
+
+
+def _type_name(tp: Any) -> str:
+    return getattr(tp, "__name__", str(tp)).replace("NoneType", "null")
+
+
+def _coerce(key: str, value: Any, tp: Any) -> Any:
+    """Check ``value`` against the annotation ``tp``; return it converted (int -> float ok)."""
+    origin = get_origin(tp)
+    args = get_args(tp)
+    if origin is Union or (origin is not None and type(None) in args and len(args) >= 2):
+        if value is None and type(None) in args:
+            return None
+        inner = [a for a in args if a is not type(None)]
+        return _coerce(key, value, inner[0])
+    if value is None:
+        raise ConfigError(f"{key}: null is not allowed (expected {_type_name(tp)})")
+    if origin is list:
+        (item_tp,) = args or (Any,)
+        if not isinstance(value, (list, tuple)):
+            raise ConfigError(f"{key}: expected a list, got {type(value).__name__} {value!r}")
+        return [_coerce(f"{key}[{i}]", v, item_tp) for i, v in enumerate(value)]
+    if tp is bool:
+        if not isinstance(value, bool):
+            raise ConfigError(f"{key}: expected true or false, got {value!r}")
+        return value
+    if tp is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            if isinstance(value, float) and value.is_integer():
+                return int(value)
+            raise ConfigError(f"{key}: expected an integer, got {value!r}")
+        return value
+    if tp is float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ConfigError(f"{key}: expected a number, got {value!r}")
+        value = float(value)
+        if not math.isfinite(value):
+            raise ConfigError(f"{key}: expected a finite number, got {value!r}")
+        return value
+    if tp is str:
+        if not isinstance(value, str):
+            raise ConfigError(f"{key}: expected a string, got {value!r}")
+        return value
+    return value
+
+
+def _check_range(key: str, value: Any, meta: Mapping[str, Any]) -> None:
+    choices = meta.get("choices")
+    if choices is not None and value not in choices:
+        allowed = ", ".join(map(str, choices))
+        raise ConfigError(f"{key}: {value!r} is not one of: {allowed}{_suggest(str(value), map(str, choices))}")
+    values = value if isinstance(value, list) else [value]
+    lo, hi, lo_open = meta.get("min"), meta.get("max"), meta.get("min_open", False)
+    for v in values:
+        if not isinstance(v, (int, float)) or isinstance(v, bool):
+            continue
+        bad = (lo is not None and (v < lo or (lo_open and v == lo))) or (hi is not None and v > hi)
+        if bad:
+            lo_s = "-inf" if lo is None else f"{lo:g}"
+            hi_s = "inf" if hi is None else f"{hi:g}"
+            bracket = "(" if lo_open else "["
+            raise ConfigError(f"{key}: {v!r} is out of range, allowed {bracket}{lo_s}, {hi_s}]")
+
+
+def _build(cls: type, data: Mapping[str, Any], prefix: str) -> Any:
+    if not isinstance(data, Mapping):
+        where = prefix.rstrip(".") or "configuration"
+        raise ConfigError(f"{where}: expected a mapping of keys to values, got {data!r}")
+    hints = get_type_hints(cls)
+    known = {f.name: f for f in fields(cls)}
+    for k in data:
+        if not isinstance(k, str) or k not in known:
+            raise ConfigError(f"unknown key '{prefix}{k}'{_suggest(str(k), known)}")
+    kwargs: dict[str, Any] = {}
+    for name, value in data.items():
+        f = known[name]
+        key = prefix + name
+        tp = hints[name]
+        if is_dataclass(tp):
+            kwargs[name] = _build(tp, value if value is not None else {}, key + ".")
+            continue
+        value = _coerce(key, value, tp)
+        if value is not None:
+            _check_range(key, value, f.metadata)
+        kwargs[name] = value
+    obj = cls(**kwargs)
+    _check_cross(obj, prefix)
+    return obj
+
+
+def _check_cross(obj: Any, prefix: str) -> None:
+    """Constraints that involve more than one key."""
+    if isinstance(obj, GrowthConfig) and obj.stretch_min > obj.stretch_max:
+        raise ConfigError(f"{prefix}stretch_min ({obj.stretch_min}) must not exceed "
+                          f"{prefix}stretch_max ({obj.stretch_max})")
+    if isinstance(obj, GrowthConfig) and obj.min_neighbors > obj.max_neighbors:
+        raise ConfigError(f"{prefix}min_neighbors must not exceed {prefix}max_neighbors")
+    if isinstance(obj, NormalsConfig) and obj.viewpoint is not None and len(obj.viewpoint) != 3:
+        raise ConfigError(f"{prefix}viewpoint: expected 3 numbers [x, y, z], got {obj.viewpoint}")
+    if isinstance(obj, TriangulationConfig):
+        if not obj.radii:
+            raise ConfigError(f"{prefix}radii: expected at least one radius")
+        if any(r <= 0 for r in obj.radii):
+            raise ConfigError(f"{prefix}radii: every radius must be > 0, got {obj.radii}")
+    if isinstance(obj, SeedsConfig) and obj.spacing is not None and obj.spacing_relative is not None:
+        raise ConfigError(f"{prefix}spacing and {prefix}spacing_relative are exclusive; set one")
+
+
+def config_from_dict(data: Mapping[str, Any] | None) -> ReconConfig:
+    """Build and validate a :class:`ReconConfig` from a (YAML-like) mapping.
+
+    Raises :class:`ConfigError` naming the dotted key for unknown keys (with the nearest valid
+    key), wrong types and out-of-range values.
+    """
+    return _build(ReconConfig, data or {}, "")
+
+
+def config_to_dict(cfg: Any) -> dict[str, Any]:
+    """Plain nested dict of a config (lists copied), suitable for YAML/JSON."""
+    return dataclasses.asdict(cfg)
+
+
+def load_yaml_file(path: str | Path) -> Any:
+    """Read a YAML file safely; syntax errors name the file, line and column."""
+    p = Path(path)
+    if not p.exists():
+        raise ConfigError(f"{p}: no such configuration file")
+    if p.is_dir():
+        raise ConfigError(f"{p}: is a directory, expected a YAML file")
+    try:
+        text = p.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"{p}: cannot read: {exc}") from None
+    try:
+        return yaml.safe_load(text)
+    except yaml.MarkedYAMLError as exc:
+        mark = exc.problem_mark
+        where = f"line {mark.line + 1}, column {mark.column + 1}" if mark is not None else "?"
+        raise ConfigError(f"{p}: invalid YAML at {where}: {exc.problem}") from None
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{p}: invalid YAML: {exc}") from None
+
+
+def parse_override(text: str) -> tuple[str, Any]:
+    """Parse ``section.key=value`` (the value is read as YAML: ``0.1``, ``true``, ``[1, 2]``)."""
+    if "=" not in text:
+        raise ConfigError(f"--set {text!r}: expected section.key=value")
+    key, raw = text.split("=", 1)
+    key = key.strip()
+    if not key:
+        raise ConfigError(f"--set {text!r}: empty key")
+    try:
+        value = yaml.safe_load(raw) if raw.strip() else None
+    except yaml.YAMLError:
+        value = raw
+    return key, value
+
+
+def apply_overrides(cfg: ReconConfig, overrides: Mapping[str, Any]) -> ReconConfig:
+    """Return a new config with dotted-key overrides applied and validated."""
+    data = config_to_dict(cfg)
+    for dotted, value in overrides.items():
+        parts = dotted.split(".")
+        node: Any = data
+        for i, part in enumerate(parts[:-1]):
+            if not isinstance(node, dict) or part not in node or not isinstance(node[part], dict):
+                valid = [k for k, v in node.items() if isinstance(v, dict)] if isinstance(node, dict) else []
+                where = ".".join(parts[: i + 1])
+                raise ConfigError(f"unknown section '{where}'{_suggest(part, valid)}")
+            node = node[part]
+        leaf = parts[-1]
+        if leaf not in node:
+            raise ConfigError(f"unknown key '{dotted}'{_suggest(leaf, node)}")
+        if isinstance(node[leaf], dict):
+            raise ConfigError(f"'{dotted}' is a section; set one of its keys, e.g. {dotted}."
+                              f"{next(iter(node[leaf]))}")
+        node[leaf] = value
+    return config_from_dict(data)
+
+
+def load_config(path: str | Path | None = None,
+                overrides: Mapping[str, Any] | Iterable[str] | None = None) -> ReconConfig:
+    """Defaults, then the YAML file at ``path``, then dotted overrides.
+
+    ``overrides`` is a mapping ``{"dynamics.dt": 0.1}`` or an iterable of ``"key=value"``
+    strings as given to ``--set``.
+    """
+    cfg = ReconConfig()
+    if path is not None:
+        data = load_yaml_file(path)
+        try:
+            cfg = config_from_dict(data)
+        except ConfigError as exc:
+            raise ConfigError(f"{path}: {exc}") from None
+    if overrides:
+        if not isinstance(overrides, Mapping):
+            overrides = dict(parse_override(t) for t in overrides)
+        cfg = apply_overrides(cfg, overrides)
+    return cfg
+
+
+def with_values(cfg: ReconConfig, **sections: Mapping[str, Any]) -> ReconConfig:
+    """Return ``cfg`` with some keys replaced, e.g. ``with_values(cfg, dynamics={"dt": 0.1})``.
+
+    Values go through the same validation as a file. Keys whose value is ``None`` are skipped,
+    so CLI options that were not given can be passed through unchanged.
+    """
+    flat = {f"{s}.{k}": v for s, kv in sections.items() for k, v in kv.items() if v is not None}
+    return apply_overrides(cfg, flat) if flat else cfg
+
+
+# --------------------------------------------------------------------------------------------
+# YAML output
+
+
+def _yaml_scalar(value: Any) -> str:
+    text = yaml.safe_dump(value, default_flow_style=True, width=1000).strip()
+    if text.endswith("\n..."):
+        text = text[: -len("\n...")]
+    return text.removesuffix("...").strip()
+
+
+def dump_config(cfg: ReconConfig | None = None, comments: bool = True) -> str:
+    """The configuration as YAML text; with ``comments`` every key carries its documentation."""
+    cfg = cfg if cfg is not None else ReconConfig()
+    lines: list[str] = []
+    if comments:
+        lines += ["# oprecon configuration. Lengths in seeds/dynamics/potentials/growth/triangulation",
+                  "# are in units of the rest spacing r0 unless a key says otherwise.",
+                  "# Precedence: command-line options > --set key=value > --config file > defaults."]
+
+    def emit(obj: Any, indent: str) -> None:
+        for f in fields(obj):
+            value = getattr(obj, f.name)
+            doc = f.metadata.get("doc", "")
+            if is_dataclass(value):
+                if comments:
+                    lines.append("")
+                    lines.append(f"{indent}# {doc}")
+                lines.append(f"{indent}{f.name}:")
+                emit(value, indent + "  ")
+                continue
+            entry = f"{indent}{f.name}: {_yaml_scalar(value)}"
+            if comments and doc:
+                extra = _range_text(f.metadata)
+                entry = f"{entry}  # {doc}{extra}"
+            lines.append(entry)
+
+    emit(cfg, "")
+    return "\n".join(lines) + "\n"
+
+
+def _range_text(meta: Mapping[str, Any]) -> str:
+    if meta.get("choices"):
+        return ""
+    lo, hi = meta.get("min"), meta.get("max")
+    if lo is None and hi is None:
+        return ""
+    lo_s = "-inf" if lo is None else f"{lo:g}"
+    hi_s = "inf" if hi is None else f"{hi:g}"
+    return f" Range {'(' if meta.get('min_open') else '['}{lo_s}, {hi_s}]."
