@@ -1,0 +1,100 @@
+import numpy as np
+from scipy.spatial import cKDTree
+
+from recon.config import GrowthConfig
+from recon.growth import accept_candidates, grow_candidates, neighbor_csr, stretch_candidates
+from recon.surface import DataSurface
+
+
+def test_isolated_particle_grows_a_hexagon_in_its_tangent_plane():
+    pos = np.array([[0.0, 0.0, 0.0]])
+    nrm = np.array([[0.0, 0.0, 1.0]])
+    off, idx = neighbor_csr(cKDTree(pos), 1, 1.5)
+    c = grow_candidates(pos, nrm, off, idx, GrowthConfig())
+    assert len(c) == 6
+    assert np.allclose(np.linalg.norm(c, axis=1), 1.0)
+    assert np.allclose(c[:, 2], 0.0)
+    d = np.linalg.norm(c[:, None] - c[None], axis=2)
+    assert np.isclose(np.sort(d, axis=1)[:, 1].min(), 1.0)  # hexagon: neighbours 1 apart
+
+
+def test_boundary_particle_fills_only_the_open_side():
+    # particle at origin with neighbours on the -x half plane
+    ang = np.deg2rad([90, 150, 210, 270])
+    nb = np.column_stack([np.cos(ang), np.sin(ang), np.zeros(4)])
+    pos = np.vstack([[0.0, 0, 0], nb])
+    nrm = np.tile([0.0, 0, 1], (5, 1))
+    off, idx = neighbor_csr(cKDTree(pos), 5, 1.5)
+    cfg = GrowthConfig(max_neighbors=5)
+    c = grow_candidates(pos[:1], nrm[:1], off[:2], idx, cfg)
+    # gap of 180 degrees on the +x side: 2 candidates at 330 and 30 degrees
+    assert len(c) == 2
+    assert np.all(c[:, 0] > 0.8)
+
+
+def test_full_ring_does_not_grow():
+    ang = np.deg2rad(np.arange(0, 360, 60))
+    pos = np.vstack([[0.0, 0, 0], np.column_stack([np.cos(ang), np.sin(ang), np.zeros(6)])])
+    nrm = np.tile([0.0, 0, 1], (7, 1))
+    off, idx = neighbor_csr(cKDTree(pos), 7, 1.5)
+    c = grow_candidates(pos[:1], nrm[:1], off[:2], idx, GrowthConfig(max_neighbors=6))
+    assert len(c) == 0
+
+
+def test_stretch_adds_midpoint_of_distant_pair():
+    pos = np.array([[0.0, 0, 0], [2.2, 0, 0]])
+    nrm = np.tile([0.0, 0, 1], (2, 1))
+    c = stretch_candidates(pos, nrm, cKDTree(pos), np.array([True, True]), GrowthConfig())
+    assert np.allclose(c, [[1.1, 0, 0]])
+    far = np.array([[0.0, 0, 0], [3.0, 0, 0]])
+    assert len(stretch_candidates(far, nrm, cKDTree(far), np.array([True, True]),
+                                  GrowthConfig())) == 0
+
+
+def _plane_with_hole(hole_radius, spacing=0.5, half=8.0):
+    g = np.arange(-half, half + 1e-9, spacing)
+    xy = np.stack(np.meshgrid(g, g), -1).reshape(-1, 2)
+    xy = xy[np.linalg.norm(xy, axis=1) >= hole_radius]
+    pts = np.column_stack([xy, np.zeros(len(xy))])
+    return DataSurface.build(pts, np.tile([0.0, 0, 1], (len(pts), 1)), k=12)
+
+
+def _accept(surface, cands, particles, cfg=GrowthConfig()):
+    return accept_candidates(cands, cKDTree(particles), surface, cKDTree(surface.points),
+                             surface.points, cfg)
+
+
+def test_candidate_in_small_hole_is_accepted_and_projected():
+    s = _plane_with_hole(1.5)  # hole diameter 3 < max_gap 4
+    particles = s.points[::3]
+    acc = _accept(s, np.array([[0.0, 0.0, 0.3]]), particles)
+    assert len(acc.positions) == 1
+    assert abs(acc.positions[0, 2]) < 1e-9
+
+
+def test_candidate_in_large_hole_is_rejected():
+    s = _plane_with_hole(3.0)  # diameter 6 > max_gap 4
+    acc = _accept(s, np.array([[0.0, 0.0, 0.0]]), s.points[::3])
+    assert len(acc.positions) == 0
+    assert acc.n_unsupported == 1
+
+
+def test_candidate_past_open_boundary_is_rejected():
+    s = _plane_with_hole(0.0)
+    acc = _accept(s, np.array([[9.5, 0.0, 0.0]]), s.points[::3])
+    assert len(acc.positions) == 0
+
+
+def test_candidate_off_the_tangent_plane_is_rejected():
+    s = _plane_with_hole(1.5)
+    acc = _accept(s, np.array([[0.0, 0.0, 1.2]]), s.points[::3])
+    assert len(acc.positions) == 0
+    assert acc.n_off_plane == 1
+
+
+def test_candidates_too_close_to_particles_or_each_other_are_thinned():
+    s = _plane_with_hole(2.0)
+    particles = s.points
+    cands = np.array([[0.0, 0.0, 0.0], [0.3, 0.0, 0.0], [1.99, 0.0, 0.0]])
+    acc = _accept(s, cands, particles)
+    assert len(acc.positions) == 1  # second is too close to the first, third to a particle

@@ -1,0 +1,98 @@
+import numpy as np
+
+from recon.config import TriangulationConfig
+from recon.triangulate import (
+    boundary_loops,
+    circumsphere_triangles,
+    fill_small_holes,
+    orient_faces,
+    remove_non_manifold_faces,
+    triangulate_particles,
+)
+
+
+def _hex_sheet(n=20, hole=0.0):
+    pts = []
+    for i in range(n):
+        for j in range(n):
+            pts.append([j + 0.5 * (i % 2), i * np.sqrt(3) / 2, 0.0])
+    p = np.array(pts)
+    p -= p.mean(axis=0)
+    if hole:
+        p = p[np.linalg.norm(p[:, :2], axis=1) > hole]
+    return p, np.tile([0.0, 0.0, 1.0], (len(p), 1))
+
+
+def _grid_faces(n):
+    f = []
+    for i in range(n - 1):
+        for j in range(n - 1):
+            a, b, c, d = i * n + j, i * n + j + 1, (i + 1) * n + j, (i + 1) * n + j + 1
+            f += [[a, b, d], [a, d, c]]
+    return np.array(f)
+
+
+def test_hex_sheet_ball_pivoting_is_one_manifold_disk():
+    p, n = _hex_sheet()
+    res = triangulate_particles(p, n, TriangulationConfig(), max_hole=4.0)
+    assert len(res.faces) > 600
+    loops = boundary_loops(res.faces)
+    assert len(loops) == 1
+    fn = np.cross(res.vertices[res.faces[:, 1]] - res.vertices[res.faces[:, 0]],
+                  res.vertices[res.faces[:, 2]] - res.vertices[res.faces[:, 0]])
+    assert np.all(fn[:, 2] > 0)  # wound like the normals
+
+
+def test_small_hole_is_filled_large_hole_stays():
+    p, n = _hex_sheet(hole=1.2)
+    small = triangulate_particles(p, n, TriangulationConfig(), max_hole=4.0)
+    assert len(boundary_loops(small.faces)) == 1
+    p, n = _hex_sheet(hole=3.5)
+    large = triangulate_particles(p, n, TriangulationConfig(), max_hole=4.0)
+    assert len(boundary_loops(large.faces)) == 2
+
+
+def test_boundary_loops_of_grid_with_one_missing_face_pair():
+    faces = _grid_faces(5)
+    assert len(boundary_loops(faces)) == 1
+    inner = faces[[i for i in range(len(faces)) if i not in (10, 11)]]
+    loops = boundary_loops(inner)
+    assert sorted(len(lp) for lp in loops) == [4, 16]
+
+
+def test_fill_keeps_orientation_consistent():
+    n = 6
+    faces = _grid_faces(n)
+    xy = np.stack(np.meshgrid(np.arange(n), np.arange(n)), -1).reshape(-1, 2)[:, ::-1]
+    v = np.column_stack([xy, np.zeros(len(xy))]).astype(float)
+    drop = [12, 13, 14, 15]
+    faces = faces[[i for i in range(len(faces)) if i not in drop]]
+    nrm = np.tile([0.0, 0, 1], (len(v), 1))
+    v2, n2, f2, filled = fill_small_holes(v, nrm, faces, max_perimeter=8.0)
+    assert filled == 1
+    assert len(boundary_loops(f2)) == 1
+    # every interior edge is used once in each direction
+    he = f2[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
+    s = {tuple(e) for e in he}
+    assert len(s) == len(he)
+
+
+def test_non_manifold_edge_faces_are_removed():
+    faces = np.array([[0, 1, 2], [1, 0, 3], [0, 1, 4], [0, 1, 2]])
+    out = remove_non_manifold_faces(faces, 5)
+    assert out.tolist() == [[0, 1, 2], [1, 0, 3]]
+
+
+def test_orient_faces_follows_normals():
+    v = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]])
+    f = np.array([[0, 2, 1]])
+    out = orient_faces(v, np.tile([0.0, 0, 1], (3, 1)), f)
+    assert out.tolist() == [[0, 1, 2]]
+
+
+def test_circumsphere_test_on_hex_sheet_gives_equilateral_triangles():
+    p, n = _hex_sheet(8)
+    f = circumsphere_triangles(p, n, radius=1.5)
+    assert len(f) > 50
+    e = np.linalg.norm(p[f] - p[np.roll(f, 1, axis=1)], axis=2)
+    assert np.allclose(e, 1.0, atol=1e-9)
