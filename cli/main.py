@@ -34,9 +34,9 @@ def app(ctx: click.Context, debug: bool) -> None:
 
 
 def _register() -> None:
-    from . import config_cmd, info, normals
+    from . import batch, compare, config_cmd, info, normals, report
 
-    for module in (info, normals, config_cmd):
+    for module in (info, normals, compare, report, config_cmd, batch):
         app.add_command(module.command)
 
 

@@ -68,7 +68,7 @@ class SeedsConfig:
     spacing_relative: float | None = _f(None, "Rest spacing r0 as a fraction of the bounding-box "
                                         "diagonal; null = derived from the data.",
                                         0.0, 1.0, lo_open=True)
-    spacing_factor: float = _f(1.5, "r0 = spacing_factor x median nearest-neighbour distance "
+    spacing_factor: float = _f(2.5, "r0 = spacing_factor x median nearest-neighbour distance "
                                "of the input (used when spacing and spacing_relative are null).",
                                0.1, 100.0)
     thinning: float = _f(1.0, "Seeds are Poisson-disk thinned to this distance [r0].", 0.3, 5.0)
@@ -91,7 +91,7 @@ class DynamicsConfig:
                      0.0, 5.0, lo_open=True)
     relax_steps: int = _f(15, "Relaxation steps after each growth round.", 1, 10_000)
     release_steps: int = _f(100, "Steps after the seeds are released (smoothing).", 0, 100_000)
-    fidelity: float = _f(1.0, "Point-to-plane pull toward the data (0 = pure smoothing).",
+    fidelity: float = _f(5.0, "Point-to-plane pull toward the data (0 = pure smoothing).",
                          0.0, 100.0)
     fidelity_normal: float = _f(0.5, "Torque aligning particle normals with data normals.",
                                 0.0, 100.0)
@@ -149,7 +149,10 @@ class TriangulationConfig:
     fill_holes: bool = _f(True, "Fill holes whose perimeter is below pi * max_hole.")
     max_hole: float | None = _f(None, "Largest hole diameter to fill [r0]; null = growth.max_gap.",
                                 0.0, None)
-    trim_distance: float = _f(1.0, "Drop particles farther than this from the data [r0].",
+    project_to_data: bool = _f(True, "Move the final particles onto the local data surface "
+                               "(quadric fit) along its normal before meshing.")
+    trim_distance: float = _f(1.0, "Drop particles farther than this from the local data plane, "
+                              "or farther than max_gap/2 from any data point [r0].",
                               0.0, None, lo_open=True)
 
 

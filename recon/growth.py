@@ -196,10 +196,8 @@ def accept_candidates(candidates: np.ndarray, particle_tree: cKDTree, surface: D
     d_data, nearest = surface.nearest(c)
     supported = d_data <= 0.5 * cfg.max_gap
     n_unsup = int((~supported).sum())
-    c, nearest, d_data = c[supported], nearest[supported], d_data[supported]
-    pp = surface.plane_points[nearest]
-    pn = surface.plane_normals[nearest]
-    off = np.einsum("ij,ij->i", c - pp, pn)
+    c, d_data = c[supported], d_data[supported]
+    _, pn, off = surface.project(c)
     on_plane = np.abs(off) < cfg.tangent_tolerance
     n_off = int((~on_plane).sum())
     c, pn, off, d_data = c[on_plane], pn[on_plane], off[on_plane], d_data[on_plane]

@@ -9,8 +9,10 @@ the particle stages ask of the data:
   ``max_gap``) and on its tangent plane (DESIGN §4.4: without that test growth runs away);
 * which fraction of the input points is covered by the particle sheet.
 
-Local planes are fitted once per data point by PCA over its k nearest neighbours (the centroid
-and the smallest principal direction, oriented like the data normal), which averages sensor
+Local surfaces are fitted once per data point: a PCA frame over its k nearest neighbours
+(centroid, smallest principal direction oriented like the data normal) and a quadric height
+field over that frame, in the manner of moving least squares [L98]. The quadric removes the
+inward bias a plane through the centroid has on curved surfaces, and the fit averages sensor
 noise instead of pulling particles onto individual noisy samples.
 
 References
@@ -18,6 +20,8 @@ References
 [ST92] Szeliski & Tonnesen 1992, §7 (fitting to data, growth bounded by data).
 [H92]  Hoppe, DeRose, Duchamp, McDonald, Stuetzle. "Surface reconstruction from unorganized
        points". SIGGRAPH 1992 (tangent planes by PCA of k nearest neighbours).
+[L98]  D. Levin. "The approximation power of moving least-squares". Math. Comp. 67, 1998
+       (local polynomial fits over a reference plane, the basis of MLS surfaces).
 """
 
 from __future__ import annotations
@@ -41,14 +45,21 @@ class DataSurface:
         Centroid of each point's k nearest neighbours (a point on the local plane).
     plane_normals : (n, 3) float64
         Unit normal of the local PCA plane, oriented like ``normals``.
+    tangents : (n, 3) float64
+        First tangent direction of the local frame (the second is ``normal x tangent``).
+    quadrics : (n, 6) float64
+        Height field h(x, y) = c0 + c1 x + c2 y + c3 x^2 + c4 x y + c5 y^2 over the local
+        frame, least-squares fitted to the neighbourhood: the curved local surface.
     noise : float [r0]
-        Median RMS residual of the local planes (a noise-level estimate).
+        Median RMS residual of the local quadrics (a noise-level estimate).
     """
 
     points: np.ndarray
     normals: np.ndarray
     plane_points: np.ndarray
     plane_normals: np.ndarray
+    tangents: np.ndarray
+    quadrics: np.ndarray
     noise: float
     tree: cKDTree
 
@@ -60,8 +71,8 @@ class DataSurface:
         tree = cKDTree(points)
         k = int(min(max(k, 3), len(points)))
         _, idx = tree.query(points, k=k, workers=-1)
-        plane_points, plane_normals, residual = fit_local_planes(points, normals, idx)
-        return cls(points, normals, plane_points, plane_normals, float(np.median(residual)), tree)
+        pp, pn, tangents, quadrics, residual = fit_local_quadrics(points, normals, idx)
+        return cls(points, normals, pp, pn, tangents, quadrics, float(np.median(residual)), tree)
 
     @property
     def n_points(self) -> int:
@@ -73,14 +84,22 @@ class DataSurface:
         return dist, idx
 
     def anchors(self, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Local data plane nearest to each position: (plane point, plane normal, distance)."""
+        """Foot point and normal on the local surface nearest to each position, and the
+        distance to the nearest data point [r0].
+
+        The local surface is the quadric height field of the nearest data point; the foot point
+        is the vertical projection in its frame, and the normal is the quadric's normal there
+        (so a point-to-plane pull toward (foot, normal) pulls onto the curved surface).
+        """
         dist, idx = self.nearest(positions)
-        return self.plane_points[idx], self.plane_normals[idx], dist
+        foot, nrm = _quadric_foot(positions, self.plane_points[idx], self.plane_normals[idx],
+                                  self.tangents[idx], self.quadrics[idx])
+        return foot, nrm, dist
 
     def project(self, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Project positions onto their nearest local data plane.
+        """Project positions onto the local data surface.
 
-        Returns the projected positions, the plane normals, and the signed offset along the
+        Returns the projected positions, the surface normals, and the signed offset along the
         normal before projection [r0].
         """
         p, n, _ = self.anchors(positions)
@@ -88,8 +107,25 @@ class DataSurface:
         return positions - offset[:, None] * n, n, offset
 
 
+def _quadric_foot(q: np.ndarray, c: np.ndarray, n: np.ndarray, u: np.ndarray,
+                  a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Foot points and normals of query points ``q`` on local quadric height fields."""
+    v = np.cross(n, u)
+    d = q - c
+    x = np.einsum("ij,ij->i", d, u)
+    y = np.einsum("ij,ij->i", d, v)
+    h = a[:, 0] + a[:, 1] * x + a[:, 2] * y + a[:, 3] * x * x + a[:, 4] * x * y + a[:, 5] * y * y
+    hx = a[:, 1] + 2 * a[:, 3] * x + a[:, 4] * y
+    hy = a[:, 2] + a[:, 4] * x + 2 * a[:, 5] * y
+    foot = c + x[:, None] * u + y[:, None] * v + h[:, None] * n
+    nrm = n - hx[:, None] * u - hy[:, None] * v
+    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+    return foot, nrm
+
+
 @nb.njit(cache=True)
-def _fit_planes_kernel(points, normals, idx, out_p, out_n, out_r):  # pragma: no cover - numba
+def _fit_quadrics_kernel(points, normals, idx, out_p, out_n, out_u, out_a,
+                         out_r):  # pragma: no cover - numba
     n, k = idx.shape
     for i in range(n):
         c = np.zeros(3)
@@ -99,28 +135,71 @@ def _fit_planes_kernel(points, normals, idx, out_p, out_n, out_r):  # pragma: no
         cov = np.zeros((3, 3))
         for a in range(k):
             d = points[idx[i, a]] - c
-            for u in range(3):
-                for v in range(3):
-                    cov[u, v] += d[u] * d[v]
+            for r in range(3):
+                for s in range(3):
+                    cov[r, s] += d[r] * d[s]
         cov /= k
         w, vec = np.linalg.eigh(cov)
-        nn = vec[:, 0]
+        nn = vec[:, 0].copy()
         if nn[0] * normals[i, 0] + nn[1] * normals[i, 1] + nn[2] * normals[i, 2] < 0.0:
             nn = -nn
+        u = vec[:, 2].copy()
+        v = np.cross(nn, u)
+        # least squares height field over the frame (c; u, v, nn)
+        ata = np.zeros((6, 6))
+        atb = np.zeros(6)
+        row = np.zeros(6)
+        scale = max(np.sqrt(w[2]), 1e-12)
+        for a in range(k):
+            d = points[idx[i, a]] - c
+            x = (d[0] * u[0] + d[1] * u[1] + d[2] * u[2]) / scale
+            y = (d[0] * v[0] + d[1] * v[1] + d[2] * v[2]) / scale
+            z = d[0] * nn[0] + d[1] * nn[1] + d[2] * nn[2]
+            row[0] = 1.0
+            row[1] = x
+            row[2] = y
+            row[3] = x * x
+            row[4] = x * y
+            row[5] = y * y
+            for r in range(6):
+                atb[r] += row[r] * z
+                for s in range(6):
+                    ata[r, s] += row[r] * row[s]
+        ridge = 1e-6 * (ata[0, 0] + 1e-12)
+        for r in range(6):
+            ata[r, r] += ridge
+        coef = np.linalg.solve(ata, atb)
+        # undo the scaling of x, y
+        coef[1] /= scale
+        coef[2] /= scale
+        coef[3] /= scale * scale
+        coef[4] /= scale * scale
+        coef[5] /= scale * scale
+        res = 0.0
+        for a in range(k):
+            d = points[idx[i, a]] - c
+            x = d[0] * u[0] + d[1] * u[1] + d[2] * u[2]
+            y = d[0] * v[0] + d[1] * v[1] + d[2] * v[2]
+            z = d[0] * nn[0] + d[1] * nn[1] + d[2] * nn[2]
+            h = coef[0] + coef[1] * x + coef[2] * y + coef[3] * x * x + coef[4] * x * y \
+                + coef[5] * y * y
+            res += (z - h) ** 2
         out_p[i] = c
         out_n[i] = nn
-        out_r[i] = np.sqrt(max(w[0], 0.0))
+        out_u[i] = u
+        out_a[i] = coef
+        out_r[i] = np.sqrt(res / k)
 
 
-def fit_local_planes(points: np.ndarray, normals: np.ndarray,
-                     neighbor_idx: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """PCA plane of each point's neighbourhood [H92].
+def fit_local_quadrics(points: np.ndarray, normals: np.ndarray, neighbor_idx: np.ndarray
+                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """PCA frame and quadric height field of each point's neighbourhood [H92, L98].
 
     Parameters
     ----------
     points : (n, 3) float64
     normals : (n, 3) float64
-        Orientation reference: each plane normal is flipped to agree with it.
+        Orientation reference: each frame normal is flipped to agree with it.
     neighbor_idx : (n, k) int
         Indices of each point's k nearest neighbours (itself included).
 
@@ -128,17 +207,17 @@ def fit_local_planes(points: np.ndarray, normals: np.ndarray,
     -------
     centroids : (n, 3) float64
     plane_normals : (n, 3) float64
+    tangents : (n, 3) float64
+    quadrics : (n, 6) float64
+        Coefficients of h(x, y) = c0 + c1 x + c2 y + c3 x^2 + c4 x y + c5 y^2.
     residuals : (n,) float64
-        RMS distance of the neighbourhood to its plane (square root of the smallest
-        eigenvalue of the covariance).
+        RMS distance of the neighbourhood to its quadric: a noise level.
     """
     n = len(points)
-    out_p = np.zeros((n, 3))
-    out_n = np.zeros((n, 3))
-    out_r = np.zeros(n)
-    _fit_planes_kernel(points, normals, np.ascontiguousarray(neighbor_idx, dtype=np.int64),
-                       out_p, out_n, out_r)
-    return out_p, out_n, out_r
+    out = (np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 6)), np.zeros(n))
+    _fit_quadrics_kernel(points, normals, np.ascontiguousarray(neighbor_idx, dtype=np.int64),
+                         *out)
+    return out
 
 
 @nb.njit(cache=True)

@@ -22,6 +22,7 @@ References
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numba as nb
@@ -44,8 +45,16 @@ class TriangulationResult:
     stats: dict = field(default_factory=dict)
 
 
+#: Loops whose interior holds data are triangulation gaps: closed up to this many times the
+#: ``max_hole`` perimeter.
+COVERED_HOLE_FACTOR = 3.0
+
+
 def triangulate_particles(positions: np.ndarray, normals: np.ndarray, cfg: TriangulationConfig,
-                          max_hole: float) -> TriangulationResult:
+                          max_hole: float,
+                          is_covered: Callable[[np.ndarray], np.ndarray] | None = None,
+                          project: Callable[[np.ndarray], np.ndarray] | None = None,
+                          ) -> TriangulationResult:
     """Mesh the particles (normalised units, r0 = 1).
 
     Parameters
@@ -55,6 +64,11 @@ def triangulate_particles(positions: np.ndarray, normals: np.ndarray, cfg: Trian
     cfg : TriangulationConfig
     max_hole : float [r0]
         Diameter of the largest hole to fill (loops with perimeter <= pi * max_hole).
+    is_covered : callable, optional
+        ``centres (m, 3) -> (m,) bool``: does data lie at these hole centres? Loops over data
+        are closed up to ``COVERED_HOLE_FACTOR`` times the ``max_hole`` perimeter.
+    project : callable, optional
+        ``points (m, 3) -> (m, 3)``: moves vertices added by hole filling onto the data.
     """
     positions = np.ascontiguousarray(positions, dtype=np.float64)
     normals = np.ascontiguousarray(normals, dtype=np.float64)
@@ -68,12 +82,17 @@ def triangulate_particles(positions: np.ndarray, normals: np.ndarray, cfg: Trian
     stats: dict = {"method": cfg.method, "faces_raw": int(len(faces))}
     faces = orient_faces(positions, normals, faces)
     faces = remove_non_manifold_faces(faces, len(positions))
+    faces = faces[~non_manifold_vertex_faces(faces, len(positions))]
     stats["faces_manifold"] = int(len(faces))
     vertices, vnormals = positions, normals
     if cfg.fill_holes and len(faces):
-        vertices, vnormals, faces, n_filled = fill_small_holes(vertices, vnormals, faces,
-                                                               np.pi * max_hole)
+        vertices, vnormals, faces, n_filled = fill_small_holes(
+            vertices, vnormals, faces, np.pi * max_hole, is_covered,
+            COVERED_HOLE_FACTOR * np.pi * max_hole)
         stats["holes_filled"] = n_filled
+        if project is not None and len(vertices) > len(positions):
+            vertices = vertices.copy()
+            vertices[len(positions):] = project(vertices[len(positions):])
     faces, n_small = remove_small_components(faces, len(vertices))
     stats["small_components_removed"] = n_small
     vertices, vnormals, faces = drop_unreferenced(vertices, vnormals, faces)
@@ -222,6 +241,57 @@ def remove_non_manifold_faces(faces: np.ndarray, n_vertices: int) -> np.ndarray:
     return faces
 
 
+def non_manifold_vertex_faces(faces: np.ndarray, n_vertices: int) -> np.ndarray:
+    """Faces to drop so that every vertex keeps a single fan (its largest one).
+
+    Expects no non-manifold edges. A vertex with several fans of faces (a "bow-tie") is
+    found by counting: around a manifold vertex the number of distinct incident edges exceeds
+    the number of incident faces by at most one. Returns a boolean mask over faces.
+    """
+    drop = np.zeros(len(faces), dtype=bool)
+    if len(faces) == 0:
+        return drop
+    n_faces_at = np.bincount(faces.reshape(-1), minlength=n_vertices)
+    e = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+    e = np.unique(e, axis=0)
+    n_edges_at = np.bincount(e.reshape(-1), minlength=n_vertices)
+    suspects = np.flatnonzero(n_edges_at - n_faces_at >= 2)
+    if len(suspects) == 0:
+        return drop
+    vf_order = np.argsort(faces.reshape(-1), kind="stable")
+    vf_face = vf_order // 3
+    starts = np.searchsorted(faces.reshape(-1)[vf_order], np.arange(n_vertices + 1))
+    for v in suspects:
+        inc = vf_face[starts[v]:starts[v + 1]]
+        inc = inc[~drop[inc]]
+        parent = {int(f): int(f) for f in inc}
+
+        def root(x: int) -> int:
+            while parent[x] != x:
+                parent[x] = parent[parent[x]]
+                x = parent[x]
+            return x
+
+        by_other: dict[int, int] = {}
+        for f in inc:
+            for w in faces[f]:
+                if w == v:
+                    continue
+                if int(w) in by_other:
+                    a, b = root(int(f)), root(by_other[int(w)])
+                    if a != b:
+                        parent[max(a, b)] = min(a, b)
+                else:
+                    by_other[int(w)] = int(f)
+        roots = np.array([root(int(f)) for f in inc])
+        labels, counts = np.unique(roots, return_counts=True)
+        if len(labels) < 2:
+            continue
+        keep = labels[np.argmax(counts)]
+        drop[inc[roots != keep]] = True
+    return drop
+
+
 def boundary_loops(faces: np.ndarray) -> list[np.ndarray]:
     """Simple boundary loops as vertex sequences in face winding order.
 
@@ -261,13 +331,17 @@ def boundary_loops(faces: np.ndarray) -> list[np.ndarray]:
 
 
 def fill_small_holes(vertices: np.ndarray, normals: np.ndarray, faces: np.ndarray,
-                     max_perimeter: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+                     max_perimeter: float,
+                     is_covered: Callable[[np.ndarray], np.ndarray] | None = None,
+                     covered_max_perimeter: float | None = None,
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
     """Close boundary loops whose perimeter is at most ``max_perimeter``.
 
-    Triangles and quads are closed directly (a quad by its shorter diagonal); longer loops by
-    a fan around a new vertex at the loop's centroid, nudged onto the mean plane of the ring.
-    The new faces are wound opposite to the boundary half-edges, so orientation stays
-    consistent.
+    With ``is_covered`` (centroids (m, 3) -> bool (m,)), loops up to ``covered_max_perimeter``
+    whose interior holds data are closed too: they are gaps of the triangulation, not holes of
+    the surface. Triangles and quads are closed directly (a quad by its shorter diagonal);
+    longer loops by a fan around a new vertex at the loop's centroid. The new faces are wound
+    opposite to the boundary half-edges, so orientation stays consistent.
     """
     loops = boundary_loops(faces)
     new_faces = []
@@ -275,10 +349,17 @@ def fill_small_holes(vertices: np.ndarray, normals: np.ndarray, faces: np.ndarra
     new_normals = []
     n_v = len(vertices)
     filled = 0
-    for loop in loops:
+    perims = np.array([np.linalg.norm(vertices[lp] - vertices[np.roll(lp, -1)], axis=1).sum()
+                       for lp in loops])
+    fill = perims <= max_perimeter
+    if is_covered is not None and covered_max_perimeter is not None and len(loops):
+        cand = np.flatnonzero(~fill & (perims <= covered_max_perimeter))
+        if len(cand):
+            centers = np.array([vertices[loops[i]].mean(axis=0) for i in cand])
+            fill[cand[is_covered(centers)]] = True
+    for loop, do_fill in zip(loops, fill):
         ring = vertices[loop]
-        perim = np.linalg.norm(ring - np.roll(ring, -1, axis=0), axis=1).sum()
-        if perim > max_perimeter or len(loop) < 3:
+        if not do_fill or len(loop) < 3:
             continue
         filled += 1
         rev = loop[::-1]

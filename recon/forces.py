@@ -1,0 +1,319 @@
+r"""Parameters to kernel coefficients; force, torque and energy evaluation without integration.
+
+:func:`pack_coefficients` turns :class:`recon.dynamics.PhysicsParams` (absolute units) into the
+flat tuple the kernels read. :func:`accumulate_forces` evaluates the forces, torques and energy of
+a whole state (used by tests and diagnostics; the simulation itself uses the fused step in
+:mod:`recon.integrate`). :func:`evaluate_pair` exposes the per-pair kernel with the force and
+torque on both particles.
+
+Energy (DESIGN §1, S&T92 eqs. 3–5 and 7, T-thesis 4.11–4.17), summed over unordered pairs with
+d < r_c, plus anchors (see :mod:`recon.kernels.anchor`):
+
+.. math::
+
+    E = \sum_{i<j} \bigl[\alpha_{LJ}\phi_\mathrm{sf} + \alpha_P E^P_{ij}
+        + \alpha_N E^N_{ij} + \alpha_C E^C_{ij}\bigr] + \sum_i E^A_i
+
+Forces are f = −∂E/∂x [1/length] and torques τ = −∂E/∂θ (δn = δθ × n) [dimensionless].
+
+References
+----------
+.. [ST92] R. Szeliski, D. Tonnesen. "Surface Modeling with Oriented Particle Systems".
+   SIGGRAPH '92, §4, eqs. 3–7, Appendix A.
+.. [T00] D. Tonnesen. PhD thesis, chapter 4, eqs. 4.11–4.19.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from .kernels import pair_loop as _pl
+from .kernels.lennard_jones import calibrate_lj_minimum, lj_cutoff_values
+from .kernels.weights import WEIGHT_ANISOTROPIC
+from .neighbors import PARALLEL_MIN_PARTICLES, build_neighbor_list
+
+if TYPE_CHECKING:
+    from .dynamics import PhysicsParams
+    from .state import ParticleState
+
+_EMPTY3 = np.zeros((0, 3))
+
+
+@functools.lru_cache(maxsize=64)
+def _lj_minimum_ratio(cutoff_ratio: float) -> float:
+    return calibrate_lj_minimum(1.0, cutoff_ratio)
+
+
+def lj_minimum(params: PhysicsParams) -> float:
+    """σ of the 4-2 potential: ``params.lj_minimum`` or the hexagonal-lattice calibration.
+
+    Parameters
+    ----------
+    params : PhysicsParams
+
+    Returns
+    -------
+    float
+        σ [length] (≈ 1.010 · spacing for cutoff = 2 · spacing).
+    """
+    if params.lj_minimum is not None:
+        return float(params.lj_minimum)
+    return params.spacing * _lj_minimum_ratio(params.cutoff / params.spacing)
+
+
+@dataclass(frozen=True)
+class Anchors:
+    """Per-particle anchors for the point-to-plane data pull (:mod:`recon.kernels.anchor`).
+
+    Attributes
+    ----------
+    points : (n, 3) float64
+        Anchor points a_i [length].
+    normals : (n, 3) float64
+        Unit anchor normals m_i.
+    stiffness : float
+        k_d [dimensionless energy per r0²].
+    normal_stiffness : float
+        k_n [dimensionless].
+    """
+
+    points: np.ndarray
+    normals: np.ndarray
+    stiffness: float
+    normal_stiffness: float
+
+    @classmethod
+    def create(
+        cls, points, normals, n: int, stiffness: float, normal_stiffness: float
+    ) -> Anchors:
+        """Validate shapes and values, normalise the normals, copy the arrays."""
+        for name, value in (("stiffness", stiffness), ("normal_stiffness", normal_stiffness)):
+            if not (math.isfinite(value) and value >= 0.0):
+                raise ValueError(f"{name}: expected a finite number >= 0, got {value}")
+        p = np.array(points, dtype=np.float64, order="C", copy=True)
+        m = np.array(normals, dtype=np.float64, order="C", copy=True)
+        for name, arr in (("points", p), ("normals", m)):
+            if arr.shape != (n, 3):
+                raise ValueError(f"anchor {name}: expected shape ({n}, 3), got {arr.shape}")
+            if not np.all(np.isfinite(arr)):
+                raise ValueError(f"anchor {name}: contains non-finite values")
+        length = np.linalg.norm(m, axis=1)
+        if np.any(length == 0.0):
+            first = int(np.flatnonzero(length == 0.0)[0])
+            raise ValueError(f"anchor normals: row {first} has zero length")
+        m /= length[:, None]
+        return cls(p, m, float(stiffness), float(normal_stiffness))
+
+
+def pack_coefficients(
+    params: PhysicsParams,
+    *,
+    anchors: Anchors | None = None,
+    has_external_force: bool = False,
+) -> tuple[float, ...]:
+    """The flat coefficient tuple read by :mod:`recon.kernels.pair_loop`.
+
+    Parameters
+    ----------
+    params : PhysicsParams
+        Physical parameters in absolute units.
+    anchors : Anchors, optional
+        Enables the anchor term with its stiffnesses.
+    has_external_force : bool
+        Enables the per-particle external force.
+
+    Returns
+    -------
+    tuple of ``N_COEFFICIENTS`` floats
+    """
+    c = [0.0] * _pl.N_COEFFICIENTS
+    sigma = lj_minimum(params)
+    phi_c, dphi_c = lj_cutoff_values(sigma, params.cutoff)
+    c[_pl.C_SPACING] = params.spacing
+    c[_pl.C_INV_SPACING2] = 1.0 / params.spacing**2
+    c[_pl.C_CUTOFF] = params.cutoff
+    c[_pl.C_CUTOFF2] = params.cutoff**2
+    c[_pl.C_INV_CUTOFF2] = 1.0 / params.cutoff**2
+    c[_pl.C_LJ_SIGMA2] = sigma * sigma
+    c[_pl.C_LJ_PHI_CUTOFF] = phi_c
+    c[_pl.C_LJ_DPHI_CUTOFF] = dphi_c
+    c[_pl.C_W_LJ] = params.w_lj
+    c[_pl.C_W_PLANARITY] = params.w_planarity
+    c[_pl.C_W_NORMALITY] = params.w_normality
+    c[_pl.C_W_CIRCULARITY] = params.w_circularity
+    c[_pl.C_INV_2SIGMA2] = 1.0 / (2.0 * params.influence_radius**2)
+    c[_pl.C_KAPPA] = params.anisotropy**2 - 1.0 if params.weighting == WEIGHT_ANISOTROPIC else 0.0
+    c[_pl.C_DT] = params.dt
+    c[_pl.C_DAMPING_LINEAR] = params.damping_linear
+    c[_pl.C_DAMPING_RELATIVE_LINEAR] = params.damping_relative_linear
+    c[_pl.C_DAMPING_ANGULAR] = params.damping_angular
+    c[_pl.C_DAMPING_RELATIVE_ANGULAR] = params.damping_relative_angular
+    c[_pl.C_MAX_DISPLACEMENT] = params.max_displacement
+    c[_pl.C_MAX_ROTATION] = params.max_rotation
+    if anchors is not None:
+        c[_pl.C_ANCHOR_STIFFNESS] = anchors.stiffness
+        c[_pl.C_ANCHOR_NORMAL_STIFFNESS] = anchors.normal_stiffness
+        c[_pl.C_HAS_ANCHORS] = 1.0
+    c[_pl.C_HAS_EXTERNAL_FORCE] = 1.0 if has_external_force else 0.0
+    return tuple(float(v) for v in c)
+
+
+def kernel_extras(
+    anchors: Anchors | None, external_force: np.ndarray | None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The ``extras`` tuple of the kernels: anchor points, anchor normals, external force."""
+    if anchors is None:
+        a, m = _EMPTY3, _EMPTY3
+    else:
+        a, m = anchors.points, anchors.normals
+    f = _EMPTY3 if external_force is None else external_force
+    return a, m, f
+
+
+@dataclass(frozen=True)
+class Forces:
+    """Forces, torques and energy of a state.
+
+    Attributes
+    ----------
+    force : (n, 3) float64
+        f_i = −∂E/∂x_i plus any external force [1/length].
+    torque : (n, 3) float64
+        τ_i = −∂E/∂θ_i [dimensionless]; zero for unoriented particles.
+    energy : float
+        Total potential energy E [dimensionless].
+    energy_per_particle : (n,) float64
+        ½ Σ_j E_ij + E^A_i; sums to ``energy``.
+    """
+
+    force: np.ndarray
+    torque: np.ndarray
+    energy: float
+    energy_per_particle: np.ndarray
+
+
+def accumulate_forces(
+    state: ParticleState,
+    params: PhysicsParams,
+    *,
+    neighbors: tuple[np.ndarray, np.ndarray] | None = None,
+    anchors: Anchors | None = None,
+    external_force: np.ndarray | None = None,
+    parallel: bool | None = None,
+) -> Forces:
+    """Evaluate forces, torques and energy of ``state`` (no integration).
+
+    Parameters
+    ----------
+    state : ParticleState
+    params : PhysicsParams
+    neighbors : (offsets, indices), optional
+        A full CSR list with radius ≥ ``params.cutoff``; built here when omitted.
+    anchors : Anchors, optional
+        Anchor term (:mod:`recon.kernels.anchor`).
+    external_force : (n, 3) float64, optional
+        Added to the force (not to the energy).
+    parallel : bool, optional
+        Threaded kernel; default when n ≥ ``PARALLEL_MIN_PARTICLES``.
+
+    Returns
+    -------
+    Forces
+    """
+    n = state.n
+    position = np.ascontiguousarray(state.position)
+    if neighbors is None:
+        neighbors = build_neighbor_list(position, params.cutoff)
+    offsets, indices = neighbors
+    if offsets.shape != (n + 1,):
+        raise ValueError(f"neighbors: expected {n + 1} offsets, got {offsets.shape[0]}")
+    ext = None
+    if external_force is not None:
+        ext = np.ascontiguousarray(external_force, dtype=np.float64)
+        if ext.shape != (n, 3):
+            raise ValueError(f"external_force: expected shape ({n}, 3), got {ext.shape}")
+    if anchors is not None and anchors.points.shape[0] != n:
+        raise ValueError(f"anchors: expected {n} rows, got {anchors.points.shape[0]}")
+    coef = pack_coefficients(params, anchors=anchors, has_external_force=ext is not None)
+    force = np.zeros((n, 3))
+    torque = np.zeros((n, 3))
+    energy = np.zeros(n)
+    if parallel is None:
+        parallel = n >= PARALLEL_MIN_PARTICLES
+    kernel = _pl.accumulate_forces_parallel if parallel else _pl.accumulate_forces_serial
+    kernel(
+        coef,
+        int(params.weighting),
+        position,
+        np.ascontiguousarray(state.orientation),
+        np.ascontiguousarray(state.is_oriented),
+        offsets,
+        indices,
+        kernel_extras(anchors, ext),
+        (force, torque, energy),
+    )
+    return Forces(force, torque, float(np.sum(energy)), energy)
+
+
+@dataclass(frozen=True)
+class PairInteraction:
+    """Energy, forces and torques of one pair (:func:`evaluate_pair`).
+
+    Attributes
+    ----------
+    energy : float
+        E_ij [dimensionless].
+    force_i, force_j : (3,) float64
+        −∂E/∂x_i and −∂E/∂x_j = −force_i [1/length].
+    torque_i, torque_j : (3,) float64
+        −∂E/∂θ_i and −∂E/∂θ_j [dimensionless].
+    """
+
+    energy: float
+    force_i: np.ndarray
+    force_j: np.ndarray
+    torque_i: np.ndarray
+    torque_j: np.ndarray
+
+
+def evaluate_pair(
+    position_i: np.ndarray,
+    position_j: np.ndarray,
+    normal_i: np.ndarray,
+    normal_j: np.ndarray,
+    params: PhysicsParams,
+    *,
+    oriented: bool = True,
+) -> PairInteraction:
+    """The pair kernel :func:`recon.kernels.pair_loop.pair_interaction` for one pair.
+
+    Parameters
+    ----------
+    position_i, position_j : (3,) float64
+        Positions [length].
+    normal_i, normal_j : (3,) float64
+        Unit normals.
+    params : PhysicsParams
+        Weights select the terms (set the others to 0 to isolate one potential).
+    oriented : bool
+        Both particles oriented (False: spacing only).
+
+    Returns
+    -------
+    PairInteraction
+    """
+    coef = pack_coefficients(params)
+    r = np.asarray(position_j, dtype=np.float64) - np.asarray(position_i, dtype=np.float64)
+    ni = np.asarray(normal_i, dtype=np.float64)
+    nj = np.asarray(normal_j, dtype=np.float64)
+    t = _pl.pair_interaction(
+        r[0], r[1], r[2], ni[0], ni[1], ni[2], nj[0], nj[1], nj[2], bool(oriented), coef,
+        int(params.weighting),
+    )
+    f = np.array(t[1:4])
+    return PairInteraction(float(t[0]), f, -f, np.array(t[4:7]), np.array(t[7:10]))

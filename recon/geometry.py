@@ -1,0 +1,149 @@
+"""Small geometric helpers shared by the stages: sizes, spacing, best-fit planes.
+
+References
+----------
+[Hoppe92] H. Hoppe, T. DeRose, T. Duchamp, J. McDonald, W. Stuetzle. "Surface reconstruction
+          from unorganized points". SIGGRAPH '92, Computer Graphics 26(2):71-78, 1992
+          (tangent planes by PCA of k nearest neighbours, section 3.2).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+__all__ = [
+    "as_points",
+    "bbox_diagonal",
+    "fit_plane",
+    "median_nearest_neighbor_distance",
+    "unit_vectors",
+]
+
+
+def as_points(points: np.ndarray, name: str = "points") -> np.ndarray:
+    """Check and convert an array of 3-D points.
+
+    Parameters
+    ----------
+    points : array_like, (n, 3)
+    name : str
+        Used in the error message.
+
+    Returns
+    -------
+    (n, 3) float64, C-contiguous
+
+    Raises
+    ------
+    ValueError
+        Wrong shape (the message gives expected and received shapes).
+    """
+    arr = np.ascontiguousarray(points, dtype=np.float64)
+    if arr.ndim != 2 or arr.shape[1] != 3:
+        raise ValueError(f"{name}: expected shape (n, 3), got {arr.shape}")
+    return arr
+
+
+def bbox_diagonal(points: np.ndarray) -> float:
+    """Length of the diagonal of the axis-aligned bounding box.
+
+    Parameters
+    ----------
+    points : (n, 3) float64 [length]
+
+    Returns
+    -------
+    float [length]
+        0.0 for an empty array.
+
+    Examples
+    --------
+    >>> bbox_diagonal(np.array([[0.0, 0.0, 0.0], [3.0, 4.0, 0.0]]))
+    5.0
+    """
+    pts = as_points(points)
+    if pts.shape[0] == 0:
+        return 0.0
+    return float(np.linalg.norm(pts.max(axis=0) - pts.min(axis=0)))
+
+
+def median_nearest_neighbor_distance(
+    points: np.ndarray,
+    sample: int | None = 20000,
+    rng: np.random.Generator | None = None,
+) -> float:
+    """Median distance from a point to its nearest other point (the data spacing).
+
+    Parameters
+    ----------
+    points : (n, 3) float64 [length]
+        At least 2 points.
+    sample : int or None
+        Query at most this many points (the tree always holds all of them); None = all.
+    rng : numpy.random.Generator, optional
+        Chooses the sample. Default: a generator seeded with 0, so the result is
+        deterministic.
+
+    Returns
+    -------
+    float [length]
+        Exactly repeated points count with distance 0.
+
+    Examples
+    --------
+    >>> grid = np.stack(np.meshgrid(np.arange(4.0), np.arange(4.0), [0.0]), -1).reshape(-1, 3)
+    >>> median_nearest_neighbor_distance(grid)
+    1.0
+    """
+    pts = as_points(points)
+    n = pts.shape[0]
+    if n < 2:
+        raise ValueError(f"points: need at least 2 points for a spacing, got {n}")
+    tree = cKDTree(pts)
+    if sample is not None and n > sample:
+        gen = rng if rng is not None else np.random.default_rng(0)
+        query = pts[np.sort(gen.choice(n, size=sample, replace=False))]
+    else:
+        query = pts
+    dist, _ = tree.query(query, k=2, workers=-1)
+    return float(np.median(dist[:, 1]))
+
+
+def fit_plane(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Least-squares plane through points (principal component analysis).
+
+    Parameters
+    ----------
+    points : (n, 3) float64 [length]
+
+    Returns
+    -------
+    centroid : (3,) float64 [length]
+    normal : (3,) float64
+        Unit direction of least variance (sign arbitrary).
+    singular_values : (3,) float64 [length]
+        Of the centred points, descending; ``singular_values[2]`` is 0 for planar input.
+    """
+    pts = as_points(points)
+    centroid = pts.mean(axis=0)
+    _, s, vt = np.linalg.svd(pts - centroid, full_matrices=True)
+    sv = np.zeros(3)
+    sv[: s.size] = s
+    return centroid, vt[2], sv
+
+
+def unit_vectors(vectors: np.ndarray) -> np.ndarray:
+    """Rows scaled to unit length; zero rows stay zero.
+
+    Parameters
+    ----------
+    vectors : (n, 3) float64
+
+    Returns
+    -------
+    (n, 3) float64
+    """
+    v = np.asarray(vectors, dtype=np.float64)
+    length = np.linalg.norm(v, axis=-1, keepdims=True)
+    return np.divide(v, length, out=np.zeros_like(v), where=length > 0)

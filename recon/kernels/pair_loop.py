@@ -1,0 +1,665 @@
+r"""The per-particle loop: pair forces and torques, anchors, damping and the integration step.
+
+Total energy (DESIGN §1), summed over unordered pairs within the cutoff r_c plus anchors:
+
+.. math::
+
+    E = \sum_{i<j} \Bigl[\alpha_{LJ}\phi_\mathrm{sf}(d)
+        + \alpha_P \frac{(n_i\cdot r)^2\psi_i + (n_j\cdot r)^2\psi_j}{r_0^2}
+        + \alpha_N |n_i - n_j|^2 \bar\psi
+        + \alpha_C \frac{((n_i + n_j)\cdot r)^2}{r_0^2} \bar\psi\Bigr]
+      + \sum_i E^A_i
+
+(S&T92 eqs. 3–5 and 7, T-thesis eqs. 4.11–4.17; the orientation terms are skipped for pairs with
+an unoriented particle.) Neighbour lists are *full*: each pair appears in both rows, and row i
+accumulates only the force and torque on i. Each ``prange`` iteration therefore writes only its
+own row (no races) and sums in a fixed order, so results are bit-identical from run to run.
+
+The fused step (:func:`advance_particles_parallel` / :func:`advance_particles_serial`) reads the
+state from one set of buffers and writes the new state to another, so forces and integration
+share one parallel region per step (DESIGN §3: a region costs milliseconds on a loaded
+machine). Equations of motion, in reduced units (lengths in r0, DESIGN §3), semi-implicit Euler:
+
+.. math::
+
+    m\dot v_i &= r_0^2 f_i - \beta_0 v_i - \beta_1\sum_j (v_i - v_j), \qquad
+    I\dot\omega_i = \tau_i - \beta_2\omega_i - \beta_3\sum_j(\omega_i - \omega_j) \\
+    v_i' &= \frac{v_i + \Delta t\,(r_0^2 f_i - \beta_1\sum_j(v_i - v_j))/m}
+                 {1 + \Delta t\,\beta_0/m},\qquad x_i' = x_i + \Delta t\,v_i' \\
+    q_i' &= \exp(\tfrac12\omega_i'\Delta t) \otimes q_i\ \text{(renormalised)}
+
+(T-thesis eqs. 4.9–4.10). The factor r0² on the force makes the dynamics of x/r0 independent of
+r0; the linear and angular damping are treated implicitly (unconditionally stable), the relative
+damping explicitly. Per-step displacement and rotation are capped (the velocity is scaled with
+the step, so a capped step never adds energy). Pinned particles keep position and frame and have
+zero velocities; unoriented particles keep their frame.
+
+Notes
+-----
+Deviation from T-thesis eqs. 4.37–4.38: relative damping there is −β₁Σ(v_j − v_i), which adds
+energy (DESIGN §2); we use −β₁Σ(v_i − v_j) as in eq. 4.10. Sums over j run over neighbours within
+r_c (oriented pairs only for the angular term).
+
+References
+----------
+.. [ST92] R. Szeliski, D. Tonnesen. "Surface Modeling with Oriented Particle Systems".
+   SIGGRAPH '92, §4 and eqs. 3–7.
+.. [T00] D. Tonnesen. PhD thesis, chapter 4, eqs. 4.9–4.19 and §4.5.
+"""
+
+from __future__ import annotations
+
+import math
+
+from numba import njit, prange
+
+from .anchor import anchor_interaction
+from .circularity import circularity_pair
+from .lennard_jones import lj_pair
+from .normality import normality_pair
+from .options import JIT_OPTIONS
+from .planarity import planarity_pair
+from .quaternion import quaternion_normal, rotate_quaternion
+from .weights import pair_weights
+
+# Layout of the coefficient tuple (all lengths absolute; see recon.forces.pack_coefficients).
+C_SPACING = 0
+C_INV_SPACING2 = 1
+C_CUTOFF = 2
+C_CUTOFF2 = 3
+C_INV_CUTOFF2 = 4
+C_LJ_SIGMA2 = 5
+C_LJ_PHI_CUTOFF = 6
+C_LJ_DPHI_CUTOFF = 7
+C_W_LJ = 8
+C_W_PLANARITY = 9
+C_W_NORMALITY = 10
+C_W_CIRCULARITY = 11
+C_INV_2SIGMA2 = 12
+C_KAPPA = 13
+C_DT = 14
+C_DAMPING_LINEAR = 15
+C_DAMPING_RELATIVE_LINEAR = 16
+C_DAMPING_ANGULAR = 17
+C_DAMPING_RELATIVE_ANGULAR = 18
+C_MAX_DISPLACEMENT = 19
+C_MAX_ROTATION = 20
+C_ANCHOR_STIFFNESS = 21
+C_ANCHOR_NORMAL_STIFFNESS = 22
+C_HAS_ANCHORS = 23
+C_HAS_EXTERNAL_FORCE = 24
+N_COEFFICIENTS = 25
+
+# Columns of the per-particle statistics array written by the fused step.
+S_POTENTIAL = 0
+S_KINETIC = 1
+S_KINETIC_BEFORE = 2
+S_DISPLACEMENT2 = 3
+S_SPEED2 = 4
+S_STATUS = 5
+N_STATS = 6
+
+# Bits of the status column.
+STATUS_BAD_INPUT = 1
+STATUS_BAD_FORCE = 2
+STATUS_BAD_OUTPUT = 4
+
+_JIT = JIT_OPTIONS
+
+
+@njit(inline="always", **_JIT)
+def _add_scaled(acc, w, t):
+    return (
+        acc[0] + w * t[0],
+        acc[1] + w * t[1],
+        acc[2] + w * t[2],
+        acc[3] + w * t[3],
+        acc[4] + w * t[4],
+        acc[5] + w * t[5],
+        acc[6] + w * t[6],
+        acc[7] + w * t[7],
+        acc[8] + w * t[8],
+        acc[9] + w * t[9],
+    )
+
+
+@njit(inline="always", **_JIT)
+def pair_interaction(rx, ry, rz, nix, niy, niz, njx, njy, njz, oriented, coef, mode):
+    r"""Energy, force on i and torques on i and j of one pair (DESIGN §1 pair energy).
+
+    Parameters
+    ----------
+    rx, ry, rz : float64
+        r = x_j − x_i [length].
+    nix, niy, niz, njx, njy, njz : float64
+        Unit normals n_i, n_j (ignored unless ``oriented``).
+    oriented : bool
+        Both particles are oriented; otherwise only the spacing term acts (creases).
+    coef : UniTuple(float64, N_COEFFICIENTS)
+        Packed parameters (:func:`recon.forces.pack_coefficients`).
+    mode : int
+        Weighting mode (:mod:`recon.kernels.weights`).
+
+    Returns
+    -------
+    tuple of 10 float64
+        (E_ij, f_i (3), τ_i (3), τ_j (3)); f_j = −f_i. E_ij is dimensionless, forces are in
+        1/length, torques dimensionless.
+
+    Notes
+    -----
+    .. math::
+
+        E_{ij} = \alpha_{LJ}\phi_\mathrm{sf}(d) + \alpha_P E^P_{ij}
+                 + \alpha_N E^N_{ij} + \alpha_C E^C_{ij}
+
+    with the terms of :mod:`~recon.kernels.lennard_jones` (S&T92 §4),
+    :mod:`~recon.kernels.planarity` (eq. 3), :mod:`~recon.kernels.normality` (eq. 4) and
+    :mod:`~recon.kernels.circularity` (eq. 5), weighted by :mod:`~recon.kernels.weights`
+    (eq. 7 for the anisotropic form).
+    """
+    acc = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    d2 = rx * rx + ry * ry + rz * rz
+    if d2 >= coef[C_CUTOFF2]:
+        return acc
+    w_lj = coef[C_W_LJ]
+    if w_lj != 0.0:
+        phi, dphi_over_d = lj_pair(
+            d2, coef[C_LJ_SIGMA2], coef[C_CUTOFF], coef[C_LJ_PHI_CUTOFF], coef[C_LJ_DPHI_CUTOFF]
+        )
+        c = w_lj * dphi_over_d
+        acc = (w_lj * phi, c * rx, c * ry, c * rz, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    if not oriented:
+        return acc
+    w_p = coef[C_W_PLANARITY]
+    w_n = coef[C_W_NORMALITY]
+    w_c = coef[C_W_CIRCULARITY]
+    if w_p == 0.0 and w_n == 0.0 and w_c == 0.0:
+        return acc
+    kappa = coef[C_KAPPA]
+    s2 = coef[C_INV_SPACING2]
+    ri = nix * rx + niy * ry + niz * rz
+    rj = njx * rx + njy * ry + njz * rz
+    psi_i, dpsi_i, psi_j, dpsi_j = pair_weights(
+        d2, ri, rj, mode, coef[C_INV_CUTOFF2], coef[C_INV_2SIGMA2], kappa
+    )
+    if w_p != 0.0:
+        t = planarity_pair(
+            rx, ry, rz, nix, niy, niz, njx, njy, njz, psi_i, dpsi_i, psi_j, dpsi_j, kappa, s2
+        )
+        acc = _add_scaled(acc, w_p, t)
+    if w_n != 0.0:
+        t = normality_pair(
+            rx, ry, rz, nix, niy, niz, njx, njy, njz, psi_i, dpsi_i, psi_j, dpsi_j, kappa
+        )
+        acc = _add_scaled(acc, w_n, t)
+    if w_c != 0.0:
+        t = circularity_pair(
+            rx, ry, rz, nix, niy, niz, njx, njy, njz, psi_i, dpsi_i, psi_j, dpsi_j, kappa, s2
+        )
+        acc = _add_scaled(acc, w_c, t)
+    return acc
+
+
+@njit(**_JIT)
+def _row_forces(i, coef, mode, position, orientation, is_oriented, offsets, indices, extras):
+    """Energy share, force and torque on particle i from its neighbour row and its anchor.
+
+    Returns (energy, fx, fy, fz, tx, ty, tz) where energy = ½ Σ_j E_ij + E^A_i, so the energies
+    of all rows sum to the total energy. The torque of an unoriented particle is zero.
+    """
+    xi0 = position[i, 0]
+    xi1 = position[i, 1]
+    xi2 = position[i, 2]
+    nix, niy, niz = quaternion_normal(
+        orientation[i, 0], orientation[i, 1], orientation[i, 2], orientation[i, 3]
+    )
+    oriented_i = is_oriented[i]
+    cutoff2 = coef[C_CUTOFF2]
+    energy = 0.0
+    fx = 0.0
+    fy = 0.0
+    fz = 0.0
+    tx = 0.0
+    ty = 0.0
+    tz = 0.0
+    for k in range(offsets[i], offsets[i + 1]):
+        j = indices[k]
+        rx = position[j, 0] - xi0
+        ry = position[j, 1] - xi1
+        rz = position[j, 2] - xi2
+        d2 = rx * rx + ry * ry + rz * rz
+        if d2 >= cutoff2:
+            continue
+        oriented = oriented_i and is_oriented[j]
+        if oriented:
+            njx, njy, njz = quaternion_normal(
+                orientation[j, 0], orientation[j, 1], orientation[j, 2], orientation[j, 3]
+            )
+        else:
+            njx = 0.0
+            njy = 0.0
+            njz = 1.0
+        t = pair_interaction(rx, ry, rz, nix, niy, niz, njx, njy, njz, oriented, coef, mode)
+        energy += 0.5 * t[0]
+        fx += t[1]
+        fy += t[2]
+        fz += t[3]
+        tx += t[4]
+        ty += t[5]
+        tz += t[6]
+    if coef[C_HAS_ANCHORS] != 0.0:
+        anchor_point = extras[0]
+        anchor_normal = extras[1]
+        kn = coef[C_ANCHOR_NORMAL_STIFFNESS] if oriented_i else 0.0
+        a = anchor_interaction(
+            xi0,
+            xi1,
+            xi2,
+            anchor_point[i, 0],
+            anchor_point[i, 1],
+            anchor_point[i, 2],
+            anchor_normal[i, 0],
+            anchor_normal[i, 1],
+            anchor_normal[i, 2],
+            nix,
+            niy,
+            niz,
+            coef[C_ANCHOR_STIFFNESS],
+            kn,
+            coef[C_INV_SPACING2],
+        )
+        energy += a[0]
+        fx += a[1]
+        fy += a[2]
+        fz += a[3]
+        tx += a[4]
+        ty += a[5]
+        tz += a[6]
+    if coef[C_HAS_EXTERNAL_FORCE] != 0.0:
+        external = extras[2]
+        fx += external[i, 0]
+        fy += external[i, 1]
+        fz += external[i, 2]
+    if not oriented_i:
+        tx = 0.0
+        ty = 0.0
+        tz = 0.0
+    return energy, fx, fy, fz, tx, ty, tz
+
+
+@njit(**_JIT)
+def _force_row(i, coef, mode, position, orientation, is_oriented, offsets, indices, extras, out):
+    e, fx, fy, fz, tx, ty, tz = _row_forces(
+        i, coef, mode, position, orientation, is_oriented, offsets, indices, extras
+    )
+    force, torque, energy = out
+    force[i, 0] = fx
+    force[i, 1] = fy
+    force[i, 2] = fz
+    torque[i, 0] = tx
+    torque[i, 1] = ty
+    torque[i, 2] = tz
+    energy[i] = e
+
+
+@njit(parallel=True, **_JIT)
+def accumulate_forces_parallel(
+    coef, mode, position, orientation, is_oriented, offsets, indices, extras, out
+):
+    """Forces, torques and per-particle energies of all particles (threaded).
+
+    Parameters
+    ----------
+    coef : UniTuple(float64, N_COEFFICIENTS)
+        Packed parameters.
+    mode : int
+        Weighting mode.
+    position : (n, 3) float64 [length]
+    orientation : (n, 4) float64
+        Unit quaternions (w, x, y, z).
+    is_oriented : (n,) bool
+    offsets : (n + 1,) int64
+    indices : (nnz,) int32
+        Full CSR neighbour list (radius ≥ r_c).
+    extras : tuple of three (m, 3) float64
+        Anchor points, anchor normals, external forces (each m = n when enabled by ``coef``).
+    out : tuple of (n, 3), (n, 3), (n,) float64
+        Force [1/length], torque [dimensionless] and energy share [dimensionless] (written).
+    """
+    n = position.shape[0]
+    for i in prange(n):
+        _force_row(i, coef, mode, position, orientation, is_oriented, offsets, indices, extras, out)
+
+
+@njit(**_JIT)
+def accumulate_forces_serial(
+    coef, mode, position, orientation, is_oriented, offsets, indices, extras, out
+):
+    """Single-threaded twin of :func:`accumulate_forces_parallel`."""
+    n = position.shape[0]
+    for i in range(n):
+        _force_row(i, coef, mode, position, orientation, is_oriented, offsets, indices, extras, out)
+
+
+@njit(**_JIT)
+def _relative_velocity(i, coef, position, velocity, is_oriented, offsets, indices, angular):
+    """Σ_j (v_i − v_j) over neighbours within r_c (oriented pairs only when ``angular``)."""
+    cutoff2 = coef[C_CUTOFF2]
+    sx = 0.0
+    sy = 0.0
+    sz = 0.0
+    for k in range(offsets[i], offsets[i + 1]):
+        j = indices[k]
+        rx = position[j, 0] - position[i, 0]
+        ry = position[j, 1] - position[i, 1]
+        rz = position[j, 2] - position[i, 2]
+        if rx * rx + ry * ry + rz * rz >= cutoff2:
+            continue
+        if angular and not is_oriented[j]:
+            continue
+        sx += velocity[i, 0] - velocity[j, 0]
+        sy += velocity[i, 1] - velocity[j, 1]
+        sz += velocity[i, 2] - velocity[j, 2]
+    return sx, sy, sz
+
+
+@njit(**_JIT)
+def _advance_row(
+    i,
+    coef,
+    mode,
+    state_in,
+    state_out,
+    is_pinned,
+    is_oriented,
+    mass,
+    inertia,
+    offsets,
+    indices,
+    reference_position,
+    extras,
+    stats,
+):
+    position, orientation, velocity, angular_velocity = state_in
+    position_out, orientation_out, velocity_out, angular_velocity_out = state_out
+    status = 0
+    for c in range(3):
+        if not (
+            math.isfinite(position[i, c])
+            and math.isfinite(velocity[i, c])
+            and math.isfinite(angular_velocity[i, c])
+        ):
+            status |= STATUS_BAD_INPUT
+    for c in range(4):
+        if not math.isfinite(orientation[i, c]):
+            status |= STATUS_BAD_INPUT
+
+    energy, fx, fy, fz, tx, ty, tz = _row_forces(
+        i, coef, mode, position, orientation, is_oriented, offsets, indices, extras
+    )
+    if not (
+        math.isfinite(energy)
+        and math.isfinite(fx)
+        and math.isfinite(fy)
+        and math.isfinite(fz)
+        and math.isfinite(tx)
+        and math.isfinite(ty)
+        and math.isfinite(tz)
+    ):
+        status |= STATUS_BAD_FORCE
+
+    inv_s2 = coef[C_INV_SPACING2]
+    m = mass[i]
+    inertia_i = inertia[i]
+    v0 = velocity[i, 0]
+    v1 = velocity[i, 1]
+    v2 = velocity[i, 2]
+    w0 = angular_velocity[i, 0]
+    w1 = angular_velocity[i, 1]
+    w2 = angular_velocity[i, 2]
+    kinetic_before = 0.5 * m * (v0 * v0 + v1 * v1 + v2 * v2) * inv_s2 + 0.5 * inertia_i * (
+        w0 * w0 + w1 * w1 + w2 * w2
+    )
+
+    x0 = position[i, 0]
+    x1 = position[i, 1]
+    x2 = position[i, 2]
+    qw = orientation[i, 0]
+    qx = orientation[i, 1]
+    qy = orientation[i, 2]
+    qz = orientation[i, 3]
+    if is_pinned[i]:
+        v0 = 0.0
+        v1 = 0.0
+        v2 = 0.0
+        w0 = 0.0
+        w1 = 0.0
+        w2 = 0.0
+    else:
+        dt = coef[C_DT]
+        spacing2 = coef[C_SPACING] * coef[C_SPACING]
+        ax = spacing2 * fx
+        ay = spacing2 * fy
+        az = spacing2 * fz
+        beta1 = coef[C_DAMPING_RELATIVE_LINEAR]
+        if beta1 != 0.0:
+            sx, sy, sz = _relative_velocity(
+                i, coef, position, velocity, is_oriented, offsets, indices, False
+            )
+            ax -= beta1 * sx
+            ay -= beta1 * sy
+            az -= beta1 * sz
+        damp = 1.0 / (1.0 + dt * coef[C_DAMPING_LINEAR] / m)
+        v0 = (v0 + dt * ax / m) * damp
+        v1 = (v1 + dt * ay / m) * damp
+        v2 = (v2 + dt * az / m) * damp
+        step2 = dt * dt * (v0 * v0 + v1 * v1 + v2 * v2)
+        cap = coef[C_MAX_DISPLACEMENT]
+        if step2 > cap * cap:
+            scale = cap / math.sqrt(step2)
+            v0 *= scale
+            v1 *= scale
+            v2 *= scale
+        x0 += dt * v0
+        x1 += dt * v1
+        x2 += dt * v2
+        if is_oriented[i]:
+            beta3 = coef[C_DAMPING_RELATIVE_ANGULAR]
+            if beta3 != 0.0:
+                sx, sy, sz = _relative_velocity(
+                    i, coef, position, angular_velocity, is_oriented, offsets, indices, True
+                )
+                tx -= beta3 * sx
+                ty -= beta3 * sy
+                tz -= beta3 * sz
+            damp = 1.0 / (1.0 + dt * coef[C_DAMPING_ANGULAR] / inertia_i)
+            w0 = (w0 + dt * tx / inertia_i) * damp
+            w1 = (w1 + dt * ty / inertia_i) * damp
+            w2 = (w2 + dt * tz / inertia_i) * damp
+            rot2 = dt * dt * (w0 * w0 + w1 * w1 + w2 * w2)
+            cap = coef[C_MAX_ROTATION]
+            if rot2 > cap * cap:
+                scale = cap / math.sqrt(rot2)
+                w0 *= scale
+                w1 *= scale
+                w2 *= scale
+            qw, qx, qy, qz = rotate_quaternion(qw, qx, qy, qz, dt * w0, dt * w1, dt * w2)
+        else:
+            w0 = 0.0
+            w1 = 0.0
+            w2 = 0.0
+
+    position_out[i, 0] = x0
+    position_out[i, 1] = x1
+    position_out[i, 2] = x2
+    orientation_out[i, 0] = qw
+    orientation_out[i, 1] = qx
+    orientation_out[i, 2] = qy
+    orientation_out[i, 3] = qz
+    velocity_out[i, 0] = v0
+    velocity_out[i, 1] = v1
+    velocity_out[i, 2] = v2
+    angular_velocity_out[i, 0] = w0
+    angular_velocity_out[i, 1] = w1
+    angular_velocity_out[i, 2] = w2
+
+    speed2 = v0 * v0 + v1 * v1 + v2 * v2
+    kinetic = 0.5 * m * speed2 * inv_s2 + 0.5 * inertia_i * (w0 * w0 + w1 * w1 + w2 * w2)
+    d0 = x0 - reference_position[i, 0]
+    d1 = x1 - reference_position[i, 1]
+    d2 = x2 - reference_position[i, 2]
+    if not (
+        math.isfinite(kinetic)
+        and math.isfinite(x0)
+        and math.isfinite(x1)
+        and math.isfinite(x2)
+        and math.isfinite(qw)
+        and math.isfinite(qx)
+        and math.isfinite(qy)
+        and math.isfinite(qz)
+    ):
+        status |= STATUS_BAD_OUTPUT
+    stats[i, S_POTENTIAL] = energy
+    stats[i, S_KINETIC] = kinetic
+    stats[i, S_KINETIC_BEFORE] = kinetic_before
+    stats[i, S_DISPLACEMENT2] = d0 * d0 + d1 * d1 + d2 * d2
+    stats[i, S_SPEED2] = speed2
+    stats[i, S_STATUS] = status
+
+
+@njit(**_JIT)
+def _reduce_stats(stats, n):
+    """Serial, fixed-order reduction of the per-particle statistics (deterministic)."""
+    potential = 0.0
+    kinetic = 0.0
+    kinetic_before = 0.0
+    max_displacement2 = 0.0
+    max_speed2 = 0.0
+    first_bad = -1
+    bad_status = 0
+    for i in range(n):
+        potential += stats[i, S_POTENTIAL]
+        kinetic += stats[i, S_KINETIC]
+        kinetic_before += stats[i, S_KINETIC_BEFORE]
+        if stats[i, S_DISPLACEMENT2] > max_displacement2:
+            max_displacement2 = stats[i, S_DISPLACEMENT2]
+        if stats[i, S_SPEED2] > max_speed2:
+            max_speed2 = stats[i, S_SPEED2]
+        if stats[i, S_STATUS] != 0.0 and first_bad < 0:
+            first_bad = i
+            bad_status = int(stats[i, S_STATUS])
+    return (
+        potential,
+        kinetic,
+        kinetic_before,
+        max_displacement2,
+        max_speed2,
+        first_bad,
+        bad_status,
+    )
+
+
+@njit(parallel=True, **_JIT)
+def advance_particles_parallel(
+    coef,
+    mode,
+    state_in,
+    state_out,
+    is_pinned,
+    is_oriented,
+    mass,
+    inertia,
+    offsets,
+    indices,
+    reference_position,
+    extras,
+    stats,
+):
+    """One fused force + integration step over all particles (threaded).
+
+    Parameters
+    ----------
+    coef : UniTuple(float64, N_COEFFICIENTS)
+        Packed parameters (:func:`recon.forces.pack_coefficients`).
+    mode : int
+        Weighting mode.
+    state_in, state_out : tuple of four 2-D float64 arrays
+        (position (n, 3) [length], orientation (n, 4), velocity (n, 3) [length/time],
+        angular_velocity (n, 3) [rad/time]): read from ``state_in``, written to ``state_out``.
+        The two must not share memory.
+    is_pinned, is_oriented : (n,) bool
+    mass, inertia : (n,) float64
+    offsets : (n + 1,) int64
+    indices : (nnz,) int32
+        Full CSR neighbour list with radius ≥ r_c.
+    reference_position : (n, 3) float64
+        Positions at the last neighbour-list build [length].
+    extras : tuple of three (m, 3) float64
+        Anchor points, anchor normals, external forces.
+    stats : (n, N_STATS) float64
+        Per-particle scratch (written).
+
+    Returns
+    -------
+    tuple
+        (potential, kinetic after, kinetic before, max displacement² since the build,
+        max speed², first non-finite particle or −1, its status bits).
+    """
+    n = state_in[0].shape[0]
+    for i in prange(n):
+        _advance_row(
+            i,
+            coef,
+            mode,
+            state_in,
+            state_out,
+            is_pinned,
+            is_oriented,
+            mass,
+            inertia,
+            offsets,
+            indices,
+            reference_position,
+            extras,
+            stats,
+        )
+    return _reduce_stats(stats, n)
+
+
+@njit(**_JIT)
+def advance_particles_serial(
+    coef,
+    mode,
+    state_in,
+    state_out,
+    is_pinned,
+    is_oriented,
+    mass,
+    inertia,
+    offsets,
+    indices,
+    reference_position,
+    extras,
+    stats,
+):
+    """Single-threaded twin of :func:`advance_particles_parallel` (same arguments)."""
+    n = state_in[0].shape[0]
+    for i in range(n):
+        _advance_row(
+            i,
+            coef,
+            mode,
+            state_in,
+            state_out,
+            is_pinned,
+            is_oriented,
+            mass,
+            inertia,
+            offsets,
+            indices,
+            reference_position,
+            extras,
+            stats,
+        )
+    return _reduce_stats(stats, n)

@@ -1,0 +1,424 @@
+"""The one entry point of the reconstruction: points in, mesh + particles + report out.
+
+Schedule (S&T92 §7, with the changes of ``DESIGN.md`` §4):
+
+1. normals (estimated or from the file) and the rest spacing r0 from the data;
+2. seeds: Poisson-disk thinned samples on their local data planes, pinned;
+3. growth rounds: relax ``relax_steps`` steps with the fidelity pull on, then the growing and
+   stretching rules propose particles that are accepted when supported by the data; stop when
+   a round adds fewer than ``min_add_fraction`` of the particles and the sheet is at rest;
+4. release the seeds and relax ``release_steps`` steps (smoothing, fidelity pull kept);
+5. drop particles farther than ``trim_distance`` from the data, triangulate, fill small holes;
+6. measure the result (topology, triangle quality, fidelity to the input).
+
+All dynamics run in normalised coordinates (positions relative to the cloud's origin, divided
+by r0), so nothing depends on the input's units or offset.
+
+References
+----------
+[ST92] Szeliski & Tonnesen 1992, §7 "Surface fitting" and §8.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from . import __version__
+from .config import ReconConfig, config_to_dict
+from .dynamics import PhysicsParams, Simulation
+from .errors import InputError, LimitExceeded
+from .geometry import bbox_diagonal, median_nearest_neighbor_distance
+from .growth import accept_candidates, grow_candidates, neighbor_csr, stretch_candidates
+from .io import PointCloud
+from .metrics import distance_stats, point_to_mesh_distance, quality_report
+from .normals import compute_normals
+from .seeds import select_seeds
+from .state import ParticleState
+from .surface import DataSurface
+from .triangulate import triangulate_particles
+
+log = logging.getLogger(__name__)
+
+#: Covering radius of a hexagonal sheet at spacing 1 is 1/sqrt(3) ~ 0.577; a data point
+#: within this distance [r0] of a particle counts as covered by the sheet.
+COVER_RADIUS = 0.65
+#: Anchors (nearest data planes) are refreshed this often during relaxation [steps].
+ANCHOR_REFRESH = 5
+#: Mean kinetic energy per particle under which the sheet counts as at rest [r0^2/t^2].
+REST_KINETIC = 1e-4
+
+ProgressFn = Callable[[str, dict[str, Any]], None]
+
+
+@dataclass
+class Mesh:
+    """A triangle mesh in absolute (file) coordinates."""
+
+    vertices: np.ndarray  # (V, 3) float64 [length]
+    faces: np.ndarray  # (F, 3) int64
+    normals: np.ndarray  # (V, 3) float64 unit vertex normals
+
+
+@dataclass
+class Particles:
+    """The final oriented particles in absolute (file) coordinates."""
+
+    positions: np.ndarray  # (n, 3) float64 [length]
+    normals: np.ndarray  # (n, 3) float64
+
+
+@dataclass
+class FitResult:
+    mesh: Mesh
+    particles: Particles
+    report: dict[str, Any]
+    origin: np.ndarray = field(default_factory=lambda: np.zeros(3))
+
+
+def choose_spacing(points: np.ndarray, cfg: ReconConfig) -> tuple[float, float]:
+    """Rest spacing r0 [length] and the median nearest-neighbour distance of the data."""
+    d_nn = median_nearest_neighbor_distance(points)
+    s = cfg.seeds
+    if s.spacing is not None:
+        r0 = s.spacing
+    elif s.spacing_relative is not None:
+        r0 = s.spacing_relative * bbox_diagonal(points)
+    else:
+        r0 = s.spacing_factor * d_nn
+    if not (r0 > 0 and math.isfinite(r0)):
+        raise InputError(f"cannot derive a rest spacing from the data (median spacing {d_nn!r})")
+    return float(r0), float(d_nn)
+
+
+class _Clock:
+    """Wall-clock accounting per phase, and the run's time limit."""
+
+    def __init__(self, limit: float | None) -> None:
+        self.start = time.perf_counter()
+        self.limit = limit
+        self.phases: dict[str, float] = {}
+        self._t = self.start
+
+    def lap(self, phase: str) -> None:
+        now = time.perf_counter()
+        self.phases[phase] = self.phases.get(phase, 0.0) + now - self._t
+        self._t = now
+
+    def check(self) -> None:
+        if self.limit is not None and time.perf_counter() - self.start > self.limit:
+            raise LimitExceeded(f"time limit of {self.limit:g} s reached "
+                                "(raise dynamics.time_limit or --time-limit)")
+
+
+class _Fitter:
+    """State of one reconstruction (normalised units)."""
+
+    def __init__(self, surface: DataSurface, cfg: ReconConfig, rng: np.random.Generator,
+                 clock: _Clock, on_progress: ProgressFn | None) -> None:
+        self.surface = surface
+        self.cfg = cfg
+        self.rng = rng
+        self.clock = clock
+        self.on_progress = on_progress
+        self.steps = {"grow": 0, "release": 0}
+        self.history: dict[str, list] = {"step": [], "particles": [], "kinetic": [],
+                                         "coverage": [], "phase": []}
+        self.warnings: list[str] = []
+        self.stop_reason = ""
+        n = surface.n_points
+        take = rng.choice(n, size=min(n, 20000), replace=False) if n > 20000 else np.arange(n)
+        self.cover_sample = surface.points[np.sort(take)]
+
+    # -- helpers -------------------------------------------------------------------------
+    def total_steps(self) -> int:
+        return self.steps["grow"] + self.steps["release"]
+
+    def coverage(self, positions: np.ndarray) -> float:
+        d, _ = cKDTree(positions).query(self.cover_sample, k=1, workers=-1)
+        return float(np.mean(d <= COVER_RADIUS))
+
+    def relax(self, sim: Simulation, state: ParticleState, n_steps: int, phase: str) -> float:
+        dyn = self.cfg.dynamics
+        kinetic = 0.0
+        done = 0
+        while done < n_steps:
+            if self.total_steps() >= dyn.max_steps:
+                break
+            chunk = min(ANCHOR_REFRESH, n_steps - done, dyn.max_steps - self.total_steps())
+            pts, nrm, _ = self.surface.anchors(state.position)
+            sim.set_anchors(pts, nrm, dyn.fidelity, dyn.fidelity_normal)
+            stats = sim.run(chunk)
+            kinetic = stats.kinetic / max(state.n, 1)
+            done += chunk
+            self.steps[phase] += chunk
+            self.clock.check()
+        return kinetic
+
+    def record(self, phase: str, state: ParticleState, kinetic: float, coverage: float) -> None:
+        h = self.history
+        h["step"].append(self.total_steps())
+        h["particles"].append(int(state.n))
+        h["kinetic"].append(float(kinetic))
+        h["coverage"].append(float(coverage))
+        h["phase"].append(phase)
+        if self.on_progress is not None:
+            self.on_progress(phase, {"step": self.total_steps(), "particles": int(state.n),
+                                     "kinetic": kinetic, "coverage": coverage,
+                                     "max_steps": self.cfg.dynamics.max_steps})
+
+    # -- phases --------------------------------------------------------------------------
+    def make_seeds(self) -> tuple[ParticleState, np.ndarray]:
+        s = self.surface
+        idx = select_seeds(s.points, self.cfg.seeds.thinning, self.rng)
+        pos, pn, _ = s.project(s.points[idx])
+        cap = self.cfg.dynamics.max_particles
+        if len(idx) > cap:
+            raise LimitExceeded(f"{len(idx)} seed particles exceed dynamics.max_particles={cap}; "
+                                "raise the cap or the spacing")
+        state = ParticleState.from_points(pos, pn, pinned=True)
+        return state, pos
+
+    def grow(self, sim: Simulation, state: ParticleState, seed_points: np.ndarray) -> None:
+        g = self.cfg.growth
+        dyn = self.cfg.dynamics
+        seed_tree = cKDTree(seed_points)
+        previous_added = None
+        for rnd in range(g.max_rounds if g.enabled else 0):
+            kinetic = self.relax(sim, state, dyn.relax_steps, "grow")
+            if self.total_steps() >= dyn.max_steps:
+                self.stop_reason = f"step cap dynamics.max_steps={dyn.max_steps} reached"
+                self.warnings.append(self.stop_reason + " during growth")
+                break
+            pos, nrm = state.position, state.normal
+            tree = cKDTree(pos)
+            offsets, indices = neighbor_csr(tree, state.n, g.grow_radius)
+            counts = np.diff(offsets)
+            frontier = counts <= g.max_neighbors
+            cands = np.vstack([grow_candidates(pos, nrm, offsets, indices, g),
+                               stretch_candidates(pos, nrm, tree, frontier, g)])
+            acc = accept_candidates(cands, tree, self.surface, seed_tree, seed_points, g)
+            added = len(acc.positions)
+            room = dyn.max_particles - state.n
+            if added > room:
+                acc.positions, acc.normals = acc.positions[:room], acc.normals[:room]
+                added = room
+                self.stop_reason = f"particle cap dynamics.max_particles={dyn.max_particles} reached"
+                self.warnings.append(self.stop_reason)
+            if added:
+                state.add(acc.positions, acc.normals, pinned=False)
+                sim.notify_changed()
+            coverage = self.coverage(state.position)
+            self.record("grow", state, kinetic, coverage)
+            log.debug("round %d: %d candidates, %d added (%d close, %d unsupported, %d off-plane),"
+                      " %d particles, coverage %.4f", rnd + 1, acc.n_candidates, added,
+                      acc.n_too_close, acc.n_unsupported, acc.n_off_plane, state.n, coverage)
+            if self.stop_reason:
+                break
+            small = added <= g.min_add_fraction * state.n
+            not_shrinking = previous_added is not None and added >= previous_added and added > 0
+            if small or (not_shrinking and rnd > 5 and added < 0.05 * state.n):
+                self.stop_reason = "converged: additions stopped"
+                break
+            previous_added = added
+        else:
+            if g.enabled:
+                self.stop_reason = f"growth.max_rounds={g.max_rounds} reached"
+        # settle what the last round added before the seeds let go
+        kinetic = self.relax(sim, state, dyn.relax_steps, "grow")
+        self.record("grow", state, kinetic, self.coverage(state.position))
+
+    def release(self, sim: Simulation, state: ParticleState) -> None:
+        state.set_pinned(False)
+        sim.notify_changed()
+        dyn = self.cfg.dynamics
+        remaining = dyn.release_steps
+        chunk = 20
+        while remaining > 0:
+            n = min(chunk, remaining)
+            kinetic = self.relax(sim, state, n, "release")
+            remaining -= n
+            self.record("release", state, kinetic, self.coverage(state.position))
+            if self.total_steps() >= dyn.max_steps:
+                break
+
+
+def reconstruct(cloud: PointCloud, config: ReconConfig | None = None,
+                on_progress: ProgressFn | None = None) -> FitResult:
+    """Reconstruct a mesh from a point cloud.
+
+    Parameters
+    ----------
+    cloud : PointCloud
+        Points relative to ``cloud.origin``; normals are used when present and
+        ``normals.mode`` allows it.
+    config : ReconConfig, optional
+        Defaults when omitted.
+    on_progress : callable(phase, info), optional
+        Called after every growth round and release chunk with the step count, particle
+        count, kinetic energy and coverage.
+
+    Returns
+    -------
+    FitResult
+        Mesh and particles in absolute coordinates, and the report dictionary.
+    """
+    cfg = config if config is not None else ReconConfig()
+    clock = _Clock(cfg.dynamics.time_limit)
+    rng = np.random.default_rng(cfg.seed)
+    points = np.asarray(cloud.points, dtype=np.float64)
+
+    normals, normals_info = compute_normals(cloud, cfg.normals)
+    clock.lap("normals")
+    clock.check()
+
+    r0, d_nn = choose_spacing(points, cfg)
+    diag = bbox_diagonal(points)
+    surface = DataSurface.build(points / r0, normals, k=cfg.normals.k)
+    clock.lap("setup")
+
+    fitter = _Fitter(surface, cfg, rng, clock, on_progress)
+    state, seed_points = fitter.make_seeds()
+    n_seeds = state.n
+    sim = Simulation(state, PhysicsParams.from_config(cfg, spacing=1.0))
+    fitter.grow(sim, state, seed_points)
+    clock.lap("grow")
+    fitter.release(sim, state)
+    clock.lap("release")
+
+    tri_cfg = cfg.triangulation
+    projected, _, offset = surface.project(state.position)
+    dist, _ = surface.nearest(state.position)
+    keep = (np.abs(offset) <= tri_cfg.trim_distance) & (dist <= 0.5 * cfg.growth.max_gap)
+    if tri_cfg.project_to_data:
+        state.position = projected
+    n_trimmed = int((~keep).sum())
+    if n_trimmed:
+        state.remove(keep)
+    max_hole = tri_cfg.max_hole if tri_cfg.max_hole is not None else cfg.growth.max_gap
+    tri = triangulate_particles(state.position, state.normal, tri_cfg, max_hole,
+                                is_covered=lambda c: surface.nearest(surface.project(c)[0])[0] < 1.0,
+                                project=lambda c: surface.project(c)[0])
+    clock.lap("triangulate")
+
+    origin = np.asarray(cloud.origin, dtype=np.float64)
+    vertices = tri.vertices * r0 + origin
+    mesh = Mesh(vertices, tri.faces, tri.normals)
+    particles = Particles(state.position * r0 + origin, state.normal.copy())
+
+    if len(tri.faces) == 0:
+        raise InputError("the reconstruction produced no triangles: the data may be too sparse "
+                         "for the spacing (try a smaller --spacing or a larger --max-gap)")
+    quality = quality_report(None, tri.vertices * r0, tri.faces)
+    dist = point_to_mesh_distance(points, tri.vertices * r0, tri.faces)
+    quality["fidelity"] = {"diag": diag, **distance_stats(dist, diag),
+                           "within_r0": float(np.mean(dist <= r0))}
+    clock.lap("report")
+    report = {
+        "oprecon_version": __version__,
+        "input": {"points": int(len(points)), "bbox_diagonal": diag,
+                  "median_spacing": d_nn, "normals": normals_info},
+        "spacing": r0,
+        "seeds": int(n_seeds),
+        "particles": int(state.n),
+        "particles_trimmed": n_trimmed,
+        "steps": dict(fitter.steps),
+        "time_s": {k: round(v, 4) for k, v in clock.phases.items()},
+        "time_total_s": round(sum(clock.phases.values()), 4),
+        "coverage": fitter.history["coverage"][-1] if fitter.history["coverage"] else None,
+        "stop_reason": fitter.stop_reason,
+        "warnings": fitter.warnings,
+        "triangulation": tri.stats,
+        "noise_estimate": surface.noise * r0,
+        "history": fitter.history,
+        "config": config_to_dict(cfg),
+    }
+    report.update(quality)
+    return FitResult(mesh, particles, report, origin)
+
+
+def fit(points: np.ndarray, config: ReconConfig | None = None, *,
+        normals: np.ndarray | None = None,
+        on_progress: ProgressFn | None = None) -> FitResult:
+    """Python API: reconstruct from an (n, 3) array (and optional (n, 3) normals).
+
+    Mirrors ``oprecon fit``: ``recon.fit(points, config) -> FitResult(mesh, particles, report)``.
+    """
+    from .io import cloud_from_arrays
+
+    cloud = cloud_from_arrays(points, normals)
+    return reconstruct(cloud, config, on_progress)
+
+
+def _json_default(obj: Any) -> Any:
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, Path):
+        return str(obj)
+    raise TypeError(f"not JSON serialisable: {type(obj).__name__}")
+
+
+def report_path_for(mesh_path: Path) -> Path:
+    """``mesh.ply`` -> ``mesh.report.json`` beside it."""
+    return mesh_path.with_name(mesh_path.stem + ".report.json")
+
+
+def fit_file(input_path: str | Path, output_path: str | Path, config: ReconConfig | None = None,
+             *, particles_path: str | Path | None = None, preview_path: str | Path | None = None,
+             write_report: bool | None = None, mkdir: bool = False,
+             on_progress: ProgressFn | None = None) -> FitResult:
+    """Read ``input_path``, reconstruct, and write the mesh (+ report, particles, preview).
+
+    Every output is written to a temporary file beside its target and renamed into place only
+    after all of them were written, so a failure or an interrupt leaves no partial file.
+    Writing onto the input is refused.
+    """
+    import json
+    from contextlib import ExitStack
+
+    from .io import atomic_output, check_output_path, read_points, write_mesh, write_points
+
+    cfg = config if config is not None else ReconConfig()
+    input_path = Path(input_path)
+    output_path = check_output_path(Path(output_path), inputs=[input_path], mkdir=mkdir)
+    extra = [p for p in (particles_path, preview_path) if p is not None]
+    for p in extra:
+        check_output_path(Path(p), inputs=[input_path, output_path], mkdir=mkdir)
+    cloud = read_points(input_path, max_points=cfg.io.max_points,
+                        merge_duplicates=cfg.io.merge_duplicates)
+    result = reconstruct(cloud, cfg, on_progress)
+    result.report["input"]["path"] = str(input_path)
+    result.report["output"] = {"mesh": str(output_path)}
+    want_report = cfg.output.write_report if write_report is None else write_report
+    normals = result.mesh.normals if cfg.output.vertex_normals else None
+    with ExitStack() as stack:
+        tmp = stack.enter_context(atomic_output(output_path))
+        write_mesh(tmp, result.mesh.vertices, result.mesh.faces, normals, ascii=cfg.io.ascii)
+        if particles_path is not None:
+            result.report["output"]["particles"] = str(particles_path)
+            tmp = stack.enter_context(atomic_output(Path(particles_path)))
+            write_points(tmp, result.particles.positions, result.particles.normals,
+                         ascii=cfg.io.ascii)
+        if preview_path is not None:
+            from .render import render_mesh_png
+
+            result.report["output"]["preview"] = str(preview_path)
+            tmp = stack.enter_context(atomic_output(Path(preview_path)))
+            render_mesh_png(tmp, result.mesh.vertices, result.mesh.faces,
+                            history=result.report["history"], title=input_path.name)
+        if want_report:
+            rpath = report_path_for(output_path)
+            result.report["output"]["report"] = str(rpath)
+            tmp = stack.enter_context(atomic_output(rpath))
+            tmp.write_text(json.dumps(result.report, indent=1, default=_json_default) + "\n")
+    return result

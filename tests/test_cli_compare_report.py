@@ -1,0 +1,258 @@
+"""``oprecon compare`` and ``oprecon report`` through click's CliRunner: exit codes 0/1/2, JSON."""
+
+from __future__ import annotations
+
+import json
+
+import matplotlib.image as mpimg
+import numpy as np
+import pytest
+from click.testing import CliRunner
+from mesh_shapes import icosphere, open_cylinder, torus
+
+from cli.main import app
+from recon.io import write_mesh, write_points
+
+FAST = ["--samples", "5000"]
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory):
+    d = tmp_path_factory.mktemp("meshes")
+    v, f = icosphere(3)
+    paths = {
+        "sphere": d / "sphere.ply",
+        "sphere_obj": d / "sphere.obj",
+        "big": d / "big.ply",
+        "torus": d / "torus.ply",
+        "tube": d / "tube.ply",
+        "cloud": d / "cloud.ply",
+        "garbage": d / "garbage.ply",
+    }
+    write_mesh(paths["sphere"], v, f)
+    write_mesh(paths["sphere_obj"], v, f)
+    write_mesh(paths["big"], v * 1.02, f)
+    write_mesh(paths["torus"], *torus(24, 12))
+    write_mesh(paths["tube"], *open_cylinder(24, 5))
+    rng = np.random.default_rng(0)
+    pts = rng.normal(size=(3000, 3))
+    pts /= np.linalg.norm(pts, axis=1, keepdims=True)
+    write_points(paths["cloud"], pts, pts)
+    paths["garbage"].write_bytes(b"ply\nformat nonsense\nend_header\n\x00\x01")
+    return paths
+
+
+def run(*args):
+    return CliRunner().invoke(app, [str(a) for a in args])
+
+
+def one_line_error(result, *needles):
+    assert result.exit_code == 2, result.output
+    assert "Traceback" not in result.output
+    err = result.stderr.strip()
+    assert err.startswith("oprecon: error:") or err.startswith("Usage:"), err
+    for needle in needles:
+        assert needle in result.stderr, result.stderr
+
+
+# ---------------------------------------------------------------------------- compare
+
+
+def test_compare_identical_meshes_passes(files):
+    r = run("compare", files["sphere"], files["sphere_obj"], *FAST, "--max-chamfer", "1e-6")
+    assert r.exit_code == 0, r.output
+    assert "Chamfer-L1" in r.stdout and "F-score" in r.stdout
+    assert "result: PASS" in r.stdout
+
+
+def test_compare_json(files):
+    r = run("compare", files["sphere"], files["big"], *FAST, "--json")
+    assert r.exit_code == 0, r.output
+    data = json.loads(r.stdout)
+    assert data["reference_kind"] == "mesh"
+    assert data["chamfer_l1"] == pytest.approx(0.02, rel=0.02)
+    assert data["checks"] == [] and data["passed"] is True
+    assert data["n_samples"] == {"mesh": 5000, "reference": 5000}
+    assert data["topology"]["mesh"]["genus"] == 0 == data["topology"]["reference"]["genus"]
+
+
+def test_compare_outside_tolerance_exits_1_with_a_table(files):
+    r = run(
+        "compare", files["sphere"], files["big"], *FAST,
+        "--max-chamfer", "1e-3", "--min-fscore", "0.5", "--max-hausdorff95", "0.5",
+    )  # fmt: skip
+    assert r.exit_code == 1, r.output
+    lines = r.stdout.splitlines()
+    failed = [ln for ln in lines if "FAIL" in ln and "chamfer_l1_relative" in ln]
+    assert len(failed) == 1 and "--max-chamfer" in failed[0] and "% over" in failed[0]
+    assert any("hausdorff95_relative" in ln and " ok" in ln for ln in lines)
+    assert "result: FAIL (1 of 3 checks outside tolerance)" in r.stdout
+
+
+def test_compare_failure_in_json_still_exits_1(files):
+    r = run("compare", files["sphere"], files["big"], *FAST, "--max-chamfer-abs", "0.001", "--json")
+    assert r.exit_code == 1
+    data = json.loads(r.stdout)
+    assert data["passed"] is False
+    (check,) = data["checks"]
+    assert check["metric"] == "chamfer_l1" and check["passed"] is False
+    assert check["excess"] == pytest.approx(data["chamfer_l1"] - 0.001)
+
+
+def test_compare_fscore_with_absolute_tau(files):
+    r = run(
+        "compare", files["sphere"], files["big"], *FAST, "--tau", "0.05", "--min-fscore", "0.99"
+    )
+    assert r.exit_code == 0, r.output
+    r = run(
+        "compare", files["sphere"], files["big"], *FAST, "--tau", "0.01", "--min-fscore", "0.99"
+    )
+    assert r.exit_code == 1
+    assert any("fscore" in ln and "FAIL" in ln and "% under" in ln for ln in r.stdout.splitlines())
+
+
+def test_compare_same_topology(files):
+    r = run("compare", files["sphere"], files["big"], *FAST, "--same-topology")
+    assert r.exit_code == 0, r.output
+    r = run("compare", files["torus"], files["sphere"], *FAST, "--same-topology", "--json")
+    assert r.exit_code == 1
+    failed = {c["metric"] for c in json.loads(r.stdout)["checks"] if not c["passed"]}
+    assert failed == {"topology.genus"}
+    r = run("compare", files["tube"], files["sphere"], *FAST, "--same-topology")
+    assert r.exit_code == 1
+    assert "topology.boundary_loops" in r.stdout and "topology.watertight" in r.stdout
+
+
+def test_compare_tolerance_file(files, tmp_path):
+    tol = tmp_path / "tol.yaml"
+    tol.write_text("max-chamfer: 0.001\nmin_fscore: 0.5\nsamples: 3000\n")
+    r = run("compare", files["sphere"], files["big"], "--tolerances", tol, "--json")
+    assert r.exit_code == 1
+    data = json.loads(r.stdout)
+    assert data["n_samples"]["mesh"] == 3000
+    assert {c["metric"] for c in data["checks"]} == {"chamfer_l1_relative", "fscore"}
+    # the command line wins over the file
+    r = run("compare", files["sphere"], files["big"], "--tolerances", tol, "--max-chamfer", "0.1")
+    assert r.exit_code == 0, r.output
+
+
+def test_compare_tolerance_file_errors(files, tmp_path):
+    tol = tmp_path / "tol.yaml"
+    tol.write_text("max_chamfer: 0.001\nmax_champher: 2\n")
+    r = run("compare", files["sphere"], files["big"], *FAST, "--tolerances", tol)
+    one_line_error(r, "max_champher", str(tol))
+    tol.write_text("min_fscore: high\n")
+    one_line_error(run("compare", files["sphere"], files["big"], "--tolerances", tol), "min_fscore")
+    tol.write_text("samples: 0\n")
+    one_line_error(run("compare", files["sphere"], files["big"], "--tolerances", tol), "samples")
+    tol.write_text("seed: -1\n")
+    one_line_error(run("compare", files["sphere"], files["big"], "--tolerances", tol), "seed")
+    tol.write_text("max_chamfer: [1\n")
+    one_line_error(run("compare", files["sphere"], files["big"], "--tolerances", tol), "YAML")
+    tol.write_text("- 1\n- 2\n")
+    one_line_error(run("compare", files["sphere"], files["big"], "--tolerances", tol), "mapping")
+    one_line_error(
+        run("compare", files["sphere"], files["big"], "--tolerances", tmp_path / "none.yaml"),
+        "none.yaml",
+    )
+
+
+def test_compare_point_cloud_reference(files):
+    r = run("compare", files["sphere"], files["cloud"], *FAST)
+    assert r.exit_code == 0, r.output
+    assert "only point-based metrics apply" in r.stdout
+    assert "point cloud" in r.stdout
+    r = run("compare", files["sphere"], files["cloud"], *FAST, "--json")
+    data = json.loads(r.stdout)
+    assert data["reference_kind"] == "points" and data["topology"]["reference"] is None
+    assert data["normal_consistency"] > 0.9
+    one_line_error(
+        run("compare", files["sphere"], files["cloud"], *FAST, "--same-topology"),
+        "point cloud",
+        "cloud.ply",
+    )
+    r = run("compare", files["sphere"], files["big"], *FAST, "--reference-points", "--json")
+    assert json.loads(r.stdout)["reference_kind"] == "points"
+
+
+def test_compare_bad_inputs_exit_2(files, tmp_path):
+    one_line_error(run("compare", tmp_path / "missing.ply", files["sphere"]), "missing.ply")
+    one_line_error(run("compare", files["sphere"], tmp_path / "nope.ply"), "nope.ply")
+    one_line_error(run("compare", files["cloud"], files["sphere"]), "cloud.ply", "no faces")
+    one_line_error(run("compare", files["garbage"], files["sphere"]), "garbage.ply")
+    r = run("compare", files["sphere"], files["big"], "--tau", "0.1", "--tau-relative", "0.1")
+    one_line_error(r, "exclusive")
+    assert run("compare", files["sphere"], files["big"], "--samples", "0").exit_code == 2
+    assert run("compare", files["sphere"], files["big"], "--seed", "-1").exit_code == 2
+
+
+# ---------------------------------------------------------------------------- report
+
+
+def test_report_table(files):
+    r = run("report", files["tube"])
+    assert r.exit_code == 0, r.output
+    assert "boundary loops" in r.stdout and "min angle" in r.stdout
+    assert "fidelity" not in r.stdout
+
+
+def test_report_json_with_input(files):
+    r = run("report", files["sphere"], "--input", files["cloud"], "--json")
+    assert r.exit_code == 0, r.output
+    data = json.loads(r.stdout)
+    assert data["topology"]["watertight"] is True and data["topology"]["genus"] == 0
+    assert data["triangle_quality"]["min_angle_mean_deg"] > 40
+    fid = data["fidelity"]
+    assert fid["n"] == 3000
+    assert 0 < fid["mean"] < 0.01  # unit-sphere points vs the inscribed icosphere
+    assert fid["mean_relative"] == pytest.approx(fid["mean"] / fid["diag"])
+    assert data["fit_report"] is None and data["png"] is None
+
+
+def test_report_png_with_fit_history(files, tmp_path):
+    mesh = tmp_path / "fitted.ply"
+    write_mesh(mesh, *icosphere(2))
+    history = {
+        "step": [0, 15, 30, 130],
+        "particles": [10, 50, 80, 80],
+        "kinetic": [1.0, 0.1, 0.01, 0.001],
+        "coverage": [0.2, 0.7, 0.99, 0.99],
+        "phase": ["grow", "grow", "grow", "release"],
+    }
+    (tmp_path / "fitted.report.json").write_text(json.dumps({"history": history}))
+    png = tmp_path / "fitted.png"
+    r = run("report", mesh, "--png", png, "--json")
+    assert r.exit_code == 0, r.output
+    assert json.loads(r.stdout)["fit_report"].endswith("fitted.report.json")
+    image = mpimg.imread(png)
+    assert image.shape[:2] == (500, 1500) and image[..., :3].std() > 0.05
+
+
+def test_report_png_survives_a_broken_fit_report(files, tmp_path):
+    mesh = tmp_path / "m.ply"
+    write_mesh(mesh, *icosphere(1))
+    (tmp_path / "m.report.json").write_text("{not json")
+    r = run("report", mesh, "--png", tmp_path / "m.png")
+    assert r.exit_code == 0, r.output
+    assert "warning" in r.stderr and (tmp_path / "m.png").is_file()
+    (tmp_path / "m.report.json").write_text(
+        json.dumps({"history": {"step": [1, 2], "kinetic": [1]}})
+    )
+    r = run("report", mesh, "--png", tmp_path / "m.png")
+    assert r.exit_code == 0, r.output
+    assert "history not drawn" in r.stderr
+
+
+def test_report_bad_inputs_exit_2(files, tmp_path):
+    one_line_error(run("report", tmp_path / "missing.ply"), "missing.ply")
+    one_line_error(run("report", files["cloud"]), "cloud.ply", "no faces")
+    one_line_error(run("report", files["garbage"]), "garbage.ply")
+    one_line_error(run("report", files["sphere"], "--input", tmp_path / "pts.xyz"), "pts.xyz")
+    one_line_error(run("report", files["sphere"], "--png", files["sphere"]), "input file")
+
+
+def test_help_has_examples():
+    for name in ("compare", "report"):
+        r = run(name, "--help")
+        assert r.exit_code == 0 and "Examples:" in r.output
+    assert "reference's bounding-box diagonal" in run("compare", "--help").output

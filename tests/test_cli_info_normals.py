@@ -1,0 +1,229 @@
+"""``oprecon info`` and ``oprecon normals`` through click's CliRunner."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from cli.main import app
+from recon.io import read_points, write_points
+
+SAMPLES = Path(__file__).resolve().parent.parent / "sample_data"
+BUNNY = SAMPLES / "bunny-sparse.ply"
+
+
+def run(*args):
+    return CliRunner().invoke(app, [str(a) for a in args])
+
+
+def sphere(n: int = 1500) -> np.ndarray:
+    d = np.random.default_rng(0).normal(size=(n, 3))
+    return d / np.linalg.norm(d, axis=1, keepdims=True)
+
+
+# ------------------------------------------------------------------------------ info
+
+
+def test_info_table():
+    r = run("info", BUNNY)
+    assert r.exit_code == 0, r.output
+    out = r.stdout
+    for needle in (
+        "ply-binary_little_endian",
+        "2,000",
+        "bbox min",
+        "bbox diagonal",
+        "spacing",
+        "normals",
+        "no",
+    ):
+        assert needle in out, out
+
+
+def test_info_json(tmp_path):
+    path = tmp_path / "geo.ply"
+    p = sphere() * 10 + [5e6, 4e6, 0.0]
+    write_points(path, p, sphere())
+    r = run("info", path, "--json")
+    assert r.exit_code == 0, r.output
+    d = json.loads(r.stdout)
+    assert d["points"] == 1500 and d["has_normals"] and not d["has_colors"]
+    assert d["bbox_min"][0] == pytest.approx(p[:, 0].min())
+    assert d["bbox_diagonal"] == pytest.approx(np.linalg.norm(p.max(0) - p.min(0)))
+    assert d["spacing_median_nn"] > 0
+    assert d["elements"] == {"vertex": 1500}
+    assert d["origin"][0] != 0
+
+
+def test_info_counts_cleaning(tmp_path):
+    path = tmp_path / "dirty.xyz"
+    p = sphere(100)
+    rows = np.vstack([p, p[:7], [[np.nan, 1, 2]]])
+    np.savetxt(path, rows, fmt="%.17g")
+    d = json.loads(run("info", path, "--json").stdout)
+    assert (d["points"], d["points_read"], d["duplicates_merged"], d["nonfinite_dropped"]) == (
+        100,
+        108,
+        7,
+        1,
+    )
+
+
+# ------------------------------------------------------------------------------ normals
+
+
+def test_normals_writes_oriented_cloud(tmp_path):
+    out = tmp_path / "o.ply"
+    r = run("normals", BUNNY, "-o", out)
+    assert r.exit_code == 0, r.output
+    assert "2,000 points" in r.stderr and "oriented" in r.stderr
+    c = read_points(out)
+    src = read_points(BUNNY)
+    np.testing.assert_array_equal(c.absolute_points(), src.absolute_points())
+    np.testing.assert_allclose(np.linalg.norm(c.normals, axis=1), 1.0, atol=1e-6)
+
+
+def test_normals_absolute_coordinates_and_viewpoint(tmp_path):
+    rng = np.random.default_rng(0)
+    p = np.column_stack([rng.uniform(0, 100, (2000, 2)), np.zeros(2000)]) + [5e6, 4e6, 250.0]
+    inp = tmp_path / "scan.ply"
+    write_points(inp, p)
+    out = tmp_path / "scan-n.ply"
+    r = run("normals", inp, "-o", out, "--viewpoint", "5000050,4000050,200", "-q")
+    assert r.exit_code == 0, r.output
+    assert r.stderr == ""
+    c = read_points(out)
+    np.testing.assert_array_equal(c.absolute_points(), p)
+    assert np.all(c.normals[:, 2] < -0.999)  # toward the scanner below
+
+
+def test_normals_options_override_config(tmp_path):
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text("normals:\n  k: 3\n  orientation: none\nio:\n  ascii: false\n")
+    out = tmp_path / "o.ply"
+    r = run(
+        "normals",
+        BUNNY,
+        "-o",
+        out,
+        "--config",
+        cfg,
+        "--k",
+        "12",
+        "--orientation",
+        "outward",
+        "--ascii",
+    )
+    assert r.exit_code == 0, r.output
+    assert "k=12" in r.stderr and "outward" in r.stderr
+    assert read_points(out).format == "ply-ascii"
+    r = run("normals", BUNNY, "-o", out, "--config", cfg, "--set", "normals.k=9")
+    assert r.exit_code == 0 and "k=9" in r.stderr and "oriented none" in r.stderr
+
+
+def test_normals_input_mode(tmp_path):
+    r = run("normals", BUNNY, "-o", tmp_path / "x.ply", "--normals", "input")
+    assert r.exit_code == 2
+    assert "no normals" in r.stderr and str(BUNNY) in r.stderr
+    src = tmp_path / "with.ply"
+    write_points(src, sphere(), -sphere())
+    r = run("normals", src, "-o", tmp_path / "y.ply", "--normals", "input")
+    assert r.exit_code == 0 and "kept the file's normals" in r.stderr
+    np.testing.assert_allclose(read_points(tmp_path / "y.ply").normals, -sphere(), atol=1e-6)
+
+
+def test_normals_output_checks(tmp_path):
+    src = tmp_path / "in.ply"
+    write_points(src, sphere())
+    r = run("normals", src, "-o", src)
+    assert r.exit_code == 2 and "overwrite an input" in r.stderr
+    r = run("normals", src, "-o", tmp_path / "new" / "o.ply")
+    assert r.exit_code == 2 and "--mkdir" in r.stderr
+    r = run("normals", src, "-o", tmp_path / "new" / "o.ply", "--mkdir")
+    assert r.exit_code == 0 and (tmp_path / "new" / "o.ply").is_file()
+
+
+@pytest.mark.parametrize("value", ["1,2", "a,b,c"])
+def test_normals_bad_viewpoint_is_usage_error(tmp_path, value):
+    r = run("normals", BUNNY, "-o", tmp_path / "o.ply", "--viewpoint", value)
+    assert r.exit_code == 2 and "viewpoint" in r.stderr
+    assert not (tmp_path / "o.ply").exists()
+
+
+def test_help_has_examples():
+    for cmd in ("info", "normals"):
+        r = run(cmd, "--help")
+        assert r.exit_code == 0 and "Examples:" in r.stdout
+
+
+# ------------------------------------------------------------------------------ bad inputs
+
+
+def _ply_header(n: int, fmt: str = "binary_little_endian") -> bytes:
+    props = "".join(f"property float {c}\n" for c in "xyz")
+    return f"ply\nformat {fmt} 1.0\nelement vertex {n}\n{props}end_header\n".encode()
+
+
+def _make_bad(tmp_path: Path, kind: str) -> tuple[Path, str]:
+    path = tmp_path / f"{kind}.ply"
+    if kind == "empty":
+        path.write_bytes(b"")
+        return path, "empty"
+    if kind == "truncated":
+        path.write_bytes(_ply_header(1000) + b"\x00" * 100)
+        return path, "truncated"
+    if kind == "magic":
+        path.write_bytes(b"\x89PNG\r\n\x1a\n" + b"\x00" * 64)
+        return path, "magic"
+    if kind == "token":
+        path.write_bytes(_ply_header(4, "ascii") + b"0 0 0\n1 0 0\n0 1 oops\n0 0 1\n")
+        return path, "oops"
+    if kind == "directory":
+        path.mkdir()
+        return path, "directory"
+    if kind == "missing":
+        return path, "no such file"
+    raise AssertionError(kind)
+
+
+KINDS = ["empty", "truncated", "magic", "token", "directory", "missing"]
+
+
+@pytest.mark.parametrize("kind", KINDS)
+@pytest.mark.parametrize("command", ["info", "normals"])
+def test_bad_input_exit_2_one_line(tmp_path, kind, command):
+    path, problem = _make_bad(tmp_path, kind)
+    out = tmp_path / "out" / "o.ply"
+    out.parent.mkdir()
+    args = [command, path] + (["-o", out] if command == "normals" else [])
+    r = run(*args)
+    assert r.exit_code == 2, (r.exit_code, r.output)
+    err = r.stderr
+    assert err.startswith("oprecon: error: ") and err.count("\n") == 1, err
+    assert str(path) in err and problem in err, err
+    assert "Traceback" not in r.output
+    assert r.stdout == ""
+    assert list(out.parent.iterdir()) == []  # no output, no temporary file
+
+
+def test_bad_input_subprocess_no_traceback(tmp_path):
+    import subprocess
+    import sys
+
+    path, _ = _make_bad(tmp_path, "truncated")
+    out = tmp_path / "o.ply"
+    root = Path(__file__).resolve().parent.parent
+    proc = subprocess.run(
+        [sys.executable, "-m", "cli.main", "normals", str(path), "-o", str(out)],
+        cwd=root,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert proc.returncode == 2
+    assert "Traceback" not in proc.stderr and str(path) in proc.stderr
+    assert not out.exists()

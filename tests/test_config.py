@@ -1,0 +1,165 @@
+"""recon.config and ``oprecon config show|validate``: validation messages and precedence."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+import yaml
+from click.testing import CliRunner
+
+from cli.main import app
+from recon.config import (
+    SECTIONS,
+    NormalsConfig,
+    ReconConfig,
+    apply_overrides,
+    config_from_dict,
+    config_to_dict,
+    dump_config,
+    load_config,
+    parse_override,
+    with_values,
+)
+from recon.errors import ConfigError
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def run(*args):
+    return CliRunner().invoke(app, [str(a) for a in args])
+
+
+def test_default_yaml_is_dump_config():
+    text = (ROOT / "configs" / "default.yaml").read_text()
+    assert text == dump_config(), (
+        "configs/default.yaml is stale; regenerate it with: .venv/bin/python -c "
+        "\"from recon.config import dump_config; open('configs/default.yaml','w')"
+        '.write(dump_config())"'
+    )
+    assert load_config(ROOT / "configs" / "default.yaml") == ReconConfig()
+
+
+def test_dump_roundtrip_without_comments():
+    data = yaml.safe_load(dump_config(comments=False))
+    assert data == config_to_dict(ReconConfig())
+    assert config_from_dict(data) == ReconConfig()
+    assert set(SECTIONS) >= {"io", "normals", "seeds", "dynamics"}
+
+
+def test_every_key_is_documented():
+    text = dump_config()
+    for section in SECTIONS:
+        for key in config_to_dict(ReconConfig())[section]:
+            line = next(ln for ln in text.splitlines() if ln.strip().startswith(f"{key}:"))
+            assert "  # " in line, line
+
+
+@pytest.mark.parametrize(
+    "data,needle",
+    [
+        ({"normals": {"kk": 5}}, "unknown key 'normals.kk' (did you mean 'k'?)"),
+        ({"normal": {"k": 5}}, "unknown key 'normal' (did you mean 'normals'?)"),
+        ({"normals": {"k": "many"}}, "normals.k: expected an integer, got 'many'"),
+        ({"io": {"ascii": "yes"}}, "io.ascii: expected true or false"),
+        ({"normals": {"k": 1}}, "normals.k: 1 is out of range, allowed [3, 500]"),
+        ({"normals": {"radius": 0}}, "normals.radius: 0.0 is out of range, allowed (0, inf]"),
+        ({"normals": {"orientation": "outwards"}}, "did you mean 'outward'?"),
+        ({"normals": {"viewpoint": [1, 2]}}, "normals.viewpoint: expected 3 numbers"),
+        ({"normals": {"viewpoint": [1, 2, "z"]}}, "normals.viewpoint[2]: expected a number"),
+        ({"growth": {"stretch_min": 3.0, "stretch_max": 2.5}}, "must not exceed"),
+        ({"normals": 5}, "normals: expected a mapping"),
+    ],
+)
+def test_validation_messages(data, needle):
+    with pytest.raises(ConfigError) as e:
+        config_from_dict(data)
+    assert needle in str(e.value), str(e.value)
+
+
+def test_int_to_float_and_null_section():
+    cfg = config_from_dict({"normals": {"radius": 2}, "io": None})
+    assert cfg.normals.radius == 2.0 and isinstance(cfg.normals.radius, float)
+    assert cfg.io == ReconConfig().io
+
+
+def test_overrides_and_with_values():
+    cfg = apply_overrides(ReconConfig(), {"normals.k": 30})
+    assert cfg.normals.k == 30
+    assert parse_override("normals.viewpoint=[0, 0, 10]") == ("normals.viewpoint", [0, 0, 10])
+    with pytest.raises(ConfigError, match="unknown key 'normals.kay'"):
+        apply_overrides(cfg, {"normals.kay": 1})
+    with pytest.raises(ConfigError, match="is a section"):
+        apply_overrides(cfg, {"normals": 1})
+    with pytest.raises(ConfigError, match="expected section.key=value"):
+        parse_override("normals.k")
+    same = with_values(cfg, normals={"k": None, "orientation": None})
+    assert same is cfg
+    changed = with_values(cfg, normals={"k": 7, "radius": None})
+    assert changed.normals == NormalsConfig(k=7)
+
+
+def test_precedence_set_over_file_over_defaults(tmp_path):
+    path = tmp_path / "c.yaml"
+    path.write_text("normals:\n  k: 40\n  orient_k: 12\n")
+    cfg = load_config(path, ["normals.k=50"])
+    assert (cfg.normals.k, cfg.normals.orient_k, cfg.normals.mode) == (50, 12, "auto")
+    r = run("config", "show", "--config", path, "--set", "normals.k=50", "--no-comments")
+    assert r.exit_code == 0, r.output
+    shown = yaml.safe_load(r.stdout)
+    assert shown["normals"]["k"] == 50 and shown["normals"]["orient_k"] == 12
+
+
+def test_config_show_documents_keys():
+    r = run("config", "show")
+    assert r.exit_code == 0
+    assert r.stdout == dump_config()
+    assert "# Neighbours for the PCA normal estimate" in r.stdout
+
+
+def test_config_validate(tmp_path):
+    good = tmp_path / "good.yaml"
+    good.write_text("normals:\n  k: 25\n")
+    r = run("config", "validate", good)
+    assert r.exit_code == 0 and "valid" in r.stdout
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("normals:\n  kk: 25\n")
+    r = run("config", "validate", bad)
+    assert r.exit_code == 2
+    assert str(bad) in r.stderr and "did you mean 'k'" in r.stderr
+    assert "Traceback" not in r.output
+
+
+@pytest.mark.parametrize(
+    "text,needle",
+    [
+        ("normals:\n  k: [1\n", "invalid YAML at line"),
+        ("normals:\n  k: 2\n", "out of range"),
+        ("normals:\n  k: abc\n", "expected an integer"),
+        ("- 1\n- 2\n", "expected a mapping"),
+    ],
+)
+def test_config_validate_errors(tmp_path, text, needle):
+    path = tmp_path / "c.yaml"
+    path.write_text(text)
+    r = run("config", "validate", path)
+    assert r.exit_code == 2
+    assert needle in r.stderr and str(path) in r.stderr, r.stderr
+
+
+def test_config_missing_file_and_bad_set(tmp_path):
+    r = run("config", "validate", tmp_path / "none.yaml")
+    assert r.exit_code == 2 and "no such configuration file" in r.stderr
+    r = run("config", "show", "--set", "normals.k=1")
+    assert r.exit_code == 2 and "normals.k" in r.stderr
+    r = run("config", "show", "--set", "normals.orientation=sideways")
+    assert r.exit_code == 2 and "sideways" in r.stderr
+
+
+def test_config_and_preset_are_exclusive(tmp_path):
+    path = tmp_path / "c.yaml"
+    path.write_text("{}\n")
+    r = run("config", "show", "--config", path, "--preset", "default")
+    assert r.exit_code == 2
+    r = run("config", "show", "--preset", "no-such-preset")
+    assert r.exit_code == 2 and "unknown preset 'no-such-preset'" in r.stderr

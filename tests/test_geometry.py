@@ -1,0 +1,64 @@
+"""recon.geometry: hand-checkable sizes, spacing and planes."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from recon.geometry import (
+    as_points,
+    bbox_diagonal,
+    fit_plane,
+    median_nearest_neighbor_distance,
+    unit_vectors,
+)
+
+
+def grid(n: int = 10, step: float = 1.0) -> np.ndarray:
+    i, j = np.meshgrid(np.arange(n) * step, np.arange(n) * step)
+    return np.column_stack([i.ravel(), j.ravel(), np.zeros(n * n)])
+
+
+def test_bbox_diagonal():
+    assert bbox_diagonal(np.array([[0.0, 0, 0], [3, 4, 12]])) == 13.0
+    assert bbox_diagonal(np.zeros((0, 3))) == 0.0
+    assert bbox_diagonal(grid(3) + 5e6) == pytest.approx(np.sqrt(8.0))
+
+
+@pytest.mark.parametrize("step", [1e-6, 1.0, 1e3])
+def test_median_nn_on_grid_any_scale(step):
+    assert median_nearest_neighbor_distance(grid(10, step)) == pytest.approx(step)
+
+
+def test_median_nn_sampling_is_deterministic():
+    rng = np.random.default_rng(0)
+    p = rng.uniform(size=(5000, 3))
+    a = median_nearest_neighbor_distance(p, sample=500)
+    b = median_nearest_neighbor_distance(p, sample=500)
+    full = median_nearest_neighbor_distance(p, sample=None)
+    assert a == b
+    assert a == pytest.approx(full, rel=0.1)
+    c = median_nearest_neighbor_distance(p, sample=500, rng=np.random.default_rng(5))
+    assert c == pytest.approx(full, rel=0.1)
+
+
+def test_median_nn_needs_two_points():
+    with pytest.raises(ValueError, match="at least 2"):
+        median_nearest_neighbor_distance(np.zeros((1, 3)))
+
+
+def test_fit_plane():
+    p = grid(5)
+    rot = np.linalg.qr(np.random.default_rng(1).normal(size=(3, 3)))[0]
+    q = p @ rot.T + [1.0, 2.0, 3.0]
+    centroid, normal, sv = fit_plane(q)
+    np.testing.assert_allclose(centroid, rot @ [2.0, 2.0, 0.0] + [1, 2, 3], atol=1e-12)
+    assert abs(normal @ (rot @ [0, 0, 1.0])) == pytest.approx(1.0)
+    assert sv[2] == pytest.approx(0.0, abs=1e-9) and sv[0] > 0
+
+
+def test_unit_vectors_and_as_points():
+    v = unit_vectors(np.array([[3.0, 4.0, 0.0], [0.0, 0.0, 0.0]]))
+    np.testing.assert_allclose(v, [[0.6, 0.8, 0.0], [0.0, 0.0, 0.0]])
+    with pytest.raises(ValueError, match=r"expected shape \(n, 3\), got \(4, 2\)"):
+        as_points(np.zeros((4, 2)))
