@@ -12,7 +12,9 @@ setup:
 demo: setup
 	@mkdir -p demo_output
 	$(OPRECON) info sample_data/bunny-sparse.ply
-	$(OPRECON) normals sample_data/bunny-sparse.ply -o demo_output/bunny-sparse-normals.ply
+	$(OPRECON) fit sample_data/bunny-sparse.ply -o demo_output/bunny-sparse.ply \
+		--particles demo_output/bunny-sparse-particles.ply --preview demo_output/bunny-sparse.png
+	@echo "demo: wrote demo_output/bunny-sparse.ply, its .report.json and a preview PNG"
 
 test: setup
 	$(PY) -m pytest -q

@@ -23,6 +23,10 @@ def app(ctx: click.Context, debug: bool) -> None:
     \b
     Typical use:
       oprecon info scan.ply                    what is in the file
+      oprecon fit scan.ply -o mesh.ply         reconstruct (writes mesh.report.json too)
+      oprecon compare mesh.ply ref.ply         gate on a reference mesh
+      oprecon report mesh.ply --input scan.ply quality of any mesh
+      oprecon batch campaign.yaml              many scans, resumable
       oprecon normals scan.ply -o oriented.ply consistently oriented normals
       oprecon config show                      every setting with its default
 
@@ -34,9 +38,9 @@ def app(ctx: click.Context, debug: bool) -> None:
 
 
 def _register() -> None:
-    from . import batch, compare, config_cmd, info, normals, report
+    from . import batch, compare, config_cmd, fit, info, normals, report
 
-    for module in (info, normals, compare, report, config_cmd, batch):
+    for module in (info, normals, fit, compare, report, batch, config_cmd):
         app.add_command(module.command)
 
 

@@ -13,4 +13,16 @@ from .errors import ConfigError, InputError, OpreconError
 
 __version__ = "0.1.0"
 
-__all__ = ["ConfigError", "InputError", "OpreconError", "__version__"]
+__all__ = ["ConfigError", "InputError", "OpreconError", "__version__", "fit", "load_config"]
+
+
+def __getattr__(name: str):  # lazy: keep `import recon` (and `oprecon --help`) light
+    if name == "fit":
+        from .pipeline import fit
+
+        return fit
+    if name == "load_config":
+        from .config import load_config
+
+        return load_config
+    raise AttributeError(f"module 'recon' has no attribute {name!r}")

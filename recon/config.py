@@ -50,7 +50,9 @@ class NormalsConfig:
     mode: str = _f("auto", "auto: use the file's normals when present and valid, else estimate; "
                    "estimate: always estimate; input: require normals in the file.",
                    choices=("auto", "estimate", "input"))
-    k: int = _f(20, "Neighbours for the PCA normal estimate.", 3, 500)
+    k: int = _f(20, "Neighbours for the PCA normal estimate and the local data surfaces.", 3, 500)
+    auto_scale: bool = _f(True, "Raise k (up to 8x) on noisy data until the local surfaces are "
+                          "thin (median surface variation below 0.05).")
     radius: float | None = _f(None, "Optional PCA radius [input length units]; null = k-NN only.",
                               0.0, None, lo_open=True)
     orient_k: int = _f(10, "Neighbours in the orientation graph (Hoppe et al. 1992 MST).", 3, 100)
@@ -71,6 +73,9 @@ class SeedsConfig:
     spacing_factor: float = _f(2.5, "r0 = spacing_factor x median nearest-neighbour distance "
                                "of the input (used when spacing and spacing_relative are null).",
                                0.1, 100.0)
+    min_particles: int = _f(10_000, "Resolution floor: r0 shrinks (down to the data spacing x "
+                            "0.8) so that the sheet has about this many particles; sparse "
+                            "inputs are then interpolated between samples.", 0, None)
     thinning: float = _f(1.0, "Seeds are Poisson-disk thinned to this distance [r0].", 0.3, 5.0)
 
 
@@ -132,8 +137,9 @@ class GrowthConfig:
     stretch_min: float = _f(2.0, "Stretching rule: pair distance lower bound [r0].", 1.0, 10.0)
     stretch_max: float = _f(2.5, "Stretching rule: pair distance upper bound [r0].", 1.0, 10.0)
     reject_radius: float = _f(0.8, "Reject a candidate this close to a particle [r0].", 0.1, 2.0)
-    max_gap: float = _f(4.0, "Holes wider than this are not filled; candidates farther than "
-                        "max_gap/2 from the data are rejected [r0].", 0.5, 100.0)
+    max_gap: float | None = _f(None, "Holes wider than this are not filled; candidates farther "
+                               "than max_gap/2 from the data are rejected [r0]. null = 10 x the "
+                               "median data spacing (4 r0 on dense data).", 0.5, 1000.0)
     tangent_tolerance: float = _f(0.5, "Reject a candidate farther than this from the local data "
                                   "plane [r0].", 0.01, 5.0)
     min_add_fraction: float = _f(0.005, "Stop growing when a round adds fewer than this "

@@ -59,7 +59,7 @@ def lj_minimum(params: PhysicsParams) -> float:
     Returns
     -------
     float
-        σ [length] (≈ 1.010 · spacing for cutoff = 2 · spacing).
+        σ [length] (≈ 0.983 · spacing for cutoff = 2 · spacing).
     """
     if params.lj_minimum is not None:
         return float(params.lj_minimum)

@@ -13,7 +13,9 @@ PLY (``.ply``)          ascii, binary little and big endian; any numeric type fo
                         optional nx, ny, nz and red, green, blue; other elements
                         (``face``, ``camera`` ...) are skipped (``info["has_faces"]``)
 XYZ text                ``.xyz .xyzn .txt .csv .asc .pts``: space or comma separated,
-                        ``#`` and ``//`` comments; columns x y z [nx ny nz | r g b];
+                        ``#`` and ``//`` comments; columns x y z [nx ny nz | r g b]
+                        (told apart by unit length / 0-255 integers), or any order under
+                        a header line naming x, y, z (nx ny nz, red green blue);
                         PTS: optional first count line, x y z [intensity [r g b]]
 PCD (``.pcd``)          ascii and binary (``binary_compressed`` is not supported)
 OBJ (``.obj``)          ``v`` (and ``vn`` when there is one per ``v``); faces are ignored
@@ -21,7 +23,14 @@ OBJ (``.obj``)          ``v`` (and ``vn`` when there is one per ``v``); faces ar
 
 Every problem with an input file raises :class:`~recon.errors.InputError` with a message of the
 form ``"<path>: <what is wrong>"``; sizes claimed by headers are checked against the file size
-before anything is allocated.
+before anything is allocated. Files of an unknown extension are recognised by their content.
+
+Notes
+-----
+PLY is parsed here with numpy rather than with plyfile: the header must be validated against the
+file size before any allocation (a header may claim 10^12 vertices), and faces are read as one
+structured array when every face has the same number of corners (plyfile walks list elements
+row by row). The tests use plyfile as the independent reference reader and writer.
 
 References
 ----------
@@ -349,6 +358,8 @@ def _sniff(path: Path) -> str:
             if not line or line.startswith(("#", "//")):
                 continue
             tokens = re.split(r"[\s,;]+", line)
+            if {"x", "y", "z"} <= {t.strip("\"'").lower() for t in tokens}:
+                return "text"  # a CSV header line
             try:
                 [float(t) for t in tokens if t]
             except ValueError:

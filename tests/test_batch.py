@@ -202,7 +202,7 @@ def test_invalid_batch_files_name_the_key_and_line(tmp_path, text, expected):
 
 def test_cli_overrides_are_validated(tmp_path):
     path = write_batch(tmp_path, "inputs: a.ply\noutput_dir: out\n")
-    with pytest.raises(ConfigError, match=r"--set dynamics\.dx=0\.1.*did you mean 'dynamics\.dt'"):
+    with pytest.raises(ConfigError, match=r"--set dynamics\.dx=0\.1.*did you mean '(dynamics\.)?dt'"):
         load_batch(path, cli_overrides=["dynamics.dx=0.1"])
 
 
@@ -213,10 +213,14 @@ inputs: a.ply
 output_dir: out
 overrides:
   - match: a
-    set: {growth.stretch_min: 3.0}
+    set: {growth.stretch_max: 2.2}
+  - match: "*"
+    set: {growth.stretch_min: 2.4}
 """)
-    with pytest.raises(ConfigError, match=r"item 'a' .*overrides\[0\] \(line 5\).*stretch_min"):
-        plan_batch(load_batch(path))
+    spec = load_batch(path)  # each override is valid on its own
+    with pytest.raises(ConfigError, match=r"item 'a' .*overrides\[0\] \(line 5\), "
+                       r"overrides\[1\] \(line 7\).*stretch_min"):
+        plan_batch(spec)
 
 
 # --------------------------------------------------------------------------------------------
@@ -315,12 +319,14 @@ def test_temp_file_pattern_matches_io_atomic_output(tmp_path):
     from recon.io import atomic_output
 
     dest = tmp_path / "x.report.json"
-    with atomic_output(dest) as tmp:
-        tmp.write_text("{}")
-        assert batch._remove_temp_files(tmp_path, [dest.name], os.getpid() + 1) == 0
-        assert batch._remove_temp_files(tmp_path, [dest.name], os.getpid()) == 1
-    assert not dest.exists() or dest.read_text() == "{}"
+    writer = atomic_output(dest)  # a writer killed inside the block leaves its temporary
+    writer.__enter__().write_text("{}")
+    (tmp_path / "y.report.json").write_text("{}")
+    assert len(temp_files(tmp_path)) == 1
+    assert batch._remove_temp_files(tmp_path, [dest.name], os.getpid() + 1) == 0
+    assert batch._remove_temp_files(tmp_path, ["y.report.json", dest.name], os.getpid()) == 1
     assert temp_files(tmp_path) == []
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["y.report.json"]
 
 
 # --------------------------------------------------------------------------------------------

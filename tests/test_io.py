@@ -273,6 +273,21 @@ def test_xyzn_and_xyzrgb(tmp_path):
     np.testing.assert_allclose(c2.colors, rgb / 255.0)
 
 
+def test_csv_with_header(tmp_path):
+    p = cloud(25)
+    rows = np.hstack([p[:, [2]], np.arange(25)[:, None], p[:, :2], p])  # z, id, x, y, normals
+    path = tmp_path / "pts.dat"
+    body = "\n".join(",".join(repr(v) for v in r) for r in rows.tolist())
+    path.write_text('"Z",id,X,Y,nx,ny,nz\n' + body + "\n")
+    c = read_points(path)
+    np.testing.assert_array_equal(c.absolute_points(), p)
+    np.testing.assert_allclose(c.normals, p, atol=1e-12)
+    bad = tmp_path / "bad.csv"
+    bad.write_text("a,b,c\n1,2,3\n")
+    with pytest.raises(InputError, match="header naming x, y, z"):
+        read_points(bad)
+
+
 def test_pts_with_count_intensity_rgb(tmp_path):
     p = cloud(30)
     rgb = np.random.default_rng(0).integers(0, 256, (30, 3))

@@ -20,11 +20,13 @@ continuously at r_c:
 
 Notes
 -----
-The truncation moves the equilibrium of a lattice away from σ (DESIGN §3: with σ = r0 the
-hexagonal sheet rests at 1.15 r0 for r_c = 1.6 r0, 0.99 r0 for 2.0 r0, 0.87 r0 for 2.5 r0).
-:func:`calibrate_lj_minimum` therefore chooses σ so that an infinite flat hexagonal lattice with
-nearest-neighbour distance r0 is stress-free for the given cutoff; "equilibrium at r0" then
-holds for the sheet the particles are meant to form, for any cutoff.
+The truncation and the second neighbour shell move the equilibrium of a lattice away from σ
+(DESIGN §3 measured 1.15 r0, 0.99 r0 and 0.87 r0 for r_c = 1.6, 2.0 and 2.5 r0 with σ = r0; for
+this shifted-force form the stress-free infinite hexagonal lattice has spacing 1.127, 1.025 and
+0.912 σ). :func:`calibrate_lj_minimum` therefore chooses σ so that the flat hexagonal lattice
+with nearest-neighbour distance r0 is stress-free for the given cutoff (σ = 0.914, 0.983 and
+1.067 r0); "equilibrium at r0" then holds for the sheet the particles are meant to form, for any
+cutoff. A pair on its own rests at a distance slightly different from r0.
 
 S&T92 Appendix A writes the LJ force on j where it labels the force on i; here every force is
 derived from the energy, f_i = +φ′_sf(d) r̂ with r = x_j − x_i (DESIGN §2).
@@ -152,7 +154,7 @@ def calibrate_lj_minimum(spacing: float, cutoff: float) -> float:
     Returns
     -------
     float
-        σ [length]; σ ≈ 1.010 r0 for r_c = 2 r0.
+        σ [length]; σ ≈ 0.983 r0 for r_c = 2 r0.
 
     Raises
     ------

@@ -16,5 +16,14 @@ from __future__ import annotations
 FASTMATH: frozenset[str] = frozenset({"nsz", "arcp", "contract", "afn", "reassoc"})
 """LLVM fast-math flags: ``fastmath=True`` minus ``nnan``/``ninf`` (see the module docstring)."""
 
-JIT_OPTIONS: dict = {"cache": True, "fastmath": set(FASTMATH), "nogil": True}
-"""Keyword arguments for every ``numba.njit`` in :mod:`recon.kernels`."""
+JIT_OPTIONS: dict = {
+    "cache": True,
+    "fastmath": set(FASTMATH),
+    "nogil": True,
+    "error_model": "numpy",
+}
+"""Keyword arguments for every ``numba.njit`` in :mod:`recon.kernels`.
+
+``error_model="numpy"``: a division by zero gives inf/NaN (caught by the divergence check)
+instead of raising ``ZeroDivisionError`` from inside a kernel, and divisions carry no
+zero test."""

@@ -1,0 +1,99 @@
+"""Cell-grid neighbour lists: equal to brute force, skin logic, changes between steps."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from recon.errors import DivergenceError
+from recon.neighbors import NeighborList, build_neighbor_list, sort_order_by_cell
+from tests.reference import brute_force_neighbors, fibonacci_sphere
+
+
+def _rows(offsets, indices):
+    return [indices[offsets[i] : offsets[i + 1]] for i in range(len(offsets) - 1)]
+
+
+@pytest.mark.parametrize("parallel", [False, True])
+@pytest.mark.parametrize(
+    "cloud",
+    ["uniform", "sphere", "clustered", "far_outlier"],
+)
+def test_equals_brute_force(cloud, parallel):
+    rng = np.random.default_rng(0)
+    if cloud == "uniform":
+        position = rng.uniform(-5, 5, size=(600, 3))
+    elif cloud == "sphere":
+        position = fibonacci_sphere(800, 8.0)
+    elif cloud == "clustered":
+        position = np.vstack([rng.normal(scale=0.3, size=(200, 3)), rng.uniform(0, 1, (50, 3))])
+        position = np.vstack([position, position[:10]])  # exact duplicates
+    else:
+        position = np.vstack([rng.uniform(0, 3, size=(100, 3)), [[1e5, -3e4, 2e5]]])
+    radius = 1.7
+    offsets, indices = build_neighbor_list(position, radius, parallel=parallel)
+    assert offsets.dtype == np.int64 and indices.dtype == np.int32
+    rows = _rows(offsets, indices)
+    expected = brute_force_neighbors(position, radius)
+    assert len(rows) == len(expected)
+    for got, want in zip(rows, expected, strict=True):
+        np.testing.assert_array_equal(got, want)  # rows are sorted ascending
+
+
+def test_empty_and_single():
+    offsets, indices = build_neighbor_list(np.zeros((0, 3)), 1.0)
+    assert offsets.tolist() == [0] and indices.size == 0
+    offsets, indices = build_neighbor_list(np.zeros((1, 3)), 1.0)
+    assert offsets.tolist() == [0, 0]
+
+
+def test_rebuild_only_past_half_the_skin():
+    rng = np.random.default_rng(1)
+    position = rng.uniform(0, 10, size=(300, 3))
+    nl = NeighborList(cutoff=2.0, skin=0.4)
+    assert nl.update(position)
+    moved = position.copy()
+    moved[7] += [0.199, 0.0, 0.0]
+    assert not nl.needs_rebuild(moved)
+    assert not nl.update(moved)
+    moved[7] += [0.002, 0.0, 0.0]
+    assert nl.needs_rebuild(moved)
+    assert nl.update(moved) and nl.n_builds == 2
+
+
+def test_list_stays_valid_within_half_skin():
+    """Every pair within the cutoff after moves of < skin/2 is still in the list."""
+    rng = np.random.default_rng(2)
+    position = rng.uniform(0, 8, size=(400, 3))
+    nl = NeighborList(cutoff=2.0, skin=0.4)
+    nl.build(position)
+    step = rng.normal(size=position.shape)
+    step *= 0.1999 / np.linalg.norm(step, axis=1)[:, None]
+    moved = position + step
+    assert not nl.needs_rebuild(moved)
+    within = brute_force_neighbors(moved, 2.0)
+    for i, row in enumerate(within):
+        assert set(row) <= set(nl.neighbors_of(i).tolist())
+
+
+def test_particle_count_change_forces_rebuild():
+    position = np.random.default_rng(3).uniform(0, 5, size=(50, 3))
+    nl = NeighborList(cutoff=1.5, skin=0.3)
+    nl.build(position)
+    assert nl.needs_rebuild(position[:40])
+    assert nl.needs_rebuild(np.vstack([position, [[0.0, 0.0, 0.0]]]))
+
+
+def test_non_finite_positions_raise_divergence():
+    with pytest.raises(DivergenceError, match="particle 1"):
+        build_neighbor_list(np.array([[0.0, 0, 0], [np.nan, 0, 0]]), 1.0)
+
+
+def test_sort_order_groups_cells():
+    rng = np.random.default_rng(4)
+    position = rng.uniform(0, 20, size=(500, 3))
+    order = sort_order_by_cell(position, 2.0)
+    assert sorted(order.tolist()) == list(range(500))
+    cells = np.floor((position[order] - position.min(axis=0)) / 2.0).astype(int)
+    keys = (cells[:, 0] * 100 + cells[:, 1]) * 100 + cells[:, 2]
+    assert np.all(np.diff(keys) >= 0)
