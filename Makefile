@@ -27,5 +27,11 @@ format: setup
 	$(PY) -m ruff format recon cli tests benchmarks scripts
 	$(PY) -m ruff check --fix recon cli tests benchmarks scripts
 
+# Refit the regression samples, print each metric change (vs the old reference and the ground
+# truth), re-measure the float noise and write sample_data/references/. Only look, write
+# nothing: make refresh-references ARGS=--check   (some entries: ARGS="bunny-sparse")
+refresh-references: setup
+	$(PY) scripts/refresh_references.py $(ARGS)
+
 clean:
 	rm -rf demo_output bench_output .pytest_cache

@@ -82,7 +82,11 @@ def triangulate_particles(positions: np.ndarray, normals: np.ndarray, cfg: Trian
     stats: dict = {"method": cfg.method, "faces_raw": int(len(faces))}
     faces = orient_faces(positions, normals, faces)
     faces = remove_non_manifold_faces(faces, len(positions))
-    faces = faces[~non_manifold_vertex_faces(faces, len(positions))]
+    for _ in range(5):  # dropping a fan can leave a new bow-tie next to it
+        bad = non_manifold_vertex_faces(faces, len(positions))
+        if not bad.any():
+            break
+        faces = faces[~bad]
     stats["faces_manifold"] = int(len(faces))
     vertices, vnormals = positions, normals
     if cfg.fill_holes and len(faces):
@@ -361,8 +365,20 @@ def fill_small_holes(vertices: np.ndarray, normals: np.ndarray, faces: np.ndarra
         ring = vertices[loop]
         if not do_fill or len(loop) < 3:
             continue
-        filled += 1
         rev = loop[::-1]
+        # A patch wound this way must face the side the loop's vertex normals face; if it faces
+        # away, the loop is the outer rim of an open sheet (e.g. a small flat patch), and
+        # "filling" it would cap the sheet's back side into a closed double layer.
+        # Only loops whose normals agree (a flat-ish rim) are judged; on a rim whose normals
+        # cancel (a cylinder's open end) the test says nothing and the loop is filled.
+        centre = ring.mean(axis=0)
+        patch_normal = np.cross(vertices[rev] - centre, vertices[np.roll(rev, -1)] - centre).sum(0)
+        rim_normal = normals[loop].sum(axis=0)
+        agree = float(patch_normal @ rim_normal)
+        coherent = np.linalg.norm(rim_normal) > 0.5 * len(loop)
+        if coherent and agree < -0.5 * np.linalg.norm(patch_normal) * np.linalg.norm(rim_normal):
+            continue
+        filled += 1
         if len(loop) == 3:
             new_faces.append(rev[None, :])
         elif len(loop) == 4:

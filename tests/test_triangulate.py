@@ -67,7 +67,7 @@ def test_fill_keeps_orientation_consistent():
     v = np.column_stack([xy, np.zeros(len(xy))]).astype(float)
     drop = [12, 13, 14, 15]
     faces = faces[[i for i in range(len(faces)) if i not in drop]]
-    nrm = np.tile([0.0, 0, 1], (len(v), 1))
+    nrm = np.tile([0.0, 0, -1], (len(v), 1))  # _grid_faces winds this layout toward -z
     v2, n2, f2, filled = fill_small_holes(v, nrm, faces, max_perimeter=8.0)
     assert filled == 1
     assert len(boundary_loops(f2)) == 1
@@ -96,3 +96,13 @@ def test_circumsphere_test_on_hex_sheet_gives_equilateral_triangles():
     assert len(f) > 50
     e = np.linalg.norm(p[f] - p[np.roll(f, 1, axis=1)], axis=2)
     assert np.allclose(e, 1.0, atol=1e-9)
+
+
+def test_bow_tie_vertex_keeps_its_larger_fan():
+    from recon.triangulate import non_manifold_vertex_faces
+
+    # vertex 0 shared by a fan of two triangles and a lone triangle
+    faces = np.array([[0, 1, 2], [0, 2, 3], [0, 4, 5]])
+    drop = non_manifold_vertex_faces(faces, 6)
+    assert drop.tolist() == [False, False, True]
+    assert not non_manifold_vertex_faces(faces[:2], 6).any()
