@@ -191,7 +191,10 @@ class BatchProgress:
 )
 @click.option("--force", is_flag=True, help="Run every item, even those that are up to date.")
 @click.option(
-    "--dry-run", is_flag=True, help="List what would run, be skipped or fail, and why; run nothing."
+    "--dry-run",
+    is_flag=True,
+    help="List what would run, be skipped or fail, and why; run nothing (exit 1 when an input "
+    "is missing).",
 )
 @click.option(
     "--set",

@@ -4,7 +4,11 @@ from __future__ import annotations
 
 import functools
 import logging
+import os
+import signal
 import sys
+import threading
+import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -88,6 +92,101 @@ def common_run_options(func: Callable[..., Any]) -> Callable[..., Any]:
     return wrapper
 
 
+#: Code that must not be interrupted half-way: numba's and llvmlite's compile and cache-load
+#: callbacks swallow or garble a KeyboardInterrupt (the run goes on, or fails with SystemError).
+_FRAGILE_DIRS = tuple(f"{os.sep}{name}{os.sep}" for name in ("numba", "llvmlite"))
+
+
+def _is_query_thread(thread: Any) -> bool:
+    """A worker of ``cKDTree.query(..., workers=-1)`` (a daemon thread running _thread_func)."""
+    return isinstance(thread, threading.Thread) and thread.name.endswith("(_thread_func)")
+
+
+def _unsafe_to_interrupt(frame: Any) -> bool:
+    """Is the main thread starting or waiting for k-d tree workers, or inside numba?
+
+    scipy's ``cKDTree.query(workers=-1)`` hands raw pointers to its output arrays to daemon
+    threads and waits for them; a KeyboardInterrupt in that wait frees the arrays while the
+    threads still write into them (a segmentation fault).
+    """
+    if frame is None:
+        return False
+    if any(d in frame.f_code.co_filename for d in _FRAGILE_DIRS):
+        return True
+    for _ in range(8):
+        if frame is None or frame.f_code.co_filename != threading.__file__:
+            return False
+        if _is_query_thread(frame.f_locals.get("self")):
+            return True
+        frame = frame.f_back
+    return False
+
+
+class deferred_interrupts:  # noqa: N801 - used like a function
+    """Within the block, Ctrl-C is raised only where it is safe (see _unsafe_to_interrupt).
+
+    An interrupt that arrives at an unsafe point is retried every 20 ms (SIGALRM) until the
+    main thread has left the fragile code. Does nothing outside the main thread, when SIGINT
+    has a custom handler already, or without ``setitimer`` (Windows).
+    """
+
+    RETRY_S = 0.02
+
+    def __enter__(self) -> deferred_interrupts:
+        self.active = (
+            hasattr(signal, "setitimer")
+            and threading.current_thread() is threading.main_thread()
+            and signal.getsignal(signal.SIGINT) is signal.default_int_handler
+        )
+        if self.active:
+            self.old_alarm = signal.signal(signal.SIGALRM, self._handle)
+            signal.signal(signal.SIGINT, self._handle)
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self.active:
+            signal.setitimer(signal.ITIMER_REAL, 0.0)
+            signal.signal(signal.SIGINT, signal.default_int_handler)
+            signal.signal(signal.SIGALRM, self.old_alarm)
+
+    def _handle(self, signum: int, frame: Any) -> None:
+        if _unsafe_to_interrupt(frame):
+            signal.setitimer(signal.ITIMER_REAL, self.RETRY_S)
+            return
+        signal.setitimer(signal.ITIMER_REAL, 0.0)
+        raise KeyboardInterrupt
+
+
+def wait_for_query_threads(timeout: float = 10.0) -> None:
+    """Let the workers of an interrupted k-d tree query finish before the interpreter exits.
+
+    A last line of defence behind :class:`deferred_interrupts`: an interpreter shutting down
+    under running daemon threads can crash. A thread that was started but has not run yet
+    (still in ``threading``'s limbo) cannot be joined; it is polled until it can.
+    """
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        pending = [t for t in threading.enumerate() if _is_query_thread(t) and t.daemon]
+        if not pending:
+            return
+        for thread in pending:
+            try:
+                thread.join(max(0.0, deadline - time.monotonic()))
+            except RuntimeError:  # started, not yet running
+                time.sleep(0.005)
+
+
+def _caused_by_interrupt(exc: BaseException) -> bool:
+    seen: set[int] = set()
+    node: BaseException | None = exc
+    while node is not None and id(node) not in seen:
+        if isinstance(node, KeyboardInterrupt):
+            return True
+        seen.add(id(node))
+        node = node.__cause__ or node.__context__
+    return False
+
+
 def catch_errors(func: Callable[..., Any]) -> Callable[..., Any]:
     """Turn library errors into one-line messages with the documented exit codes."""
 
@@ -96,17 +195,32 @@ def catch_errors(func: Callable[..., Any]) -> Callable[..., Any]:
         ctx = click.get_current_context()
         debug = bool((ctx.find_root().obj or {}).get("debug"))
         try:
-            return func(*args, **kwargs)
+            with deferred_interrupts():
+                return func(*args, **kwargs)
         except OpreconError as exc:
             if debug:
                 raise
             fail(str(exc), EXIT_BAD_INPUT)
         except KeyboardInterrupt:
             click.echo("oprecon: interrupted", err=True)
+            wait_for_query_threads()
             sys.exit(EXIT_INTERRUPTED)
         except MemoryError:
             if debug:
                 raise
             fail("out of memory (lower dynamics.max_particles or thin the input)", EXIT_BAD_INPUT)
+        except OSError as exc:  # a file problem the library did not wrap (e.g. a full disk)
+            if debug:
+                raise
+            where = f"{exc.filename}: " if exc.filename else ""
+            fail(f"{where}{exc.strerror or exc}", EXIT_BAD_INPUT)
+        except Exception as exc:
+            # Ctrl-C inside a compiled-code callback (numba loading a cached kernel) surfaces
+            # as a SystemError caused by the KeyboardInterrupt: still an interrupt
+            if not _caused_by_interrupt(exc):
+                raise
+            click.echo("oprecon: interrupted", err=True)
+            wait_for_query_threads()
+            sys.exit(EXIT_INTERRUPTED)
 
     return wrapper

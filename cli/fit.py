@@ -9,6 +9,7 @@ from typing import Any
 import click
 
 from recon.config import apply_overrides, with_values
+from recon.errors import OpreconError
 
 from .common import build_config, catch_errors, common_run_options, config_options
 
@@ -146,7 +147,7 @@ def command(input_path: Path, output_path: Path, particles_path: Path | None,
     """
     import json
 
-    from recon.pipeline import _json_default, fit_file
+    from recon.pipeline import _json_default, fit_file, report_path_for
 
     cfg = build_config(config_path, preset, overrides)
     cfg = with_values(
@@ -161,10 +162,17 @@ def command(input_path: Path, output_path: Path, particles_path: Path | None,
     if seed is not None:
         cfg = apply_overrides(cfg, {"seed": seed})
     progress = Progress(enabled=not quiet)
+    named = [str(p) for p in (input_path, output_path, report_path_for(output_path),
+                              particles_path, preview_path) if p]
     try:
         result = fit_file(input_path, output_path, cfg, particles_path=particles_path,
                           preview_path=preview_path, write_report=False if no_report else None,
                           mkdir=mkdir, on_progress=progress)
+    except OpreconError as exc:
+        # say which file a failed run was about (limits, divergence, too sparse data ...)
+        if any(str(exc).startswith(n) for n in named):
+            raise
+        raise type(exc)(f"{input_path}: {exc}") from exc
     finally:
         progress.close()
     if not quiet:

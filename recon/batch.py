@@ -80,7 +80,7 @@ import threading
 import time
 import traceback
 import uuid
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
@@ -141,6 +141,8 @@ DASK_MISSING = 'the dask executor needs the optional dependency: pip install "op
 _STARTUP_TIMEOUT = 600.0
 #: After a stop request, time a child gets to clean up before it is killed [s].
 _STOP_GRACE = 5.0
+#: A child whose stdin closed (stop request, or its parent died) exits after this at the latest [s].
+_ORPHAN_EXIT = 15.0
 _POLL = 0.2
 _TOP_KEYS = (
     "version",
@@ -419,7 +421,9 @@ def load_batch(
     except yaml.YAMLError:  # pragma: no cover - load_yaml_file has parsed it already
         marks = _Marks(None)
     chk = _Checker(p, marks)
-    for dotted, line in marks.duplicates():
+    duplicates = marks.duplicates()
+    if duplicates:
+        dotted, line = duplicates[0]
         raise ConfigError(f"{p}, line {line}: {dotted}: duplicate key")
     if data is None:
         raise ConfigError(
@@ -543,7 +547,7 @@ def load_batch(
 
 
 def _is_glob(text: str) -> bool:
-    return glob.has_magic(text)
+    return any(c in text for c in "*?[")
 
 
 def _inside(path: Path, folder: Path) -> bool:
@@ -1254,6 +1258,17 @@ def _plain(info: Mapping[str, Any]) -> dict[str, Any]:
     return out
 
 
+def _interrupt_main_thread() -> None:
+    """Raise KeyboardInterrupt in the main thread, even while it sleeps or waits."""
+    main = threading.main_thread()
+    if hasattr(signal, "pthread_kill") and main.ident is not None:
+        signal.pthread_kill(main.ident, signal.SIGINT)
+    else:  # pragma: no cover - Windows
+        import _thread
+
+        _thread.interrupt_main()
+
+
 def _child_main() -> None:
     """Entry point of the child process (see :func:`supervise_item`)."""
     proto = os.fdopen(os.dup(1), "wb")
@@ -1272,13 +1287,14 @@ def _child_main() -> None:
     finished = threading.Event()
 
     def watch_stdin() -> None:
-        # the parent closes our stdin to ask us to stop (or because it died)
+        # the parent closes our stdin to ask us to stop, or because it died
         with contextlib.suppress(Exception):
             sys.stdin.buffer.read()
-        if not finished.is_set():
-            import _thread
-
-            _thread.interrupt_main()
+        if finished.is_set():
+            return
+        _interrupt_main_thread()
+        if not finished.wait(_ORPHAN_EXIT):
+            os._exit(130)  # stuck in native code and nobody left to kill us
 
     threading.Thread(target=watch_stdin, daemon=True).start()
     handler = logging.StreamHandler(sys.stderr)
@@ -1660,58 +1676,60 @@ def _run_local(
     }
     pending = set(futures)
 
-    def drain() -> None:
-        while True:
+    def record(fut: Any) -> None:
+        name = futures[fut]
+        if name in results:
+            return
+        if fut.cancelled():
+            res = ItemResult(
+                name,
+                _input_of(specs, name),
+                STATUS_INTERRUPTED,
+                error="interrupted before it started",
+            )
+        else:
             try:
-                emit(events.get_nowait())
-            except queue.Empty:
-                return
-
-    def collect(done: Iterable[Any]) -> None:
-        for fut in done:
-            name = futures[fut]
-            if fut.cancelled():
+                res = fut.result()
+            except Exception as exc:  # noqa: BLE001 - a bug in the supervisor: report it
                 res = ItemResult(
                     name,
                     _input_of(specs, name),
-                    STATUS_INTERRUPTED,
-                    error="interrupted before it started",
+                    STATUS_FAILED,
+                    error=f"{type(exc).__name__}: {exc}",
+                    detail=traceback.format_exc(),
                 )
-            else:
-                try:
-                    res = fut.result()
-                except Exception as exc:  # noqa: BLE001 - a bug in the supervisor: report it
-                    res = ItemResult(
-                        name,
-                        _input_of(specs, name),
-                        STATUS_FAILED,
-                        error=f"{type(exc).__name__}: {exc}",
-                        detail=traceback.format_exc(),
-                    )
-            results[name] = res
-            emit(BatchEvent("finish", name, result=res))
+        results[name] = res
 
     interrupted = False
     try:
         while pending:
             done, pending = wait(pending, timeout=_POLL, return_when=FIRST_COMPLETED)
-            drain()
-            collect(done)
+            for fut in done:
+                record(fut)
+            while True:  # progress in arrival order, then the items that finished
+                try:
+                    emit(events.get_nowait())
+                except queue.Empty:
+                    break
+            for fut in done:
+                emit(BatchEvent("finish", futures[fut], result=results[futures[fut]]))
     except KeyboardInterrupt:
         interrupted = True
         stop.set()
         for fut in pending:
             fut.cancel()
-        while pending:
+        while pending:  # the supervisors stop their children, then return
             try:
                 done, pending = wait(pending, timeout=_POLL, return_when=FIRST_COMPLETED)
             except KeyboardInterrupt:
-                continue  # already stopping; the children get killed after a grace period
-            drain()
-            collect(done)
+                continue
+            for fut in done:
+                record(fut)
     finally:
+        stop.set()  # whatever ended the loop, no child outlives it
         pool.shutdown(wait=True, cancel_futures=True)
-    drain()
+        for fut in futures:
+            record(fut)
     return interrupted
 
 
@@ -1763,6 +1781,33 @@ def _import_dask() -> Any:
     return dd
 
 
+@contextlib.contextmanager
+def _sigint_ignored() -> Iterator[None]:
+    """Ignore SIGINT meanwhile, so that processes started now (Dask workers) ignore Ctrl-C."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+@contextlib.contextmanager
+def _quiet_loggers(names: Sequence[str], active: bool = True) -> Iterator[None]:
+    """Silence third-party loggers (tracebacks of a cluster shutting down after Ctrl-C)."""
+    loggers = [logging.getLogger(n) for n in names] if active else []
+    levels = [lg.level for lg in loggers]
+    for lg in loggers:
+        lg.setLevel(logging.CRITICAL + 1)
+    try:
+        yield
+    finally:
+        for lg, level in zip(loggers, levels, strict=True):
+            lg.setLevel(level)
+
+
 def _run_dask(
     specs: list[dict[str, Any]],
     jobs: int,
@@ -1775,6 +1820,23 @@ def _run_dask(
     cluster = None
     client = None
     interrupted = False
+    futures: dict[Any, str] = {}
+
+    def record(fut: Any) -> None:
+        name = futures[fut]
+        if name in results:
+            return
+        try:
+            res = fut.result()
+        except Exception as exc:  # noqa: BLE001 - e.g. KilledWorker
+            res = ItemResult(
+                name,
+                _input_of(specs, name),
+                STATUS_FAILED,
+                error=f"Dask task failed: {type(exc).__name__}: {exc}",
+            )
+        results[name] = res
+
     try:
         if scheduler:
             try:
@@ -1784,13 +1846,14 @@ def _run_dask(
                     f"cannot connect to the Dask scheduler at {scheduler}: {exc}"
                 ) from None
         else:
-            cluster = dd.LocalCluster(
-                n_workers=jobs,
-                processes=True,
-                threads_per_worker=1,
-                dashboard_address=None,
-                silence_logs=logging.ERROR,
-            )
+            with _sigint_ignored():  # Ctrl-C is handled here, not in the workers
+                cluster = dd.LocalCluster(
+                    n_workers=jobs,
+                    processes=True,
+                    threads_per_worker=1,
+                    dashboard_address=None,
+                    silence_logs=logging.ERROR,
+                )
             client = dd.Client(cluster, set_as_default=False)
         try:
             versions = client.run(_worker_version)
@@ -1810,30 +1873,15 @@ def _run_dask(
         token = uuid.uuid4().hex[:12]
         stop_name = f"oprecon-batch-stop-{token}"
         stop = dd.Event(stop_name, client=client)
-        futures = {}
         for s in specs:
             fut = client.submit(
                 _dask_item, s, stop_name, key=f"oprecon-{s['name']}-{token}", pure=False
             )
             futures[fut] = s["name"]
-
-        def collect(fut: Any) -> None:
-            name = futures[fut]
-            try:
-                res = fut.result()
-            except Exception as exc:  # noqa: BLE001 - e.g. KilledWorker
-                res = ItemResult(
-                    name,
-                    _input_of(specs, name),
-                    STATUS_FAILED,
-                    error=f"Dask task failed: {type(exc).__name__}: {exc}",
-                )
-            results[name] = res
-            emit(BatchEvent("finish", name, result=res))
-
         try:
             for fut in dd.as_completed(list(futures), loop=client.loop):
-                collect(fut)
+                record(fut)
+                emit(BatchEvent("finish", futures[fut], result=results[futures[fut]]))
         except KeyboardInterrupt:
             interrupted = True
             with contextlib.suppress(Exception):
@@ -1846,16 +1894,18 @@ def _run_dask(
                     time.sleep(_POLL)
             for fut in remaining:
                 if fut.done() and fut.status == "finished":
-                    collect(fut)
-            with contextlib.suppress(Exception):
-                client.cancel([f for f in futures if futures[f] not in results])
+                    record(fut)
     finally:
-        with contextlib.suppress(Exception):
-            if client is not None:
-                client.close()
-        with contextlib.suppress(Exception):
-            if cluster is not None:
-                cluster.close()
+        with _quiet_loggers(("distributed", "tornado"), active=interrupted):
+            with contextlib.suppress(Exception):
+                if client is not None and futures:
+                    client.cancel([f for f in futures if futures[f] not in results])
+            with contextlib.suppress(Exception):
+                if client is not None:
+                    client.close()
+            with contextlib.suppress(Exception):
+                if cluster is not None:
+                    cluster.close()
     return interrupted
 
 

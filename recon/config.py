@@ -336,6 +336,14 @@ def load_yaml_file(path: str | Path) -> Any:
         raise ConfigError(f"{p}: cannot read: {exc}") from None
     try:
         return yaml.safe_load(text)
+    except yaml.constructor.ConstructorError as exc:
+        mark = exc.problem_mark
+        where = f"line {mark.line + 1}, column {mark.column + 1}" if mark is not None else "?"
+        tag = (exc.problem or "").rsplit(" ", 1)[-1].replace("tag:yaml.org,2002:", "!!")
+        raise ConfigError(
+            f"{p}: YAML tag {tag} at {where} is not allowed: configuration files hold plain "
+            "values only (python object tags are never executed)"
+        ) from None
     except yaml.MarkedYAMLError as exc:
         mark = exc.problem_mark
         where = f"line {mark.line + 1}, column {mark.column + 1}" if mark is not None else "?"

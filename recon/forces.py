@@ -34,6 +34,7 @@ import numpy as np
 
 from .kernels import pair_loop as _pl
 from .kernels.lennard_jones import calibrate_lj_minimum, lj_cutoff_values
+from .kernels.options import thread_limit
 from .kernels.weights import WEIGHT_ANISOTROPIC
 from .neighbors import PARALLEL_MIN_PARTICLES, build_neighbor_list
 
@@ -88,9 +89,7 @@ class Anchors:
     normal_stiffness: float
 
     @classmethod
-    def create(
-        cls, points, normals, n: int, stiffness: float, normal_stiffness: float
-    ) -> Anchors:
+    def create(cls, points, normals, n: int, stiffness: float, normal_stiffness: float) -> Anchors:
         """Validate shapes and values, normalise the normals, copy the arrays."""
         for name, value in (("stiffness", stiffness), ("normal_stiffness", normal_stiffness)):
             if not (math.isfinite(value) and value >= 0.0):
@@ -240,23 +239,32 @@ def accumulate_forces(
     if anchors is not None and anchors.points.shape[0] != n:
         raise ValueError(f"anchors: expected {n} rows, got {anchors.points.shape[0]}")
     coef = pack_coefficients(params, anchors=anchors, has_external_force=ext is not None)
-    force = np.zeros((n, 3))
-    torque = np.zeros((n, 3))
-    energy = np.zeros(n)
     if parallel is None:
         parallel = n >= PARALLEL_MIN_PARTICLES
-    kernel = _pl.accumulate_forces_parallel if parallel else _pl.accumulate_forces_serial
-    kernel(
-        coef,
-        int(params.weighting),
+    state_in = (
         position,
         np.ascontiguousarray(state.orientation),
-        np.ascontiguousarray(state.is_oriented),
-        offsets,
-        indices,
-        kernel_extras(anchors, ext),
-        (force, torque, energy),
+        np.ascontiguousarray(state.velocity),
+        np.ascontiguousarray(state.angular_velocity),
     )
+    out = np.zeros((n, _pl.N_STATS))
+    with thread_limit(parallel):
+        _pl.step_particles(
+            coef,
+            int(params.weighting),
+            False,
+            state_in,
+            state_in,
+            (np.ascontiguousarray(state.is_pinned), np.ascontiguousarray(state.is_oriented)),
+            (np.ascontiguousarray(state.mass), np.ascontiguousarray(state.inertia)),
+            (offsets, indices),
+            position,
+            kernel_extras(anchors, ext),
+            out,
+        )
+    force = np.ascontiguousarray(out[:, _pl.S_FORCE : _pl.S_FORCE + 3])
+    torque = np.ascontiguousarray(out[:, _pl.S_TORQUE : _pl.S_TORQUE + 3])
+    energy = np.ascontiguousarray(out[:, _pl.S_POTENTIAL])
     return Forces(force, torque, float(np.sum(energy)), energy)
 
 
@@ -312,7 +320,17 @@ def evaluate_pair(
     ni = np.asarray(normal_i, dtype=np.float64)
     nj = np.asarray(normal_j, dtype=np.float64)
     t = _pl.pair_interaction(
-        r[0], r[1], r[2], ni[0], ni[1], ni[2], nj[0], nj[1], nj[2], bool(oriented), coef,
+        r[0],
+        r[1],
+        r[2],
+        ni[0],
+        ni[1],
+        ni[2],
+        nj[0],
+        nj[1],
+        nj[2],
+        bool(oriented),
+        coef,
         int(params.weighting),
     )
     f = np.array(t[1:4])

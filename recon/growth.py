@@ -185,6 +185,9 @@ def accept_candidates(candidates: np.ndarray, particle_tree: cKDTree, surface: D
     Survivors are projected onto the local data plane and thinned to ``reject_radius`` among
     themselves (first come, first served, in candidate order: deterministic).
     """
+    if cfg.max_gap is None:
+        raise ValueError("growth.max_gap must be resolved to a length before growth "
+                         "(recon.pipeline.reconstruct does this)")
     m = len(candidates)
     empty = Acceptance(np.zeros((0, 3)), np.zeros((0, 3)), m, 0, 0, 0)
     if m == 0:

@@ -1,11 +1,11 @@
 r"""One damped semi-implicit Euler step, fused with the force evaluation.
 
-:func:`integrate_step` runs :func:`recon.kernels.pair_loop.advance_particles_parallel` (or its
-serial twin): every particle computes its force and torque from its neighbour row and writes its
-new position, frame, velocity and angular velocity to a second set of buffers, which are then
-swapped into the :class:`~recon.state.ParticleState`. If any particle's input, force or new state
-is not finite, :class:`~recon.errors.DivergenceError` is raised and the state is left as it was
-(no NaN is ever written into it).
+:func:`integrate_step` runs :func:`recon.kernels.pair_loop.step_particles` (threaded, or in the
+calling thread for small systems): every particle computes its force and torque from its
+neighbour row and writes its new position, frame, velocity and angular velocity to a second set
+of buffers, which are then swapped into the :class:`~recon.state.ParticleState`. If any
+particle's input, force or new state is not finite, :class:`~recon.errors.DivergenceError` is
+raised and the state is left as it was (no NaN is ever written into it).
 
 In reduced units (x̃ = x/r0, m = I = 1 by default; T-thesis eqs. 4.9–4.10):
 
@@ -35,6 +35,7 @@ import numpy as np
 
 from .errors import DivergenceError
 from .kernels import pair_loop as _pl
+from .kernels.options import thread_limit
 from .state import ParticleState
 
 
@@ -144,7 +145,6 @@ def integrate_step(
     """
     n = state.n
     buffers.ensure(state.capacity)
-    offsets, indices = neighbors
     state_in = (state.position, state.orientation, state.velocity, state.angular_velocity)
     state_out = (
         buffers.position[:n],
@@ -152,22 +152,27 @@ def integrate_step(
         buffers.velocity[:n],
         buffers.angular_velocity[:n],
     )
-    kernel = _pl.advance_particles_parallel if parallel else _pl.advance_particles_serial
-    potential, kinetic, kinetic_before, max_d2, max_v2, bad, status = kernel(
-        coefficients,
-        mode,
-        state_in,
-        state_out,
-        state.is_pinned,
-        state.is_oriented,
-        state.mass,
-        state.inertia,
-        offsets,
-        indices,
-        reference_position,
-        extras,
-        buffers.stats[:n],
-    )
+    try:
+        with thread_limit(parallel):
+            result = _pl.step_particles(
+                coefficients,
+                mode,
+                True,
+                state_in,
+                state_out,
+                (state.is_pinned, state.is_oriented),
+                (state.mass, state.inertia),
+                neighbors,
+                reference_position,
+                extras,
+                buffers.stats[:n],
+            )
+    except ZeroDivisionError:  # only without the JIT (NUMBA_DISABLE_JIT=1); compiled: inf/NaN
+        raise DivergenceError(
+            f"particle dynamics diverged at step {step_index}: a force is non-finite "
+            "(coincident particles?). The state was left unchanged."
+        ) from None
+    potential, kinetic, kinetic_before, max_d2, max_v2, bad, status = result
     if bad >= 0:
         raise DivergenceError(
             f"particle dynamics diverged at step {step_index}: particle {bad} at "

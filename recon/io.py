@@ -50,6 +50,7 @@ import logging
 import os
 import re
 import secrets
+import warnings
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -81,8 +82,15 @@ _MIN_NORMAL_LENGTH = 1e-12
 _MAX_INVALID_NORMAL_FRACTION = 0.05
 #: Relative precision (of the extent) that float32 output must keep, else double is written.
 _FLOAT32_TOLERANCE = 1e-7
+#: Largest coordinate magnitude accepted: squares and products of lengths stay finite.
+_MAX_COORDINATE = 1e100
+#: Smallest extent accepted: squared spacings stay normal floating-point numbers.
+_MIN_EXTENT = 1e-100
 #: Header size limit for PLY and PCD files.
 _MAX_HEADER_BYTES = 1 << 20
+
+#: Largest element COUNT of a PCD field (descriptor arrays such as FPFH have 33 or 308).
+_MAX_PCD_COUNT = 1 << 16
 
 _TEXT_EXTENSIONS = {".xyz", ".xyzn", ".xyzrgb", ".txt", ".csv", ".asc", ".pts", ".pwn"}
 
@@ -282,15 +290,45 @@ def _first_occurrences(xyz: np.ndarray) -> np.ndarray:
 
 
 def _check_spans_plane(path: Path | None, xyz: np.ndarray) -> None:
+    """Enough points, coordinates in a usable range, not all identical, not all on one line.
+
+    The line test ignores a few far outliers (the 1 % extremes on each axis, when there are at
+    least 100 points): one stray point 1e12 away must not make a sphere look like a line.
+    """
     n = xyz.shape[0]
     if n < 4:
         raise _err(path, f"only {n} distinct finite point(s); at least 4 are needed")
-    centred = xyz - xyz.mean(axis=0)
-    sample = centred if n <= 200_000 else centred[:: n // 200_000 + 1]
-    s = np.linalg.svd(sample, compute_uv=False)
-    if s[0] == 0.0 or s[1] <= 1e-9 * s[0]:
-        what = "all points are identical" if s[0] == 0.0 else "all points lie on one line"
-        raise _err(path, f"{what}; the points must span at least a plane")
+    biggest = float(np.max(np.abs(xyz)))
+    if biggest > _MAX_COORDINATE:
+        raise _err(
+            path,
+            f"coordinates up to {biggest:.3g} are too large (their magnitude must stay below "
+            f"{_MAX_COORDINATE:g}); rescale the data",
+        )
+    extent = float(np.max(xyz.max(axis=0) - xyz.min(axis=0)))
+    if extent == 0.0:
+        raise _err(path, "all points are identical; the points must span at least a plane")
+    if extent < _MIN_EXTENT:
+        raise _err(
+            path,
+            f"the points span only {extent:.3g} units, too small to compute with (at least "
+            f"{_MIN_EXTENT:g}); rescale the data",
+        )
+    sample = xyz if n <= 200_000 else xyz[:: n // 200_000 + 1]
+    if _is_collinear(sample) and (len(sample) < 100 or _is_collinear(_core(sample))):
+        raise _err(path, "all points lie on one line; the points must span at least a plane")
+
+
+def _is_collinear(xyz: np.ndarray) -> bool:
+    s = np.linalg.svd(xyz - xyz.mean(axis=0), compute_uv=False)
+    return bool(s[0] == 0.0 or s[1] <= 1e-9 * s[0])
+
+
+def _core(xyz: np.ndarray) -> np.ndarray:
+    """Rows inside the 1st-99th percentile box of every axis."""
+    lo, hi = np.percentile(xyz, [1.0, 99.0], axis=0)
+    inside = np.all((xyz >= lo) & (xyz <= hi), axis=1)
+    return xyz[inside] if np.count_nonzero(inside) >= 4 else xyz
 
 
 def _colors_from(arr: np.ndarray) -> np.ndarray:
@@ -409,14 +447,16 @@ def read_points(
     kind = _sniff(p)
     info: dict[str, Any] = {"has_faces": False, "elements": {}, "properties": []}
     try:
-        if kind == "ply":
-            fmt, xyz, nrm, col = _read_ply_points(p, size, max_points, info)
-        elif kind == "pcd":
-            fmt, xyz, nrm, col = _read_pcd(p, size, max_points, info)
-        elif kind == "obj":
-            fmt, xyz, nrm, col = _read_obj_points(p, max_points, info)
-        else:
-            fmt, xyz, nrm, col = _read_text(p, max_points, info)
+        # hostile values (signalling NaNs, 1e39 in a float field) are data, not warnings
+        with np.errstate(invalid="ignore", over="ignore"):
+            if kind == "ply":
+                fmt, xyz, nrm, col = _read_ply_points(p, size, max_points, info)
+            elif kind == "pcd":
+                fmt, xyz, nrm, col = _read_pcd(p, size, max_points, info)
+            elif kind == "obj":
+                fmt, xyz, nrm, col = _read_obj_points(p, max_points, info)
+            else:
+                fmt, xyz, nrm, col = _read_text(p, max_points, info)
     except InputError:
         raise
     except MemoryError:
@@ -493,12 +533,13 @@ def read_mesh(path: str | os.PathLike[str]) -> tuple[np.ndarray, np.ndarray]:
     size = _check_readable(p)
     kind = _sniff(p)
     try:
-        if kind == "ply":
-            vertices, faces = _read_ply_mesh(p, size)
-        elif kind == "obj":
-            vertices, faces = _read_obj_mesh(p)
-        else:
-            raise _err(p, "meshes can be read from .ply and .obj files only")
+        with np.errstate(invalid="ignore", over="ignore"):
+            if kind == "ply":
+                vertices, faces = _read_ply_mesh(p, size)
+            elif kind == "obj":
+                vertices, faces = _read_obj_mesh(p)
+            else:
+                raise _err(p, "meshes can be read from .ply and .obj files only")
     except InputError:
         raise
     except MemoryError:
@@ -694,7 +735,7 @@ def _read_ply_fixed(path: Path, fh: BinaryIO, header: _PlyHeader, el: _PlyElemen
         return np.frombuffer(buf, dtype=dtype, count=el.count)
     lines = (ln.decode("ascii") for ln in itertools.islice(fh, el.count))
     try:
-        arr = np.loadtxt(lines, dtype=np.float64, ndmin=2, comments=None)
+        arr = _loadtxt(lines, dtype=np.float64, ndmin=2, comments=None)
     except UnicodeDecodeError:
         raise _err(path, f"PLY element '{el.name}': non-ASCII bytes in ascii data") from None
     except ValueError as exc:
@@ -714,6 +755,14 @@ def _read_ply_fixed(path: Path, fh: BinaryIO, header: _PlyHeader, el: _PlyElemen
         for j, p in enumerate(el.properties):
             out[p.name] = arr[:, j]  # through the declared type, as a binary file would be
     return out
+
+
+def _loadtxt(*args: Any, **kwargs: Any) -> np.ndarray:
+    """``np.loadtxt`` without its warnings about empty input or lines (callers check rows)."""
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message="loadtxt: input contained no data")
+        warnings.filterwarnings("ignore", message=r"Input line \d+ contained no data")
+        return np.loadtxt(*args, **kwargs)
 
 
 def _loadtxt_message(exc: ValueError) -> str:
@@ -1010,7 +1059,7 @@ def _read_text(
     if n_rows == 0:
         raise _err(path, "no data rows")
     try:
-        arr = np.loadtxt(lines, dtype=np.float64, ndmin=2, comments=None)
+        arr = _loadtxt(lines, dtype=np.float64, ndmin=2, comments=None)
     except ValueError as exc:
         raise _err(path, _loadtxt_message(exc)) from None
     ncol = arr.shape[1]
@@ -1127,10 +1176,19 @@ def _read_pcd(
             raise _err(path, "PCD header: SIZE, COUNT, WIDTH or POINTS is not an integer") from None
         if n < 0:
             raise _err(path, "PCD header: negative point count")
+        if any(c < 1 or c > _MAX_PCD_COUNT for c in counts_i):
+            raise _err(
+                path, f"PCD header: COUNT values must be 1 to {_MAX_PCD_COUNT}, got {counts_i}"
+            )
+        used = {"x", "y", "z", "normal_x", "normal_y", "normal_z", "nx", "ny", "nz", "rgb"}
+        used.add("rgba")
+        for name, c in zip(names, counts_i, strict=True):
+            if name in used and c != 1:
+                raise _err(path, f"PCD header: field '{name}' has COUNT {c}, expected 1")
         fields_dt = []
         seen: dict[str, int] = {}
         for name, sz, tp, c in zip(names, sizes, meta["TYPE"], counts_i, strict=True):
-            if tp.upper() not in _PCD_KINDS or sz not in (1, 2, 4, 8):
+            if tp.upper() not in _PCD_KINDS or sz not in ((4, 8) if tp.upper() == "F" else (1, 2, 4, 8)):
                 raise _err(path, f"PCD header: unsupported field type {tp}{sz} for '{name}'")
             key = name if name not in seen else f"{name}__{seen[name]}"
             seen[name] = seen.get(name, 0) + 1
@@ -1165,7 +1223,7 @@ def _read_pcd(
                 raise _err(path, f"truncated PCD: the header declares {n} points")
             text = _io.TextIOWrapper(fh, encoding="ascii", newline=None)
             try:
-                arr = np.loadtxt(text, dtype=np.float64, ndmin=2, max_rows=n, comments=None)
+                arr = _loadtxt(text, dtype=np.float64, ndmin=2, max_rows=n, comments=None)
             except UnicodeDecodeError:
                 raise _err(path, "PCD data: non-ASCII bytes in ascii data") from None
             except ValueError as exc:
@@ -1286,6 +1344,8 @@ def _read_obj_mesh(path: Path) -> tuple[np.ndarray, np.ndarray]:
             n_seen += 1
         elif line.startswith("f "):
             tokens = line.split()[1:]
+            if len(tokens) < 3:  # not a polygon (as in PLY, skipped)
+                continue
             try:
                 flat.extend(int(t.split("/", 1)[0]) for t in tokens)
             except ValueError:
@@ -1367,7 +1427,8 @@ def atomic_output(path: str | os.PathLike[str]) -> Iterator[Path]:
 
     The temporary file keeps the suffix of ``path`` (so writers that choose the format from the
     extension work). On any exception, including ``KeyboardInterrupt``, it is removed and
-    ``path`` is left untouched.
+    ``path`` is left untouched; an ``OSError`` (disk full, permission denied) becomes an
+    :class:`~recon.errors.InputError` naming ``path``.
 
     Parameters
     ----------
@@ -1385,14 +1446,26 @@ def atomic_output(path: str | os.PathLike[str]) -> Iterator[Path]:
     try:
         open(tmp, "xb").close()  # noqa: SIM115 - reserve the name (respects the umask)
     except OSError as exc:
-        raise _err(dest, f"cannot write: {exc.strerror or exc}") from None
+        raise _err(_final_name(dest), f"cannot write: {exc.strerror or exc}") from None
     try:
         yield tmp
         os.replace(tmp, dest)
-    except BaseException:
+    except BaseException as exc:
         with contextlib.suppress(OSError):
             tmp.unlink()
+        if isinstance(exc, OSError):
+            raise _err(_final_name(dest), f"cannot write: {exc.strerror or exc}") from None
         raise
+
+
+_TMP_NAME = re.compile(r"^\.(?P<name>.+)\.\d+-[0-9a-f]{8}\.tmp")
+
+
+def _final_name(path: Path) -> Path:
+    """The destination a (possibly nested) :func:`atomic_output` temporary stands for."""
+    while (m := _TMP_NAME.match(path.name)) is not None:
+        path = path.with_name(m.group("name"))
+    return path
 
 
 # --------------------------------------------------------------------------------------------
@@ -1553,7 +1626,7 @@ def write_mesh(
         Per-vertex normals.
     origin : (3,) float64 [length], optional
     ascii : bool
-        ASCII PLY (OBJ is always text).
+        ASCII PLY (OBJ is always text, with 17 significant digits: vertices read back exactly).
 
     Raises
     ------
@@ -1582,7 +1655,9 @@ def write_mesh(
 
 
 def _write_obj(path: Path, xyz: np.ndarray, normals: np.ndarray | None, faces: np.ndarray) -> None:
-    vfmt = "v %.17g %.17g %.17g" if _coordinate_type(xyz) == "f8" else "v %.9g %.9g %.9g"
+    # OBJ has no number type: a reader parses float64, so 17 digits are needed for the values
+    # to come back exactly (9 would round-trip only through float32)
+    vfmt = "v %.17g %.17g %.17g"
     with atomic_output(path) as tmp, open(tmp, "w", encoding="ascii", newline="\n") as fh:
         fh.write("# written by oprecon\n")
         np.savetxt(fh, xyz, fmt=vfmt)

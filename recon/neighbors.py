@@ -23,18 +23,19 @@ from __future__ import annotations
 import numpy as np
 
 from .errors import DivergenceError
-from .kernels.cell_list import (
-    bin_particles,
-    build_neighbor_list_parallel,
-    build_neighbor_list_serial,
-    max_displacement2,
-)
+from .kernels.cell_list import bin_particles, build_neighbor_list_kernel, max_displacement2
+from .kernels.options import thread_limit
 
-PARALLEL_MIN_PARTICLES = 20_000
-"""Below this many particles the single-threaded kernels are used (DESIGN §3: a parallel region
-costs milliseconds on a loaded 2-core machine)."""
+PARALLEL_MIN_PARTICLES = 30_000
+"""Below this many particles the kernels run in the calling thread only.
+
+Measured (median step time, sphere, 2 cores): with the other core mostly idle two threads win
+from ~2,000 particles (5k: 1.0 vs 2.0 ms), but with both cores busy with other work a parallel
+region waits for a descheduled thread (5k: 8.0 vs 2.1 ms; 20k: 14.6 vs 9.0 ms) and threads only
+pay off from ~50k (50k: 52 vs 70 ms). DESIGN §3 saw the same (~8 ms per region)."""
 
 _MAX_CELLS = 2**62
+_ROW_CAPACITY = 32  # scratch row length; a surface at skin 0.4 r0 has ~20 neighbours
 
 
 def _check_positions(position: np.ndarray) -> np.ndarray:
@@ -97,8 +98,12 @@ def build_neighbor_list(
             )
     if parallel is None:
         parallel = pos.shape[0] >= PARALLEL_MIN_PARTICLES
-    kernel = build_neighbor_list_parallel if parallel else build_neighbor_list_serial
-    return kernel(pos, float(radius))
+    capacity = _ROW_CAPACITY
+    with thread_limit(parallel):
+        offsets, indices, longest = build_neighbor_list_kernel(pos, float(radius), capacity)
+        if longest > capacity:
+            offsets, indices, longest = build_neighbor_list_kernel(pos, float(radius), longest)
+    return offsets, indices
 
 
 def sort_order_by_cell(position: np.ndarray, cell_size: float) -> np.ndarray:

@@ -25,7 +25,7 @@ import logging
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -35,7 +35,7 @@ from scipy.spatial import cKDTree
 from . import __version__
 from .config import ReconConfig, config_to_dict, with_values
 from .dynamics import PhysicsParams, Simulation
-from .errors import InputError, LimitExceeded
+from .errors import DivergenceError, InputError, LimitExceeded
 from .geometry import bbox_diagonal, median_nearest_neighbor_distance
 from .growth import accept_candidates, grow_candidates, neighbor_csr, stretch_candidates
 from .io import PointCloud
@@ -55,6 +55,12 @@ COVER_RADIUS = 0.65
 ANCHOR_REFRESH = 5
 #: Mean kinetic energy per particle under which the sheet counts as at rest [r0^2/t^2].
 REST_KINETIC = 1e-4
+
+#: Potential energy per particle above which the dynamics count as exploding (a sheet at rest
+#: has |E| of order 1 per particle; coincident particles make it grow without bound).
+EXPLODING_ENERGY = 1e6
+#: Largest cell grid (cells of side r0 over the data's bounding box) the neighbour search accepts.
+MAX_GRID_CELLS = 2.0**60
 
 ProgressFn = Callable[[str, dict[str, Any]], None]
 
@@ -202,6 +208,12 @@ class _Fitter:
             pts, nrm, _ = self.surface.anchors(state.position)
             sim.set_anchors(pts, nrm, dyn.fidelity, dyn.fidelity_normal)
             stats = sim.run(chunk)
+            if not (math.isfinite(stats.kinetic) and math.isfinite(stats.potential)
+                    and stats.potential <= EXPLODING_ENERGY * max(state.n, 1)):
+                raise DivergenceError(
+                    f"particle dynamics diverged at step {self.total_steps() + chunk}: energy "
+                    f"kinetic {stats.kinetic:.3g}, potential {stats.potential:.3g} for "
+                    f"{state.n} particles")
             kinetic = stats.kinetic / max(state.n, 1)
             done += chunk
             self.steps[phase] += chunk
@@ -219,6 +231,41 @@ class _Fitter:
             self.on_progress(phase, {"step": self.total_steps(), "particles": int(state.n),
                                      "kinetic": kinetic, "coverage": coverage,
                                      "max_steps": self.cfg.dynamics.max_steps})
+
+    def run_phase(self, phase: str, state: ParticleState, params: PhysicsParams,
+                  run: Callable[[Simulation, ParticleState], None],
+                  ) -> tuple[ParticleState, PhysicsParams]:
+        """Run one phase; if the dynamics diverge, restart it once from its start, dt halved.
+
+        Returns the state after the phase (a restored copy after a restart) and the physics
+        parameters in use (with the halved dt after a restart, for the phases that follow).
+        """
+        saved = state.copy()
+        steps, stop_reason = dict(self.steps), self.stop_reason
+        n_history, n_warnings = len(self.history["step"]), len(self.warnings)
+        try:
+            run(Simulation(state, params), state)
+            return state, params
+        except DivergenceError as exc:
+            first = exc
+        params = replace(params, dt=0.5 * params.dt)
+        log.warning("%s; restarting the %s phase with dynamics.dt halved to %g",
+                    first, phase, params.dt)
+        self.steps, self.stop_reason = steps, stop_reason
+        for values in self.history.values():
+            del values[n_history:]
+        del self.warnings[n_warnings:]
+        self.warnings.append(f"the dynamics diverged during {phase} ({first}); the phase was "
+                             f"restarted with dynamics.dt = {params.dt:g}")
+        state = saved
+        try:
+            run(Simulation(state, params), state)
+        except DivergenceError as exc:
+            raise DivergenceError(
+                f"the particle dynamics diverged during {phase}, also after restarting it with "
+                f"dynamics.dt halved to {params.dt:g} ({exc}); lower dynamics.dt or raise the "
+                "spacing, and check the input for clusters of near-duplicate points") from None
+        return state, params
 
     # -- phases --------------------------------------------------------------------------
     def make_seeds(self) -> tuple[ParticleState, np.ndarray]:
@@ -328,6 +375,12 @@ def reconstruct(cloud: PointCloud, config: ReconConfig | None = None,
     clock.check()
 
     r0, d_nn = choose_spacing(points, cfg)
+    span = points.max(axis=0) - points.min(axis=0)
+    if float(np.prod(np.floor(span / r0) + 1.0)) > MAX_GRID_CELLS:
+        raise InputError(
+            f"the points span {', '.join(f'{x:.3g}' for x in span)} (x, y, z) but the rest "
+            f"spacing r0 is {r0:.3g}: far too many cells for the neighbour search; remove far "
+            "outliers or raise the spacing")
     if cfg.growth.max_gap is None:
         cfg = with_values(cfg, growth={"max_gap": max(AUTO_GAP * d_nn / r0, 1.0)})
     diag = bbox_diagonal(points)
@@ -337,11 +390,14 @@ def reconstruct(cloud: PointCloud, config: ReconConfig | None = None,
     fitter = _Fitter(surface, cfg, rng, clock, on_progress)
     state, seed_points = fitter.make_seeds()
     n_seeds = state.n
-    sim = Simulation(state, PhysicsParams.from_config(cfg, spacing=1.0))
-    fitter.grow(sim, state, seed_points)
+    params = PhysicsParams.from_config(cfg, spacing=1.0)
+    state, params = fitter.run_phase(
+        "growth", state, params, lambda sim, st: fitter.grow(sim, st, seed_points))
     clock.lap("grow")
-    fitter.release(sim, state)
+    state, params = fitter.run_phase("release", state, params, fitter.release)
     clock.lap("release")
+    if params.dt != cfg.dynamics.dt:
+        cfg = with_values(cfg, dynamics={"dt": params.dt})
 
     tri_cfg = cfg.triangulation
     projected, _, offset = surface.project(state.position)
@@ -440,7 +496,10 @@ def fit_file(input_path: str | Path, output_path: str | Path, config: ReconConfi
     cfg = config if config is not None else ReconConfig()
     input_path = Path(input_path)
     output_path = check_output_path(Path(output_path), inputs=[input_path], mkdir=mkdir)
+    want_report = cfg.output.write_report if write_report is None else write_report
     extra = [p for p in (particles_path, preview_path) if p is not None]
+    if want_report:
+        extra.append(report_path_for(output_path))
     for p in extra:
         check_output_path(Path(p), inputs=[input_path, output_path], mkdir=mkdir)
     cloud = read_points(input_path, max_points=cfg.io.max_points,
@@ -448,7 +507,6 @@ def fit_file(input_path: str | Path, output_path: str | Path, config: ReconConfi
     result = reconstruct(cloud, cfg, on_progress)
     result.report["input"]["path"] = str(input_path)
     result.report["output"] = {"mesh": str(output_path)}
-    want_report = cfg.output.write_report if write_report is None else write_report
     normals = result.mesh.normals if cfg.output.vertex_normals else None
     with ExitStack() as stack:
         tmp = stack.enter_context(atomic_output(output_path))

@@ -31,12 +31,18 @@ def _poisson_disk_kernel(points, order, radius, keep_first):  # pragma: no cover
             lo[d] = min(lo[d], points[i, d])
             hi[d] = max(hi[d], points[i, d])
     cell = radius
+    # cell counts in floating point first: a far outlier must not overflow int64 (the product
+    # of three large dims wraps around, which would index the dense grid out of bounds)
+    max_dim = 2.0**40
     dims = np.empty(3, dtype=np.int64)
+    n_cells_f = 1.0
     for d in range(3):
-        dims[d] = int((hi[d] - lo[d]) / cell) + 1
+        dim_f = min(np.floor((hi[d] - lo[d]) / cell) + 1.0, max_dim)
+        dims[d] = int(dim_f)
+        n_cells_f *= dim_f
     # hash grid: each cell keeps a linked list of accepted points
-    n_cells = dims[0] * dims[1] * dims[2]
-    use_hash = n_cells > 4 * n + 1024
+    use_hash = n_cells_f > 4 * n + 1024
+    n_cells = dims[0] * dims[1] * dims[2] if not use_hash else 0
     table_size = 1
     while table_size < 2 * n:
         table_size *= 2
@@ -48,9 +54,9 @@ def _poisson_disk_kernel(points, order, radius, keep_first):  # pragma: no cover
     r2 = radius * radius
     for a in range(n):
         i = order[a]
-        cx = int((points[i, 0] - lo[0]) / cell)
-        cy = int((points[i, 1] - lo[1]) / cell)
-        cz = int((points[i, 2] - lo[2]) / cell)
+        cx = int(min((points[i, 0] - lo[0]) / cell, max_dim - 1.0))
+        cy = int(min((points[i, 1] - lo[1]) / cell, max_dim - 1.0))
+        cz = int(min((points[i, 2] - lo[2]) / cell, max_dim - 1.0))
         ok = True
         if not (keep_first > 0 and a < keep_first):
             for dx in range(-1, 2):
@@ -67,7 +73,7 @@ def _poisson_disk_kernel(points, order, radius, keep_first):  # pragma: no cover
                             continue
                         key = (x * dims[1] + y) * dims[2] + z
                         if use_hash:
-                            key = (key * 2654435761) % table_size
+                            key = (key * 2654435761) & (table_size - 1)  # >= 0 even on wrap-around
                         j = head[key]
                         while j >= 0:
                             if (points[j, 0] - points[i, 0]) ** 2 + \
@@ -84,7 +90,7 @@ def _poisson_disk_kernel(points, order, radius, keep_first):  # pragma: no cover
             keep[i] = True
             key = (cx * dims[1] + cy) * dims[2] + cz
             if use_hash:
-                key = (key * 2654435761) % table_size
+                key = (key * 2654435761) & (table_size - 1)  # >= 0 even on wrap-around
             nxt[i] = head[key]
             head[key] = i
     return keep

@@ -297,7 +297,9 @@ class ParticleState:
         if normals is None:
             quat = np.zeros((k, 4))
             quat[:, 0] = 1.0
-            is_oriented = _per_particle("oriented", False if oriented is None else oriented, k, bool)
+            is_oriented = _per_particle(
+                "oriented", False if oriented is None else oriented, k, bool
+            )
         else:
             nrm = _as_points("normals", normals, k)
             quat = quaternions_from_normals(nrm)
@@ -333,7 +335,8 @@ class ParticleState:
         mask = np.asarray(keep)
         if mask.dtype != np.bool_ or mask.shape != (self._n,):
             raise ValueError(
-                f"keep: expected a boolean mask of shape ({self._n},), got {mask.dtype} {mask.shape}"
+                f"keep: expected a boolean mask of shape ({self._n},), "
+                f"got {mask.dtype} {mask.shape}"
             )
         k = int(np.count_nonzero(mask))
         for name in self._BUFFERS:

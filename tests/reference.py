@@ -99,7 +99,12 @@ def system_energy(position, normal, params, sigma, oriented=None, anchors=None) 
     for i in range(n):
         for j in range(i + 1, n):
             total += pair_energy(
-                position[i], position[j], normal[i], normal[j], params, sigma,
+                position[i],
+                position[j],
+                normal[i],
+                normal[j],
+                params,
+                sigma,
                 bool(oriented[i] and oriented[j]),
             )
     if anchors is not None:
@@ -229,14 +234,20 @@ def pair_gradient_errors(evaluate, params, sigma, pairs, h=None):
             f_i[k] = -(energy(x_i + e, x_j, n_i, n_j) - energy(x_i - e, x_j, n_i, n_j)) / (2 * h)
             f_j[k] = -(energy(x_i, x_j + e, n_i, n_j) - energy(x_i, x_j - e, n_i, n_j)) / (2 * h)
             a = np.eye(3)[k]
-            t_i[k] = -(
-                energy(x_i, x_j, rotate(n_i, a, 1e-6), n_j)
-                - energy(x_i, x_j, rotate(n_i, a, -1e-6), n_j)
-            ) / 2e-6
-            t_j[k] = -(
-                energy(x_i, x_j, n_i, rotate(n_j, a, 1e-6))
-                - energy(x_i, x_j, n_i, rotate(n_j, a, -1e-6))
-            ) / 2e-6
+            t_i[k] = (
+                -(
+                    energy(x_i, x_j, rotate(n_i, a, 1e-6), n_j)
+                    - energy(x_i, x_j, rotate(n_i, a, -1e-6), n_j)
+                )
+                / 2e-6
+            )
+            t_j[k] = (
+                -(
+                    energy(x_i, x_j, n_i, rotate(n_j, a, 1e-6))
+                    - energy(x_i, x_j, n_i, rotate(n_j, a, -1e-6))
+                )
+                / 2e-6
+            )
         # one scale per pair: a component that vanishes analytically is compared to the
         # pair's largest derivative, not to its own rounding noise
         scale = max(np.max(np.abs(v)) for v in (f_i * params.spacing, t_i, t_j))

@@ -9,8 +9,8 @@ below, imported by name in the child) whose behaviour is written into the input 
 from __future__ import annotations
 
 import json
-import re
 import os
+import re
 import sys
 import time
 from pathlib import Path
@@ -87,8 +87,9 @@ def make_inputs(folder: Path, **actions: str) -> None:
 
 def run(path: Path, **kw) -> batch.BatchReport:
     spec = load_batch(path, cli_overrides=kw.pop("cli", ()))
-    plan = plan_batch(spec, force=kw.pop("force", False),
-                      item_time_limit=kw.pop("item_time_limit", 60.0))
+    plan = plan_batch(
+        spec, force=kw.pop("force", False), item_time_limit=kw.pop("item_time_limit", 60.0)
+    )
     kw.setdefault("jobs", 2)
     return run_batch(plan, job=fake_job, **kw)
 
@@ -109,7 +110,9 @@ def test_load_batch_resolves_relative_paths_against_its_folder(tmp_path, monkeyp
     sub = tmp_path / "jobs"
     sub.mkdir()
     (sub / "base.yaml").write_text("dynamics: {dt: 0.15}\nseed: 4\n")
-    path = write_batch(sub, """
+    path = write_batch(
+        sub,
+        """
 inputs: [scans/*.ply, one.xyz]
 output_dir: out
 config: base.yaml
@@ -122,7 +125,8 @@ overrides:
 formats: [OBJ, ply, obj]
 particles: true
 item_time_limit: 12
-""")
+""",
+    )
     monkeypatch.chdir(tmp_path)  # the working directory must not matter
     spec = load_batch(path, cli_overrides=["seed=9"])
     assert spec.output_dir == sub / "out"
@@ -154,40 +158,71 @@ def test_load_batch_preset_uses_the_resolver(tmp_path):
 @pytest.mark.parametrize(
     ("text", "expected"),
     [
-        ("inputs: [a.ply]\nouput_dir: out\n",
-         [r"line 2: ouput_dir: unknown key \(did you mean 'output_dir'\?\)"]),
+        (
+            "inputs: [a.ply]\nouput_dir: out\n",
+            [r"line 2: ouput_dir: unknown key \(did you mean 'output_dir'\?\)"],
+        ),
         ("output_dir: out\n", [r"missing required key 'inputs'"]),
         ("inputs: []\noutput_dir: out\n", [r"line 1: inputs: expected a string or a non-empty"]),
-        ("inputs: a.ply\noutput_dir: out\nset:\n  dynamics.dtt: 0.1\n",
-         [r"line 4: set\.dynamics\.dtt: unknown key 'dynamics\.dtt'",
-          r"did you mean '(dynamics\.)?dt'"]),
-        ("inputs: a.ply\noutput_dir: out\nset:\n  dynamics:\n    dt: 7\n",
-         [r"line 5: set\.dynamics\.dt: dynamics\.dt: 7\.0 is out of range"]),
-        ("inputs: a.ply\noutput_dir: out\noverrides:\n  - match: a\n    mach: b\n",
-         [r"line 5: overrides\[0\]\.mach: unknown key \(did you mean 'match'\?\)"]),
-        ("inputs: a.ply\noutput_dir: out\noverrides:\n  - match: a\n",
-         [r"line 4: overrides\[0\]: missing required key 'set'"]),
-        ("inputs: a.ply\noutput_dir: out\noverrides:\n  - match: a\n    set: {seeds.thining: 2}\n",
-         [r"line 5: overrides\[0\]\.set\.seeds\.thining: unknown key",
-          r"did you mean '(seeds\.)?thinning'"]),
-        ("inputs: a.ply\noutput_dir: out\noverrides: {match: a}\n",
-         [r"line 3: overrides: expected a list"]),
-        ("inputs: a.ply\noutput_dir: out\nformats: [ply, stl]\n",
-         [r"line 3: formats\[1\]: 'stl' is not one of: ply, obj"]),
-        ("inputs: a.ply\noutput_dir: out\nparticles: 3\n",
-         [r"line 3: particles: expected true or false"]),
-        ("inputs: a.ply\noutput_dir: out\nitem_time_limit: -1\n",
-         [r"line 3: item_time_limit: expected a positive number"]),
-        ("inputs: a.ply\noutput_dir: out\nconfig: nope.yaml\npreset: x\n",
-         [r"line 4: preset: 'config' and 'preset' are exclusive"]),
-        ("inputs: a.ply\noutput_dir: out\nconfig: nope.yaml\n",
-         [r"line 3: config: .*nope\.yaml: no such configuration file"]),
+        (
+            "inputs: a.ply\noutput_dir: out\nset:\n  dynamics.dtt: 0.1\n",
+            [
+                r"line 4: set\.dynamics\.dtt: unknown key 'dynamics\.dtt'",
+                r"did you mean '(dynamics\.)?dt'",
+            ],
+        ),
+        (
+            "inputs: a.ply\noutput_dir: out\nset:\n  dynamics:\n    dt: 7\n",
+            [r"line 5: set\.dynamics\.dt: dynamics\.dt: 7\.0 is out of range"],
+        ),
+        (
+            "inputs: a.ply\noutput_dir: out\noverrides:\n  - match: a\n    mach: b\n",
+            [r"line 5: overrides\[0\]\.mach: unknown key \(did you mean 'match'\?\)"],
+        ),
+        (
+            "inputs: a.ply\noutput_dir: out\noverrides:\n  - match: a\n",
+            [r"line 4: overrides\[0\]: missing required key 'set'"],
+        ),
+        (
+            "inputs: a.ply\noutput_dir: out\noverrides:\n  - match: a\n"
+            "    set: {seeds.thining: 2}\n",
+            [
+                r"line 5: overrides\[0\]\.set\.seeds\.thining: unknown key",
+                r"did you mean '(seeds\.)?thinning'",
+            ],
+        ),
+        (
+            "inputs: a.ply\noutput_dir: out\noverrides: {match: a}\n",
+            [r"line 3: overrides: expected a list"],
+        ),
+        (
+            "inputs: a.ply\noutput_dir: out\nformats: [ply, stl]\n",
+            [r"line 3: formats\[1\]: 'stl' is not one of: ply, obj"],
+        ),
+        (
+            "inputs: a.ply\noutput_dir: out\nparticles: 3\n",
+            [r"line 3: particles: expected true or false"],
+        ),
+        (
+            "inputs: a.ply\noutput_dir: out\nitem_time_limit: -1\n",
+            [r"line 3: item_time_limit: expected a positive number"],
+        ),
+        (
+            "inputs: a.ply\noutput_dir: out\nconfig: nope.yaml\npreset: x\n",
+            [r"line 4: preset: 'config' and 'preset' are exclusive"],
+        ),
+        (
+            "inputs: a.ply\noutput_dir: out\nconfig: nope.yaml\n",
+            [r"line 3: config: .*nope\.yaml: no such configuration file"],
+        ),
         ("inputs: a.ply\noutput_dir: out\ninputs: b.ply\n", [r"line 3: inputs: duplicate key"]),
         ("inputs: [a.ply\noutput_dir: out\n", [r"invalid YAML at line \d+"]),
         ("", [r"the batch file is empty"]),
         ("- a.ply\n", [r"expected a mapping"]),
-        ("version: 2\ninputs: a.ply\noutput_dir: out\n",
-         [r"line 1: version: unsupported batch-file version 2"]),
+        (
+            "version: 2\ninputs: a.ply\noutput_dir: out\n",
+            [r"line 1: version: unsupported batch-file version 2"],
+        ),
     ],
 )
 def test_invalid_batch_files_name_the_key_and_line(tmp_path, text, expected):
@@ -202,13 +237,17 @@ def test_invalid_batch_files_name_the_key_and_line(tmp_path, text, expected):
 
 def test_cli_overrides_are_validated(tmp_path):
     path = write_batch(tmp_path, "inputs: a.ply\noutput_dir: out\n")
-    with pytest.raises(ConfigError, match=r"--set dynamics\.dx=0\.1.*did you mean '(dynamics\.)?dt'"):
+    with pytest.raises(
+        ConfigError, match=r"--set dynamics\.dx=0\.1.*did you mean '(dynamics\.)?dt'"
+    ):
         load_batch(path, cli_overrides=["dynamics.dx=0.1"])
 
 
 def test_overrides_that_clash_together_name_the_item(tmp_path):
     make_inputs(tmp_path, **{"a.ply": "ok"})
-    path = write_batch(tmp_path, """
+    path = write_batch(
+        tmp_path,
+        """
 inputs: a.ply
 output_dir: out
 overrides:
@@ -216,10 +255,14 @@ overrides:
     set: {growth.stretch_max: 2.2}
   - match: "*"
     set: {growth.stretch_min: 2.4}
-""")
+""",
+    )
     spec = load_batch(path)  # each override is valid on its own
-    with pytest.raises(ConfigError, match=r"item 'a' .*overrides\[0\] \(line 5\), "
-                       r"overrides\[1\] \(line 7\).*stretch_min"):
+    with pytest.raises(
+        ConfigError,
+        match=r"item 'a' .*overrides\[0\] \(line 5\), "
+        r"overrides\[1\] \(line 7\).*stretch_min",
+    ):
         plan_batch(spec)
 
 
@@ -244,11 +287,22 @@ def test_assign_names_disambiguates_shared_stems_deterministically():
 
 
 def test_expand_inputs_globs_missing_and_output_dir(tmp_path):
-    make_inputs(tmp_path, **{"s/b.ply": "ok", "s/a.ply": "ok", "s/deep/c.ply": "ok",
-                             "out/old.ply": "ok", "x.xyz": "ok"})
+    make_inputs(
+        tmp_path,
+        **{
+            "s/b.ply": "ok",
+            "s/a.ply": "ok",
+            "s/deep/c.ply": "ok",
+            "out/old.ply": "ok",
+            "x.xyz": "ok",
+        },
+    )
     (tmp_path / "s" / "dir.ply").mkdir()
-    got = expand_inputs(["s/*.ply", "x.xyz", "s/a.ply", "nothing/*.ply", "gone.ply", "**/*.ply"],
-                        tmp_path, exclude=tmp_path / "out")
+    got = expand_inputs(
+        ["s/*.ply", "x.xyz", "s/a.ply", "nothing/*.ply", "gone.ply", "**/*.ply"],
+        tmp_path,
+        exclude=tmp_path / "out",
+    )
     rel = [(e, p.relative_to(tmp_path).as_posix() if p else None) for e, p in got]
     assert rel == [
         ("s/*.ply", "s/a.ply"),
@@ -262,7 +316,9 @@ def test_expand_inputs_globs_missing_and_output_dir(tmp_path):
 
 def test_plan_marks_missing_inputs_and_applies_overrides_in_order(tmp_path):
     make_inputs(tmp_path, **{"in/bunny.xyz": "ok", "in/dragon.xyz": "ok"})
-    path = write_batch(tmp_path, """
+    path = write_batch(
+        tmp_path,
+        """
 inputs: [in/*.xyz, in/missing.ply, "none/*.ply"]
 output_dir: out
 set: {dynamics.dt: 0.11, seed: 1}
@@ -275,9 +331,9 @@ overrides:
     set: {seed: 5}
   - match: nobody
     set: {seed: 6}
-""")
-    plan = plan_batch(load_batch(path, cli_overrides=["dynamics.max_steps=9"]),
-                      item_time_limit=30)
+""",
+    )
+    plan = plan_batch(load_batch(path, cli_overrides=["dynamics.max_steps=9"]), item_time_limit=30)
     items = {it.name: it for it in plan.items}
     assert [it.name for it in plan.items] == ["bunny", "dragon", "missing", "none/*.ply"]
     assert items["bunny"].overrides == (0, 1)
@@ -287,8 +343,9 @@ overrides:
     assert all(items[n].config.dynamics.max_steps == 9 for n in ("bunny", "dragon"))
     assert items["bunny"].config.dynamics.time_limit == 30
     assert items["bunny"].action == "run" and items["bunny"].reason == "not run before"
-    assert items["missing"].action == "fail" and "missing.ply: no such file" in items[
-        "missing"].reason
+    assert (
+        items["missing"].action == "fail" and "missing.ply: no such file" in items["missing"].reason
+    )
     assert items["none/*.ply"].action == "fail"
     assert "no file matches" in items["none/*.ply"].reason
     assert items["bunny"].outputs.meshes == (tmp_path / "out" / "bunny.ply",)
@@ -296,13 +353,16 @@ overrides:
 
 def test_item_time_limit_is_the_smaller_of_the_two(tmp_path):
     make_inputs(tmp_path, **{"a.xyz": "ok", "b.xyz": "ok"})
-    path = write_batch(tmp_path, """
+    path = write_batch(
+        tmp_path,
+        """
 inputs: ["*.xyz"]
 output_dir: out
 overrides:
   - match: a
     set: {dynamics.time_limit: 5}
-""")
+""",
+    )
     plan = plan_batch(load_batch(path), item_time_limit=60)
     limits = {it.name: it.time_limit for it in plan.items}
     assert limits == {"a": 5.0, "b": 60.0}
@@ -335,12 +395,15 @@ def test_temp_file_pattern_matches_io_atomic_output(tmp_path):
 
 def test_missing_input_fails_alone_and_summary_names_it(tmp_path):
     make_inputs(tmp_path, **{"a.xyz": "ok", "b.xyz": "ok"})
-    path = write_batch(tmp_path, """
+    path = write_batch(
+        tmp_path,
+        """
 inputs: [a.xyz, gone.xyz, b.xyz]
 output_dir: out
 formats: [ply, obj]
 particles: true
-""")
+""",
+    )
     events: list[BatchEvent] = []
     report = run(path, on_event=events.append)
     assert statuses(report) == {"a": "ok", "gone": "failed", "b": "ok"}
@@ -355,7 +418,11 @@ particles: true
     assert doc["counts"]["ok"] == 2 and doc["counts"]["failed"] == 1
     ok = next(i for i in doc["items"] if i["name"] == "a")
     assert (ok["particles"], ok["faces"], ok["coverage"], ok["fidelity_mean"]) == (
-        10, 16, 0.9, 0.01)
+        10,
+        16,
+        0.9,
+        0.01,
+    )
     csv_text = (out / "batch_summary.csv").read_text()
     assert csv_text.splitlines()[0].startswith("name,input,status,time_s,particles,faces")
     assert "gone.xyz: no such file" in csv_text
@@ -402,13 +469,26 @@ overrides:
 
 
 def test_one_failure_never_stops_the_others(tmp_path):
-    make_inputs(tmp_path, **{"1ok.xyz": "ok", "2fail.xyz": "fail", "3bug.xyz": "bug",
-                             "4crash.xyz": "crash", "5ok.xyz": "ok"})
+    make_inputs(
+        tmp_path,
+        **{
+            "1ok.xyz": "ok",
+            "2fail.xyz": "fail",
+            "3bug.xyz": "bug",
+            "4crash.xyz": "crash",
+            "5ok.xyz": "ok",
+        },
+    )
     path = write_batch(tmp_path, "inputs: ['*.xyz']\noutput_dir: out\n")
     report = run(path)
     res = {r.name: r for r in report.results}
-    assert statuses(report) == {"1ok": "ok", "2fail": "failed", "3bug": "failed",
-                                "4crash": "failed", "5ok": "ok"}
+    assert statuses(report) == {
+        "1ok": "ok",
+        "2fail": "failed",
+        "3bug": "failed",
+        "4crash": "failed",
+        "5ok": "ok",
+    }
     assert res["2fail"].error.endswith("2fail.xyz: bad data")
     assert res["3bug"].error == "RuntimeError: boom"
     assert "Traceback" in res["3bug"].detail
@@ -438,13 +518,16 @@ def test_overrunning_item_is_killed_and_its_temp_files_removed(tmp_path):
 
 def test_cooperative_time_limit_is_a_timeout(tmp_path):
     make_inputs(tmp_path, **{"a.xyz": "ok", "b.xyz": "limit"})
-    path = write_batch(tmp_path, """
+    path = write_batch(
+        tmp_path,
+        """
 inputs: ['*.xyz']
 output_dir: out
 overrides:
   - match: b
     set: {dynamics.time_limit: 0.2}
-""")
+""",
+    )
     report = run(path)
     res = {r.name: r for r in report.results}
     assert res["a"].status == "ok"
@@ -463,8 +546,7 @@ def test_interrupt_keeps_finished_items_and_leaves_no_partial_files(tmp_path):
             raise KeyboardInterrupt  # as if Ctrl-C arrived now
 
     spec = load_batch(path)
-    report = run_batch(plan_batch(spec, item_time_limit=60), job=fake_job, jobs=2,
-                       on_event=ctrl_c)
+    report = run_batch(plan_batch(spec, item_time_limit=60), job=fake_job, jobs=2, on_event=ctrl_c)
     assert report.interrupted and report.exit_code == 130
     res = statuses(report)
     assert res["a"] == "ok"
@@ -479,6 +561,57 @@ def test_interrupt_keeps_finished_items_and_leaves_no_partial_files(tmp_path):
     # the next run resumes: a is kept, b runs again
     (tmp_path / "b.xyz").write_text("ok\n")
     assert statuses(run(path))["a"] == "skipped"
+
+
+def test_child_stops_and_cleans_up_when_its_stdin_closes(tmp_path):
+    """A parent that dies (or asks to stop) closes the child's stdin: the child interrupts its
+    job, even one sleeping in C, and atomic_output removes the partial file."""
+    import subprocess
+
+    make_inputs(tmp_path, **{"a.xyz": "hang"})
+    out = tmp_path / "out"
+    out.mkdir()
+    spec = {
+        "input": str(tmp_path / "a.xyz"),
+        "meshes": [str(out / "a.ply")],
+        "time_limit": None,
+        "job": f"{fake_job.__module__}:fake_job",
+        "job_path": str(Path(__file__).parent),
+    }
+    proc = subprocess.Popen(
+        batch._child_command(),
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.DEVNULL,
+    )
+    try:
+        batch._write_frame(proc.stdin, spec)
+        assert batch._read_frame(proc.stdout)[0] == "start"
+        assert batch._read_frame(proc.stdout)[0] == "progress"
+        assert batch._read_frame(proc.stdout)[1] == "release"  # inside atomic_output
+        assert len(temp_files(out)) == 1
+        proc.stdin.close()
+        assert batch._read_frame(proc.stdout)[0] == "interrupted"
+        assert proc.wait(timeout=10) == 130
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert temp_files(out) == []
+
+
+def test_a_failing_progress_callback_stops_the_children(tmp_path):
+    make_inputs(tmp_path, **{"a.xyz": "hang"})
+    path = write_batch(tmp_path, "inputs: ['*.xyz']\noutput_dir: out\n")
+
+    def broken(event: BatchEvent) -> None:
+        if event.kind == "progress":
+            raise RuntimeError("display broke")
+
+    t0 = time.monotonic()
+    with pytest.raises(RuntimeError, match="display broke"):
+        run(path, on_event=broken)
+    assert time.monotonic() - t0 < 30  # the hanging child was stopped, not waited for
+    assert temp_files(tmp_path / "out") == []
 
 
 def test_dask_missing_gives_an_install_hint(tmp_path, monkeypatch):

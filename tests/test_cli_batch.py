@@ -6,7 +6,6 @@ The inputs are generated here: a few hundred points on a unit sphere and on a sq
 
 from __future__ import annotations
 
-import functools
 import json
 import sys
 import time
@@ -20,7 +19,7 @@ import cli.batch as cli_batch
 from cli.main import app
 from recon import batch
 
-FAST = "set: {dynamics.max_steps: 200}\n"
+FAST = "set:\n  dynamics.max_steps: 200\n"
 
 
 def sphere_points(n: int = 400, seed: int = 0) -> np.ndarray:
@@ -72,8 +71,9 @@ def test_batch_is_a_registered_command():
 
 def test_invalid_batch_file_exits_2_naming_the_key_and_line(tmp_path):
     path = tmp_path / "b.yaml"
-    path.write_text("inputs: [a.xyz]\noutput_dir: out\noverrides:\n  - match: a\n"
-                    "    set: {dynamics.dtt: 0.1}\n")
+    path.write_text(
+        "inputs: [a.xyz]\noutput_dir: out\noverrides:\n  - match: a\n    set: {dynamics.dtt: 0.1}\n"
+    )
     result = invoke(str(path))
     assert result.exit_code == 2
     assert "line 5: overrides[0].set.dynamics.dtt: unknown key" in result.stderr
@@ -103,8 +103,10 @@ def test_usage_errors_exit_2(tmp_path):
 
 def test_dry_run_runs_nothing_and_says_why(shapes):
     path = shapes / "batch.yaml"
-    path.write_text("inputs: ['*/shape.xyz', gone.xyz]\noutput_dir: out\n"
-                    "overrides:\n  - match: b/shape.xyz\n    set: {dynamics.dt: 0.1}\n")
+    path.write_text(
+        "inputs: ['*/shape.xyz', gone.xyz]\noutput_dir: out\n"
+        "overrides:\n  - match: b/shape.xyz\n    set: {dynamics.dt: 0.1}\n"
+    )
     result = invoke(str(path), "--dry-run")
     assert result.exit_code == 1  # an input is missing
     lines = result.output.splitlines()
@@ -114,6 +116,13 @@ def test_dry_run_runs_nothing_and_says_why(shapes):
     assert rows["b_shape"][0] == "run" and rows["b_shape"][3] == "0"
     assert rows["gone"][0] == "fail" and "no such file" in lines[-1]
     assert not (shapes / "out").exists()
+
+
+def test_example_batch_file_is_valid():
+    example = Path(cli_batch.__file__).parent.parent / "configs" / "examples" / "batch_example.yaml"
+    result = invoke(str(example), "--dry-run")
+    assert result.exit_code == 0, result.output + result.stderr
+    assert "bunny-sparse" in result.output
 
 
 def test_missing_dask_exits_2_with_the_install_hint(shapes, monkeypatch):
@@ -141,16 +150,15 @@ def test_ctrl_c_exits_130_and_leaves_no_partial_files(shapes, monkeypatch):
     path = shapes / "batch.yaml"
     path.write_text("inputs: ['*/shape.xyz']\noutput_dir: out\n")
 
-    def interrupting_run(plan, **kw):
+    def interrupting_run(plan, *, on_event, **kw):
         def ctrl_c(event: batch.BatchEvent) -> None:
-            kw["on_event"](event)
+            on_event(event)  # the command's progress display
             if event.kind == "progress":
-                raise KeyboardInterrupt
+                raise KeyboardInterrupt  # as if Ctrl-C arrived while the items run
 
-        kw["on_event"] = ctrl_c
-        return batch.run_batch(plan, job=hang_job, **kw)
+        return batch.run_batch(plan, job=hang_job, on_event=ctrl_c, **kw)
 
-    monkeypatch.setattr(cli_batch, "run_batch", functools.partial(interrupting_run))
+    monkeypatch.setattr(cli_batch, "run_batch", interrupting_run)
     result = invoke(str(path), "--jobs", "2")
     assert result.exit_code == 130
     assert "oprecon: interrupted" in result.stderr
@@ -165,8 +173,11 @@ def test_ctrl_c_exits_130_and_leaves_no_partial_files(shapes, monkeypatch):
 
 def test_end_to_end_missing_input_resume_and_changed_override(shapes):
     path = shapes / "batch.yaml"
-    text = ("inputs: ['*/shape.xyz', missing.xyz]\noutput_dir: out\nformats: [ply, obj]\n"
-            + FAST + "overrides:\n  - match: b/shape.xyz\n    set: {{dynamics.dt: {dt}}}\n")
+    text = (
+        "inputs: ['*/shape.xyz', missing.xyz]\noutput_dir: out\nformats: [ply, obj]\n"
+        + FAST
+        + "overrides:\n  - match: b/shape.xyz\n    set: {{dynamics.dt: {dt}}}\n"
+    )
     path.write_text(text.format(dt=0.2))
     result = invoke(str(path), "--jobs", "2")
     assert result.exit_code == 1, result.stderr
@@ -201,13 +212,17 @@ def test_end_to_end_missing_input_resume_and_changed_override(shapes):
     report = json.loads((out / "b_shape.report.json").read_text())
     assert report["config"]["dynamics"]["dt"] == 0.15
     assert result.stderr.strip().splitlines() == [
-        f"oprecon: failed: missing: {shapes / 'missing.xyz'}: no such file"]
+        f"oprecon: failed: missing: {shapes / 'missing.xyz'}: no such file"
+    ]
 
 
 def test_end_to_end_time_limit_gives_timeout_and_spares_the_others(shapes):
     path = shapes / "batch.yaml"
-    path.write_text("inputs: ['*/shape.xyz']\noutput_dir: out\n" + FAST
-                    + "overrides:\n  - match: a_shape\n    set: {dynamics.time_limit: 0.001}\n")
+    path.write_text(
+        "inputs: ['*/shape.xyz']\noutput_dir: out\n"
+        + FAST
+        + "overrides:\n  - match: a_shape\n    set: {dynamics.time_limit: 0.001}\n"
+    )
     result = invoke(str(path), "--jobs", "2")
     assert result.exit_code == 1
     rows = summary(shapes / "out")
@@ -226,8 +241,11 @@ def test_end_to_end_local_cluster_matches_the_process_pool(shapes):
     local = invoke(str(shapes / "local.yaml"), "--jobs", "2")
     on_dask = invoke(str(shapes / "dask.yaml"), "--executor", "dask", "--jobs", "1")
     assert local.exit_code == on_dask.exit_code == 1, on_dask.stderr
-    assert statuses(shapes / "dask") == statuses(shapes / "local") == {
-        "a_shape": "ok", "b_shape": "ok", "gone": "failed"}
+    assert (
+        statuses(shapes / "dask")
+        == statuses(shapes / "local")
+        == {"a_shape": "ok", "b_shape": "ok", "gone": "failed"}
+    )
     local_rows, dask_rows = summary(shapes / "local"), summary(shapes / "dask")
     for name in ("a_shape", "b_shape"):  # same seed, same config: the same mesh
         assert dask_rows[name]["faces"] == local_rows[name]["faces"]

@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import math
 
+import numba
 import numpy as np
 import pytest
 
@@ -22,6 +23,10 @@ from tests.reference import (
 )
 
 DEFAULTS = PhysicsParams.from_config(ReconConfig(), spacing=1.0)
+
+needs_jit = pytest.mark.skipif(
+    numba.config.DISABLE_JIT, reason="thousands of particle-steps: minutes without the JIT"
+)
 
 
 def _params(spacing: float = 1.0, **changes) -> PhysicsParams:
@@ -74,6 +79,7 @@ def test_params_validation():
 # ----------------------------------------------------------------------------- energy
 
 
+@needs_jit
 @pytest.mark.parametrize("relative_sign", [1.0, -1.0])
 def test_damped_energy_never_increases_and_wrong_relative_sign_adds_energy(relative_sign):
     """Total energy with damping and a small step is non-increasing; flipping the sign of the
@@ -102,6 +108,7 @@ def test_damped_energy_never_increases_and_wrong_relative_sign_adds_energy(relat
         assert totals[-1] > totals[0] + 10.0
 
 
+@needs_jit
 def test_linear_and_angular_damping_alone_also_dissipate():
     params = _params(dt=0.05, damping_linear=0.5, damping_angular=0.5)
     sim = Simulation(_patch(1), params)
@@ -127,6 +134,7 @@ def _plane_fit(x):
     return c, vt[2]
 
 
+@needs_jit
 def test_hexagonal_sheet_relaxes_to_a_plane():
     rng = np.random.default_rng(7)
     position = hex_sheet(32, 32)  # 1024 particles
@@ -148,10 +156,13 @@ def test_hexagonal_sheet_relaxes_to_a_plane():
     assert converged_at is not None, (rms, angle)
     spacing = nearest_neighbor_distance(state.position).mean()
     assert abs(spacing - 1.0) < 0.02
-    print(f"sheet: {converged_at} steps, rms {rms:.2e} r0, max angle {angle:.3f} deg, "
-          f"mean spacing {spacing:.4f} r0")
+    print(
+        f"sheet: {converged_at} steps, rms {rms:.2e} r0, max angle {angle:.3f} deg, "
+        f"mean spacing {spacing:.4f} r0"
+    )
 
 
+@needs_jit
 @pytest.mark.parametrize("cutoff", [1.6, 2.0, 2.5])
 @pytest.mark.parametrize("start", [0.94, 1.06])
 def test_lattice_spacing_is_calibrated_to_the_cutoff(cutoff, start):
@@ -170,6 +181,7 @@ def test_lattice_spacing_is_calibrated_to_the_cutoff(cutoff, start):
     assert abs(np.median(d) / spacing - 1.0) < 0.01
 
 
+@needs_jit
 def test_uncalibrated_sigma_misses_the_spacing():
     """Control for the calibration test: sigma = r0 with a 2.5 r0 cutoff compresses the sheet."""
     params = _params(cutoff=2.5, lj_minimum=1.0)
@@ -178,6 +190,7 @@ def test_uncalibrated_sigma_misses_the_spacing():
     assert np.median(nearest_neighbor_distance(state.position)) < 0.95
 
 
+@needs_jit
 @pytest.mark.parametrize("w_circularity, should_hold", [(1.0, True), (0.0, False)])
 def test_sphere_stays_a_sphere_with_co_circularity(w_circularity, should_hold):
     radius = 10.0
@@ -269,6 +282,7 @@ def test_external_force_and_damping_follow_the_semi_implicit_update():
     np.testing.assert_allclose(state.position[0], [0.1 * v, 0.0, 0.0], rtol=1e-14)
 
 
+@needs_jit
 def test_anchors_pull_particles_onto_the_data_plane():
     rng = np.random.default_rng(8)
     position = hex_sheet(10, 10)
@@ -293,9 +307,7 @@ def test_rebuilds_happen_exactly_when_some_particle_passed_half_the_skin():
     state = ParticleState.from_points(hex_sheet(8, 8), np.tile([0.0, 0.0, 1.0], (64, 1)))
     params = _params(damping_linear=0.0, w_lj=0.0, w_planarity=0.0, w_normality=0.0)
     sim = Simulation(state, params)
-    sim.external_force = np.column_stack(
-        [rng.uniform(0.0, 0.02, 64), np.zeros(64), np.zeros(64)]
-    )
+    sim.external_force = np.column_stack([rng.uniform(0.0, 0.02, 64), np.zeros(64), np.zeros(64)])
     reference = None
     for _ in range(60):
         before = state.position.copy()
@@ -410,3 +422,13 @@ def test_run_callback_and_early_stop():
 
 def test_warmup_runs():
     warmup()
+
+
+def test_empty_state_and_growth_from_nothing():
+    state = ParticleState()
+    sim = Simulation(state, DEFAULTS)
+    assert sim.step().potential == 0.0
+    state.add([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]], [[0, 0, 1.0], [0, 0, 1.0]])
+    sim.notify_changed()
+    stats = sim.step()
+    assert stats.rebuilt and stats.potential < 0.0

@@ -59,7 +59,7 @@ def _plane_with_hole(hole_radius, spacing=0.5, half=8.0):
     return DataSurface.build(pts, np.tile([0.0, 0, 1], (len(pts), 1)), k=12)
 
 
-def _accept(surface, cands, particles, cfg=GrowthConfig()):
+def _accept(surface, cands, particles, cfg=GrowthConfig(max_gap=4.0)):
     return accept_candidates(cands, cKDTree(particles), surface, cKDTree(surface.points),
                              surface.points, cfg)
 

@@ -3,10 +3,11 @@ r"""Cell-grid construction of full CSR neighbour lists.
 Particles are binned into cubic cells of side ≥ the list radius r_l, so every neighbour of a
 particle lies in its own cell or one of the 26 around it. Only occupied cells are stored: their
 linear keys are sorted (a stable sort of the particles by cell), and a cell's neighbours are found
-by binary search among the occupied keys. Memory is O(n) however sparse the cloud (a surface
-occupies a vanishing fraction of its bounding box's cells). Build cost: one O(n log n) sort and
-O(n k) distance tests; rows are written in two passes (count, fill), each row by one iteration
-only, and sorted, so the list is identical for any thread count.
+through an open-addressing hash table of the occupied keys. Memory is O(n) however sparse the
+cloud (a surface occupies a vanishing fraction of its bounding box's cells). Build cost: one
+O(n log n) sort and O(n k) distance tests in one pass that writes each particle's candidates to
+its own scratch row; the rows are then compacted into CSR form and sorted, so the list is the
+same for any thread count.
 
 .. math::
 
@@ -55,6 +56,8 @@ def bin_particles(position, cell_size):
         Cell index (into ``cell_keys``) of every particle.
     dims : (3,) int64
         Grid dimensions n_x, n_y, n_z.
+    origin : (3,) float64
+        Lower corner of the grid [length].
     """
     n = position.shape[0]
     lo = np.zeros(3)
@@ -93,89 +96,25 @@ def bin_particles(position, cell_size):
             cell_start[c] = p
         particle_cell[order[p]] = c
     cell_start[m] = n
-    return order, cell_keys, cell_start, particle_cell, dims
+    return order, cell_keys, cell_start, particle_cell, dims, lo
 
 
-@njit(**JIT_OPTIONS)
-def _cell_neighbors_row(c, cell_keys, dims, out):
-    nx = dims[0]
-    ny = dims[1]
-    nz = dims[2]
-    m = cell_keys.shape[0]
-    key = cell_keys[c]
-    cz = key % nz
-    cy = (key // nz) % ny
-    cx = key // (nz * ny)
-    k = 0
-    for dx in range(-1, 2):
-        for dy in range(-1, 2):
-            for dz in range(-1, 2):
-                out[c, k] = -1
-                x = cx + dx
-                y = cy + dy
-                z = cz + dz
-                if 0 <= x < nx and 0 <= y < ny and 0 <= z < nz:
-                    key2 = (x * ny + y) * nz + z
-                    idx = np.searchsorted(cell_keys, key2)
-                    if idx < m and cell_keys[idx] == key2:
-                        out[c, k] = idx
-                k += 1
-
-
-@njit(**JIT_OPTIONS)
-def _count_row(i, position, radius2, order, cell_start, particle_cell, cell_neighbors):
-    c = particle_cell[i]
-    count = 0
-    for k in range(27):
-        nc = cell_neighbors[c, k]
-        if nc < 0:
-            continue
-        for p in range(cell_start[nc], cell_start[nc + 1]):
-            j = order[p]
-            if j == i:
-                continue
-            dx = position[j, 0] - position[i, 0]
-            dy = position[j, 1] - position[i, 1]
-            dz = position[j, 2] - position[i, 2]
-            if dx * dx + dy * dy + dz * dz < radius2:
-                count += 1
-    return count
-
-
-@njit(**JIT_OPTIONS)
-def _fill_row(
-    i, position, radius2, order, cell_start, particle_cell, cell_neighbors, offsets, indices
-):
-    c = particle_cell[i]
-    w = offsets[i]
-    for k in range(27):
-        nc = cell_neighbors[c, k]
-        if nc < 0:
-            continue
-        for p in range(cell_start[nc], cell_start[nc + 1]):
-            j = order[p]
-            if j == i:
-                continue
-            dx = position[j, 0] - position[i, 0]
-            dy = position[j, 1] - position[i, 1]
-            dz = position[j, 2] - position[i, 2]
-            if dx * dx + dy * dy + dz * dz < radius2:
-                indices[w] = j
-                w += 1
-    # insertion sort of the (short) row: ascending neighbour indices
-    lo = offsets[i]
-    for a in range(lo + 1, w):
-        v = indices[a]
-        b = a - 1
-        while b >= lo and indices[b] > v:
-            indices[b + 1] = indices[b]
-            b -= 1
-        indices[b + 1] = v
+@njit(inline="always", **JIT_OPTIONS)
+def _hash(key):
+    """Mix the bits of a non-negative cell key (for the open-addressing table)."""
+    # (31 bits) x (32 bits) < 2**63: no overflow, also without the JIT
+    h = (key & 0x7FFFFFFF) * 0x9E3779B1
+    h = h ^ (key >> 31) ^ (h >> 29)
+    return h & 0x7FFFFFFFFFFFFFFF
 
 
 @njit(**_PARALLEL)
-def build_neighbor_list_parallel(position, radius):
-    """Full CSR neighbour list of all pairs closer than ``radius`` (threaded).
+def build_neighbor_list_kernel(position, radius, row_capacity):
+    """Full CSR neighbour list of all pairs closer than ``radius``.
+
+    Threaded over cells and particles; run it single-threaded with
+    :func:`recon.kernels.options.thread_limit` (the result is identical). The loop bodies are
+    written out in full: helpers taking arrays would cost contended reference-count updates.
 
     Parameters
     ----------
@@ -183,6 +122,9 @@ def build_neighbor_list_parallel(position, radius):
         Finite positions [length].
     radius : float64
         List radius r_l (cutoff + skin) [length], > 0.
+    row_capacity : int
+        Scratch entries per particle. If some particle has more neighbours, ``indices`` is
+        returned empty and the call must be repeated with ``row_capacity = longest``.
 
     Returns
     -------
@@ -190,50 +132,100 @@ def build_neighbor_list_parallel(position, radius):
         Row i is ``indices[offsets[i]:offsets[i + 1]]``.
     indices : (nnz,) int32
         Neighbour indices, ascending within each row; every pair appears in both rows.
+    longest : int
+        Length of the longest row.
     """
     n = position.shape[0]
     radius2 = radius * radius
-    order, cell_keys, cell_start, particle_cell, dims = bin_particles(position, radius)
+    order, cell_keys, cell_start, particle_cell, dims, _ = bin_particles(position, radius)
     m = cell_keys.shape[0]
-    cell_neighbors = np.zeros((m, 27), dtype=np.int64)
-    for c in prange(m):
-        _cell_neighbors_row(c, cell_keys, dims, cell_neighbors)
-    counts = np.zeros(n, dtype=np.int64)
-    for i in prange(n):
-        counts[i] = _count_row(i, position, radius2, order, cell_start, particle_cell, cell_neighbors)
-    offsets = np.zeros(n + 1, dtype=np.int64)
-    for i in range(n):
-        offsets[i + 1] = offsets[i] + counts[i]
-    indices = np.zeros(offsets[n], dtype=np.int32)
-    for i in prange(n):
-        _fill_row(
-            i, position, radius2, order, cell_start, particle_cell, cell_neighbors, offsets, indices
-        )
-    return offsets, indices
-
-
-@njit(**JIT_OPTIONS)
-def build_neighbor_list_serial(position, radius):
-    """Single-threaded twin of :func:`build_neighbor_list_parallel` (same result)."""
-    n = position.shape[0]
-    radius2 = radius * radius
-    order, cell_keys, cell_start, particle_cell, dims = bin_particles(position, radius)
-    m = cell_keys.shape[0]
-    cell_neighbors = np.zeros((m, 27), dtype=np.int64)
+    nx = dims[0]
+    ny = dims[1]
+    nz = dims[2]
+    # open-addressing hash table: cell key -> index into cell_keys (serial, O(m))
+    size = 1
+    while size < 4 * m:
+        size *= 2
+    mask = size - 1
+    slot_key = np.full(size, -1, dtype=np.int64)
+    slot_cell = np.zeros(size, dtype=np.int64)
     for c in range(m):
-        _cell_neighbors_row(c, cell_keys, dims, cell_neighbors)
+        h = _hash(cell_keys[c]) & mask
+        while slot_key[h] != -1:
+            h = (h + 1) & mask
+        slot_key[h] = cell_keys[c]
+        slot_cell[h] = c
+    # the (up to) 27 occupied cells around every occupied cell, -1 where empty
+    cell_neighbors = np.full((m, 27), -1, dtype=np.int64)
+    for c in prange(m):
+        key = cell_keys[c]
+        cz = key % nz
+        cy = (key // nz) % ny
+        cx = key // (nz * ny)
+        k = 0
+        for dx in range(-1, 2):
+            for dy in range(-1, 2):
+                for dz in range(-1, 2):
+                    x = cx + dx
+                    y = cy + dy
+                    z = cz + dz
+                    if 0 <= x < nx and 0 <= y < ny and 0 <= z < nz:
+                        key2 = (x * ny + y) * nz + z
+                        h = _hash(key2) & mask
+                        while slot_key[h] != -1:
+                            if slot_key[h] == key2:
+                                cell_neighbors[c, k] = slot_cell[h]
+                                break
+                            h = (h + 1) & mask
+                    k += 1
+    # one pass: collect up to row_capacity neighbours per particle (and count all of them)
     counts = np.zeros(n, dtype=np.int64)
-    for i in range(n):
-        counts[i] = _count_row(i, position, radius2, order, cell_start, particle_cell, cell_neighbors)
+    # one spare column: rejected candidates past a full row land there, not on a neighbour
+    rows = np.zeros((n, row_capacity + 1), dtype=np.int32)
+    for i in prange(n):
+        c = particle_cell[i]
+        xi = position[i, 0]
+        yi = position[i, 1]
+        zi = position[i, 2]
+        count = 0
+        for k in range(27):
+            nc = cell_neighbors[c, k]
+            if nc < 0:
+                continue
+            for p in range(cell_start[nc], cell_start[nc + 1]):
+                j = order[p]
+                dx = position[j, 0] - xi
+                dy = position[j, 1] - yi
+                dz = position[j, 2] - zi
+                # branch-free: always store the candidate, advance only if it is a neighbour
+                # (about one candidate in eight is; the branch would mispredict)
+                rows[i, min(count, row_capacity)] = j
+                count += (dx * dx + dy * dy + dz * dz < radius2) & (j != i)
+        counts[i] = count
+    longest = 0
     offsets = np.zeros(n + 1, dtype=np.int64)
     for i in range(n):
         offsets[i + 1] = offsets[i] + counts[i]
+        if counts[i] > longest:
+            longest = counts[i]
+    if longest > row_capacity:
+        # the caller retries with row_capacity = longest
+        return offsets, np.zeros(0, dtype=np.int32), longest
     indices = np.zeros(offsets[n], dtype=np.int32)
-    for i in range(n):
-        _fill_row(
-            i, position, radius2, order, cell_start, particle_cell, cell_neighbors, offsets, indices
-        )
-    return offsets, indices
+    # compact into CSR and sort each row (each iteration writes only its own row)
+    for i in prange(n):
+        lo = offsets[i]
+        w = offsets[i + 1]
+        for a in range(w - lo):
+            indices[lo + a] = rows[i, a]
+        for a in range(lo + 1, w):
+            v = indices[a]
+            b = a - 1
+            while b >= lo and indices[b] > v:
+                indices[b + 1] = indices[b]
+                b -= 1
+            indices[b + 1] = v
+    return offsets, indices, longest
 
 
 @njit(**JIT_OPTIONS)

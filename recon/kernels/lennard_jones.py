@@ -81,11 +81,11 @@ def lj_pair(d2, sigma2, cutoff, phi_cutoff, dphi_cutoff):
         \frac{\phi'(d)}{d} = \frac{4u - 4u^2}{d^2},\quad
         \frac{\phi'_\mathrm{sf}(d)}{d} = \frac{\phi'(d) - \phi'(r_c)}{d}
     """
-    d = math.sqrt(d2)
-    inv_d2 = 1.0 / d2
+    inv_d = 1.0 / math.sqrt(d2)
+    inv_d2 = inv_d * inv_d
     u = sigma2 * inv_d2
-    energy = u * u - 2.0 * u - phi_cutoff - (d - cutoff) * dphi_cutoff
-    dphi_over_d = (4.0 * u - 4.0 * u * u) * inv_d2 - dphi_cutoff / d
+    energy = u * u - 2.0 * u - phi_cutoff - (d2 * inv_d - cutoff) * dphi_cutoff
+    dphi_over_d = (4.0 * u - 4.0 * u * u) * inv_d2 - dphi_cutoff * inv_d
     return energy, dphi_over_d
 
 
@@ -109,7 +109,7 @@ def lj_cutoff_values(sigma: float, cutoff: float) -> tuple[float, float]:
 
 
 def _hex_shells(radius: float) -> np.ndarray:
-    """Distances (in units of the lattice constant) of all hexagonal-lattice sites below ``radius``."""
+    """Distances (in lattice constants) of all hexagonal-lattice sites closer than ``radius``."""
     m = int(math.ceil(radius)) + 2
     i, j = np.meshgrid(np.arange(-m, m + 1), np.arange(-m, m + 1), indexing="ij")
     x = i + 0.5 * j
@@ -170,7 +170,9 @@ def calibrate_lj_minimum(spacing: float, cutoff: float) -> float:
     f_lo = hex_lattice_pressure(lo, spacing, cutoff)
     f_hi = hex_lattice_pressure(hi, spacing, cutoff)
     if not (f_lo > 0.0 > f_hi):
-        raise ValueError(f"LJ calibration failed to bracket sigma for cutoff/spacing={cutoff / spacing}")
+        raise ValueError(
+            f"LJ calibration failed to bracket sigma for cutoff/spacing={cutoff / spacing}"
+        )
     for _ in range(200):
         mid = 0.5 * (lo + hi)
         if hex_lattice_pressure(mid, spacing, cutoff) > 0.0:

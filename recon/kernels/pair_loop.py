@@ -15,10 +15,11 @@ an unoriented particle.) Neighbour lists are *full*: each pair appears in both r
 accumulates only the force and torque on i. Each ``prange`` iteration therefore writes only its
 own row (no races) and sums in a fixed order, so results are bit-identical from run to run.
 
-The fused step (:func:`advance_particles_parallel` / :func:`advance_particles_serial`) reads the
-state from one set of buffers and writes the new state to another, so forces and integration
-share one parallel region per step (DESIGN §3: a region costs milliseconds on a loaded
-machine). Equations of motion, in reduced units (lengths in r0, DESIGN §3), semi-implicit Euler:
+The fused step :func:`step_particles` reads the state from one set of buffers and writes the new
+state to another, so forces and integration share one parallel region per step (DESIGN §3: a
+region costs milliseconds on a loaded machine); small systems run it in the calling thread
+(:func:`recon.kernels.options.thread_limit`), with the same compiled code. Equations of motion,
+in reduced units (lengths in r0, DESIGN §3), semi-implicit Euler:
 
 .. math::
 
@@ -30,9 +31,10 @@ machine). Equations of motion, in reduced units (lengths in r0, DESIGN §3), sem
 
 (T-thesis eqs. 4.9–4.10). The factor r0² on the force makes the dynamics of x/r0 independent of
 r0; the linear and angular damping are treated implicitly (unconditionally stable), the relative
-damping explicitly. Per-step displacement and rotation are capped (the velocity is scaled with
-the step, so a capped step never adds energy). Pinned particles keep position and frame and have
-zero velocities; unoriented particles keep their frame.
+damping explicitly. Per-step displacement and rotation are capped; the velocity is scaled with
+the step, so a capped particle does not keep a velocity its position did not follow. Pinned
+particles keep position and frame and have zero velocities; unoriented particles keep their
+frame.
 
 Notes
 -----
@@ -60,7 +62,7 @@ from .normality import normality_pair
 from .options import JIT_OPTIONS
 from .planarity import planarity_pair
 from .quaternion import quaternion_normal, rotate_quaternion
-from .weights import pair_weights
+from .weights import WEIGHT_ANISOTROPIC, pair_weights
 
 # Layout of the coefficient tuple (all lengths absolute; see recon.forces.pack_coefficients).
 C_SPACING = 0
@@ -90,14 +92,16 @@ C_HAS_ANCHORS = 23
 C_HAS_EXTERNAL_FORCE = 24
 N_COEFFICIENTS = 25
 
-# Columns of the per-particle statistics array written by the fused step.
+# Columns of the per-particle output array of :func:`step_particles`.
 S_POTENTIAL = 0
 S_KINETIC = 1
 S_KINETIC_BEFORE = 2
 S_DISPLACEMENT2 = 3
 S_SPEED2 = 4
 S_STATUS = 5
-N_STATS = 6
+S_FORCE = 6  # 6, 7, 8
+S_TORQUE = 9  # 9, 10, 11
+N_STATS = 12
 
 # Bits of the status column.
 STATUS_BAD_INPUT = 1
@@ -121,6 +125,75 @@ def _add_scaled(acc, w, t):
         acc[8] + w * t[8],
         acc[9] + w * t[9],
     )
+
+
+@njit(inline="always", **_JIT)
+def isotropic_orientation_terms(
+    rx, ry, rz, nix, niy, niz, njx, njy, njz, a, b, psi, dpsi, w_p, w_n, w_c, s2
+):
+    r"""Weighted sum of the three orientation terms for an isotropic weight ψ(d) (fast path).
+
+    Algebraically identical to α_P·:func:`~recon.kernels.planarity.planarity_pair` +
+    α_N·:func:`~recon.kernels.normality.normality_pair` +
+    α_C·:func:`~recon.kernels.circularity.circularity_pair` with ψ_i = ψ_j = ψ and κ = 0
+    (S&T92 eqs. 3–5, T-thesis 4.13, 4.14, 4.17), sharing the common factors.
+
+    Parameters
+    ----------
+    a, b : float64
+        n_i·r and n_j·r [length].
+    psi, dpsi : float64
+        h(d²) and h′(d²) (:func:`recon.kernels.weights.weight_value`).
+    w_p, w_n, w_c : float64
+        α_P, α_N, α_C.
+    s2 : float64
+        1/r0².
+
+    Returns
+    -------
+    tuple of 10 float64
+        (E, f_i (3), τ_i (3), τ_j (3)).
+
+    Notes
+    -----
+    With m = n_i + n_j, e = m·r = a + b, c = |n_i − n_j|² and
+    Φ = α_P s (a² + b²) + α_N c + α_C s e²:
+
+    .. math::
+
+        E &= \Phi\,\psi \\
+        f_i &= 2\psi\,[\alpha_P s\,(a n_i + b n_j) + \alpha_C s\, e\, m] + 2h'\Phi\, r \\
+        \tau_i &= -2\psi s\,(\alpha_P a + \alpha_C e)(n_i \times r)
+                  + 2\alpha_N\psi\,(n_i \times n_j) \\
+        \tau_j &= -2\psi s\,(\alpha_P b + \alpha_C e)(n_j \times r)
+                  - 2\alpha_N\psi\,(n_i \times n_j)
+    """
+    dx = nix - njx
+    dy = niy - njy
+    dz = niz - njz
+    c = dx * dx + dy * dy + dz * dz
+    e = a + b
+    wps = w_p * s2
+    wcs = w_c * s2
+    phi = wps * (a * a + b * b) + w_n * c + wcs * e * e
+    energy = phi * psi
+    ci = 2.0 * psi * (wps * a + wcs * e)
+    cj = 2.0 * psi * (wps * b + wcs * e)
+    cr = 2.0 * dpsi * phi
+    fx = ci * nix + cj * njx + cr * rx
+    fy = ci * niy + cj * njy + cr * ry
+    fz = ci * niz + cj * njz + cr * rz
+    cn = 2.0 * w_n * psi
+    cx = niy * njz - niz * njy
+    cy = niz * njx - nix * njz
+    cz = nix * njy - niy * njx
+    tix = cn * cx - ci * (niy * rz - niz * ry)
+    tiy = cn * cy - ci * (niz * rx - nix * rz)
+    tiz = cn * cz - ci * (nix * ry - niy * rx)
+    tjx = -cn * cx - cj * (njy * rz - njz * ry)
+    tjy = -cn * cy - cj * (njz * rx - njx * rz)
+    tjz = -cn * cz - cj * (njx * ry - njy * rx)
+    return energy, fx, fy, fz, tix, tiy, tiz, tjx, tjy, tjz
 
 
 @njit(inline="always", **_JIT)
@@ -156,7 +229,8 @@ def pair_interaction(rx, ry, rz, nix, niy, niz, njx, njy, njz, oriented, coef, m
     with the terms of :mod:`~recon.kernels.lennard_jones` (S&T92 §4),
     :mod:`~recon.kernels.planarity` (eq. 3), :mod:`~recon.kernels.normality` (eq. 4) and
     :mod:`~recon.kernels.circularity` (eq. 5), weighted by :mod:`~recon.kernels.weights`
-    (eq. 7 for the anisotropic form).
+    (eq. 7 for the anisotropic form). For the isotropic weights the three orientation terms are
+    evaluated together by :func:`isotropic_orientation_terms` (same values, fewer operations).
     """
     acc = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     d2 = rx * rx + ry * ry + rz * rz
@@ -183,6 +257,11 @@ def pair_interaction(rx, ry, rz, nix, niy, niz, njx, njy, njz, oriented, coef, m
     psi_i, dpsi_i, psi_j, dpsi_j = pair_weights(
         d2, ri, rj, mode, coef[C_INV_CUTOFF2], coef[C_INV_2SIGMA2], kappa
     )
+    if mode != WEIGHT_ANISOTROPIC:
+        t = isotropic_orientation_terms(
+            rx, ry, rz, nix, niy, niz, njx, njy, njz, ri, rj, psi_i, dpsi_i, w_p, w_n, w_c, s2
+        )
+        return _add_scaled(acc, 1.0, t)
     if w_p != 0.0:
         t = planarity_pair(
             rx, ry, rz, nix, niy, niz, njx, njy, njz, psi_i, dpsi_i, psi_j, dpsi_j, kappa, s2
@@ -199,333 +278,6 @@ def pair_interaction(rx, ry, rz, nix, niy, niz, njx, njy, njz, oriented, coef, m
         )
         acc = _add_scaled(acc, w_c, t)
     return acc
-
-
-@njit(**_JIT)
-def _row_forces(i, coef, mode, position, orientation, is_oriented, offsets, indices, extras):
-    """Energy share, force and torque on particle i from its neighbour row and its anchor.
-
-    Returns (energy, fx, fy, fz, tx, ty, tz) where energy = ½ Σ_j E_ij + E^A_i, so the energies
-    of all rows sum to the total energy. The torque of an unoriented particle is zero.
-    """
-    xi0 = position[i, 0]
-    xi1 = position[i, 1]
-    xi2 = position[i, 2]
-    nix, niy, niz = quaternion_normal(
-        orientation[i, 0], orientation[i, 1], orientation[i, 2], orientation[i, 3]
-    )
-    oriented_i = is_oriented[i]
-    cutoff2 = coef[C_CUTOFF2]
-    energy = 0.0
-    fx = 0.0
-    fy = 0.0
-    fz = 0.0
-    tx = 0.0
-    ty = 0.0
-    tz = 0.0
-    for k in range(offsets[i], offsets[i + 1]):
-        j = indices[k]
-        rx = position[j, 0] - xi0
-        ry = position[j, 1] - xi1
-        rz = position[j, 2] - xi2
-        d2 = rx * rx + ry * ry + rz * rz
-        if d2 >= cutoff2:
-            continue
-        oriented = oriented_i and is_oriented[j]
-        if oriented:
-            njx, njy, njz = quaternion_normal(
-                orientation[j, 0], orientation[j, 1], orientation[j, 2], orientation[j, 3]
-            )
-        else:
-            njx = 0.0
-            njy = 0.0
-            njz = 1.0
-        t = pair_interaction(rx, ry, rz, nix, niy, niz, njx, njy, njz, oriented, coef, mode)
-        energy += 0.5 * t[0]
-        fx += t[1]
-        fy += t[2]
-        fz += t[3]
-        tx += t[4]
-        ty += t[5]
-        tz += t[6]
-    if coef[C_HAS_ANCHORS] != 0.0:
-        anchor_point = extras[0]
-        anchor_normal = extras[1]
-        kn = coef[C_ANCHOR_NORMAL_STIFFNESS] if oriented_i else 0.0
-        a = anchor_interaction(
-            xi0,
-            xi1,
-            xi2,
-            anchor_point[i, 0],
-            anchor_point[i, 1],
-            anchor_point[i, 2],
-            anchor_normal[i, 0],
-            anchor_normal[i, 1],
-            anchor_normal[i, 2],
-            nix,
-            niy,
-            niz,
-            coef[C_ANCHOR_STIFFNESS],
-            kn,
-            coef[C_INV_SPACING2],
-        )
-        energy += a[0]
-        fx += a[1]
-        fy += a[2]
-        fz += a[3]
-        tx += a[4]
-        ty += a[5]
-        tz += a[6]
-    if coef[C_HAS_EXTERNAL_FORCE] != 0.0:
-        external = extras[2]
-        fx += external[i, 0]
-        fy += external[i, 1]
-        fz += external[i, 2]
-    if not oriented_i:
-        tx = 0.0
-        ty = 0.0
-        tz = 0.0
-    return energy, fx, fy, fz, tx, ty, tz
-
-
-@njit(**_JIT)
-def _force_row(i, coef, mode, position, orientation, is_oriented, offsets, indices, extras, out):
-    e, fx, fy, fz, tx, ty, tz = _row_forces(
-        i, coef, mode, position, orientation, is_oriented, offsets, indices, extras
-    )
-    force, torque, energy = out
-    force[i, 0] = fx
-    force[i, 1] = fy
-    force[i, 2] = fz
-    torque[i, 0] = tx
-    torque[i, 1] = ty
-    torque[i, 2] = tz
-    energy[i] = e
-
-
-@njit(parallel=True, **_JIT)
-def accumulate_forces_parallel(
-    coef, mode, position, orientation, is_oriented, offsets, indices, extras, out
-):
-    """Forces, torques and per-particle energies of all particles (threaded).
-
-    Parameters
-    ----------
-    coef : UniTuple(float64, N_COEFFICIENTS)
-        Packed parameters.
-    mode : int
-        Weighting mode.
-    position : (n, 3) float64 [length]
-    orientation : (n, 4) float64
-        Unit quaternions (w, x, y, z).
-    is_oriented : (n,) bool
-    offsets : (n + 1,) int64
-    indices : (nnz,) int32
-        Full CSR neighbour list (radius ≥ r_c).
-    extras : tuple of three (m, 3) float64
-        Anchor points, anchor normals, external forces (each m = n when enabled by ``coef``).
-    out : tuple of (n, 3), (n, 3), (n,) float64
-        Force [1/length], torque [dimensionless] and energy share [dimensionless] (written).
-    """
-    n = position.shape[0]
-    for i in prange(n):
-        _force_row(i, coef, mode, position, orientation, is_oriented, offsets, indices, extras, out)
-
-
-@njit(**_JIT)
-def accumulate_forces_serial(
-    coef, mode, position, orientation, is_oriented, offsets, indices, extras, out
-):
-    """Single-threaded twin of :func:`accumulate_forces_parallel`."""
-    n = position.shape[0]
-    for i in range(n):
-        _force_row(i, coef, mode, position, orientation, is_oriented, offsets, indices, extras, out)
-
-
-@njit(**_JIT)
-def _relative_velocity(i, coef, position, velocity, is_oriented, offsets, indices, angular):
-    """Σ_j (v_i − v_j) over neighbours within r_c (oriented pairs only when ``angular``)."""
-    cutoff2 = coef[C_CUTOFF2]
-    sx = 0.0
-    sy = 0.0
-    sz = 0.0
-    for k in range(offsets[i], offsets[i + 1]):
-        j = indices[k]
-        rx = position[j, 0] - position[i, 0]
-        ry = position[j, 1] - position[i, 1]
-        rz = position[j, 2] - position[i, 2]
-        if rx * rx + ry * ry + rz * rz >= cutoff2:
-            continue
-        if angular and not is_oriented[j]:
-            continue
-        sx += velocity[i, 0] - velocity[j, 0]
-        sy += velocity[i, 1] - velocity[j, 1]
-        sz += velocity[i, 2] - velocity[j, 2]
-    return sx, sy, sz
-
-
-@njit(**_JIT)
-def _advance_row(
-    i,
-    coef,
-    mode,
-    state_in,
-    state_out,
-    is_pinned,
-    is_oriented,
-    mass,
-    inertia,
-    offsets,
-    indices,
-    reference_position,
-    extras,
-    stats,
-):
-    position, orientation, velocity, angular_velocity = state_in
-    position_out, orientation_out, velocity_out, angular_velocity_out = state_out
-    status = 0
-    for c in range(3):
-        if not (
-            math.isfinite(position[i, c])
-            and math.isfinite(velocity[i, c])
-            and math.isfinite(angular_velocity[i, c])
-        ):
-            status |= STATUS_BAD_INPUT
-    for c in range(4):
-        if not math.isfinite(orientation[i, c]):
-            status |= STATUS_BAD_INPUT
-
-    energy, fx, fy, fz, tx, ty, tz = _row_forces(
-        i, coef, mode, position, orientation, is_oriented, offsets, indices, extras
-    )
-    if not (
-        math.isfinite(energy)
-        and math.isfinite(fx)
-        and math.isfinite(fy)
-        and math.isfinite(fz)
-        and math.isfinite(tx)
-        and math.isfinite(ty)
-        and math.isfinite(tz)
-    ):
-        status |= STATUS_BAD_FORCE
-
-    inv_s2 = coef[C_INV_SPACING2]
-    m = mass[i]
-    inertia_i = inertia[i]
-    v0 = velocity[i, 0]
-    v1 = velocity[i, 1]
-    v2 = velocity[i, 2]
-    w0 = angular_velocity[i, 0]
-    w1 = angular_velocity[i, 1]
-    w2 = angular_velocity[i, 2]
-    kinetic_before = 0.5 * m * (v0 * v0 + v1 * v1 + v2 * v2) * inv_s2 + 0.5 * inertia_i * (
-        w0 * w0 + w1 * w1 + w2 * w2
-    )
-
-    x0 = position[i, 0]
-    x1 = position[i, 1]
-    x2 = position[i, 2]
-    qw = orientation[i, 0]
-    qx = orientation[i, 1]
-    qy = orientation[i, 2]
-    qz = orientation[i, 3]
-    if is_pinned[i]:
-        v0 = 0.0
-        v1 = 0.0
-        v2 = 0.0
-        w0 = 0.0
-        w1 = 0.0
-        w2 = 0.0
-    else:
-        dt = coef[C_DT]
-        spacing2 = coef[C_SPACING] * coef[C_SPACING]
-        ax = spacing2 * fx
-        ay = spacing2 * fy
-        az = spacing2 * fz
-        beta1 = coef[C_DAMPING_RELATIVE_LINEAR]
-        if beta1 != 0.0:
-            sx, sy, sz = _relative_velocity(
-                i, coef, position, velocity, is_oriented, offsets, indices, False
-            )
-            ax -= beta1 * sx
-            ay -= beta1 * sy
-            az -= beta1 * sz
-        damp = 1.0 / (1.0 + dt * coef[C_DAMPING_LINEAR] / m)
-        v0 = (v0 + dt * ax / m) * damp
-        v1 = (v1 + dt * ay / m) * damp
-        v2 = (v2 + dt * az / m) * damp
-        step2 = dt * dt * (v0 * v0 + v1 * v1 + v2 * v2)
-        cap = coef[C_MAX_DISPLACEMENT]
-        if step2 > cap * cap:
-            scale = cap / math.sqrt(step2)
-            v0 *= scale
-            v1 *= scale
-            v2 *= scale
-        x0 += dt * v0
-        x1 += dt * v1
-        x2 += dt * v2
-        if is_oriented[i]:
-            beta3 = coef[C_DAMPING_RELATIVE_ANGULAR]
-            if beta3 != 0.0:
-                sx, sy, sz = _relative_velocity(
-                    i, coef, position, angular_velocity, is_oriented, offsets, indices, True
-                )
-                tx -= beta3 * sx
-                ty -= beta3 * sy
-                tz -= beta3 * sz
-            damp = 1.0 / (1.0 + dt * coef[C_DAMPING_ANGULAR] / inertia_i)
-            w0 = (w0 + dt * tx / inertia_i) * damp
-            w1 = (w1 + dt * ty / inertia_i) * damp
-            w2 = (w2 + dt * tz / inertia_i) * damp
-            rot2 = dt * dt * (w0 * w0 + w1 * w1 + w2 * w2)
-            cap = coef[C_MAX_ROTATION]
-            if rot2 > cap * cap:
-                scale = cap / math.sqrt(rot2)
-                w0 *= scale
-                w1 *= scale
-                w2 *= scale
-            qw, qx, qy, qz = rotate_quaternion(qw, qx, qy, qz, dt * w0, dt * w1, dt * w2)
-        else:
-            w0 = 0.0
-            w1 = 0.0
-            w2 = 0.0
-
-    position_out[i, 0] = x0
-    position_out[i, 1] = x1
-    position_out[i, 2] = x2
-    orientation_out[i, 0] = qw
-    orientation_out[i, 1] = qx
-    orientation_out[i, 2] = qy
-    orientation_out[i, 3] = qz
-    velocity_out[i, 0] = v0
-    velocity_out[i, 1] = v1
-    velocity_out[i, 2] = v2
-    angular_velocity_out[i, 0] = w0
-    angular_velocity_out[i, 1] = w1
-    angular_velocity_out[i, 2] = w2
-
-    speed2 = v0 * v0 + v1 * v1 + v2 * v2
-    kinetic = 0.5 * m * speed2 * inv_s2 + 0.5 * inertia_i * (w0 * w0 + w1 * w1 + w2 * w2)
-    d0 = x0 - reference_position[i, 0]
-    d1 = x1 - reference_position[i, 1]
-    d2 = x2 - reference_position[i, 2]
-    if not (
-        math.isfinite(kinetic)
-        and math.isfinite(x0)
-        and math.isfinite(x1)
-        and math.isfinite(x2)
-        and math.isfinite(qw)
-        and math.isfinite(qx)
-        and math.isfinite(qy)
-        and math.isfinite(qz)
-    ):
-        status |= STATUS_BAD_OUTPUT
-    stats[i, S_POTENTIAL] = energy
-    stats[i, S_KINETIC] = kinetic
-    stats[i, S_KINETIC_BEFORE] = kinetic_before
-    stats[i, S_DISPLACEMENT2] = d0 * d0 + d1 * d1 + d2 * d2
-    stats[i, S_SPEED2] = speed2
-    stats[i, S_STATUS] = status
 
 
 @njit(**_JIT)
@@ -561,105 +313,279 @@ def _reduce_stats(stats, n):
 
 
 @njit(parallel=True, **_JIT)
-def advance_particles_parallel(
+def step_particles(
     coef,
     mode,
+    integrate,
     state_in,
     state_out,
-    is_pinned,
-    is_oriented,
-    mass,
-    inertia,
-    offsets,
-    indices,
+    flags,
+    inertial,
+    neighbors,
     reference_position,
     extras,
     stats,
 ):
-    """One fused force + integration step over all particles (threaded).
+    r"""Forces, torques and (optionally) one integration step for every particle.
+
+    The loop body is written out in full (no helper receives arrays): passing arrays to a
+    non-inlined numba function costs atomic reference-count updates per call, which threads
+    contend for. Run it single-threaded with :func:`recon.kernels.options.thread_limit`.
 
     Parameters
     ----------
     coef : UniTuple(float64, N_COEFFICIENTS)
         Packed parameters (:func:`recon.forces.pack_coefficients`).
     mode : int
-        Weighting mode.
+        Weighting mode (:mod:`recon.kernels.weights`).
+    integrate : bool
+        Advance the state into ``state_out``; if False only forces, torques and energies are
+        written to ``stats`` (``state_out`` is not touched and may be ``state_in``).
     state_in, state_out : tuple of four 2-D float64 arrays
-        (position (n, 3) [length], orientation (n, 4), velocity (n, 3) [length/time],
-        angular_velocity (n, 3) [rad/time]): read from ``state_in``, written to ``state_out``.
-        The two must not share memory.
-    is_pinned, is_oriented : (n,) bool
-    mass, inertia : (n,) float64
-    offsets : (n + 1,) int64
-    indices : (nnz,) int32
-        Full CSR neighbour list with radius ≥ r_c.
+        (position (n, 3) [length], orientation (n, 4) (w, x, y, z), velocity (n, 3)
+        [length/time], angular_velocity (n, 3) [rad/time]). Must not share memory when
+        ``integrate``.
+    flags : tuple of two (n,) bool
+        (is_pinned, is_oriented).
+    inertial : tuple of two (n,) float64
+        (mass, inertia).
+    neighbors : (offsets (n + 1,) int64, indices (nnz,) int32)
+        Full CSR neighbour list, radius ≥ r_c.
     reference_position : (n, 3) float64
-        Positions at the last neighbour-list build [length].
+        Positions at the last list build (for the skin test) [length].
     extras : tuple of three (m, 3) float64
-        Anchor points, anchor normals, external forces.
+        Anchor points, anchor normals, external forces (m = n when enabled in ``coef``).
     stats : (n, N_STATS) float64
-        Per-particle scratch (written).
+        Per-particle output (written): energy share ½Σ_j E_ij + E^A_i, kinetic energy after and
+        before, squared displacement since the list build, squared speed, status bits, force
+        (3) [1/length] and torque (3).
 
     Returns
     -------
     tuple
-        (potential, kinetic after, kinetic before, max displacement² since the build,
-        max speed², first non-finite particle or −1, its status bits).
+        (potential, kinetic after, kinetic before, max displacement², max speed², first
+        particle with a non-finite input/force/output or −1, its status bits).
+
+    Notes
+    -----
+    Per particle i (T-thesis eqs. 4.9–4.10, reduced units):
+
+    .. math::
+
+        v_i' = \frac{v_i + \Delta t\,(r_0^2 f_i - \beta_1\sum_j (v_i - v_j))/m_i}
+                    {1 + \Delta t\,\beta_0/m_i},\quad
+        \omega_i' = \frac{\omega_i + \Delta t\,(\tau_i - \beta_3\sum_j
+                    (\omega_i - \omega_j))/I_i}{1 + \Delta t\,\beta_2/I_i}
+
+    then the caps, x_i' = x_i + Δt v_i' and q_i' = exp(½ω_i'Δt) ⊗ q_i.
     """
-    n = state_in[0].shape[0]
+    position, orientation, velocity, angular_velocity = state_in
+    position_out, orientation_out, velocity_out, angular_velocity_out = state_out
+    is_pinned, is_oriented = flags
+    mass, inertia = inertial
+    offsets, indices = neighbors
+    anchor_point, anchor_normal, external = extras
+    n = position.shape[0]
+    cutoff2 = coef[C_CUTOFF2]
+    inv_s2 = coef[C_INV_SPACING2]
+    spacing2 = coef[C_SPACING] * coef[C_SPACING]
+    dt = coef[C_DT]
+    beta0 = coef[C_DAMPING_LINEAR]
+    beta1 = coef[C_DAMPING_RELATIVE_LINEAR]
+    beta2 = coef[C_DAMPING_ANGULAR]
+    beta3 = coef[C_DAMPING_RELATIVE_ANGULAR]
+    max_step = coef[C_MAX_DISPLACEMENT]
+    max_turn = coef[C_MAX_ROTATION]
+    has_anchors = coef[C_HAS_ANCHORS] != 0.0
+    has_external = coef[C_HAS_EXTERNAL_FORCE] != 0.0
     for i in prange(n):
-        _advance_row(
-            i,
-            coef,
-            mode,
-            state_in,
-            state_out,
-            is_pinned,
-            is_oriented,
-            mass,
-            inertia,
-            offsets,
-            indices,
-            reference_position,
-            extras,
-            stats,
-        )
-    return _reduce_stats(stats, n)
+        status = 0
+        x0 = position[i, 0]
+        x1 = position[i, 1]
+        x2 = position[i, 2]
+        qw = orientation[i, 0]
+        qx = orientation[i, 1]
+        qy = orientation[i, 2]
+        qz = orientation[i, 3]
+        v0 = velocity[i, 0]
+        v1 = velocity[i, 1]
+        v2 = velocity[i, 2]
+        w0 = angular_velocity[i, 0]
+        w1 = angular_velocity[i, 1]
+        w2 = angular_velocity[i, 2]
+        if not (
+            math.isfinite(x0 + x1 + x2)
+            and math.isfinite(qw + qx + qy + qz)
+            and math.isfinite(v0 + v1 + v2)
+            and math.isfinite(w0 + w1 + w2)
+        ):
+            status |= STATUS_BAD_INPUT
+        nix, niy, niz = quaternion_normal(qw, qx, qy, qz)
+        oriented_i = is_oriented[i]
 
+        # ---- pair forces and torques (S&T92 eqs. 3-7) and relative velocity sums
+        energy = 0.0
+        fx = 0.0
+        fy = 0.0
+        fz = 0.0
+        tx = 0.0
+        ty = 0.0
+        tz = 0.0
+        sv0 = 0.0
+        sv1 = 0.0
+        sv2 = 0.0
+        sw0 = 0.0
+        sw1 = 0.0
+        sw2 = 0.0
+        for k in range(offsets[i], offsets[i + 1]):
+            j = indices[k]
+            rx = position[j, 0] - x0
+            ry = position[j, 1] - x1
+            rz = position[j, 2] - x2
+            if rx * rx + ry * ry + rz * rz >= cutoff2:
+                continue
+            oriented = oriented_i and is_oriented[j]
+            if oriented:
+                njx, njy, njz = quaternion_normal(
+                    orientation[j, 0], orientation[j, 1], orientation[j, 2], orientation[j, 3]
+                )
+            else:
+                njx = 0.0
+                njy = 0.0
+                njz = 1.0
+            t = pair_interaction(rx, ry, rz, nix, niy, niz, njx, njy, njz, oriented, coef, mode)
+            energy += 0.5 * t[0]
+            fx += t[1]
+            fy += t[2]
+            fz += t[3]
+            tx += t[4]
+            ty += t[5]
+            tz += t[6]
+            if beta1 != 0.0:
+                sv0 += v0 - velocity[j, 0]
+                sv1 += v1 - velocity[j, 1]
+                sv2 += v2 - velocity[j, 2]
+            if beta3 != 0.0 and oriented:
+                sw0 += w0 - angular_velocity[j, 0]
+                sw1 += w1 - angular_velocity[j, 1]
+                sw2 += w2 - angular_velocity[j, 2]
 
-@njit(**_JIT)
-def advance_particles_serial(
-    coef,
-    mode,
-    state_in,
-    state_out,
-    is_pinned,
-    is_oriented,
-    mass,
-    inertia,
-    offsets,
-    indices,
-    reference_position,
-    extras,
-    stats,
-):
-    """Single-threaded twin of :func:`advance_particles_parallel` (same arguments)."""
-    n = state_in[0].shape[0]
-    for i in range(n):
-        _advance_row(
-            i,
-            coef,
-            mode,
-            state_in,
-            state_out,
-            is_pinned,
-            is_oriented,
-            mass,
-            inertia,
-            offsets,
-            indices,
-            reference_position,
-            extras,
-            stats,
+        # ---- anchors (data pull) and external force
+        if has_anchors:
+            a = anchor_interaction(
+                x0,
+                x1,
+                x2,
+                anchor_point[i, 0],
+                anchor_point[i, 1],
+                anchor_point[i, 2],
+                anchor_normal[i, 0],
+                anchor_normal[i, 1],
+                anchor_normal[i, 2],
+                nix,
+                niy,
+                niz,
+                coef[C_ANCHOR_STIFFNESS],
+                coef[C_ANCHOR_NORMAL_STIFFNESS] if oriented_i else 0.0,
+                inv_s2,
+            )
+            energy += a[0]
+            fx += a[1]
+            fy += a[2]
+            fz += a[3]
+            tx += a[4]
+            ty += a[5]
+            tz += a[6]
+        if has_external:
+            fx += external[i, 0]
+            fy += external[i, 1]
+            fz += external[i, 2]
+        if not oriented_i:
+            tx = 0.0
+            ty = 0.0
+            tz = 0.0
+        if not math.isfinite(energy + fx + fy + fz + tx + ty + tz):
+            status |= STATUS_BAD_FORCE
+        stats[i, S_POTENTIAL] = energy
+        stats[i, S_FORCE] = fx
+        stats[i, S_FORCE + 1] = fy
+        stats[i, S_FORCE + 2] = fz
+        stats[i, S_TORQUE] = tx
+        stats[i, S_TORQUE + 1] = ty
+        stats[i, S_TORQUE + 2] = tz
+
+        # ---- damped semi-implicit Euler step (T-thesis eqs. 4.9-4.10)
+        m = mass[i]
+        inertia_i = inertia[i]
+        kinetic_before = 0.5 * m * (v0 * v0 + v1 * v1 + v2 * v2) * inv_s2 + 0.5 * inertia_i * (
+            w0 * w0 + w1 * w1 + w2 * w2
         )
+        stats[i, S_KINETIC_BEFORE] = kinetic_before
+        if not integrate:
+            stats[i, S_KINETIC] = kinetic_before
+            stats[i, S_DISPLACEMENT2] = 0.0
+            stats[i, S_SPEED2] = v0 * v0 + v1 * v1 + v2 * v2
+            stats[i, S_STATUS] = status
+            continue
+        if is_pinned[i]:
+            v0 = 0.0
+            v1 = 0.0
+            v2 = 0.0
+            w0 = 0.0
+            w1 = 0.0
+            w2 = 0.0
+        else:
+            damp = 1.0 / (1.0 + dt * beta0 / m)
+            v0 = (v0 + dt * (spacing2 * fx - beta1 * sv0) / m) * damp
+            v1 = (v1 + dt * (spacing2 * fy - beta1 * sv1) / m) * damp
+            v2 = (v2 + dt * (spacing2 * fz - beta1 * sv2) / m) * damp
+            step2 = dt * dt * (v0 * v0 + v1 * v1 + v2 * v2)
+            if step2 > max_step * max_step:
+                scale = max_step / math.sqrt(step2)
+                v0 *= scale
+                v1 *= scale
+                v2 *= scale
+            x0 += dt * v0
+            x1 += dt * v1
+            x2 += dt * v2
+            if oriented_i:
+                damp = 1.0 / (1.0 + dt * beta2 / inertia_i)
+                w0 = (w0 + dt * (tx - beta3 * sw0) / inertia_i) * damp
+                w1 = (w1 + dt * (ty - beta3 * sw1) / inertia_i) * damp
+                w2 = (w2 + dt * (tz - beta3 * sw2) / inertia_i) * damp
+                turn2 = dt * dt * (w0 * w0 + w1 * w1 + w2 * w2)
+                if turn2 > max_turn * max_turn:
+                    scale = max_turn / math.sqrt(turn2)
+                    w0 *= scale
+                    w1 *= scale
+                    w2 *= scale
+                qw, qx, qy, qz = rotate_quaternion(qw, qx, qy, qz, dt * w0, dt * w1, dt * w2)
+            else:
+                w0 = 0.0
+                w1 = 0.0
+                w2 = 0.0
+        position_out[i, 0] = x0
+        position_out[i, 1] = x1
+        position_out[i, 2] = x2
+        orientation_out[i, 0] = qw
+        orientation_out[i, 1] = qx
+        orientation_out[i, 2] = qy
+        orientation_out[i, 3] = qz
+        velocity_out[i, 0] = v0
+        velocity_out[i, 1] = v1
+        velocity_out[i, 2] = v2
+        angular_velocity_out[i, 0] = w0
+        angular_velocity_out[i, 1] = w1
+        angular_velocity_out[i, 2] = w2
+        speed2 = v0 * v0 + v1 * v1 + v2 * v2
+        kinetic = 0.5 * m * speed2 * inv_s2 + 0.5 * inertia_i * (w0 * w0 + w1 * w1 + w2 * w2)
+        if not math.isfinite(kinetic + x0 + x1 + x2 + qw + qx + qy + qz):
+            status |= STATUS_BAD_OUTPUT
+        d0 = x0 - reference_position[i, 0]
+        d1 = x1 - reference_position[i, 1]
+        d2 = x2 - reference_position[i, 2]
+        stats[i, S_KINETIC] = kinetic
+        stats[i, S_DISPLACEMENT2] = d0 * d0 + d1 * d1 + d2 * d2
+        stats[i, S_SPEED2] = speed2
+        stats[i, S_STATUS] = status
     return _reduce_stats(stats, n)

@@ -21,9 +21,7 @@ def term_params(term: str, weighting: str, spacing: float = 1.0, **extra) -> Phy
     base = PhysicsParams.from_config(ReconConfig(), spacing)
     weights = dict.fromkeys(TERMS, 0.0)
     weights[term] = 1.3
-    return dataclasses.replace(
-        base, weighting=MODES[weighting], anisotropy=2.5, **weights, **extra
-    )
+    return dataclasses.replace(base, weighting=MODES[weighting], anisotropy=2.5, **weights, **extra)
 
 
 def check_term(term: str, weighting: str, spacing: float, seed: int = 0, n_pairs: int = 40):

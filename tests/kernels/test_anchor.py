@@ -29,10 +29,13 @@ def test_anchor_matches_finite_differences(spacing):
                 - anchor_energy(x - d, n, a, m, k_d, k_n, spacing)
             ) / (2 * h)
             ax = np.eye(3)[k]
-            t_num[k] = -(
-                anchor_energy(x, rotate(n, ax, 1e-6), a, m, k_d, k_n, spacing)
-                - anchor_energy(x, rotate(n, ax, -1e-6), a, m, k_d, k_n, spacing)
-            ) / 2e-6
+            t_num[k] = (
+                -(
+                    anchor_energy(x, rotate(n, ax, 1e-6), a, m, k_d, k_n, spacing)
+                    - anchor_energy(x, rotate(n, ax, -1e-6), a, m, k_d, k_n, spacing)
+                )
+                / 2e-6
+            )
         worst = max(worst, relative_error([fx, fy, fz], f_num), relative_error([tx, ty, tz], t_num))
     assert worst < 1e-5
 
