@@ -68,7 +68,8 @@ def run_method(method: str, input_path: str, seed: int = 0) -> dict[str, Any]:
         if method.startswith("poisson"):
             _peer_normals(o3d, pcd, spacing)
             mesh, dens = o3d.geometry.TriangleMesh.create_from_point_cloud_poisson(
-                pcd, depth=int(method[-1]))
+                pcd, depth=int(method[-1])
+            )
             dens = np.asarray(dens)
             mesh.remove_vertices_by_mask(dens < np.quantile(dens, 0.02))
         elif method == "ball_pivoting":
@@ -83,8 +84,12 @@ def run_method(method: str, input_path: str, seed: int = 0) -> dict[str, Any]:
         f = np.asarray(mesh.triangles, dtype=np.int64)
     seconds = time.perf_counter() - t0
     peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
-    return {"v": np.asarray(v + cloud.origin), "f": np.asarray(f), "seconds": seconds,
-            "peak_mb": peak_mb}
+    return {
+        "v": np.asarray(v + cloud.origin),
+        "f": np.asarray(f),
+        "seconds": seconds,
+        "peak_mb": peak_mb,
+    }
 
 
 def evaluate(case_dir: Path, gt_path: Path, method: str, n_samples: int) -> dict[str, Any]:
@@ -106,18 +111,20 @@ def evaluate(case_dir: Path, gt_path: Path, method: str, n_samples: int) -> dict
     cmp = compare_meshes((v, f), (gv, gf), n_samples=n_samples, seed=0)
     topo = mesh_topology(v, f)
     qual = triangle_quality(v, f)
-    row.update({
-        "chamfer_l1": cmp["chamfer_l1_relative"],
-        "fscore": cmp["fscore"],
-        "normal_consistency": cmp.get("normal_consistency"),
-        "hausdorff95": cmp["hausdorff95_relative"],
-        "boundary_loops": topo["boundary_loops"],
-        "components": topo["components"],
-        "watertight": topo["watertight"],
-        "non_manifold_edges": topo["non_manifold_edges"],
-        "min_angle_mean": qual["min_angle_mean_deg"],
-        "faces": int(len(f)),
-    })
+    row.update(
+        {
+            "chamfer_l1": cmp["chamfer_l1_relative"],
+            "fscore": cmp["fscore"],
+            "normal_consistency": cmp.get("normal_consistency"),
+            "hausdorff95": cmp["hausdorff95_relative"],
+            "boundary_loops": topo["boundary_loops"],
+            "components": topo["components"],
+            "watertight": topo["watertight"],
+            "non_manifold_edges": topo["non_manifold_edges"],
+            "min_angle_mean": qual["min_angle_mean_deg"],
+            "faces": int(len(f)),
+        }
+    )
     return row
 
 
@@ -130,8 +137,10 @@ def _fmt(v: Any, spec: str) -> str:
 
 
 def markdown(results: dict[str, list[dict[str, Any]]]) -> str:
-    head = ("| case | method | CD-L1 | F@1% | NC | H95 | loops | comps | watertight | "
-            "min angle | time s | peak MB |")
+    head = (
+        "| case | method | CD-L1 | F@1% | NC | H95 | loops | comps | watertight | "
+        "min angle | time s | peak MB |"
+    )
     lines = [head, "|" + "---|" * 12]
     for case, rows in results.items():
         for r in rows:
@@ -143,7 +152,8 @@ def markdown(results: dict[str, list[dict[str, Any]]]) -> str:
                 f"{_fmt(r['fscore'], '.3f')} | {_fmt(r['normal_consistency'], '.3f')} | "
                 f"{_fmt(r['hausdorff95'], '.4f')} | {r['boundary_loops']} | {r['components']} | "
                 f"{_fmt(r['watertight'], '')} | {_fmt(r['min_angle_mean'], '.1f')} | "
-                f"{_fmt(r['seconds'], '.2f')} | {_fmt(r['peak_mb'], '.0f')} |")
+                f"{_fmt(r['seconds'], '.2f')} | {_fmt(r['peak_mb'], '.0f')} |"
+            )
     return "\n".join(lines) + "\n"
 
 
@@ -165,12 +175,22 @@ def main(argv: list[str] | None = None) -> int:
     for case in cases:
         rows = []
         for method in args.methods:
-            row = evaluate(args.data / "cases" / case["id"], args.data / case["gt"], method,
-                           args.samples)
+            row = evaluate(
+                args.data / "cases" / case["id"], args.data / case["gt"], method, args.samples
+            )
             rows.append(row)
-            print(f"{case['id']:<24} {method:<14} " + json.dumps(
-                {k: (round(v, 5) if isinstance(v, float) else v) for k, v in row.items()
-                 if k != "method"}), file=sys.stderr, flush=True)
+            print(
+                f"{case['id']:<24} {method:<14} "
+                + json.dumps(
+                    {
+                        k: (round(v, 5) if isinstance(v, float) else v)
+                        for k, v in row.items()
+                        if k != "method"
+                    }
+                ),
+                file=sys.stderr,
+                flush=True,
+            )
         results[case["id"]] = rows
     table = markdown(results)
     print(table)

@@ -58,11 +58,20 @@ def resolve_preset(name: str) -> Path:
 def config_options(func: Callable[..., Any]) -> Callable[..., Any]:
     """``--config``, ``--preset`` and ``--set`` for commands that take a pipeline config."""
 
-    @click.option("--config", "config_path", type=click.Path(dir_okay=False, path_type=Path),
-                  help="YAML configuration file (see `oprecon config show`).")
+    @click.option(
+        "--config",
+        "config_path",
+        type=click.Path(dir_okay=False, path_type=Path),
+        help="YAML configuration file (see `oprecon config show`).",
+    )
     @click.option("--preset", help="Named preset from configs/, e.g. open_scan, sparse, noisy.")
-    @click.option("--set", "overrides", multiple=True, metavar="SECTION.KEY=VALUE",
-                  help="Override one key, e.g. --set dynamics.dt=0.1 (repeatable).")
+    @click.option(
+        "--set",
+        "overrides",
+        multiple=True,
+        metavar="SECTION.KEY=VALUE",
+        help="Override one key, e.g. --set dynamics.dt=0.1 (repeatable).",
+    )
     @functools.wraps(func)
     def wrapper(*args: Any, **kwargs: Any) -> Any:
         return func(*args, **kwargs)
@@ -70,8 +79,9 @@ def config_options(func: Callable[..., Any]) -> Callable[..., Any]:
     return wrapper
 
 
-def build_config(config_path: Path | None, preset: str | None,
-                 overrides: tuple[str, ...] = ()) -> ReconConfig:
+def build_config(
+    config_path: Path | None, preset: str | None, overrides: tuple[str, ...] = ()
+) -> ReconConfig:
     """Defaults < preset/config file < --set overrides. CLI options are applied by the caller."""
     if config_path is not None and preset is not None:
         raise click.UsageError("--config and --preset are exclusive; give one")
@@ -82,7 +92,9 @@ def build_config(config_path: Path | None, preset: str | None,
 def common_run_options(func: Callable[..., Any]) -> Callable[..., Any]:
     """``--quiet`` and ``--verbose`` for commands that do work."""
 
-    @click.option("-q", "--quiet", is_flag=True, help="Only errors on stderr (no progress, no log).")
+    @click.option(
+        "-q", "--quiet", is_flag=True, help="Only errors on stderr (no progress, no log)."
+    )
     @click.option("-v", "--verbose", is_flag=True, help="Debug log on stderr.")
     @functools.wraps(func)
     def wrapper(*args: Any, quiet: bool = False, verbose: bool = False, **kwargs: Any) -> Any:

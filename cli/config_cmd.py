@@ -28,8 +28,9 @@ def command() -> None:
 @config_options
 @click.option("--no-comments", is_flag=True, help="Plain YAML without documentation comments.")
 @catch_errors
-def show(config_path: Path | None, preset: str | None, overrides: tuple[str, ...],
-         no_comments: bool) -> None:
+def show(
+    config_path: Path | None, preset: str | None, overrides: tuple[str, ...], no_comments: bool
+) -> None:
     """Print the effective configuration as YAML (defaults < file < --set)."""
     cfg = build_config(config_path, preset, overrides)
     click.echo(dump_config(cfg, comments=not no_comments), nl=False)

@@ -38,12 +38,18 @@ class Progress:
         if not self.enabled:
             return
         if self.bar is None:
-            self.bar = click.progressbar(length=int(info["max_steps"]), label="dynamics",
-                                         file=sys.stderr, show_pos=True, width=30)
+            self.bar = click.progressbar(
+                length=int(info["max_steps"]),
+                label="dynamics",
+                file=sys.stderr,
+                show_pos=True,
+                width=30,
+            )
             self.bar.__enter__()
         step = int(info["step"])
-        self.bar.label = (f"{phase:<7} {info['particles']:>8,} particles  "
-                          f"coverage {100 * info['coverage']:5.1f}%")
+        self.bar.label = (
+            f"{phase:<7} {info['particles']:>8,} particles  coverage {100 * info['coverage']:5.1f}%"
+        )
         self.bar.update(max(0, step - self.last))
         self.last = step
 
@@ -65,25 +71,47 @@ def format_summary(report: dict[str, Any]) -> str:
         ("spacing r0", f"{report['spacing']:.6g}"),
         ("seeds / particles", f"{report['seeds']:,} / {report['particles']:,}"),
         ("steps grow / release", f"{steps.get('grow', 0)} / {steps.get('release', 0)}"),
-        ("time", "  ".join(f"{k} {v:.2f}s" for k, v in times.items())
-         + f"  (total {report.get('time_total_s', 0):.2f}s)"),
+        (
+            "time",
+            "  ".join(f"{k} {v:.2f}s" for k, v in times.items())
+            + f"  (total {report.get('time_total_s', 0):.2f}s)",
+        ),
         ("coverage", f"{100 * (report.get('coverage') or 0):.1f}% of the data near a particle"),
     ]
     if fid:
-        rows.append(("fidelity (input->mesh)",
-                     f"mean {fid.get('mean', float('nan')):.4g}  p95 {fid.get('p95', float('nan')):.4g}"
-                     f"  max {fid.get('max', float('nan')):.4g}  "
-                     f"(mean {fid.get('mean_relative', float('nan')):.2e} of bbox diagonal)"))
+        rows.append(
+            (
+                "fidelity (input->mesh)",
+                f"mean {fid.get('mean', float('nan')):.4g}  p95 {fid.get('p95', float('nan')):.4g}"
+                f"  max {fid.get('max', float('nan')):.4g}  "
+                f"(mean {fid.get('mean_relative', float('nan')):.2e} of bbox diagonal)",
+            )
+        )
     if topo:
-        rows.append(("mesh", f"{topo.get('n_vertices', 0):,} vertices, {topo.get('n_faces', 0):,} faces,"
-                     f" {topo.get('components')} component(s)"))
-        rows.append(("topology", f"boundary loops {topo.get('boundary_loops')}, non-manifold edges "
-                     f"{topo.get('non_manifold_edges')}, vertices {topo.get('non_manifold_vertices')},"
-                     f" watertight {'yes' if topo.get('watertight') else 'no'}, genus "
-                     f"{topo.get('genus')}"))
+        rows.append(
+            (
+                "mesh",
+                f"{topo.get('n_vertices', 0):,} vertices, {topo.get('n_faces', 0):,} faces,"
+                f" {topo.get('components')} component(s)",
+            )
+        )
+        rows.append(
+            (
+                "topology",
+                f"boundary loops {topo.get('boundary_loops')}, non-manifold edges "
+                f"{topo.get('non_manifold_edges')}, vertices {topo.get('non_manifold_vertices')},"
+                f" watertight {'yes' if topo.get('watertight') else 'no'}, genus "
+                f"{topo.get('genus')}",
+            )
+        )
     if qual:
-        rows.append(("min angle", f"mean {qual.get('min_angle_mean_deg', 0):.1f} deg, 5th pct "
-                     f"{qual.get('min_angle_p5_deg', 0):.1f} deg"))
+        rows.append(
+            (
+                "min angle",
+                f"mean {qual.get('min_angle_mean_deg', 0):.1f} deg, 5th pct "
+                f"{qual.get('min_angle_p5_deg', 0):.1f} deg",
+            )
+        )
     if report.get("stop_reason"):
         rows.append(("growth stopped", report["stop_reason"]))
     width = max(len(k) for k, _ in rows)
@@ -94,23 +122,49 @@ def format_summary(report: dict[str, Any]) -> str:
 
 @click.command("fit")
 @click.argument("input_path", metavar="INPUT", type=click.Path(path_type=Path))
-@click.option("-o", "--output", "output_path", required=True, type=click.Path(path_type=Path),
-              help="Mesh to write: .ply (binary unless --ascii) or .obj. A report "
-                   "<name>.report.json is written beside it.")
-@click.option("--particles", "particles_path", type=click.Path(path_type=Path),
-              help="Also write the final oriented particles as a PLY point cloud.")
-@click.option("--preview", "preview_path", type=click.Path(path_type=Path),
-              help="Also render a PNG: the mesh from three sides and the convergence plot.")
-@click.option("--spacing", type=float, help="Rest spacing r0 in input units (default: "
-              "seeds.spacing_factor x median point spacing).")
-@click.option("--spacing-relative", type=float,
-              help="Rest spacing r0 as a fraction of the bounding-box diagonal.")
-@click.option("--max-gap", type=float, help="Holes wider than this many r0 stay open "
-              "(growth.max_gap).")
-@click.option("--fidelity", type=float, help="Pull toward the data, 0 = pure smoothing "
-              "(dynamics.fidelity).")
-@click.option("--normals", "normals_mode", type=click.Choice(["auto", "estimate", "input"]),
-              help="Use the file's normals (input), estimate them, or auto.")
+@click.option(
+    "-o",
+    "--output",
+    "output_path",
+    required=True,
+    type=click.Path(path_type=Path),
+    help="Mesh to write: .ply (binary unless --ascii) or .obj. A report "
+    "<name>.report.json is written beside it.",
+)
+@click.option(
+    "--particles",
+    "particles_path",
+    type=click.Path(path_type=Path),
+    help="Also write the final oriented particles as a PLY point cloud.",
+)
+@click.option(
+    "--preview",
+    "preview_path",
+    type=click.Path(path_type=Path),
+    help="Also render a PNG: the mesh from three sides and the convergence plot.",
+)
+@click.option(
+    "--spacing",
+    type=float,
+    help="Rest spacing r0 in input units (default: seeds.spacing_factor x median point spacing).",
+)
+@click.option(
+    "--spacing-relative",
+    type=float,
+    help="Rest spacing r0 as a fraction of the bounding-box diagonal.",
+)
+@click.option(
+    "--max-gap", type=float, help="Holes wider than this many r0 stay open (growth.max_gap)."
+)
+@click.option(
+    "--fidelity", type=float, help="Pull toward the data, 0 = pure smoothing (dynamics.fidelity)."
+)
+@click.option(
+    "--normals",
+    "normals_mode",
+    type=click.Choice(["auto", "estimate", "input"]),
+    help="Use the file's normals (input), estimate them, or auto.",
+)
 @click.option("--viewpoint", help="Scanner position x,y,z: orient normals toward it (range scans).")
 @click.option("--seed", type=int, help="Random seed (same seed, same mesh).")
 @click.option("--max-particles", type=int, help="Cap on particles (dynamics.max_particles).")
@@ -123,13 +177,30 @@ def format_summary(report: dict[str, Any]) -> str:
 @config_options
 @common_run_options
 @catch_errors
-def command(input_path: Path, output_path: Path, particles_path: Path | None,
-            preview_path: Path | None, spacing: float | None, spacing_relative: float | None,
-            max_gap: float | None, fidelity: float | None, normals_mode: str | None,
-            viewpoint: str | None, seed: int | None, max_particles: int | None,
-            max_steps: int | None, time_limit: float | None, ascii_: bool | None,
-            no_report: bool, mkdir: bool, as_json: bool, config_path: Path | None,
-            preset: str | None, overrides: tuple[str, ...], quiet: bool) -> None:
+def command(
+    input_path: Path,
+    output_path: Path,
+    particles_path: Path | None,
+    preview_path: Path | None,
+    spacing: float | None,
+    spacing_relative: float | None,
+    max_gap: float | None,
+    fidelity: float | None,
+    normals_mode: str | None,
+    viewpoint: str | None,
+    seed: int | None,
+    max_particles: int | None,
+    max_steps: int | None,
+    time_limit: float | None,
+    ascii_: bool | None,
+    no_report: bool,
+    mkdir: bool,
+    as_json: bool,
+    config_path: Path | None,
+    preset: str | None,
+    overrides: tuple[str, ...],
+    quiet: bool,
+) -> None:
     """Reconstruct a triangle mesh from the point cloud INPUT.
 
     Reads PLY, XYZ/XYZN/PTS/TXT, PCD or OBJ points; estimates and orients normals (or uses the
@@ -154,20 +225,40 @@ def command(input_path: Path, output_path: Path, particles_path: Path | None,
         cfg,
         seeds={"spacing": spacing, "spacing_relative": spacing_relative},
         growth={"max_gap": max_gap},
-        dynamics={"fidelity": fidelity, "max_particles": max_particles, "max_steps": max_steps,
-                  "time_limit": time_limit},
+        dynamics={
+            "fidelity": fidelity,
+            "max_particles": max_particles,
+            "max_steps": max_steps,
+            "time_limit": time_limit,
+        },
         normals={"mode": normals_mode, "viewpoint": parse_vector(viewpoint, "--viewpoint")},
         io={"ascii": ascii_},
     )
     if seed is not None:
         cfg = apply_overrides(cfg, {"seed": seed})
     progress = Progress(enabled=not quiet)
-    named = [str(p) for p in (input_path, output_path, report_path_for(output_path),
-                              particles_path, preview_path) if p]
+    named = [
+        str(p)
+        for p in (
+            input_path,
+            output_path,
+            report_path_for(output_path),
+            particles_path,
+            preview_path,
+        )
+        if p
+    ]
     try:
-        result = fit_file(input_path, output_path, cfg, particles_path=particles_path,
-                          preview_path=preview_path, write_report=False if no_report else None,
-                          mkdir=mkdir, on_progress=progress)
+        result = fit_file(
+            input_path,
+            output_path,
+            cfg,
+            particles_path=particles_path,
+            preview_path=preview_path,
+            write_report=False if no_report else None,
+            mkdir=mkdir,
+            on_progress=progress,
+        )
     except OpreconError as exc:
         # say which file a failed run was about (limits, divergence, too sparse data ...)
         if any(str(exc).startswith(n) for n in named):

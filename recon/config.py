@@ -29,8 +29,14 @@ from .errors import ConfigError
 CONFIG_VERSION = 1
 
 
-def _f(default: Any, doc: str, lo: float | None = None, hi: float | None = None,
-       choices: tuple[Any, ...] | None = None, lo_open: bool = False) -> Any:
+def _f(
+    default: Any,
+    doc: str,
+    lo: float | None = None,
+    hi: float | None = None,
+    choices: tuple[Any, ...] | None = None,
+    lo_open: bool = False,
+) -> Any:
     """A dataclass field with documentation and an allowed range."""
     meta = {"doc": doc, "min": lo, "max": hi, "choices": choices, "min_open": lo_open}
     if isinstance(default, (list, dict)):
@@ -47,35 +53,66 @@ class IOConfig:
 
 @dataclass(frozen=True)
 class NormalsConfig:
-    mode: str = _f("auto", "auto: use the file's normals when present and valid, else estimate; "
-                   "estimate: always estimate; input: require normals in the file.",
-                   choices=("auto", "estimate", "input"))
+    mode: str = _f(
+        "auto",
+        "auto: use the file's normals when present and valid, else estimate; "
+        "estimate: always estimate; input: require normals in the file.",
+        choices=("auto", "estimate", "input"),
+    )
     k: int = _f(20, "Neighbours for the PCA normal estimate and the local data surfaces.", 3, 500)
-    auto_scale: bool = _f(True, "Raise k (up to 8x) on noisy data until the local surfaces are "
-                          "thin (median surface variation below 0.05).")
-    radius: float | None = _f(None, "Optional PCA radius [input length units]; null = k-NN only.",
-                              0.0, None, lo_open=True)
+    auto_scale: bool = _f(
+        True,
+        "Raise k (up to 8x) on noisy data until the local surfaces are "
+        "thin (median surface variation below 0.05).",
+    )
+    radius: float | None = _f(
+        None, "Optional PCA radius [input length units]; null = k-NN only.", 0.0, None, lo_open=True
+    )
     orient_k: int = _f(10, "Neighbours in the orientation graph (Hoppe et al. 1992 MST).", 3, 100)
-    orientation: str = _f("auto", "Global sign: auto (outward if the surface looks closed, else "
-                          "toward the viewpoint or +z), outward, viewpoint, or none.",
-                          choices=("auto", "outward", "viewpoint", "none"))
-    viewpoint: list[float] | None = _f(None, "Scanner position [x, y, z] for range scans "
-                                       "(input length units); implies orientation toward it.")
+    orientation: str = _f(
+        "auto",
+        "Global sign: auto (outward if the surface looks closed, else "
+        "toward the viewpoint or +z), outward, viewpoint, or none.",
+        choices=("auto", "outward", "viewpoint", "none"),
+    )
+    viewpoint: list[float] | None = _f(
+        None,
+        "Scanner position [x, y, z] for range scans "
+        "(input length units); implies orientation toward it.",
+    )
 
 
 @dataclass(frozen=True)
 class SeedsConfig:
-    spacing: float | None = _f(None, "Absolute rest spacing r0 [input length units]; "
-                               "null = derived from the data.", 0.0, None, lo_open=True)
-    spacing_relative: float | None = _f(None, "Rest spacing r0 as a fraction of the bounding-box "
-                                        "diagonal; null = derived from the data.",
-                                        0.0, 1.0, lo_open=True)
-    spacing_factor: float = _f(2.5, "r0 = spacing_factor x median nearest-neighbour distance "
-                               "of the input (used when spacing and spacing_relative are null).",
-                               0.1, 100.0)
-    min_particles: int = _f(10_000, "Resolution floor: r0 shrinks (down to the data spacing x "
-                            "0.8) so that the sheet has about this many particles; sparse "
-                            "inputs are then interpolated between samples.", 0, None)
+    spacing: float | None = _f(
+        None,
+        "Absolute rest spacing r0 [input length units]; null = derived from the data.",
+        0.0,
+        None,
+        lo_open=True,
+    )
+    spacing_relative: float | None = _f(
+        None,
+        "Rest spacing r0 as a fraction of the bounding-box diagonal; null = derived from the data.",
+        0.0,
+        1.0,
+        lo_open=True,
+    )
+    spacing_factor: float = _f(
+        2.5,
+        "r0 = spacing_factor x median nearest-neighbour distance "
+        "of the input (used when spacing and spacing_relative are null).",
+        0.1,
+        100.0,
+    )
+    min_particles: int = _f(
+        10_000,
+        "Resolution floor: r0 shrinks (down to the data spacing x "
+        "0.8) so that the sheet has about this many particles; sparse "
+        "inputs are then interpolated between samples.",
+        0,
+        None,
+    )
     thinning: float = _f(1.0, "Seeds are Poisson-disk thinned to this distance [r0].", 0.3, 5.0)
 
 
@@ -86,80 +123,121 @@ class DynamicsConfig:
     max_particles: int = _f(2_000_000, "Hard cap on the particle count.", 4, None)
     damping_linear: float = _f(2.0, "beta_0: linear velocity damping.", 0.0, None)
     damping_angular: float = _f(2.0, "beta_2: angular velocity damping.", 0.0, None)
-    damping_relative_linear: float = _f(0.0, "beta_1: relative damping between neighbours "
-                                        "(T-thesis eq. 4.10 sign).", 0.0, None)
+    damping_relative_linear: float = _f(
+        0.0, "beta_1: relative damping between neighbours (T-thesis eq. 4.10 sign).", 0.0, None
+    )
     damping_relative_angular: float = _f(0.0, "beta_3: relative angular damping.", 0.0, None)
     max_displacement: float = _f(0.1, "Per-step displacement cap [r0].", 0.0, 10.0, lo_open=True)
-    max_rotation_deg: float = _f(17.0, "Per-step rotation cap [degrees].", 0.0, 180.0,
-                                 lo_open=True)
-    skin: float = _f(0.4, "Neighbour-list skin [r0]; lists are rebuilt after skin/2 motion.",
-                     0.0, 5.0, lo_open=True)
+    max_rotation_deg: float = _f(17.0, "Per-step rotation cap [degrees].", 0.0, 180.0, lo_open=True)
+    skin: float = _f(
+        0.4,
+        "Neighbour-list skin [r0]; lists are rebuilt after skin/2 motion.",
+        0.0,
+        5.0,
+        lo_open=True,
+    )
     relax_steps: int = _f(15, "Relaxation steps after each growth round.", 1, 10_000)
     release_steps: int = _f(100, "Steps after the seeds are released (smoothing).", 0, 100_000)
-    fidelity: float = _f(5.0, "Point-to-plane pull toward the data (0 = pure smoothing).",
-                         0.0, 100.0)
-    fidelity_normal: float = _f(0.5, "Torque aligning particle normals with data normals.",
-                                0.0, 100.0)
-    time_limit: float | None = _f(None, "Wall-clock limit for one fit [s]; null = none.",
-                                  0.0, None, lo_open=True)
+    fidelity: float = _f(
+        5.0, "Point-to-plane pull toward the data (0 = pure smoothing).", 0.0, 100.0
+    )
+    fidelity_normal: float = _f(
+        0.5, "Torque aligning particle normals with data normals.", 0.0, 100.0
+    )
+    time_limit: float | None = _f(
+        None, "Wall-clock limit for one fit [s]; null = none.", 0.0, None, lo_open=True
+    )
 
 
 @dataclass(frozen=True)
 class PotentialsConfig:
-    w_lj: float = _f(1.0, "alpha_LJ: weight of the spacing (Lennard-Jones 4-2) potential.",
-                     0.0, None)
+    w_lj: float = _f(
+        1.0, "alpha_LJ: weight of the spacing (Lennard-Jones 4-2) potential.", 0.0, None
+    )
     w_planarity: float = _f(1.0, "alpha_P: co-planarity weight (S&T92 eq. 3).", 0.0, None)
     w_normality: float = _f(1.0, "alpha_N: co-normality weight (S&T92 eq. 4).", 0.0, None)
     w_circularity: float = _f(0.0, "alpha_C: co-circularity weight (S&T92 eq. 5).", 0.0, None)
-    cutoff: float = _f(2.0, "Interaction cutoff [r0] (LJ shifted-force truncation and psi).",
-                       1.2, 5.0)
-    weighting: str = _f("poly", "psi: poly (1-(d/rc)^2)^2, gaussian exp(-d^2/(2 s^2)), or "
-                        "anisotropic (S&T92 eq. 7 in the particle frame).",
-                        choices=("poly", "gaussian", "anisotropic"))
-    influence_radius: float = _f(1.0, "sigma of the gaussian/anisotropic weight [r0].",
-                                 0.0, 5.0, lo_open=True)
-    anisotropy: float = _f(2.0, "Anisotropic weight: normal-direction sigma divisor "
-                           "(sigma_n = influence_radius / anisotropy).", 1.0, 20.0)
+    cutoff: float = _f(
+        2.0, "Interaction cutoff [r0] (LJ shifted-force truncation and psi).", 1.2, 5.0
+    )
+    weighting: str = _f(
+        "poly",
+        "psi: poly (1-(d/rc)^2)^2, gaussian exp(-d^2/(2 s^2)), or "
+        "anisotropic (S&T92 eq. 7 in the particle frame).",
+        choices=("poly", "gaussian", "anisotropic"),
+    )
+    influence_radius: float = _f(
+        1.0, "sigma of the gaussian/anisotropic weight [r0].", 0.0, 5.0, lo_open=True
+    )
+    anisotropy: float = _f(
+        2.0,
+        "Anisotropic weight: normal-direction sigma divisor "
+        "(sigma_n = influence_radius / anisotropy).",
+        1.0,
+        20.0,
+    )
 
 
 @dataclass(frozen=True)
 class GrowthConfig:
     enabled: bool = _f(True, "Run the growing and stretching rules.")
     max_rounds: int = _f(40, "Cap on growth rounds.", 0, 10_000)
-    grow_radius: float = _f(1.5, "Neighbours within this distance count for the growing rule [r0].",
-                            0.5, 5.0)
-    gap_angle_deg: float = _f(100.0, "An angular gap wider than this gets new particles.",
-                              30.0, 359.0)
+    grow_radius: float = _f(
+        1.5, "Neighbours within this distance count for the growing rule [r0].", 0.5, 5.0
+    )
+    gap_angle_deg: float = _f(
+        100.0, "An angular gap wider than this gets new particles.", 30.0, 359.0
+    )
     gap_step_deg: float = _f(60.0, "One new particle per this many degrees of gap.", 10.0, 180.0)
-    min_neighbors: int = _f(0, "Growing rule applies to particles with at least this many "
-                            "neighbours.", 0, 50)
+    min_neighbors: int = _f(
+        0, "Growing rule applies to particles with at least this many neighbours.", 0, 50
+    )
     max_neighbors: int = _f(5, "... and at most this many.", 1, 50)
     stretch_min: float = _f(2.0, "Stretching rule: pair distance lower bound [r0].", 1.0, 10.0)
     stretch_max: float = _f(2.5, "Stretching rule: pair distance upper bound [r0].", 1.0, 10.0)
     reject_radius: float = _f(0.8, "Reject a candidate this close to a particle [r0].", 0.1, 2.0)
-    max_gap: float | None = _f(None, "Holes wider than this are not filled; candidates farther "
-                               "than max_gap/2 from the data are rejected [r0]. null = 10 x the "
-                               "median data spacing (4 r0 on dense data).", 0.5, 1000.0)
-    tangent_tolerance: float = _f(0.5, "Reject a candidate farther than this from the local data "
-                                  "plane [r0].", 0.01, 5.0)
-    min_add_fraction: float = _f(0.005, "Stop growing when a round adds fewer than this "
-                                 "fraction of the particles.", 0.0, 1.0)
+    max_gap: float | None = _f(
+        None,
+        "Holes wider than this are not filled; candidates farther "
+        "than max_gap/2 from the data are rejected [r0]. null = 10 x the "
+        "median data spacing (4 r0 on dense data).",
+        0.5,
+        1000.0,
+    )
+    tangent_tolerance: float = _f(
+        0.5, "Reject a candidate farther than this from the local data plane [r0].", 0.01, 5.0
+    )
+    min_add_fraction: float = _f(
+        0.005, "Stop growing when a round adds fewer than this fraction of the particles.", 0.0, 1.0
+    )
 
 
 @dataclass(frozen=True)
 class TriangulationConfig:
-    method: str = _f("ball_pivoting", "ball_pivoting (manifold, default) or circumsphere "
-                     "(S&T92 empty-circumsphere test, for comparison).",
-                     choices=("ball_pivoting", "circumsphere"))
+    method: str = _f(
+        "ball_pivoting",
+        "ball_pivoting (manifold, default) or circumsphere "
+        "(S&T92 empty-circumsphere test, for comparison).",
+        choices=("ball_pivoting", "circumsphere"),
+    )
     radii: list[float] = _f([0.7, 1.0, 1.4, 2.0], "Ball-pivoting radii [r0].")
     fill_holes: bool = _f(True, "Fill holes whose perimeter is below pi * max_hole.")
-    max_hole: float | None = _f(None, "Largest hole diameter to fill [r0]; null = growth.max_gap.",
-                                0.0, None)
-    project_to_data: bool = _f(True, "Move the final particles onto the local data surface "
-                               "(quadric fit) along its normal before meshing.")
-    trim_distance: float = _f(1.0, "Drop particles farther than this from the local data plane, "
-                              "or farther than max_gap/2 from any data point [r0].",
-                              0.0, None, lo_open=True)
+    max_hole: float | None = _f(
+        None, "Largest hole diameter to fill [r0]; null = growth.max_gap.", 0.0, None
+    )
+    project_to_data: bool = _f(
+        True,
+        "Move the final particles onto the local data surface "
+        "(quadric fit) along its normal before meshing.",
+    )
+    trim_distance: float = _f(
+        1.0,
+        "Drop particles farther than this from the local data plane, "
+        "or farther than max_gap/2 from any data point [r0].",
+        0.0,
+        None,
+        lo_open=True,
+    )
 
 
 @dataclass(frozen=True)
@@ -173,24 +251,34 @@ class ReconConfig:
     version: int = _f(CONFIG_VERSION, "Configuration format version.", 1, 1)
     seed: int = _f(0, "Random seed: same input, config and seed give the same mesh.", 0, None)
     io: IOConfig = field(default_factory=IOConfig, metadata={"doc": "Reading and writing."})
-    normals: NormalsConfig = field(default_factory=NormalsConfig,
-                                   metadata={"doc": "Normal estimation and orientation."})
-    seeds: SeedsConfig = field(default_factory=SeedsConfig,
-                               metadata={"doc": "Rest spacing r0 and pinned seed particles."})
-    dynamics: DynamicsConfig = field(default_factory=DynamicsConfig,
-                                     metadata={"doc": "Integrator, damping, caps, data fidelity."})
-    potentials: PotentialsConfig = field(default_factory=PotentialsConfig,
-                                         metadata={"doc": "Pair potentials and weighting."})
-    growth: GrowthConfig = field(default_factory=GrowthConfig,
-                                 metadata={"doc": "Growing and stretching rules, gap control."})
-    triangulation: TriangulationConfig = field(default_factory=TriangulationConfig,
-                                               metadata={"doc": "Meshing the particles."})
-    output: OutputConfig = field(default_factory=OutputConfig,
-                                 metadata={"doc": "What is written beside the mesh."})
+    normals: NormalsConfig = field(
+        default_factory=NormalsConfig, metadata={"doc": "Normal estimation and orientation."}
+    )
+    seeds: SeedsConfig = field(
+        default_factory=SeedsConfig, metadata={"doc": "Rest spacing r0 and pinned seed particles."}
+    )
+    dynamics: DynamicsConfig = field(
+        default_factory=DynamicsConfig,
+        metadata={"doc": "Integrator, damping, caps, data fidelity."},
+    )
+    potentials: PotentialsConfig = field(
+        default_factory=PotentialsConfig, metadata={"doc": "Pair potentials and weighting."}
+    )
+    growth: GrowthConfig = field(
+        default_factory=GrowthConfig, metadata={"doc": "Growing and stretching rules, gap control."}
+    )
+    triangulation: TriangulationConfig = field(
+        default_factory=TriangulationConfig, metadata={"doc": "Meshing the particles."}
+    )
+    output: OutputConfig = field(
+        default_factory=OutputConfig, metadata={"doc": "What is written beside the mesh."}
+    )
 
 
 SECTIONS: tuple[str, ...] = tuple(
-    f.name for f in fields(ReconConfig) if is_dataclass(f.default_factory)  # type: ignore[arg-type]
+    f.name
+    for f in fields(ReconConfig)
+    if is_dataclass(f.default_factory)  # type: ignore[arg-type]
 )
 
 
@@ -251,7 +339,9 @@ def _check_range(key: str, value: Any, meta: Mapping[str, Any]) -> None:
     choices = meta.get("choices")
     if choices is not None and value not in choices:
         allowed = ", ".join(map(str, choices))
-        raise ConfigError(f"{key}: {value!r} is not one of: {allowed}{_suggest(str(value), map(str, choices))}")
+        raise ConfigError(
+            f"{key}: {value!r} is not one of: {allowed}{_suggest(str(value), map(str, choices))}"
+        )
     values = value if isinstance(value, list) else [value]
     lo, hi, lo_open = meta.get("min"), meta.get("max"), meta.get("min_open", False)
     for v in values:
@@ -294,8 +384,10 @@ def _build(cls: type, data: Mapping[str, Any], prefix: str) -> Any:
 def _check_cross(obj: Any, prefix: str) -> None:
     """Constraints that involve more than one key."""
     if isinstance(obj, GrowthConfig) and obj.stretch_min > obj.stretch_max:
-        raise ConfigError(f"{prefix}stretch_min ({obj.stretch_min}) must not exceed "
-                          f"{prefix}stretch_max ({obj.stretch_max})")
+        raise ConfigError(
+            f"{prefix}stretch_min ({obj.stretch_min}) must not exceed "
+            f"{prefix}stretch_max ({obj.stretch_max})"
+        )
     if isinstance(obj, GrowthConfig) and obj.min_neighbors > obj.max_neighbors:
         raise ConfigError(f"{prefix}min_neighbors must not exceed {prefix}max_neighbors")
     if isinstance(obj, NormalsConfig) and obj.viewpoint is not None and len(obj.viewpoint) != 3:
@@ -305,7 +397,11 @@ def _check_cross(obj: Any, prefix: str) -> None:
             raise ConfigError(f"{prefix}radii: expected at least one radius")
         if any(r <= 0 for r in obj.radii):
             raise ConfigError(f"{prefix}radii: every radius must be > 0, got {obj.radii}")
-    if isinstance(obj, SeedsConfig) and obj.spacing is not None and obj.spacing_relative is not None:
+    if (
+        isinstance(obj, SeedsConfig)
+        and obj.spacing is not None
+        and obj.spacing_relative is not None
+    ):
         raise ConfigError(f"{prefix}spacing and {prefix}spacing_relative are exclusive; set one")
 
 
@@ -375,7 +471,11 @@ def apply_overrides(cfg: ReconConfig, overrides: Mapping[str, Any]) -> ReconConf
         node: Any = data
         for i, part in enumerate(parts[:-1]):
             if not isinstance(node, dict) or part not in node or not isinstance(node[part], dict):
-                valid = [k for k, v in node.items() if isinstance(v, dict)] if isinstance(node, dict) else []
+                valid = (
+                    [k for k, v in node.items() if isinstance(v, dict)]
+                    if isinstance(node, dict)
+                    else []
+                )
                 where = ".".join(parts[: i + 1])
                 raise ConfigError(f"unknown section '{where}'{_suggest(part, valid)}")
             node = node[part]
@@ -383,14 +483,17 @@ def apply_overrides(cfg: ReconConfig, overrides: Mapping[str, Any]) -> ReconConf
         if leaf not in node:
             raise ConfigError(f"unknown key '{dotted}'{_suggest(leaf, node)}")
         if isinstance(node[leaf], dict):
-            raise ConfigError(f"'{dotted}' is a section; set one of its keys, e.g. {dotted}."
-                              f"{next(iter(node[leaf]))}")
+            raise ConfigError(
+                f"'{dotted}' is a section; set one of its keys, e.g. {dotted}."
+                f"{next(iter(node[leaf]))}"
+            )
         node[leaf] = value
     return config_from_dict(data)
 
 
-def load_config(path: str | Path | None = None,
-                overrides: Mapping[str, Any] | Iterable[str] | None = None) -> ReconConfig:
+def load_config(
+    path: str | Path | None = None, overrides: Mapping[str, Any] | Iterable[str] | None = None
+) -> ReconConfig:
     """Defaults, then the YAML file at ``path``, then dotted overrides.
 
     ``overrides`` is a mapping ``{"dynamics.dt": 0.1}`` or an iterable of ``"key=value"``
@@ -436,9 +539,11 @@ def dump_config(cfg: ReconConfig | None = None, comments: bool = True) -> str:
     cfg = cfg if cfg is not None else ReconConfig()
     lines: list[str] = []
     if comments:
-        lines += ["# oprecon configuration. Lengths in seeds/dynamics/potentials/growth/triangulation",
-                  "# are in units of the rest spacing r0 unless a key says otherwise.",
-                  "# Precedence: command-line options > --set key=value > --config file > defaults."]
+        lines += [
+            "# oprecon configuration. Lengths in seeds/dynamics/potentials/growth/triangulation",
+            "# are in units of the rest spacing r0 unless a key says otherwise.",
+            "# Precedence: command-line options > --set key=value > --config file > defaults.",
+        ]
 
     def emit(obj: Any, indent: str) -> None:
         for f in fields(obj):

@@ -63,8 +63,9 @@ def _tangent_frame(nrm):  # pragma: no cover - numba
 
 
 @nb.njit(cache=True)
-def _grow_kernel(pos, nrm, offsets, indices, min_nb, max_nb, gap_angle, gap_step,
-                 out, count):  # pragma: no cover - numba
+def _grow_kernel(
+    pos, nrm, offsets, indices, min_nb, max_nb, gap_angle, gap_step, out, count
+):  # pragma: no cover - numba
     """Growing rule (S&T92 §6): candidates in angular gaps of sparse particles."""
     n = pos.shape[0]
     two_pi = 2.0 * np.pi
@@ -85,8 +86,9 @@ def _grow_kernel(pos, nrm, offsets, indices, min_nb, max_nb, gap_angle, gap_step
         ang = np.empty(m)
         for a in range(m):
             d = pos[indices[offsets[i] + a]] - pos[i]
-            ang[a] = np.arctan2(d[0] * v[0] + d[1] * v[1] + d[2] * v[2],
-                                d[0] * u[0] + d[1] * u[1] + d[2] * u[2])
+            ang[a] = np.arctan2(
+                d[0] * v[0] + d[1] * v[1] + d[2] * v[2], d[0] * u[0] + d[1] * u[1] + d[2] * u[2]
+            )
         ang.sort()
         for a in range(m):
             start = ang[a]
@@ -104,8 +106,13 @@ def _grow_kernel(pos, nrm, offsets, indices, min_nb, max_nb, gap_angle, gap_step
         count[i] = c
 
 
-def grow_candidates(position: np.ndarray, normal: np.ndarray, offsets: np.ndarray,
-                    indices: np.ndarray, cfg: GrowthConfig) -> np.ndarray:
+def grow_candidates(
+    position: np.ndarray,
+    normal: np.ndarray,
+    offsets: np.ndarray,
+    indices: np.ndarray,
+    cfg: GrowthConfig,
+) -> np.ndarray:
     """Candidate positions from the growing rule.
 
     Parameters
@@ -120,14 +127,25 @@ def grow_candidates(position: np.ndarray, normal: np.ndarray, offsets: np.ndarra
     n = len(position)
     out = np.zeros((n, MAX_PER_PARTICLE, 3))
     count = np.zeros(n, dtype=np.int64)
-    _grow_kernel(position, normal, offsets, indices, cfg.min_neighbors, cfg.max_neighbors,
-                 np.deg2rad(cfg.gap_angle_deg), np.deg2rad(cfg.gap_step_deg), out, count)
+    _grow_kernel(
+        position,
+        normal,
+        offsets,
+        indices,
+        cfg.min_neighbors,
+        cfg.max_neighbors,
+        np.deg2rad(cfg.gap_angle_deg),
+        np.deg2rad(cfg.gap_step_deg),
+        out,
+        count,
+    )
     mask = np.arange(MAX_PER_PARTICLE)[None, :] < count[:, None]
     return out[mask]
 
 
-def stretch_candidates(position: np.ndarray, normal: np.ndarray, tree: cKDTree,
-                       frontier: np.ndarray, cfg: GrowthConfig) -> np.ndarray:
+def stretch_candidates(
+    position: np.ndarray, normal: np.ndarray, tree: cKDTree, frontier: np.ndarray, cfg: GrowthConfig
+) -> np.ndarray:
     """Candidate midpoints from the stretching rule, for pairs that involve a frontier particle.
 
     A pair (i, j) with ``stretch_min <= |x_i - x_j| <= stretch_max`` whose midpoint has no
@@ -168,9 +186,15 @@ class Acceptance:
     n_off_plane: int
 
 
-def accept_candidates(candidates: np.ndarray, particle_tree: cKDTree, surface: DataSurface,
-                      seed_tree: cKDTree, seed_points: np.ndarray, cfg: GrowthConfig,
-                      near_data: float = 0.5) -> Acceptance:
+def accept_candidates(
+    candidates: np.ndarray,
+    particle_tree: cKDTree,
+    surface: DataSurface,
+    seed_tree: cKDTree,
+    seed_points: np.ndarray,
+    cfg: GrowthConfig,
+    near_data: float = 0.5,
+) -> Acceptance:
     """Filter candidates: spacing from particles and each other, data support, tangent plane.
 
     A candidate is rejected when
@@ -186,8 +210,10 @@ def accept_candidates(candidates: np.ndarray, particle_tree: cKDTree, surface: D
     themselves (first come, first served, in candidate order: deterministic).
     """
     if cfg.max_gap is None:
-        raise ValueError("growth.max_gap must be resolved to a length before growth "
-                         "(recon.pipeline.reconstruct does this)")
+        raise ValueError(
+            "growth.max_gap must be resolved to a length before growth "
+            "(recon.pipeline.reconstruct does this)"
+        )
     m = len(candidates)
     empty = Acceptance(np.zeros((0, 3)), np.zeros((0, 3)), m, 0, 0, 0)
     if m == 0:
@@ -223,5 +249,4 @@ def accept_candidates(candidates: np.ndarray, particle_tree: cKDTree, surface: D
         mutual = poisson_disk_thin(c, cfg.reject_radius)
         n_close += int((~mutual).sum())
         c, pn = c[mutual], pn[mutual]
-    return Acceptance(np.ascontiguousarray(c), np.ascontiguousarray(pn), m, n_close, n_unsup,
-                      n_off)
+    return Acceptance(np.ascontiguousarray(c), np.ascontiguousarray(pn), m, n_close, n_unsup, n_off)

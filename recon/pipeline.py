@@ -166,23 +166,36 @@ class _Clock:
 
     def check(self) -> None:
         if self.limit is not None and time.perf_counter() - self.start > self.limit:
-            raise LimitExceeded(f"time limit of {self.limit:g} s reached "
-                                "(raise dynamics.time_limit or --time-limit)")
+            raise LimitExceeded(
+                f"time limit of {self.limit:g} s reached "
+                "(raise dynamics.time_limit or --time-limit)"
+            )
 
 
 class _Fitter:
     """State of one reconstruction (normalised units)."""
 
-    def __init__(self, surface: DataSurface, cfg: ReconConfig, rng: np.random.Generator,
-                 clock: _Clock, on_progress: ProgressFn | None) -> None:
+    def __init__(
+        self,
+        surface: DataSurface,
+        cfg: ReconConfig,
+        rng: np.random.Generator,
+        clock: _Clock,
+        on_progress: ProgressFn | None,
+    ) -> None:
         self.surface = surface
         self.cfg = cfg
         self.rng = rng
         self.clock = clock
         self.on_progress = on_progress
         self.steps = {"grow": 0, "release": 0}
-        self.history: dict[str, list] = {"step": [], "particles": [], "kinetic": [],
-                                         "coverage": [], "phase": []}
+        self.history: dict[str, list] = {
+            "step": [],
+            "particles": [],
+            "kinetic": [],
+            "coverage": [],
+            "phase": [],
+        }
         self.warnings: list[str] = []
         self.stop_reason = ""
         n = surface.n_points
@@ -208,12 +221,16 @@ class _Fitter:
             pts, nrm, _ = self.surface.anchors(state.position)
             sim.set_anchors(pts, nrm, dyn.fidelity, dyn.fidelity_normal)
             stats = sim.run(chunk)
-            if not (math.isfinite(stats.kinetic) and math.isfinite(stats.potential)
-                    and stats.potential <= EXPLODING_ENERGY * max(state.n, 1)):
+            if not (
+                math.isfinite(stats.kinetic)
+                and math.isfinite(stats.potential)
+                and stats.potential <= EXPLODING_ENERGY * max(state.n, 1)
+            ):
                 raise DivergenceError(
                     f"particle dynamics diverged at step {self.total_steps() + chunk}: energy "
                     f"kinetic {stats.kinetic:.3g}, potential {stats.potential:.3g} for "
-                    f"{state.n} particles")
+                    f"{state.n} particles"
+                )
             kinetic = stats.kinetic / max(state.n, 1)
             done += chunk
             self.steps[phase] += chunk
@@ -228,13 +245,24 @@ class _Fitter:
         h["coverage"].append(float(coverage))
         h["phase"].append(phase)
         if self.on_progress is not None:
-            self.on_progress(phase, {"step": self.total_steps(), "particles": int(state.n),
-                                     "kinetic": kinetic, "coverage": coverage,
-                                     "max_steps": self.cfg.dynamics.max_steps})
+            self.on_progress(
+                phase,
+                {
+                    "step": self.total_steps(),
+                    "particles": int(state.n),
+                    "kinetic": kinetic,
+                    "coverage": coverage,
+                    "max_steps": self.cfg.dynamics.max_steps,
+                },
+            )
 
-    def run_phase(self, phase: str, state: ParticleState, params: PhysicsParams,
-                  run: Callable[[Simulation, ParticleState], None],
-                  ) -> tuple[ParticleState, PhysicsParams]:
+    def run_phase(
+        self,
+        phase: str,
+        state: ParticleState,
+        params: PhysicsParams,
+        run: Callable[[Simulation, ParticleState], None],
+    ) -> tuple[ParticleState, PhysicsParams]:
         """Run one phase; if the dynamics diverge, restart it once from its start, dt halved.
 
         Returns the state after the phase (a restored copy after a restart) and the physics
@@ -249,14 +277,17 @@ class _Fitter:
         except DivergenceError as exc:
             first = exc
         params = replace(params, dt=0.5 * params.dt)
-        log.warning("%s; restarting the %s phase with dynamics.dt halved to %g",
-                    first, phase, params.dt)
+        log.warning(
+            "%s; restarting the %s phase with dynamics.dt halved to %g", first, phase, params.dt
+        )
         self.steps, self.stop_reason = steps, stop_reason
         for values in self.history.values():
             del values[n_history:]
         del self.warnings[n_warnings:]
-        self.warnings.append(f"the dynamics diverged during {phase} ({first}); the phase was "
-                             f"restarted with dynamics.dt = {params.dt:g}")
+        self.warnings.append(
+            f"the dynamics diverged during {phase} ({first}); the phase was "
+            f"restarted with dynamics.dt = {params.dt:g}"
+        )
         state = saved
         try:
             run(Simulation(state, params), state)
@@ -264,7 +295,8 @@ class _Fitter:
             raise DivergenceError(
                 f"the particle dynamics diverged during {phase}, also after restarting it with "
                 f"dynamics.dt halved to {params.dt:g} ({exc}); lower dynamics.dt or raise the "
-                "spacing, and check the input for clusters of near-duplicate points") from None
+                "spacing, and check the input for clusters of near-duplicate points"
+            ) from None
         return state, params
 
     # -- phases --------------------------------------------------------------------------
@@ -274,8 +306,10 @@ class _Fitter:
         pos, pn, _ = s.project(s.points[idx])
         cap = self.cfg.dynamics.max_particles
         if len(idx) > cap:
-            raise LimitExceeded(f"{len(idx)} seed particles exceed dynamics.max_particles={cap}; "
-                                "raise the cap or the spacing")
+            raise LimitExceeded(
+                f"{len(idx)} seed particles exceed dynamics.max_particles={cap}; "
+                "raise the cap or the spacing"
+            )
         state = ParticleState.from_points(pos, pn, pinned=True)
         return state, pos
 
@@ -295,24 +329,39 @@ class _Fitter:
             offsets, indices = neighbor_csr(tree, state.n, g.grow_radius)
             counts = np.diff(offsets)
             frontier = counts <= g.max_neighbors
-            cands = np.vstack([grow_candidates(pos, nrm, offsets, indices, g),
-                               stretch_candidates(pos, nrm, tree, frontier, g)])
+            cands = np.vstack(
+                [
+                    grow_candidates(pos, nrm, offsets, indices, g),
+                    stretch_candidates(pos, nrm, tree, frontier, g),
+                ]
+            )
             acc = accept_candidates(cands, tree, self.surface, seed_tree, seed_points, g)
             added = len(acc.positions)
             room = dyn.max_particles - state.n
             if added > room:
                 acc.positions, acc.normals = acc.positions[:room], acc.normals[:room]
                 added = room
-                self.stop_reason = f"particle cap dynamics.max_particles={dyn.max_particles} reached"
+                self.stop_reason = (
+                    f"particle cap dynamics.max_particles={dyn.max_particles} reached"
+                )
                 self.warnings.append(self.stop_reason)
             if added:
                 state.add(acc.positions, acc.normals, pinned=False)
                 sim.notify_changed()
             coverage = self.coverage(state.position)
             self.record("grow", state, kinetic, coverage)
-            log.debug("round %d: %d candidates, %d added (%d close, %d unsupported, %d off-plane),"
-                      " %d particles, coverage %.4f", rnd + 1, acc.n_candidates, added,
-                      acc.n_too_close, acc.n_unsupported, acc.n_off_plane, state.n, coverage)
+            log.debug(
+                "round %d: %d candidates, %d added (%d close, %d unsupported, %d off-plane),"
+                " %d particles, coverage %.4f",
+                rnd + 1,
+                acc.n_candidates,
+                added,
+                acc.n_too_close,
+                acc.n_unsupported,
+                acc.n_off_plane,
+                state.n,
+                coverage,
+            )
             if self.stop_reason:
                 break
             small = added <= g.min_add_fraction * state.n
@@ -343,8 +392,9 @@ class _Fitter:
                 break
 
 
-def reconstruct(cloud: PointCloud, config: ReconConfig | None = None,
-                on_progress: ProgressFn | None = None) -> FitResult:
+def reconstruct(
+    cloud: PointCloud, config: ReconConfig | None = None, on_progress: ProgressFn | None = None
+) -> FitResult:
     """Reconstruct a mesh from a point cloud.
 
     Parameters
@@ -380,7 +430,8 @@ def reconstruct(cloud: PointCloud, config: ReconConfig | None = None,
         raise InputError(
             f"the points span {', '.join(f'{x:.3g}' for x in span)} (x, y, z) but the rest "
             f"spacing r0 is {r0:.3g}: far too many cells for the neighbour search; remove far "
-            "outliers or raise the spacing")
+            "outliers or raise the spacing"
+        )
     if cfg.growth.max_gap is None:
         cfg = with_values(cfg, growth={"max_gap": max(AUTO_GAP * d_nn / r0, 1.0)})
     diag = bbox_diagonal(points)
@@ -392,7 +443,8 @@ def reconstruct(cloud: PointCloud, config: ReconConfig | None = None,
     n_seeds = state.n
     params = PhysicsParams.from_config(cfg, spacing=1.0)
     state, params = fitter.run_phase(
-        "growth", state, params, lambda sim, st: fitter.grow(sim, st, seed_points))
+        "growth", state, params, lambda sim, st: fitter.grow(sim, st, seed_points)
+    )
     clock.lap("grow")
     state, params = fitter.run_phase("release", state, params, fitter.release)
     clock.lap("release")
@@ -409,9 +461,14 @@ def reconstruct(cloud: PointCloud, config: ReconConfig | None = None,
     if n_trimmed:
         state.remove(keep)
     max_hole = tri_cfg.max_hole if tri_cfg.max_hole is not None else cfg.growth.max_gap
-    tri = triangulate_particles(state.position, state.normal, tri_cfg, max_hole,
-                                is_covered=lambda c: surface.nearest(surface.project(c)[0])[0] < 1.0,
-                                project=lambda c: surface.project(c)[0])
+    tri = triangulate_particles(
+        state.position,
+        state.normal,
+        tri_cfg,
+        max_hole,
+        is_covered=lambda c: surface.nearest(surface.project(c)[0])[0] < 1.0,
+        project=lambda c: surface.project(c)[0],
+    )
     clock.lap("triangulate")
 
     origin = np.asarray(cloud.origin, dtype=np.float64)
@@ -420,17 +477,26 @@ def reconstruct(cloud: PointCloud, config: ReconConfig | None = None,
     particles = Particles(state.position * r0 + origin, state.normal.copy())
 
     if len(tri.faces) == 0:
-        raise InputError("the reconstruction produced no triangles: the data may be too sparse "
-                         "for the spacing (try a smaller --spacing or a larger --max-gap)")
+        raise InputError(
+            "the reconstruction produced no triangles: the data may be too sparse "
+            "for the spacing (try a smaller --spacing or a larger --max-gap)"
+        )
     quality = quality_report(None, tri.vertices * r0, tri.faces)
     dist = point_to_mesh_distance(points, tri.vertices * r0, tri.faces)
-    quality["fidelity"] = {"diag": diag, **distance_stats(dist, diag),
-                           "within_r0": float(np.mean(dist <= r0))}
+    quality["fidelity"] = {
+        "diag": diag,
+        **distance_stats(dist, diag),
+        "within_r0": float(np.mean(dist <= r0)),
+    }
     clock.lap("report")
     report = {
         "oprecon_version": __version__,
-        "input": {"points": int(len(points)), "bbox_diagonal": diag,
-                  "median_spacing": d_nn, "normals": normals_info},
+        "input": {
+            "points": int(len(points)),
+            "bbox_diagonal": diag,
+            "median_spacing": d_nn,
+            "normals": normals_info,
+        },
         "spacing": r0,
         "seeds": int(n_seeds),
         "particles": int(state.n),
@@ -450,9 +516,13 @@ def reconstruct(cloud: PointCloud, config: ReconConfig | None = None,
     return FitResult(mesh, particles, report, origin)
 
 
-def fit(points: np.ndarray, config: ReconConfig | None = None, *,
-        normals: np.ndarray | None = None,
-        on_progress: ProgressFn | None = None) -> FitResult:
+def fit(
+    points: np.ndarray,
+    config: ReconConfig | None = None,
+    *,
+    normals: np.ndarray | None = None,
+    on_progress: ProgressFn | None = None,
+) -> FitResult:
     """Python API: reconstruct from an (n, 3) array (and optional (n, 3) normals).
 
     Mirrors ``oprecon fit``: ``recon.fit(points, config) -> FitResult(mesh, particles, report)``.
@@ -478,10 +548,17 @@ def report_path_for(mesh_path: Path) -> Path:
     return mesh_path.with_name(mesh_path.stem + ".report.json")
 
 
-def fit_file(input_path: str | Path, output_path: str | Path, config: ReconConfig | None = None,
-             *, particles_path: str | Path | None = None, preview_path: str | Path | None = None,
-             write_report: bool | None = None, mkdir: bool = False,
-             on_progress: ProgressFn | None = None) -> FitResult:
+def fit_file(
+    input_path: str | Path,
+    output_path: str | Path,
+    config: ReconConfig | None = None,
+    *,
+    particles_path: str | Path | None = None,
+    preview_path: str | Path | None = None,
+    write_report: bool | None = None,
+    mkdir: bool = False,
+    on_progress: ProgressFn | None = None,
+) -> FitResult:
     """Read ``input_path``, reconstruct, and write the mesh (+ report, particles, preview).
 
     Every output is written to a temporary file beside its target and renamed into place only
@@ -502,8 +579,9 @@ def fit_file(input_path: str | Path, output_path: str | Path, config: ReconConfi
         extra.append(report_path_for(output_path))
     for p in extra:
         check_output_path(Path(p), inputs=[input_path, output_path], mkdir=mkdir)
-    cloud = read_points(input_path, max_points=cfg.io.max_points,
-                        merge_duplicates=cfg.io.merge_duplicates)
+    cloud = read_points(
+        input_path, max_points=cfg.io.max_points, merge_duplicates=cfg.io.merge_duplicates
+    )
     result = reconstruct(cloud, cfg, on_progress)
     result.report["input"]["path"] = str(input_path)
     result.report["output"] = {"mesh": str(output_path)}
@@ -514,15 +592,21 @@ def fit_file(input_path: str | Path, output_path: str | Path, config: ReconConfi
         if particles_path is not None:
             result.report["output"]["particles"] = str(particles_path)
             tmp = stack.enter_context(atomic_output(Path(particles_path)))
-            write_points(tmp, result.particles.positions, result.particles.normals,
-                         ascii=cfg.io.ascii)
+            write_points(
+                tmp, result.particles.positions, result.particles.normals, ascii=cfg.io.ascii
+            )
         if preview_path is not None:
             from .render import render_mesh_png
 
             result.report["output"]["preview"] = str(preview_path)
             tmp = stack.enter_context(atomic_output(Path(preview_path)))
-            render_mesh_png(tmp, result.mesh.vertices, result.mesh.faces,
-                            history=result.report["history"], title=input_path.name)
+            render_mesh_png(
+                tmp,
+                result.mesh.vertices,
+                result.mesh.faces,
+                history=result.report["history"],
+                title=input_path.name,
+            )
         if want_report:
             rpath = report_path_for(output_path)
             result.report["output"]["report"] = str(rpath)

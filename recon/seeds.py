@@ -76,9 +76,9 @@ def _poisson_disk_kernel(points, order, radius, keep_first):  # pragma: no cover
                             key = (key * 2654435761) & (table_size - 1)  # >= 0 even on wrap-around
                         j = head[key]
                         while j >= 0:
-                            if (points[j, 0] - points[i, 0]) ** 2 + \
-                               (points[j, 1] - points[i, 1]) ** 2 + \
-                               (points[j, 2] - points[i, 2]) ** 2 < r2:
+                            if (points[j, 0] - points[i, 0]) ** 2 + (
+                                points[j, 1] - points[i, 1]
+                            ) ** 2 + (points[j, 2] - points[i, 2]) ** 2 < r2:
                                 # hash collisions only add false candidates; the distance
                                 # test above settles them
                                 ok = False
@@ -96,8 +96,9 @@ def _poisson_disk_kernel(points, order, radius, keep_first):  # pragma: no cover
     return keep
 
 
-def poisson_disk_thin(points: np.ndarray, radius: float, order: np.ndarray | None = None,
-                      keep_first: int = 0) -> np.ndarray:
+def poisson_disk_thin(
+    points: np.ndarray, radius: float, order: np.ndarray | None = None, keep_first: int = 0
+) -> np.ndarray:
     """Greedy Poisson-disk selection: keep a point unless a kept point lies within ``radius``.
 
     Parameters
@@ -120,8 +121,9 @@ def poisson_disk_thin(points: np.ndarray, radius: float, order: np.ndarray | Non
         order = np.arange(len(points), dtype=np.int64)
     if radius <= 0:
         raise ValueError(f"radius must be > 0, got {radius}")
-    return _poisson_disk_kernel(points, np.ascontiguousarray(order, dtype=np.int64),
-                                float(radius), int(keep_first))
+    return _poisson_disk_kernel(
+        points, np.ascontiguousarray(order, dtype=np.int64), float(radius), int(keep_first)
+    )
 
 
 def select_seeds(points: np.ndarray, spacing: float, rng: np.random.Generator) -> np.ndarray:

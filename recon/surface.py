@@ -92,8 +92,13 @@ class DataSurface:
         (so a point-to-plane pull toward (foot, normal) pulls onto the curved surface).
         """
         dist, idx = self.nearest(positions)
-        foot, nrm = _quadric_foot(positions, self.plane_points[idx], self.plane_normals[idx],
-                                  self.tangents[idx], self.quadrics[idx])
+        foot, nrm = _quadric_foot(
+            positions,
+            self.plane_points[idx],
+            self.plane_normals[idx],
+            self.tangents[idx],
+            self.quadrics[idx],
+        )
         return foot, nrm, dist
 
     def project(self, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -107,8 +112,9 @@ class DataSurface:
         return positions - offset[:, None] * n, n, offset
 
 
-def _quadric_foot(q: np.ndarray, c: np.ndarray, n: np.ndarray, u: np.ndarray,
-                  a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _quadric_foot(
+    q: np.ndarray, c: np.ndarray, n: np.ndarray, u: np.ndarray, a: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """Foot points and normals of query points ``q`` on local quadric height fields."""
     v = np.cross(n, u)
     d = q - c
@@ -124,8 +130,9 @@ def _quadric_foot(q: np.ndarray, c: np.ndarray, n: np.ndarray, u: np.ndarray,
 
 
 @nb.njit(cache=True)
-def _fit_quadrics_kernel(points, normals, idx, out_p, out_n, out_u, out_a,
-                         out_r):  # pragma: no cover - numba
+def _fit_quadrics_kernel(
+    points, normals, idx, out_p, out_n, out_u, out_a, out_r
+):  # pragma: no cover - numba
     n, k = idx.shape
     for i in range(n):
         c = np.zeros(3)
@@ -181,8 +188,14 @@ def _fit_quadrics_kernel(points, normals, idx, out_p, out_n, out_u, out_a,
             x = d[0] * u[0] + d[1] * u[1] + d[2] * u[2]
             y = d[0] * v[0] + d[1] * v[1] + d[2] * v[2]
             z = d[0] * nn[0] + d[1] * nn[1] + d[2] * nn[2]
-            h = coef[0] + coef[1] * x + coef[2] * y + coef[3] * x * x + coef[4] * x * y \
+            h = (
+                coef[0]
+                + coef[1] * x
+                + coef[2] * y
+                + coef[3] * x * x
+                + coef[4] * x * y
                 + coef[5] * y * y
+            )
             res += (z - h) ** 2
         out_p[i] = c
         out_n[i] = nn
@@ -191,8 +204,9 @@ def _fit_quadrics_kernel(points, normals, idx, out_p, out_n, out_u, out_a,
         out_r[i] = np.sqrt(res / k)
 
 
-def fit_local_quadrics(points: np.ndarray, normals: np.ndarray, neighbor_idx: np.ndarray
-                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def fit_local_quadrics(
+    points: np.ndarray, normals: np.ndarray, neighbor_idx: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """PCA frame and quadric height field of each point's neighbourhood [H92, L98].
 
     Parameters
@@ -215,8 +229,7 @@ def fit_local_quadrics(points: np.ndarray, normals: np.ndarray, neighbor_idx: np
     """
     n = len(points)
     out = (np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 6)), np.zeros(n))
-    _fit_quadrics_kernel(points, normals, np.ascontiguousarray(neighbor_idx, dtype=np.int64),
-                         *out)
+    _fit_quadrics_kernel(points, normals, np.ascontiguousarray(neighbor_idx, dtype=np.int64), *out)
     return out
 
 
@@ -240,8 +253,9 @@ def _max_angular_gap_kernel(cands, normals, nbr_pts, nbr_count):  # pragma: no c
         ang = np.zeros(cnt)
         for a in range(cnt):
             d = nbr_pts[i, a] - cands[i]
-            ang[a] = np.arctan2(d[0] * v[0] + d[1] * v[1] + d[2] * v[2],
-                                d[0] * u[0] + d[1] * u[1] + d[2] * u[2])
+            ang[a] = np.arctan2(
+                d[0] * v[0] + d[1] * v[1] + d[2] * v[2], d[0] * u[0] + d[1] * u[1] + d[2] * u[2]
+            )
         ang.sort()
         gap = ang[0] + 2.0 * np.pi - ang[cnt - 1]
         for a in range(1, cnt):
@@ -252,8 +266,14 @@ def _max_angular_gap_kernel(cands, normals, nbr_pts, nbr_count):  # pragma: no c
     return out
 
 
-def max_angular_gap(centers: np.ndarray, normals: np.ndarray, tree: cKDTree,
-                    tree_points: np.ndarray, radius: float, k: int = 48) -> np.ndarray:
+def max_angular_gap(
+    centers: np.ndarray,
+    normals: np.ndarray,
+    tree: cKDTree,
+    tree_points: np.ndarray,
+    radius: float,
+    k: int = 48,
+) -> np.ndarray:
     """Largest angle [rad] between successive directions to nearby points, in the tangent plane.
 
     A point strictly inside the data (or inside a hole of the data) sees data all around it:
@@ -271,5 +291,9 @@ def max_angular_gap(centers: np.ndarray, normals: np.ndarray, tree: cKDTree,
     safe = np.where(valid, idx, 0)
     nbr = tree_points[safe]
     # push valid rows first (query returns sorted by distance, invalid at the end already)
-    return _max_angular_gap_kernel(np.ascontiguousarray(centers), np.ascontiguousarray(normals),
-                                   np.ascontiguousarray(nbr), count)
+    return _max_angular_gap_kernel(
+        np.ascontiguousarray(centers),
+        np.ascontiguousarray(normals),
+        np.ascontiguousarray(nbr),
+        count,
+    )

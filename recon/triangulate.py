@@ -50,11 +50,14 @@ class TriangulationResult:
 COVERED_HOLE_FACTOR = 3.0
 
 
-def triangulate_particles(positions: np.ndarray, normals: np.ndarray, cfg: TriangulationConfig,
-                          max_hole: float,
-                          is_covered: Callable[[np.ndarray], np.ndarray] | None = None,
-                          project: Callable[[np.ndarray], np.ndarray] | None = None,
-                          ) -> TriangulationResult:
+def triangulate_particles(
+    positions: np.ndarray,
+    normals: np.ndarray,
+    cfg: TriangulationConfig,
+    max_hole: float,
+    is_covered: Callable[[np.ndarray], np.ndarray] | None = None,
+    project: Callable[[np.ndarray], np.ndarray] | None = None,
+) -> TriangulationResult:
     """Mesh the particles (normalised units, r0 = 1).
 
     Parameters
@@ -73,8 +76,9 @@ def triangulate_particles(positions: np.ndarray, normals: np.ndarray, cfg: Trian
     positions = np.ascontiguousarray(positions, dtype=np.float64)
     normals = np.ascontiguousarray(normals, dtype=np.float64)
     if len(positions) < 3:
-        return TriangulationResult(positions, np.zeros((0, 3), dtype=np.int64), normals,
-                                   {"method": cfg.method})
+        return TriangulationResult(
+            positions, np.zeros((0, 3), dtype=np.int64), normals, {"method": cfg.method}
+        )
     if cfg.method == "ball_pivoting":
         faces = ball_pivoting(positions, normals, cfg.radii)
     else:
@@ -91,12 +95,17 @@ def triangulate_particles(positions: np.ndarray, normals: np.ndarray, cfg: Trian
     vertices, vnormals = positions, normals
     if cfg.fill_holes and len(faces):
         vertices, vnormals, faces, n_filled = fill_small_holes(
-            vertices, vnormals, faces, np.pi * max_hole, is_covered,
-            COVERED_HOLE_FACTOR * np.pi * max_hole)
+            vertices,
+            vnormals,
+            faces,
+            np.pi * max_hole,
+            is_covered,
+            COVERED_HOLE_FACTOR * np.pi * max_hole,
+        )
         stats["holes_filled"] = n_filled
         if project is not None and len(vertices) > len(positions):
             vertices = vertices.copy()
-            vertices[len(positions):] = project(vertices[len(positions):])
+            vertices[len(positions) :] = project(vertices[len(positions) :])
     faces, n_small = remove_small_components(faces, len(vertices))
     stats["small_components_removed"] = n_small
     vertices, vnormals, faces = drop_unreferenced(vertices, vnormals, faces)
@@ -108,7 +117,8 @@ def ball_pivoting(positions: np.ndarray, normals: np.ndarray, radii: list[float]
     pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(positions))
     pcd.normals = o3d.utility.Vector3dVector(normals)
     mesh = o3d.geometry.TriangleMesh.create_from_point_cloud_ball_pivoting(
-        pcd, o3d.utility.DoubleVector(sorted(float(r) for r in radii)))
+        pcd, o3d.utility.DoubleVector(sorted(float(r) for r in radii))
+    )
     faces = np.asarray(mesh.triangles, dtype=np.int64).reshape(-1, 3)
     # Open3D keeps vertex order; guard against a future version that reorders
     if len(mesh.vertices) != len(positions):  # pragma: no cover - defensive
@@ -170,8 +180,9 @@ def _circumsphere_kernel(pos, offsets, indices, out, count):  # pragma: no cover
         count[i] = c
 
 
-def circumsphere_triangles(positions: np.ndarray, normals: np.ndarray,
-                           radius: float = 2.0) -> np.ndarray:
+def circumsphere_triangles(
+    positions: np.ndarray, normals: np.ndarray, radius: float = 2.0
+) -> np.ndarray:
     """Faces from the empty-circumsphere test over neighbours within ``radius`` [r0] (S&T92 §8).
 
     Only neighbours of the first corner are tested for emptiness, as in the paper (the sphere of
@@ -245,6 +256,14 @@ def remove_non_manifold_faces(faces: np.ndarray, n_vertices: int) -> np.ndarray:
     return faces
 
 
+def _find(parent: dict[int, int], x: int) -> int:
+    """Union-find root with path halving."""
+    while parent[x] != x:
+        parent[x] = parent[parent[x]]
+        x = parent[x]
+    return x
+
+
 def non_manifold_vertex_faces(faces: np.ndarray, n_vertices: int) -> np.ndarray:
     """Faces to drop so that every vertex keeps a single fan (its largest one).
 
@@ -266,28 +285,21 @@ def non_manifold_vertex_faces(faces: np.ndarray, n_vertices: int) -> np.ndarray:
     vf_face = vf_order // 3
     starts = np.searchsorted(faces.reshape(-1)[vf_order], np.arange(n_vertices + 1))
     for v in suspects:
-        inc = vf_face[starts[v]:starts[v + 1]]
+        inc = vf_face[starts[v] : starts[v + 1]]
         inc = inc[~drop[inc]]
         parent = {int(f): int(f) for f in inc}
-
-        def root(x: int) -> int:
-            while parent[x] != x:
-                parent[x] = parent[parent[x]]
-                x = parent[x]
-            return x
-
         by_other: dict[int, int] = {}
         for f in inc:
             for w in faces[f]:
                 if w == v:
                     continue
                 if int(w) in by_other:
-                    a, b = root(int(f)), root(by_other[int(w)])
+                    a, b = _find(parent, int(f)), _find(parent, by_other[int(w)])
                     if a != b:
                         parent[max(a, b)] = min(a, b)
                 else:
                     by_other[int(w)] = int(f)
-        roots = np.array([root(int(f)) for f in inc])
+        roots = np.array([_find(parent, int(f)) for f in inc])
         labels, counts = np.unique(roots, return_counts=True)
         if len(labels) < 2:
             continue
@@ -334,11 +346,14 @@ def boundary_loops(faces: np.ndarray) -> list[np.ndarray]:
     return loops
 
 
-def fill_small_holes(vertices: np.ndarray, normals: np.ndarray, faces: np.ndarray,
-                     max_perimeter: float,
-                     is_covered: Callable[[np.ndarray], np.ndarray] | None = None,
-                     covered_max_perimeter: float | None = None,
-                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+def fill_small_holes(
+    vertices: np.ndarray,
+    normals: np.ndarray,
+    faces: np.ndarray,
+    max_perimeter: float,
+    is_covered: Callable[[np.ndarray], np.ndarray] | None = None,
+    covered_max_perimeter: float | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
     """Close boundary loops whose perimeter is at most ``max_perimeter``.
 
     With ``is_covered`` (centroids (m, 3) -> bool (m,)), loops up to ``covered_max_perimeter``
@@ -353,15 +368,16 @@ def fill_small_holes(vertices: np.ndarray, normals: np.ndarray, faces: np.ndarra
     new_normals = []
     n_v = len(vertices)
     filled = 0
-    perims = np.array([np.linalg.norm(vertices[lp] - vertices[np.roll(lp, -1)], axis=1).sum()
-                       for lp in loops])
+    perims = np.array(
+        [np.linalg.norm(vertices[lp] - vertices[np.roll(lp, -1)], axis=1).sum() for lp in loops]
+    )
     fill = perims <= max_perimeter
     if is_covered is not None and covered_max_perimeter is not None and len(loops):
         cand = np.flatnonzero(~fill & (perims <= covered_max_perimeter))
         if len(cand):
             centers = np.array([vertices[loops[i]].mean(axis=0) for i in cand])
             fill[cand[is_covered(centers)]] = True
-    for loop, do_fill in zip(loops, fill):
+    for loop, do_fill in zip(loops, fill, strict=True):
         ring = vertices[loop]
         if not do_fill or len(loop) < 3:
             continue
@@ -383,7 +399,9 @@ def fill_small_holes(vertices: np.ndarray, normals: np.ndarray, faces: np.ndarra
             new_faces.append(rev[None, :])
         elif len(loop) == 4:
             a, b, c, d = rev
-            if np.linalg.norm(vertices[a] - vertices[c]) <= np.linalg.norm(vertices[b] - vertices[d]):
+            if np.linalg.norm(vertices[a] - vertices[c]) <= np.linalg.norm(
+                vertices[b] - vertices[d]
+            ):
                 new_faces.append(np.array([[a, b, c], [a, c, d]]))
             else:
                 new_faces.append(np.array([[b, c, d], [b, d, a]]))
@@ -412,16 +430,18 @@ def face_components(faces: np.ndarray, n_vertices: int) -> tuple[int, np.ndarray
         return 0, np.zeros(0, dtype=np.int64)
     rows = np.repeat(np.arange(len(faces)), 3)
     cols = faces.reshape(-1)
-    m = coo_matrix((np.ones(len(rows)), (rows, cols + len(faces))),
-                   shape=(len(faces) + n_vertices,) * 2)
+    m = coo_matrix(
+        (np.ones(len(rows)), (rows, cols + len(faces))), shape=(len(faces) + n_vertices,) * 2
+    )
     n, labels = connected_components(m, directed=False)
     face_labels = labels[: len(faces)]
     _, face_labels = np.unique(face_labels, return_inverse=True)
     return int(face_labels.max()) + 1, face_labels
 
 
-def remove_small_components(faces: np.ndarray, n_vertices: int,
-                            min_fraction: float = 0.01, min_faces: int = 50) -> tuple[np.ndarray, int]:
+def remove_small_components(
+    faces: np.ndarray, n_vertices: int, min_fraction: float = 0.01, min_faces: int = 50
+) -> tuple[np.ndarray, int]:
     """Drop debris: components smaller than ``min_faces`` and ``min_fraction`` of the largest."""
     n, labels = face_components(faces, n_vertices)
     if n <= 1:
@@ -433,8 +453,9 @@ def remove_small_components(faces: np.ndarray, n_vertices: int,
     return faces[~small[labels]], int(small.sum())
 
 
-def drop_unreferenced(vertices: np.ndarray, normals: np.ndarray,
-                      faces: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def drop_unreferenced(
+    vertices: np.ndarray, normals: np.ndarray, faces: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Remove vertices no face uses (isolated particles) and renumber faces."""
     used = np.zeros(len(vertices), dtype=bool)
     used[faces.reshape(-1)] = True

@@ -28,14 +28,35 @@ def _run(args):
 def test_fit_writes_mesh_report_particles_and_preview(tmp_path):
     src = _sphere_file(tmp_path)
     out = tmp_path / "mesh.ply"
-    res = _run(["fit", str(src), "-o", str(out), "--particles", str(tmp_path / "p.ply"),
-                "--preview", str(tmp_path / "m.png"), *FAST])
+    res = _run(
+        [
+            "fit",
+            str(src),
+            "-o",
+            str(out),
+            "--particles",
+            str(tmp_path / "p.ply"),
+            "--preview",
+            str(tmp_path / "m.png"),
+            *FAST,
+        ]
+    )
     assert res.exit_code == 0, res.output
     v, f = read_mesh(out)
     assert len(f) > 500 and np.isfinite(v).all()
     report = json.loads((tmp_path / "mesh.report.json").read_text())
-    for key in ("spacing", "seeds", "particles", "steps", "time_s", "coverage", "fidelity",
-                "topology", "triangle_quality", "history"):
+    for key in (
+        "spacing",
+        "seeds",
+        "particles",
+        "steps",
+        "time_s",
+        "coverage",
+        "fidelity",
+        "topology",
+        "triangle_quality",
+        "history",
+    ):
         assert key in report
     assert report["topology"]["watertight"] is True
     assert report["fidelity"]["mean_relative"] < 0.01
@@ -67,8 +88,9 @@ def test_cli_options_override_config_file(tmp_path):
     cfg = tmp_path / "c.yaml"
     cfg.write_text("seeds:\n  spacing: 0.5\n")
     out = tmp_path / "m.ply"
-    res = _run(["fit", str(src), "-o", str(out), "-q", "--config", str(cfg), "--spacing", "0.2",
-                *FAST])
+    res = _run(
+        ["fit", str(src), "-o", str(out), "-q", "--config", str(cfg), "--spacing", "0.2", *FAST]
+    )
     assert res.exit_code == 0, res.output
     rep = json.loads((tmp_path / "m.report.json").read_text())
     assert rep["spacing"] == 0.2
@@ -93,24 +115,27 @@ def test_refuses_to_overwrite_the_input(tmp_path):
 
 def test_bad_config_key_is_named(tmp_path):
     src = _sphere_file(tmp_path)
-    res = CliRunner().invoke(app, ["fit", str(src), "-o", str(tmp_path / "m.ply"),
-                                   "--set", "dynamics.dtt=0.1"])
+    res = CliRunner().invoke(
+        app, ["fit", str(src), "-o", str(tmp_path / "m.ply"), "--set", "dynamics.dtt=0.1"]
+    )
     assert res.exit_code == 2
     assert "dynamics.dtt" in res.stderr and "dt" in res.stderr
 
 
 def test_unknown_preset_lists_the_available_ones(tmp_path):
     src = _sphere_file(tmp_path)
-    res = CliRunner().invoke(app, ["fit", str(src), "-o", str(tmp_path / "m.ply"),
-                                   "--preset", "nonsense"])
+    res = CliRunner().invoke(
+        app, ["fit", str(src), "-o", str(tmp_path / "m.ply"), "--preset", "nonsense"]
+    )
     assert res.exit_code == 2
     assert "unknown preset" in res.stderr
 
 
 def test_time_limit_fails_cleanly_without_output(tmp_path):
     src = _sphere_file(tmp_path)
-    res = CliRunner().invoke(app, ["fit", str(src), "-o", str(tmp_path / "m.ply"),
-                                   "--time-limit", "0.001", *FAST])
+    res = CliRunner().invoke(
+        app, ["fit", str(src), "-o", str(tmp_path / "m.ply"), "--time-limit", "0.001", *FAST]
+    )
     assert res.exit_code == 2
     assert "time limit" in res.stderr
     assert sorted(p.name for p in tmp_path.iterdir()) == ["sphere.ply"]

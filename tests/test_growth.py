@@ -47,8 +47,9 @@ def test_stretch_adds_midpoint_of_distant_pair():
     c = stretch_candidates(pos, nrm, cKDTree(pos), np.array([True, True]), GrowthConfig())
     assert np.allclose(c, [[1.1, 0, 0]])
     far = np.array([[0.0, 0, 0], [3.0, 0, 0]])
-    assert len(stretch_candidates(far, nrm, cKDTree(far), np.array([True, True]),
-                                  GrowthConfig())) == 0
+    assert (
+        len(stretch_candidates(far, nrm, cKDTree(far), np.array([True, True]), GrowthConfig())) == 0
+    )
 
 
 def _plane_with_hole(hole_radius, spacing=0.5, half=8.0):
@@ -59,9 +60,13 @@ def _plane_with_hole(hole_radius, spacing=0.5, half=8.0):
     return DataSurface.build(pts, np.tile([0.0, 0, 1], (len(pts), 1)), k=12)
 
 
-def _accept(surface, cands, particles, cfg=GrowthConfig(max_gap=4.0)):
-    return accept_candidates(cands, cKDTree(particles), surface, cKDTree(surface.points),
-                             surface.points, cfg)
+GAP4 = GrowthConfig(max_gap=4.0)
+
+
+def _accept(surface, cands, particles, cfg=GAP4):
+    return accept_candidates(
+        cands, cKDTree(particles), surface, cKDTree(surface.points), surface.points, cfg
+    )
 
 
 def test_candidate_in_small_hole_is_accepted_and_projected():

@@ -39,8 +39,10 @@ def test_sigint_during_dynamics_exits_130_and_leaves_nothing(tmp_path):
     out_dir.mkdir()
     cmd = [str(OPRECON), "fit", str(src), "-o", str(out_dir / "mesh.ply"),
            "--particles", str(out_dir / "particles.ply"), "-v", *ENDLESS]
+    # a background job (pytest run with &) would hand the child an ignored SIGINT: restore it
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            env={**os.environ, "PYTHONUNBUFFERED": "1"})
+                            env={**os.environ, "PYTHONUNBUFFERED": "1"},
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     lines: list[str] = []
     in_dynamics = threading.Event()
 

@@ -78,8 +78,10 @@ def test_scale_and_offset_invariance():
     base = fit(pts, cfg)
     moved = fit(pts * 1e-6 + np.array([5e6, -3e6, 10.0]) * 1e-6, cfg)
     big = fit(pts * 1e3 + np.array([5e6, 1e5, 0.0]), cfg)
-    for res, scale, off in ((moved, 1e-6, np.array([5.0, -3.0, 1e-5])),
-                            (big, 1e3, np.array([5e6, 1e5, 0.0]))):
+    for res, scale, off in (
+        (moved, 1e-6, np.array([5.0, -3.0, 1e-5])),
+        (big, 1e3, np.array([5e6, 1e5, 0.0])),
+    ):
         assert len(res.mesh.faces) == len(base.mesh.faces)
         assert np.allclose((res.mesh.vertices - off) / scale, base.mesh.vertices, atol=1e-6)
 
@@ -111,9 +113,17 @@ def test_resolution_floor_lowers_spacing_for_sparse_data():
 def test_fidelity_zero_shrinks_more_than_default():
     pts = _sphere(1200)
     on = fit(pts, load_config(overrides=FAST))
-    off = fit(pts, load_config(overrides=FAST + ["dynamics.fidelity=0",
-                                                 "dynamics.fidelity_normal=0",
-                                                 "triangulation.project_to_data=false"]))
+    off = fit(
+        pts,
+        load_config(
+            overrides=FAST
+            + [
+                "dynamics.fidelity=0",
+                "dynamics.fidelity_normal=0",
+                "triangulation.project_to_data=false",
+            ]
+        ),
+    )
     d_on = point_to_mesh_distance(pts, on.mesh.vertices, on.mesh.faces).mean()
     d_off = point_to_mesh_distance(pts, off.mesh.vertices, off.mesh.faces).mean()
     assert d_on < d_off

@@ -38,8 +38,10 @@ def test_config_show_preset(name):
 
 
 def test_preset_and_set_precedence():
-    res = CliRunner().invoke(app, ["config", "show", "--preset", "noisy", "--no-comments",
-                                   "--set", "dynamics.fidelity=3"])
+    res = CliRunner().invoke(
+        app,
+        ["config", "show", "--preset", "noisy", "--no-comments", "--set", "dynamics.fidelity=3"],
+    )
     assert "fidelity: 3.0" in res.output
     assert "release_steps: 200" in res.output
 

@@ -38,8 +38,10 @@ def test_hex_sheet_ball_pivoting_is_one_manifold_disk():
     assert len(res.faces) > 600
     loops = boundary_loops(res.faces)
     assert len(loops) == 1
-    fn = np.cross(res.vertices[res.faces[:, 1]] - res.vertices[res.faces[:, 0]],
-                  res.vertices[res.faces[:, 2]] - res.vertices[res.faces[:, 0]])
+    fn = np.cross(
+        res.vertices[res.faces[:, 1]] - res.vertices[res.faces[:, 0]],
+        res.vertices[res.faces[:, 2]] - res.vertices[res.faces[:, 0]],
+    )
     assert np.all(fn[:, 2] > 0)  # wound like the normals
 
 
