@@ -236,3 +236,18 @@ def catch_errors(func: Callable[..., Any]) -> Callable[..., Any]:
             sys.exit(EXIT_INTERRUPTED)
 
     return wrapper
+
+
+def parse_viewpoint(
+    ctx: click.Context, param: click.Parameter, text: str | None
+) -> list[float] | None:
+    """Click callback: ``"x,y,z"`` -> three floats (a scanner position)."""
+    if text is None:
+        return None
+    try:
+        values = [float(v) for v in text.replace(" ", "").split(",")]
+    except ValueError:
+        raise click.BadParameter(f"expected x,y,z numbers, got {text!r}") from None
+    if len(values) != 3:
+        raise click.BadParameter(f"expected 3 numbers x,y,z, got {len(values)}")
+    return values

@@ -11,19 +11,13 @@ import click
 from recon.config import apply_overrides, with_values
 from recon.errors import OpreconError
 
-from .common import build_config, catch_errors, common_run_options, config_options
-
-
-def parse_vector(text: str | None, name: str) -> list[float] | None:
-    if text is None:
-        return None
-    try:
-        values = [float(v) for v in text.replace(" ", "").split(",")]
-    except ValueError:
-        raise click.BadParameter(f"expected x,y,z numbers, got {text!r}", param_hint=name) from None
-    if len(values) != 3:
-        raise click.BadParameter(f"expected 3 numbers x,y,z, got {len(values)}", param_hint=name)
-    return values
+from .common import (
+    build_config,
+    catch_errors,
+    common_run_options,
+    config_options,
+    parse_viewpoint,
+)
 
 
 class Progress:
@@ -165,7 +159,11 @@ def format_summary(report: dict[str, Any]) -> str:
     type=click.Choice(["auto", "estimate", "input"]),
     help="Use the file's normals (input), estimate them, or auto.",
 )
-@click.option("--viewpoint", help="Scanner position x,y,z: orient normals toward it (range scans).")
+@click.option(
+    "--viewpoint",
+    callback=parse_viewpoint,
+    help="Scanner position x,y,z: orient normals toward it (range scans).",
+)
 @click.option("--seed", type=int, help="Random seed (same seed, same mesh).")
 @click.option("--max-particles", type=int, help="Cap on particles (dynamics.max_particles).")
 @click.option("--max-steps", type=int, help="Cap on dynamics steps (dynamics.max_steps).")
@@ -187,7 +185,7 @@ def command(
     max_gap: float | None,
     fidelity: float | None,
     normals_mode: str | None,
-    viewpoint: str | None,
+    viewpoint: list[float] | None,
     seed: int | None,
     max_particles: int | None,
     max_steps: int | None,
@@ -231,7 +229,7 @@ def command(
             "max_steps": max_steps,
             "time_limit": time_limit,
         },
-        normals={"mode": normals_mode, "viewpoint": parse_vector(viewpoint, "--viewpoint")},
+        normals={"mode": normals_mode, "viewpoint": viewpoint},
         io={"ascii": ascii_},
     )
     if seed is not None:

@@ -8,21 +8,13 @@ import click
 
 from recon.normals import ORIENTATIONS
 
-from .common import build_config, catch_errors, common_run_options, config_options
-
-
-def _parse_viewpoint(
-    ctx: click.Context, param: click.Parameter, text: str | None
-) -> list[float] | None:
-    if text is None:
-        return None
-    try:
-        values = [float(v) for v in text.replace(" ", "").split(",")]
-    except ValueError:
-        raise click.BadParameter(f"expected x,y,z numbers, got {text!r}") from None
-    if len(values) != 3:
-        raise click.BadParameter(f"expected 3 numbers x,y,z, got {len(values)}")
-    return values
+from .common import (
+    build_config,
+    catch_errors,
+    common_run_options,
+    config_options,
+    parse_viewpoint,
+)
 
 
 @click.command("normals")
@@ -55,7 +47,7 @@ def _parse_viewpoint(
 )
 @click.option(
     "--viewpoint",
-    callback=_parse_viewpoint,
+    callback=parse_viewpoint,
     metavar="X,Y,Z",
     help="Scanner position (file coordinates); normals face it [normals.viewpoint].",
 )

@@ -30,7 +30,7 @@ from scipy.spatial import cKDTree
 
 from .config import GrowthConfig
 from .seeds import poisson_disk_thin
-from .surface import DataSurface, max_angular_gap
+from .surface import DataSurface, max_angular_gap, tangent_frame
 
 MAX_PER_PARTICLE = 6
 
@@ -51,18 +51,6 @@ def neighbor_csr(tree: cKDTree, n: int, radius: float) -> tuple[np.ndarray, np.n
 
 
 @nb.njit(cache=True)
-def _tangent_frame(nrm):  # pragma: no cover - numba
-    if abs(nrm[0]) < 0.9:
-        t = np.array([1.0, 0.0, 0.0])
-    else:
-        t = np.array([0.0, 1.0, 0.0])
-    u = t - (t[0] * nrm[0] + t[1] * nrm[1] + t[2] * nrm[2]) * nrm
-    u /= np.sqrt(u[0] ** 2 + u[1] ** 2 + u[2] ** 2)
-    v = np.cross(nrm, u)
-    return u, v
-
-
-@nb.njit(cache=True)
 def _grow_kernel(
     pos, nrm, offsets, indices, min_nb, max_nb, gap_angle, gap_step, out, count
 ):  # pragma: no cover - numba
@@ -74,7 +62,7 @@ def _grow_kernel(
         count[i] = 0
         if m < min_nb or m > max_nb:
             continue
-        u, v = _tangent_frame(nrm[i])
+        u, v = tangent_frame(nrm[i])
         c = 0
         if m == 0:
             for a in range(MAX_PER_PARTICLE):

@@ -234,6 +234,19 @@ def fit_local_quadrics(
 
 
 @nb.njit(cache=True)
+def tangent_frame(nrm):  # pragma: no cover - numba
+    """Two unit tangents (u, v) completing the unit normal ``nrm`` to a right-handed frame."""
+    if abs(nrm[0]) < 0.9:
+        t = np.array([1.0, 0.0, 0.0])
+    else:
+        t = np.array([0.0, 1.0, 0.0])
+    u = t - (t[0] * nrm[0] + t[1] * nrm[1] + t[2] * nrm[2]) * nrm
+    u /= np.sqrt(u[0] ** 2 + u[1] ** 2 + u[2] ** 2)
+    v = np.cross(nrm, u)
+    return u, v
+
+
+@nb.njit(cache=True)
 def _max_angular_gap_kernel(cands, normals, nbr_pts, nbr_count):  # pragma: no cover - numba
     m = cands.shape[0]
     out = np.full(m, 2.0 * np.pi)
@@ -241,15 +254,7 @@ def _max_angular_gap_kernel(cands, normals, nbr_pts, nbr_count):  # pragma: no c
         cnt = nbr_count[i]
         if cnt < 3:
             continue
-        nrm = normals[i]
-        # tangent frame
-        if abs(nrm[0]) < 0.9:
-            t = np.array([1.0, 0.0, 0.0])
-        else:
-            t = np.array([0.0, 1.0, 0.0])
-        u = t - (t[0] * nrm[0] + t[1] * nrm[1] + t[2] * nrm[2]) * nrm
-        u /= np.sqrt(u[0] ** 2 + u[1] ** 2 + u[2] ** 2)
-        v = np.cross(nrm, u)
+        u, v = tangent_frame(normals[i])
         ang = np.zeros(cnt)
         for a in range(cnt):
             d = nbr_pts[i, a] - cands[i]
