@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import sys
+import warnings
 
 import click
 
@@ -48,6 +49,9 @@ _register()
 
 
 def main() -> None:
+    # numba notes on every parallel run that the TBB it found is too old, then uses another
+    # threading layer; that is noise for a user of the command line.
+    warnings.filterwarnings("ignore", message="The TBB threading layer requires")
     try:
         app.main(prog_name="oprecon", standalone_mode=True)
     except KeyboardInterrupt:

@@ -62,7 +62,7 @@ class NormalsConfig:
     k: int = _f(20, "Neighbours for the PCA normal estimate and the local data surfaces.", 3, 500)
     auto_scale: bool = _f(
         True,
-        "Raise k (up to 8x) on noisy data until the local surfaces are "
+        "Raise k (up to 4x) on noisy data until the local surfaces are "
         "thin (median surface variation below 0.05).",
     )
     radius: float | None = _f(

@@ -1188,7 +1188,9 @@ def _read_pcd(
         fields_dt = []
         seen: dict[str, int] = {}
         for name, sz, tp, c in zip(names, sizes, meta["TYPE"], counts_i, strict=True):
-            if tp.upper() not in _PCD_KINDS or sz not in ((4, 8) if tp.upper() == "F" else (1, 2, 4, 8)):
+            if tp.upper() not in _PCD_KINDS or sz not in (
+                (4, 8) if tp.upper() == "F" else (1, 2, 4, 8)
+            ):
                 raise _err(path, f"PCD header: unsupported field type {tp}{sz} for '{name}'")
             key = name if name not in seen else f"{name}__{seen[name]}"
             seen[name] = seen.get(name, 0) + 1

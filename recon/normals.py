@@ -480,6 +480,36 @@ def orient_normals(
 # pipeline entry
 
 
+#: Median PCA surface variation lambda_0 / (lambda_0 + lambda_1 + lambda_2) below which a
+#: neighbourhood counts as thin (clean data: <= 0.016; 1 % noise at k = 20: ~0.18).
+THIN_VARIATION = 0.05
+
+
+def choose_neighborhood_size(points: np.ndarray, k: int, sample: int = 4000) -> int:
+    """Neighbourhood size for normals and local surfaces: k, doubled while the data is noisy.
+
+    The median surface variation of k-neighbourhoods (PCA) is near 0 on clean surfaces and
+    grows with noise; wider neighbourhoods average the noise. Returns the smallest of
+    k, 2k, 4k whose median variation is below ``THIN_VARIATION`` (4k at most: wider
+    neighbourhoods mix the two sides of thin parts; measured on the 1 %-noise bunny, sign
+    consistency 99.3 % at k = 80 but 94.6 % at k = 160).
+    """
+    n = len(points)
+    idx = np.linspace(0, n - 1, min(n, sample)).astype(np.int64)
+    tree = cKDTree(points)
+    chosen = k
+    for factor in (1, 2, 4):
+        kk = min(k * factor, n)
+        chosen = kk
+        _, nb = tree.query(points[idx], k=kk, workers=-1)
+        q = points[nb] - points[nb].mean(axis=1, keepdims=True)
+        ev = np.linalg.eigvalsh(np.einsum("mki,mkj->mij", q, q))
+        variation = ev[:, 0] / np.maximum(ev.sum(axis=1), 1e-300)
+        if np.median(variation) < THIN_VARIATION or kk >= n:
+            break
+    return int(chosen)
+
+
 def compute_normals(cloud: PointCloud, cfg: NormalsConfig) -> tuple[np.ndarray, dict[str, Any]]:
     """Normals for a point cloud as the ``normals`` configuration section asks.
 
@@ -489,7 +519,8 @@ def compute_normals(cloud: PointCloud, cfg: NormalsConfig) -> tuple[np.ndarray, 
         From :func:`recon.io.read_points`.
     cfg : NormalsConfig
         ``mode`` (auto: the file's normals when present, else estimated; estimate; input),
-        ``k``, ``radius``, ``orient_k``, ``orientation``, ``viewpoint`` (file coordinates).
+        ``k`` (raised on noisy data when ``auto_scale``), ``radius``, ``orient_k``,
+        ``orientation``, ``viewpoint`` (file coordinates).
 
     Returns
     -------
@@ -532,14 +563,15 @@ def compute_normals(cloud: PointCloud, cfg: NormalsConfig) -> tuple[np.ndarray, 
             normals[bad] = _fill_normals(pts, normals, bad, cfg.k)
         info = {"source": "input", "n_filled": n_bad}
     else:
-        normals = estimate_normals(pts, k=cfg.k, radius=cfg.radius)
+        k = choose_neighborhood_size(pts, cfg.k) if cfg.auto_scale else cfg.k
+        normals = estimate_normals(pts, k=k, radius=cfg.radius)
         viewpoint = None
         if cfg.viewpoint is not None:
             viewpoint = np.asarray(cfg.viewpoint, dtype=np.float64) - cloud.origin
         normals, oinfo = orient_normals(
             pts, normals, k=cfg.orient_k, orientation=cfg.orientation, viewpoint=viewpoint
         )
-        info = {"source": "estimated", "n_filled": 0, "k": cfg.k, "radius": cfg.radius}
+        info = {"source": "estimated", "n_filled": 0, "k": k, "radius": cfg.radius}
         odict = oinfo.as_dict()
         info["orientation"] = odict.pop("method")
         info.update(odict)

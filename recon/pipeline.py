@@ -40,7 +40,7 @@ from .geometry import bbox_diagonal, median_nearest_neighbor_distance
 from .growth import accept_candidates, grow_candidates, neighbor_csr, stretch_candidates
 from .io import PointCloud
 from .metrics import distance_stats, point_to_mesh_distance, quality_report
-from .normals import compute_normals
+from .normals import choose_neighborhood_size, compute_normals
 from .seeds import select_seeds
 from .state import ParticleState
 from .surface import DataSurface
@@ -94,9 +94,6 @@ class FitResult:
 #: and a hexagonal sheet at spacing r0 holds one particle per 0.866 r0^2: together they predict
 #: the particle count for a given r0 (used by the resolution floor).
 AREA_PER_POINT = 4.0
-#: Median PCA surface variation lambda_0 / (lambda_0 + lambda_1 + lambda_2) below which a
-#: neighbourhood counts as thin (clean data: <= 0.016; 1 % noise at k = 20: ~0.18).
-THIN_VARIATION = 0.05
 
 
 def choose_spacing(points: np.ndarray, cfg: ReconConfig) -> tuple[float, float]:
@@ -125,29 +122,6 @@ def choose_spacing(points: np.ndarray, cfg: ReconConfig) -> tuple[float, float]:
 
 #: Default max_gap, in median data spacings.
 AUTO_GAP = 10.0
-
-
-def choose_scale(points: np.ndarray, k: int, sample: int = 4000) -> int:
-    """Neighbourhood size for normals and local surfaces: k, doubled while the data is noisy.
-
-    The median surface variation of k-neighbourhoods (PCA) is near 0 on clean surfaces and
-    grows with noise; wider neighbourhoods average the noise. Returns the smallest of
-    k, 2k, 4k, 8k whose median variation is below ``THIN_VARIATION`` (8k at most).
-    """
-    n = len(points)
-    idx = np.linspace(0, n - 1, min(n, sample)).astype(np.int64)
-    tree = cKDTree(points)
-    chosen = k
-    for factor in (1, 2, 4, 8):
-        kk = min(k * factor, n)
-        chosen = kk
-        _, nb = tree.query(points[idx], k=kk, workers=-1)
-        q = points[nb] - points[nb].mean(axis=1, keepdims=True)
-        ev = np.linalg.eigvalsh(np.einsum("mki,mkj->mij", q, q))
-        variation = ev[:, 0] / np.maximum(ev.sum(axis=1), 1e-300)
-        if np.median(variation) < THIN_VARIATION or kk >= n:
-            break
-    return int(chosen)
 
 
 class _Clock:
@@ -419,7 +393,9 @@ def reconstruct(
     points = np.asarray(cloud.points, dtype=np.float64)
 
     if cfg.normals.auto_scale:
-        cfg = with_values(cfg, normals={"k": choose_scale(points, cfg.normals.k)})
+        # resolve once: the normals and the local data surfaces share the neighbourhood size
+        k = choose_neighborhood_size(points, cfg.normals.k)
+        cfg = with_values(cfg, normals={"k": k, "auto_scale": False})
     normals, normals_info = compute_normals(cloud, cfg.normals)
     clock.lap("normals")
     clock.check()

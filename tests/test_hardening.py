@@ -42,8 +42,15 @@ def grid_plane(m: int = 18) -> np.ndarray:
     return np.column_stack([g.astype(np.float64), np.zeros(len(g))])
 
 
-def ply_bytes(xyz: np.ndarray, normals: np.ndarray | None = None, *, ascii: bool = False,
-              header_count: int | None = None, truncate: int = 0, dtype: str = "<f8") -> bytes:
+def ply_bytes(
+    xyz: np.ndarray,
+    normals: np.ndarray | None = None,
+    *,
+    ascii: bool = False,
+    header_count: int | None = None,
+    truncate: int = 0,
+    dtype: str = "<f8",
+) -> bytes:
     """A vertex-only PLY; ``header_count`` lies about the count, ``truncate`` cuts bytes."""
     cols = [xyz] if normals is None else [xyz, normals]
     data = np.hstack(cols)
@@ -51,7 +58,7 @@ def ply_bytes(xyz: np.ndarray, normals: np.ndarray | None = None, *, ascii: bool
     typ = "double" if dtype.endswith("f8") else "float"
     count = len(data) if header_count is None else header_count
     fmt = "ascii" if ascii else "binary_little_endian"
-    head = [f"ply", f"format {fmt} 1.0", f"element vertex {count}"]
+    head = ["ply", f"format {fmt} 1.0", f"element vertex {count}"]
     head += [f"property {typ} {n}" for n in names] + ["end_header"]
     header = ("\n".join(head) + "\n").encode()
     if ascii:
@@ -70,13 +77,29 @@ def xyz_bytes(xyz: np.ndarray) -> bytes:
     return "".join(" ".join(repr(float(v)) for v in row) + "\n" for row in xyz).encode()
 
 
-def pcd_bytes(xyz: np.ndarray, *, kind: str = "binary", points: int | None = None,
-              fields: str = "x y z", truncate: int = 0) -> bytes:
+def pcd_bytes(
+    xyz: np.ndarray,
+    *,
+    kind: str = "binary",
+    points: int | None = None,
+    fields: str = "x y z",
+    truncate: int = 0,
+) -> bytes:
     n = len(xyz) if points is None else points
     k = len(fields.split())
-    head = ["# .PCD v0.7", "VERSION 0.7", f"FIELDS {fields}", "SIZE " + " ".join(["4"] * k),
-            "TYPE " + " ".join(["F"] * k), "COUNT " + " ".join(["1"] * k), f"WIDTH {n}",
-            "HEIGHT 1", "VIEWPOINT 0 0 0 1 0 0 0", f"POINTS {n}", f"DATA {kind}"]
+    head = [
+        "# .PCD v0.7",
+        "VERSION 0.7",
+        f"FIELDS {fields}",
+        "SIZE " + " ".join(["4"] * k),
+        "TYPE " + " ".join(["F"] * k),
+        "COUNT " + " ".join(["1"] * k),
+        f"WIDTH {n}",
+        "HEIGHT 1",
+        "VIEWPOINT 0 0 0 1 0 0 0",
+        f"POINTS {n}",
+        f"DATA {kind}",
+    ]
     header = ("\n".join(head) + "\n").encode()
     if kind == "ascii":
         body = xyz_bytes(xyz[:, :k])
@@ -107,94 +130,213 @@ BAD_INPUTS: list[tuple[str, str, Callable[[], bytes], tuple[str, ...]]] = [
     ("unknown-binary-format", "scan.bin", lambda: noise_bytes(3000), ("unknown file format",)),
     # -- PLY headers
     ("ply-wrong-magic", "scan.ply", lambda: b"plx\n" + ply_bytes(S)[4:], ("not a ply",)),
-    ("ply-no-end-header", "scan.ply",
-     lambda: ply_raw(["ply", "format ascii 1.0", "element vertex 3", "property float x"]),
-     ("no end_header",)),
-    ("ply-memory-bomb-vertices", "scan.ply",
-     lambda: ply_bytes(S, header_count=10**12), ("truncated", "1000000000000")),
-    ("ply-memory-bomb-faces", "scan.ply",
-     lambda: ply_raw(["ply", "format binary_little_endian 1.0", "element vertex 300",
-                      "property double x", "property double y", "property double z",
-                      "element face 4000000000", "property list uchar int vertex_indices",
-                      "end_header"], S.astype("<f8").tobytes()),
-     ("truncated", "4000000000 face")),
-    ("ply-binary-truncated-body", "scan.ply", lambda: ply_bytes(S, truncate=100),
-     ("truncated",)),
-    ("ply-ascii-fewer-rows", "scan.ply", lambda: ply_bytes(S, ascii=True, header_count=400),
-     ("truncated",)),
+    (
+        "ply-no-end-header",
+        "scan.ply",
+        lambda: ply_raw(["ply", "format ascii 1.0", "element vertex 3", "property float x"]),
+        ("no end_header",),
+    ),
+    (
+        "ply-memory-bomb-vertices",
+        "scan.ply",
+        lambda: ply_bytes(S, header_count=10**12),
+        ("truncated", "1000000000000"),
+    ),
+    (
+        "ply-memory-bomb-faces",
+        "scan.ply",
+        lambda: ply_raw(
+            [
+                "ply",
+                "format binary_little_endian 1.0",
+                "element vertex 300",
+                "property double x",
+                "property double y",
+                "property double z",
+                "element face 4000000000",
+                "property list uchar int vertex_indices",
+                "end_header",
+            ],
+            S.astype("<f8").tobytes(),
+        ),
+        ("truncated", "4000000000 face"),
+    ),
+    ("ply-binary-truncated-body", "scan.ply", lambda: ply_bytes(S, truncate=100), ("truncated",)),
+    (
+        "ply-ascii-fewer-rows",
+        "scan.ply",
+        lambda: ply_bytes(S, ascii=True, header_count=400),
+        ("truncated",),
+    ),
     ("ply-negative-count", "scan.ply", lambda: ply_bytes(S, header_count=-5), ("negative",)),
-    ("ply-count-not-integer", "scan.ply",
-     lambda: ply_bytes(S).replace(b"element vertex 300", b"element vertex 3e2"),
-     ("not an integer",)),
-    ("ply-unknown-type", "scan.ply",
-     lambda: ply_bytes(S).replace(b"property double x", b"property quad x"),
-     ("unknown property type",)),
-    ("ply-bad-format-line", "scan.ply",
-     lambda: ply_bytes(S).replace(b"binary_little_endian", b"binary_middle_endian"),
-     ("unsupported format",)),
-    ("ply-no-vertex-element", "scan.ply",
-     lambda: ply_bytes(S).replace(b"element vertex", b"element points"), ("no 'vertex'",)),
-    ("ply-no-z", "scan.ply",
-     lambda: ply_bytes(S).replace(b"property double z", b"property double w"),
-     ("lacks x, y, z",)),
-    ("ply-non-ascii-header", "scan.ply",
-     lambda: ply_bytes(S).replace(b"end_header", b"comment \xff\xfe\nend_header"),
-     ("non-ascii",)),
-    ("ply-ascii-garbage-value", "scan.ply",
-     lambda: _replace_row(ply_bytes(S, ascii=True), 20, b"0.5 foo 1"), ("element 'vertex'",)),
-    ("ply-ascii-wrong-columns", "scan.ply",
-     lambda: _replace_row(ply_bytes(S, ascii=True), 20, b"0.5 0.25"), ("element 'vertex'",)),
-    ("ply-list-in-vertex", "scan.ply",
-     lambda: ply_raw(["ply", "format ascii 1.0", "element vertex 300", "property float x",
-                      "property float y", "property float z", "property list uchar int ids",
-                      "end_header"], xyz_bytes(S).replace(b"\n", b" 0\n")),
-     ("list properties",)),
-    ("ply-duplicate-property", "scan.ply",
-     lambda: ply_bytes(S).replace(b"property double z", b"property double z\nproperty float x"),
-     ("duplicate property",)),
+    (
+        "ply-count-not-integer",
+        "scan.ply",
+        lambda: ply_bytes(S).replace(b"element vertex 300", b"element vertex 3e2"),
+        ("not an integer",),
+    ),
+    (
+        "ply-unknown-type",
+        "scan.ply",
+        lambda: ply_bytes(S).replace(b"property double x", b"property quad x"),
+        ("unknown property type",),
+    ),
+    (
+        "ply-bad-format-line",
+        "scan.ply",
+        lambda: ply_bytes(S).replace(b"binary_little_endian", b"binary_middle_endian"),
+        ("unsupported format",),
+    ),
+    (
+        "ply-no-vertex-element",
+        "scan.ply",
+        lambda: ply_bytes(S).replace(b"element vertex", b"element points"),
+        ("no 'vertex'",),
+    ),
+    (
+        "ply-no-z",
+        "scan.ply",
+        lambda: ply_bytes(S).replace(b"property double z", b"property double w"),
+        ("lacks x, y, z",),
+    ),
+    (
+        "ply-non-ascii-header",
+        "scan.ply",
+        lambda: ply_bytes(S).replace(b"end_header", b"comment \xff\xfe\nend_header"),
+        ("non-ascii",),
+    ),
+    (
+        "ply-ascii-garbage-value",
+        "scan.ply",
+        lambda: _replace_row(ply_bytes(S, ascii=True), 20, b"0.5 foo 1"),
+        ("element 'vertex'",),
+    ),
+    (
+        "ply-ascii-wrong-columns",
+        "scan.ply",
+        lambda: _replace_row(ply_bytes(S, ascii=True), 20, b"0.5 0.25"),
+        ("element 'vertex'",),
+    ),
+    (
+        "ply-list-in-vertex",
+        "scan.ply",
+        lambda: ply_raw(
+            [
+                "ply",
+                "format ascii 1.0",
+                "element vertex 300",
+                "property float x",
+                "property float y",
+                "property float z",
+                "property list uchar int ids",
+                "end_header",
+            ],
+            xyz_bytes(S).replace(b"\n", b" 0\n"),
+        ),
+        ("list properties",),
+    ),
+    (
+        "ply-duplicate-property",
+        "scan.ply",
+        lambda: ply_bytes(S).replace(b"property double z", b"property double z\nproperty float x"),
+        ("duplicate property",),
+    ),
     # -- PCD
-    ("pcd-absurd-count", "scan.pcd", lambda: pcd_bytes(S, points=10**12),
-     ("1000000000000 points exceed",)),
-    ("pcd-memory-bomb", "scan.pcd", lambda: pcd_bytes(S, points=40_000_000),
-     ("truncated", "40000000")),
+    (
+        "pcd-absurd-count",
+        "scan.pcd",
+        lambda: pcd_bytes(S, points=10**12),
+        ("1000000000000 points exceed",),
+    ),
+    (
+        "pcd-memory-bomb",
+        "scan.pcd",
+        lambda: pcd_bytes(S, points=40_000_000),
+        ("truncated", "40000000"),
+    ),
     ("pcd-truncated-binary", "scan.pcd", lambda: pcd_bytes(S, truncate=40), ("truncated",)),
-    ("pcd-ascii-memory-bomb", "scan.pcd", lambda: pcd_bytes(S, kind="ascii", points=10**7),
-     ("truncated",)),
-    ("pcd-compressed", "scan.pcd", lambda: pcd_bytes(S, kind="binary_compressed"),
-     ("binary_compressed",)),
+    (
+        "pcd-ascii-memory-bomb",
+        "scan.pcd",
+        lambda: pcd_bytes(S, kind="ascii", points=10**7),
+        ("truncated",),
+    ),
+    (
+        "pcd-compressed",
+        "scan.pcd",
+        lambda: pcd_bytes(S, kind="binary_compressed"),
+        ("binary_compressed",),
+    ),
     ("pcd-no-z", "scan.pcd", lambda: pcd_bytes(S, fields="x y"), ("lacks x, y, z",)),
-    ("pcd-no-fields", "scan.pcd",
-     lambda: b"\n".join(ln for ln in pcd_bytes(S).split(b"\n") if not ln.startswith(b"FIELDS")),
-     ("no fields",)),
-    ("pcd-bad-count", "scan.pcd",
-     lambda: pcd_bytes(S).replace(b"POINTS 300", b"POINTS many"), ("not an integer",)),
+    (
+        "pcd-no-fields",
+        "scan.pcd",
+        lambda: b"\n".join(ln for ln in pcd_bytes(S).split(b"\n") if not ln.startswith(b"FIELDS")),
+        ("no fields",),
+    ),
+    (
+        "pcd-bad-count",
+        "scan.pcd",
+        lambda: pcd_bytes(S).replace(b"POINTS 300", b"POINTS many"),
+        ("not an integer",),
+    ),
     # -- text
-    ("xyz-garbage-token", "scan.xyz",
-     lambda: xyz_bytes(S).replace(b"\n", b"\n1.0 abc 2.0\n", 1), ("could not convert", "abc")),
+    (
+        "xyz-garbage-token",
+        "scan.xyz",
+        lambda: xyz_bytes(S).replace(b"\n", b"\n1.0 abc 2.0\n", 1),
+        ("could not convert", "abc"),
+    ),
     ("xyz-two-columns", "scan.xyz", lambda: xyz_bytes(S[:, :2]), ("column",)),
-    ("xyz-ragged-rows", "scan.xyz",
-     lambda: xyz_bytes(S).replace(b"\n", b"\n1.0 2.0\n", 1), ("columns",)),
+    (
+        "xyz-ragged-rows",
+        "scan.xyz",
+        lambda: xyz_bytes(S).replace(b"\n", b"\n1.0 2.0\n", 1),
+        ("columns",),
+    ),
     ("xyz-binary-content", "scan.xyz", lambda: noise_bytes(2000, seed=5), ("not a text file",)),
     ("xyz-only-comments", "scan.xyz", lambda: b"# nothing\n// here\n\n", ("no data rows",)),
     # -- OBJ
     ("obj-no-vertices", "scan.obj", lambda: b"# empty\nf 1 2 3\n", ("no 'v' vertex",)),
-    ("obj-bad-vertex", "scan.obj", lambda: b"v 0 0 0\nv 1 x 0\nv 0 1 0\nv 0 0 1\n",
-     ("line 2", "non-numeric")),
+    (
+        "obj-bad-vertex",
+        "scan.obj",
+        lambda: b"v 0 0 0\nv 1 x 0\nv 0 1 0\nv 0 0 1\n",
+        ("line 2", "non-numeric"),
+    ),
     # -- degenerate geometry
-    ("all-identical", "scan.ply", lambda: ply_bytes(np.ones((300, 3))),
-     ("only 1 distinct", "at least 4")),
-    ("two-points", "scan.ply", lambda: ply_bytes(np.array([[0.0, 0, 0], [1, 1, 1]] * 50)),
-     ("only 2 distinct",)),
-    ("collinear", "scan.ply",
-     lambda: ply_bytes(np.outer(np.linspace(-1, 1, 300), [1.0, 2.0, 3.0])), ("one line",)),
-    ("all-non-finite", "scan.ply", lambda: ply_bytes(np.full((100, 3), np.nan)),
-     ("0 distinct finite",)),
-    ("coordinates-overflow", "scan.ply", lambda: ply_bytes(sphere(radius=1e300)),
-     ("too large",)),
-    ("coordinates-underflow", "scan.ply", lambda: ply_bytes(sphere(radius=1e-300)),
-     ("too small",)),
-    ("far-outlier-everywhere", "scan.ply",
-     lambda: ply_bytes(np.vstack([S, [[1e15, 1e15, 1e15]]])), ("outliers", "spacing")),
+    (
+        "all-identical",
+        "scan.ply",
+        lambda: ply_bytes(np.ones((300, 3))),
+        ("only 1 distinct", "at least 4"),
+    ),
+    (
+        "two-points",
+        "scan.ply",
+        lambda: ply_bytes(np.array([[0.0, 0, 0], [1, 1, 1]] * 50)),
+        ("only 2 distinct",),
+    ),
+    (
+        "collinear",
+        "scan.ply",
+        lambda: ply_bytes(np.outer(np.linspace(-1, 1, 300), [1.0, 2.0, 3.0])),
+        ("one line",),
+    ),
+    (
+        "all-non-finite",
+        "scan.ply",
+        lambda: ply_bytes(np.full((100, 3), np.nan)),
+        ("0 distinct finite",),
+    ),
+    ("coordinates-overflow", "scan.ply", lambda: ply_bytes(sphere(radius=1e300)), ("too large",)),
+    ("coordinates-underflow", "scan.ply", lambda: ply_bytes(sphere(radius=1e-300)), ("too small",)),
+    (
+        "far-outlier-everywhere",
+        "scan.ply",
+        lambda: ply_bytes(np.vstack([S, [[1e15, 1e15, 1e15]]])),
+        ("outliers", "spacing"),
+    ),
 ]
 
 
@@ -227,8 +369,17 @@ def test_bad_input_fails_cleanly(tmp_path, case):
     before = _sha(src)
     out_dir = tmp_path / "out"
     out_dir.mkdir()
-    res = _run(["fit", str(src), "-o", str(out_dir / "mesh.ply"), "--particles",
-                str(out_dir / "particles.ply"), *FAST])
+    res = _run(
+        [
+            "fit",
+            str(src),
+            "-o",
+            str(out_dir / "mesh.ply"),
+            "--particles",
+            str(out_dir / "particles.ply"),
+            *FAST,
+        ]
+    )
     _assert_clean_failure(res, 2, [str(src)], words)
     assert sorted(os.listdir(out_dir)) == []
     assert sorted(os.listdir(src.parent)) == [name]
@@ -253,16 +404,25 @@ def _nan_normals() -> bytes:
 VALID_ODD_INPUTS: list[tuple[str, str, Callable[[], bytes]]] = [
     ("coplanar-grid", "scan.ply", lambda: ply_bytes(grid_plane())),
     ("duplicated-halves", "scan.ply", lambda: ply_bytes(np.vstack([S, S]))),
-    ("far-apart-clusters", "scan.ply",
-     lambda: ply_bytes(np.vstack([sphere(200), sphere(200, centre=(2e4, 0, 0), seed=1)]))),
+    (
+        "far-apart-clusters",
+        "scan.ply",
+        lambda: ply_bytes(np.vstack([sphere(200), sphere(200, centre=(2e4, 0, 0), seed=1)])),
+    ),
     ("tiny-scale-offset", "scan.ply", lambda: ply_bytes(sphere(radius=1e-9, centre=(1, 2, 3)))),
-    ("huge-scale-offset", "scan.ply",
-     lambda: ply_bytes(sphere(radius=1e7, centre=(5e9, -3e9, 1e8)))),
+    (
+        "huge-scale-offset",
+        "scan.ply",
+        lambda: ply_bytes(sphere(radius=1e7, centre=(5e9, -3e9, 1e8))),
+    ),
     ("zero-normals", "scan.ply", lambda: ply_bytes(S, np.zeros_like(S))),
     ("nan-normals", "scan.ply", lambda: ply_bytes(S, np.full_like(S, np.nan))),
     ("some-invalid-normals", "scan.ply", _nan_normals),
-    ("some-non-finite-points", "scan.xyz",
-     lambda: xyz_bytes(np.vstack([S, [[np.nan, 0, 0], [np.inf, 1, 1], [0, -np.inf, 2]]]))),
+    (
+        "some-non-finite-points",
+        "scan.xyz",
+        lambda: xyz_bytes(np.vstack([S, [[np.nan, 0, 0], [np.inf, 1, 1], [0, -np.inf, 2]]])),
+    ),
     ("ascii-pcd", "scan.pcd", lambda: pcd_bytes(S, kind="ascii")),
     ("one-far-outlier", "scan.ply", lambda: ply_bytes(np.vstack([S, [[1e9, 0.0, 0.0]]]))),
 ]
@@ -275,8 +435,19 @@ def test_odd_but_valid_input_fits(tmp_path, case):
     src.write_bytes(make())
     before = _sha(src)
     out = tmp_path / "out" / "mesh.ply"
-    res = _run(["fit", str(src), "-o", str(out), "--mkdir", "-q", "--particles",
-                str(out.with_name("p.ply")), *FAST])
+    res = _run(
+        [
+            "fit",
+            str(src),
+            "-o",
+            str(out),
+            "--mkdir",
+            "-q",
+            "--particles",
+            str(out.with_name("p.ply")),
+            *FAST,
+        ]
+    )
     assert res.exit_code == 0, (res.stderr, res.exception)
     assert "Traceback" not in res.stderr
     assert _sha(src) == before
@@ -312,8 +483,11 @@ def _same_path_spelling(tmp_path: Path, src: Path) -> str:
 PATH_CASES = [
     ("output-is-input", lambda tmp, src: str(src), ("refusing to overwrite an input",)),
     ("output-is-input-other-spelling", _same_path_spelling, ("refusing to overwrite an input",)),
-    ("output-is-input-relative", lambda tmp, src: "./" + src.name,
-     ("refusing to overwrite an input",)),
+    (
+        "output-is-input-relative",
+        lambda tmp, src: "./" + src.name,
+        ("refusing to overwrite an input",),
+    ),
     ("output-is-symlink-to-input", None, ("refusing to overwrite an input",)),
     ("output-folder-missing", lambda tmp, src: str(tmp / "nope" / "m.ply"), ("--mkdir",)),
     ("output-is-a-folder", lambda tmp, src: str(tmp), ("is a directory",)),
@@ -385,8 +559,11 @@ def test_mkdir_creates_the_folder_for_fit_and_normals(tmp_path):
 
 
 CONFIG_CASES = [
-    ("python-object-tag", "seeds: !!python/object/apply:os.system ['echo pwned']\n",
-     ("line 1", "tag")),
+    (
+        "python-object-tag",
+        "seeds: !!python/object/apply:os.system ['echo pwned']\n",
+        ("line 1", "tag"),
+    ),
     ("malformed-yaml", "dynamics:\n  dt: 0.1\n   max_steps: [1, 2\n", ("line", "column")),
     ("unknown-key", "dynamics:\n  dtt: 0.1\n", ("dynamics.dtt", "did you mean")),
     ("wrong-type", "dynamics:\n  max_steps: lots\n", ("dynamics.max_steps", "integer")),
@@ -411,12 +588,15 @@ def test_bad_config_fails_cleanly(tmp_path, case):
     assert (_sha(cfg), _sha(src)) == before
 
 
-@pytest.mark.parametrize("override,words", [
-    ("dynamics.dt=abc", ("dynamics.dt", "number")),
-    ("dynamics.nope=1", ("dynamics.nope",)),
-    ("growth.max_rounds=-3", ("growth.max_rounds", "out of range")),
-    ("seeds.spacing=!!python/name:os.system", ("seeds.spacing",)),
-])
+@pytest.mark.parametrize(
+    "override,words",
+    [
+        ("dynamics.dt=abc", ("dynamics.dt", "number")),
+        ("dynamics.nope=1", ("dynamics.nope",)),
+        ("growth.max_rounds=-3", ("growth.max_rounds", "out of range")),
+        ("seeds.spacing=!!python/name:os.system", ("seeds.spacing",)),
+    ],
+)
 def test_bad_override_names_the_key(tmp_path, override, words):
     src = tmp_path / "scan.ply"
     src.write_bytes(ply_bytes(S))
@@ -439,11 +619,14 @@ def test_time_limit_exits_2_without_outputs(tmp_path):
     assert os.listdir(out_dir) == []
 
 
-@pytest.mark.parametrize("exc,code,word", [
-    (KeyboardInterrupt, 130, "interrupted"),
-    (OSError(28, "No space left on device"), 2, "no space left"),
-    (MemoryError, 2, "out of memory"),
-])
+@pytest.mark.parametrize(
+    "exc,code,word",
+    [
+        (KeyboardInterrupt, 130, "interrupted"),
+        (OSError(28, "No space left on device"), 2, "no space left"),
+        (MemoryError, 2, "out of memory"),
+    ],
+)
 def test_failure_while_writing_leaves_nothing(tmp_path, monkeypatch, exc, code, word):
     """The mesh is written, then writing the particles fails: no file at all survives."""
     import recon.io
@@ -456,8 +639,18 @@ def test_failure_while_writing_leaves_nothing(tmp_path, monkeypatch, exc, code, 
     src.write_bytes(ply_bytes(S))
     out_dir = tmp_path / "out"
     out_dir.mkdir()
-    res = _run(["fit", str(src), "-o", str(out_dir / "m.ply"), "--particles",
-                str(out_dir / "p.ply"), "-q", *FAST])
+    res = _run(
+        [
+            "fit",
+            str(src),
+            "-o",
+            str(out_dir / "m.ply"),
+            "--particles",
+            str(out_dir / "p.ply"),
+            "-q",
+            *FAST,
+        ]
+    )
     assert res.exit_code == code, (res.stderr, res.exception)
     assert word in res.stderr.lower() and "Traceback" not in res.stderr
     assert os.listdir(out_dir) == []
@@ -488,8 +681,10 @@ def test_numbers_in_hostile_header_are_checked_before_allocation(tmp_path):
 def test_struct_packed_pcd_header_claims_match_file(tmp_path):
     """A binary PCD whose POINTS agrees with WIDTH x HEIGHT but not with the data."""
     body = struct.pack("<3f", 0.0, 0.0, 0.0) * 10
-    head = (b"VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 1000\n"
-            b"HEIGHT 1000\nPOINTS 1000000\nDATA binary\n")
+    head = (
+        b"VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 1000\n"
+        b"HEIGHT 1000\nPOINTS 1000000\nDATA binary\n"
+    )
     src = tmp_path / "s.pcd"
     src.write_bytes(head + body)
     res = _run(["info", str(src)])

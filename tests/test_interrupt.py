@@ -19,8 +19,14 @@ from recon.io import write_points
 OPRECON = Path(sys.executable).with_name("oprecon")
 
 #: Settings that keep the dynamics busy far longer than the test waits.
-ENDLESS = ["--set", "dynamics.max_steps=100000", "--set", "growth.max_rounds=1000",
-           "--set", "growth.min_add_fraction=0"]
+ENDLESS = [
+    "--set",
+    "dynamics.max_steps=100000",
+    "--set",
+    "growth.max_rounds=1000",
+    "--set",
+    "growth.min_add_fraction=0",
+]
 
 
 def _sphere(n: int) -> np.ndarray:
@@ -37,12 +43,25 @@ def test_sigint_during_dynamics_exits_130_and_leaves_nothing(tmp_path):
     before = hashlib.sha256(src.read_bytes()).hexdigest()
     out_dir = tmp_path / "out"
     out_dir.mkdir()
-    cmd = [str(OPRECON), "fit", str(src), "-o", str(out_dir / "mesh.ply"),
-           "--particles", str(out_dir / "particles.ply"), "-v", *ENDLESS]
+    cmd = [
+        str(OPRECON),
+        "fit",
+        str(src),
+        "-o",
+        str(out_dir / "mesh.ply"),
+        "--particles",
+        str(out_dir / "particles.ply"),
+        "-v",
+        *ENDLESS,
+    ]
     # a background job (pytest run with &) would hand the child an ignored SIGINT: restore it
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            env={**os.environ, "PYTHONUNBUFFERED": "1"},
-                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    proc = subprocess.Popen(
+        cmd,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        env={**os.environ, "PYTHONUNBUFFERED": "1"},
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )
     lines: list[str] = []
     in_dynamics = threading.Event()
 

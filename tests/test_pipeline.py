@@ -10,7 +10,8 @@ from recon.config import ReconConfig, load_config
 from recon.errors import LimitExceeded
 from recon.io import read_points
 from recon.metrics import compare_meshes, point_to_mesh_distance
-from recon.pipeline import choose_scale, choose_spacing, fit, reconstruct
+from recon.normals import choose_neighborhood_size
+from recon.pipeline import choose_spacing, fit, reconstruct
 
 SAMPLE = Path(__file__).resolve().parent.parent / "sample_data"
 FAST = ["seeds.min_particles=0"]
@@ -97,8 +98,8 @@ def test_bundled_sparse_bunny_is_interpolated():
 
 
 def test_noise_raises_the_neighbourhood_size():
-    assert choose_scale(_sphere(3000), 20) == 20
-    assert choose_scale(_sphere(3000, noise=0.05), 20) > 20
+    assert choose_neighborhood_size(_sphere(3000), 20) == 20
+    assert choose_neighborhood_size(_sphere(3000, noise=0.05), 20) > 20
 
 
 def test_resolution_floor_lowers_spacing_for_sparse_data():
