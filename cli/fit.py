@@ -81,6 +81,15 @@ def format_summary(report: dict[str, Any]) -> str:
                 f"(mean {fid.get('mean_relative', float('nan')):.2e} of bbox diagonal)",
             )
         )
+    m2i = report.get("mesh_to_input") or {}
+    if m2i:
+        rows.append(
+            (
+                "mesh on the data",
+                f"{100 * m2i.get('within_r0', 0):.1f}% of the surface within r0 "
+                f"of an input point (p95 {m2i.get('p95', float('nan')):.4g})",
+            )
+        )
     if topo:
         rows.append(
             (

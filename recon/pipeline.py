@@ -39,7 +39,7 @@ from .errors import DivergenceError, InputError, LimitExceeded
 from .geometry import bbox_diagonal, median_nearest_neighbor_distance
 from .growth import accept_candidates, grow_candidates, neighbor_csr, stretch_candidates
 from .io import PointCloud
-from .metrics import distance_stats, point_to_mesh_distance, quality_report
+from .metrics import distance_stats, point_to_mesh_distance, quality_report, sample_surface
 from .normals import choose_neighborhood_size, compute_normals
 from .seeds import select_seeds
 from .state import ParticleState
@@ -463,6 +463,13 @@ def reconstruct(
         "diag": diag,
         **distance_stats(dist, diag),
         "within_r0": float(np.mean(dist <= r0)),
+    }
+    # the other direction: does the mesh stay on the data (nothing grown past it)?
+    samples, _ = sample_surface(tri.vertices, tri.faces, min(20_000, 4 * len(tri.faces)), cfg.seed)
+    d_mesh, _ = surface.nearest(samples)
+    quality["mesh_to_input"] = {
+        **distance_stats(d_mesh * r0, diag),
+        "within_r0": float(np.mean(d_mesh <= 1.0)),
     }
     clock.lap("report")
     report = {

@@ -53,6 +53,7 @@ def test_open_square_keeps_outer_boundary_and_real_hole():
     assert np.abs(v[:, :2]).max() < 0.5 + r0
     assert np.linalg.norm(v[:, :2], axis=1).min() > 0.2 - r0
     assert np.abs(v[:, 2]).max() < 1e-6
+    assert res.report["mesh_to_input"]["within_r0"] > 0.95
 
 
 def test_small_hole_is_filled_large_hole_is_kept():
