@@ -53,8 +53,9 @@ log = logging.getLogger(__name__)
 COVER_RADIUS = 0.65
 #: Anchors (nearest data planes) are refreshed this often during relaxation [steps].
 ANCHOR_REFRESH = 5
-#: Mean kinetic energy per particle under which the sheet counts as at rest [r0^2/t^2].
-REST_KINETIC = 1e-4
+#: Growth rounds run during the release phase: unpinning the seeds lets the sheet relax, which
+#: opens small gaps; refilling them keeps ball pivoting from bridging them with long edges.
+RELEASE_REFILLS = 3
 
 #: Potential energy per particle above which the dynamics count as exploding (a sheet at rest
 #: has |E| of order 1 per particle; coincident particles make it grow without bound).
@@ -287,10 +288,48 @@ class _Fitter:
         state = ParticleState.from_points(pos, pn, pinned=True)
         return state, pos
 
+    def grow_round(self, sim: Simulation, state: ParticleState) -> int:
+        """One application of the growing and stretching rules; returns particles added."""
+        g = self.cfg.growth
+        dyn = self.cfg.dynamics
+        pos, nrm = state.position, state.normal
+        tree = cKDTree(pos)
+        offsets, indices = neighbor_csr(tree, state.n, g.grow_radius)
+        frontier = np.diff(offsets) <= g.max_neighbors
+        cands = np.vstack(
+            [
+                grow_candidates(pos, nrm, offsets, indices, g),
+                stretch_candidates(pos, nrm, tree, frontier, g),
+            ]
+        )
+        acc = accept_candidates(cands, tree, self.surface, self.seed_tree, self.seed_points, g)
+        added = len(acc.positions)
+        room = dyn.max_particles - state.n
+        if added > room:
+            acc.positions, acc.normals = acc.positions[:room], acc.normals[:room]
+            added = room
+            self.stop_reason = f"particle cap dynamics.max_particles={dyn.max_particles} reached"
+            self.warnings.append(self.stop_reason)
+        if added:
+            state.add(acc.positions, acc.normals, pinned=False)
+            sim.notify_changed()
+        log.debug(
+            "growth: %d candidates, %d added (%d close, %d unsupported, %d off-plane), "
+            "%d particles",
+            acc.n_candidates,
+            added,
+            acc.n_too_close,
+            acc.n_unsupported,
+            acc.n_off_plane,
+            state.n,
+        )
+        return added
+
     def grow(self, sim: Simulation, state: ParticleState, seed_points: np.ndarray) -> None:
         g = self.cfg.growth
         dyn = self.cfg.dynamics
-        seed_tree = cKDTree(seed_points)
+        self.seed_points = seed_points
+        self.seed_tree = cKDTree(seed_points)
         previous_added = None
         for rnd in range(g.max_rounds if g.enabled else 0):
             kinetic = self.relax(sim, state, dyn.relax_steps, "grow")
@@ -298,44 +337,8 @@ class _Fitter:
                 self.stop_reason = f"step cap dynamics.max_steps={dyn.max_steps} reached"
                 self.warnings.append(self.stop_reason + " during growth")
                 break
-            pos, nrm = state.position, state.normal
-            tree = cKDTree(pos)
-            offsets, indices = neighbor_csr(tree, state.n, g.grow_radius)
-            counts = np.diff(offsets)
-            frontier = counts <= g.max_neighbors
-            cands = np.vstack(
-                [
-                    grow_candidates(pos, nrm, offsets, indices, g),
-                    stretch_candidates(pos, nrm, tree, frontier, g),
-                ]
-            )
-            acc = accept_candidates(cands, tree, self.surface, seed_tree, seed_points, g)
-            added = len(acc.positions)
-            room = dyn.max_particles - state.n
-            if added > room:
-                acc.positions, acc.normals = acc.positions[:room], acc.normals[:room]
-                added = room
-                self.stop_reason = (
-                    f"particle cap dynamics.max_particles={dyn.max_particles} reached"
-                )
-                self.warnings.append(self.stop_reason)
-            if added:
-                state.add(acc.positions, acc.normals, pinned=False)
-                sim.notify_changed()
-            coverage = self.coverage(state.position)
-            self.record("grow", state, kinetic, coverage)
-            log.debug(
-                "round %d: %d candidates, %d added (%d close, %d unsupported, %d off-plane),"
-                " %d particles, coverage %.4f",
-                rnd + 1,
-                acc.n_candidates,
-                added,
-                acc.n_too_close,
-                acc.n_unsupported,
-                acc.n_off_plane,
-                state.n,
-                coverage,
-            )
+            added = self.grow_round(sim, state)
+            self.record("grow", state, kinetic, self.coverage(state.position))
             if self.stop_reason:
                 break
             small = added <= g.min_add_fraction * state.n
@@ -352,15 +355,20 @@ class _Fitter:
         self.record("grow", state, kinetic, self.coverage(state.position))
 
     def release(self, sim: Simulation, state: ParticleState) -> None:
+        """Unpin the seeds and smooth; the first chunks also refill gaps the release opens."""
         state.set_pinned(False)
         sim.notify_changed()
         dyn = self.cfg.dynamics
         remaining = dyn.release_steps
         chunk = 20
+        refills = RELEASE_REFILLS if self.cfg.growth.enabled else 0
         while remaining > 0:
             n = min(chunk, remaining)
             kinetic = self.relax(sim, state, n, "release")
             remaining -= n
+            if refills > 0 and remaining > 0 and not self.stop_reason.startswith("particle cap"):
+                refills -= 1
+                self.grow_round(sim, state)
             self.record("release", state, kinetic, self.coverage(state.position))
             if self.total_steps() >= dyn.max_steps:
                 break

@@ -85,15 +85,13 @@ def triangulate_particles(
         faces = circumsphere_triangles(positions, normals, radius=max(cfg.radii))
     stats: dict = {"method": cfg.method, "faces_raw": int(len(faces))}
     faces = orient_faces(positions, normals, faces)
-    faces = remove_non_manifold_faces(faces, len(positions))
-    for _ in range(5):  # dropping a fan can leave a new bow-tie next to it
-        bad = non_manifold_vertex_faces(faces, len(positions))
-        if not bad.any():
-            break
-        faces = faces[~bad]
+    faces = make_manifold(faces, len(positions))
     stats["faces_manifold"] = int(len(faces))
     vertices, vnormals = positions, normals
-    if cfg.fill_holes and len(faces):
+    stats["holes_filled"] = 0
+    for _ in range(2 if cfg.fill_holes else 0):
+        # a fill can meet an edge that already exists elsewhere; repair, then fill what opened
+        n_before = len(vertices)
         vertices, vnormals, faces, n_filled = fill_small_holes(
             vertices,
             vnormals,
@@ -102,10 +100,13 @@ def triangulate_particles(
             is_covered,
             COVERED_HOLE_FACTOR * np.pi * max_hole,
         )
-        stats["holes_filled"] = n_filled
-        if project is not None and len(vertices) > len(positions):
+        stats["holes_filled"] += n_filled
+        if project is not None and len(vertices) > n_before:
             vertices = vertices.copy()
-            vertices[len(positions) :] = project(vertices[len(positions) :])
+            vertices[n_before:] = project(vertices[n_before:])
+        faces = make_manifold(faces, len(vertices))
+        if n_filled == 0:
+            break
     faces, n_small = remove_small_components(faces, len(vertices))
     stats["small_components_removed"] = n_small
     vertices, vnormals, faces = drop_unreferenced(vertices, vnormals, faces)
@@ -253,6 +254,17 @@ def remove_non_manifold_faces(faces: np.ndarray, n_vertices: int) -> np.ndarray:
         rank = np.arange(len(e_inv)) - np.searchsorted(e_inv, e_inv)
         drop[e_face[rank >= 2]] = True
         faces = faces[~drop]
+    return faces
+
+
+def make_manifold(faces: np.ndarray, n_vertices: int) -> np.ndarray:
+    """Drop faces until no edge has more than two faces and every vertex has one fan."""
+    faces = remove_non_manifold_faces(faces, n_vertices)
+    for _ in range(5):  # dropping a fan can leave a new bow-tie next to it
+        bad = non_manifold_vertex_faces(faces, n_vertices)
+        if not bad.any():
+            break
+        faces = remove_non_manifold_faces(faces[~bad], n_vertices)
     return faces
 
 
