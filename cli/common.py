@@ -104,9 +104,11 @@ def common_run_options(func: Callable[..., Any]) -> Callable[..., Any]:
     return wrapper
 
 
-#: Code that must not be interrupted half-way: numba's and llvmlite's compile and cache-load
-#: callbacks swallow or garble a KeyboardInterrupt (the run goes on, or fails with SystemError).
-_FRAGILE_DIRS = tuple(f"{os.sep}{name}{os.sep}" for name in ("numba", "llvmlite"))
+#: Code that must not be interrupted half-way: a module being imported (an extension such as
+#: open3d then fails to initialise and its C++ teardown turns exit 130 into 1), and numba's and
+#: llvmlite's compile and cache-load callbacks (they swallow or garble a KeyboardInterrupt).
+_FRAGILE_DIRS = tuple(f"{os.sep}{name}{os.sep}" for name in ("numba", "llvmlite", "open3d"))
+_FRAGILE_FILES = ("<frozen importlib._bootstrap>", "<frozen importlib._bootstrap_external>")
 
 
 def _is_query_thread(thread: Any) -> bool:
@@ -115,16 +117,18 @@ def _is_query_thread(thread: Any) -> bool:
 
 
 def _unsafe_to_interrupt(frame: Any) -> bool:
-    """Is the main thread starting or waiting for k-d tree workers, or inside numba?
+    """Is the main thread importing, inside numba, or starting or waiting for k-d tree workers?
 
     scipy's ``cKDTree.query(workers=-1)`` hands raw pointers to its output arrays to daemon
     threads and waits for them; a KeyboardInterrupt in that wait frees the arrays while the
     threads still write into them (a segmentation fault).
     """
-    if frame is None:
-        return False
-    if any(d in frame.f_code.co_filename for d in _FRAGILE_DIRS):
-        return True
+    outer = frame
+    while outer is not None:
+        name = outer.f_code.co_filename
+        if name in _FRAGILE_FILES or any(d in name for d in _FRAGILE_DIRS):
+            return True
+        outer = outer.f_back
     for _ in range(8):
         if frame is None or frame.f_code.co_filename != threading.__file__:
             return False
@@ -138,8 +142,10 @@ class deferred_interrupts:  # noqa: N801 - used like a function
     """Within the block, Ctrl-C is raised only where it is safe (see _unsafe_to_interrupt).
 
     An interrupt that arrives at an unsafe point is retried every 20 ms (SIGALRM) until the
-    main thread has left the fragile code. Does nothing outside the main thread, when SIGINT
-    has a custom handler already, or without ``setitimer`` (Windows).
+    main thread has left the fragile code. SIGTERM (``timeout``, ``kill``) is treated as Ctrl-C
+    when it has its default action, so that temporary files are removed then too. Does nothing
+    outside the main thread, when SIGINT has a custom handler already, or without
+    ``setitimer`` (Windows).
     """
 
     RETRY_S = 0.02
@@ -153,6 +159,9 @@ class deferred_interrupts:  # noqa: N801 - used like a function
         if self.active:
             self.old_alarm = signal.signal(signal.SIGALRM, self._handle)
             signal.signal(signal.SIGINT, self._handle)
+            self.term = signal.getsignal(signal.SIGTERM) == signal.SIG_DFL
+            if self.term:
+                signal.signal(signal.SIGTERM, self._handle)
         return self
 
     def __exit__(self, *exc: object) -> None:
@@ -160,6 +169,8 @@ class deferred_interrupts:  # noqa: N801 - used like a function
             signal.setitimer(signal.ITIMER_REAL, 0.0)
             signal.signal(signal.SIGINT, signal.default_int_handler)
             signal.signal(signal.SIGALRM, self.old_alarm)
+            if self.term:
+                signal.signal(signal.SIGTERM, signal.SIG_DFL)
 
     def _handle(self, signum: int, frame: Any) -> None:
         if _unsafe_to_interrupt(frame):

@@ -63,17 +63,11 @@ def load_tolerances(path: Path) -> dict[str, Any]:
     ConfigError
         Not YAML, not a mapping, an unknown key (named), or a value of the wrong type/range.
     """
-    import yaml
+    from recon.config import load_yaml_file
 
     if not path.is_file():
         raise InputError(f"{path}: no such file" if not path.exists() else f"{path}: not a file")
-    try:
-        data = yaml.safe_load(path.read_text())
-    except OSError as exc:
-        raise InputError(f"{path}: cannot read: {exc.strerror or exc}") from None
-    except yaml.YAMLError as exc:
-        first = str(exc).strip().splitlines()[0] if str(exc).strip() else "syntax error"
-        raise ConfigError(f"{path}: not valid YAML ({first})") from None
+    data = load_yaml_file(path)  # safe loader; syntax errors give the line and column
     if data is None:
         return {}
     if not isinstance(data, dict):

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from recon.normals import ORIENTATIONS
+from recon.config import NormalsConfig
 
 from .common import (
     build_config,
@@ -15,6 +15,10 @@ from .common import (
     config_options,
     parse_viewpoint,
 )
+
+#: The orientation rules, from the config (importing recon.normals here would load scipy at
+#: startup, slowing every command and widening the window where Ctrl-C hits an import).
+ORIENTATIONS = NormalsConfig.__dataclass_fields__["orientation"].metadata["choices"]
 
 
 @click.command("normals")

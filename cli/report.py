@@ -214,7 +214,9 @@ def command(mesh_path: Path, input_path: Path | None, as_json: bool, png_path: P
     from recon.metrics import quality_report
 
     if png_path is not None:
-        check_output_path(png_path, [p for p in (mesh_path, input_path) if p is not None])
+        check_output_path(
+            png_path, [p for p in (mesh_path, input_path) if p is not None], mkdir_option=None
+        )
     vertices, faces = read_mesh_checked(mesh_path)
     points = None
     if input_path is not None:

@@ -1374,7 +1374,11 @@ def _read_obj_mesh(path: Path) -> tuple[np.ndarray, np.ndarray]:
 
 
 def check_output_path(
-    path: str | os.PathLike[str], inputs: Sequence[str | os.PathLike[str]] = (), mkdir: bool = False
+    path: str | os.PathLike[str],
+    inputs: Sequence[str | os.PathLike[str]] = (),
+    mkdir: bool = False,
+    *,
+    mkdir_option: str | None = "--mkdir",
 ) -> Path:
     """Validate an output path before any work is done.
 
@@ -1386,6 +1390,8 @@ def check_output_path(
         Input files of the run; writing onto one of them is refused.
     mkdir : bool
         Create a missing parent folder instead of failing.
+    mkdir_option : str or None
+        The caller's option that creates the folder, named in the error; None when it has none.
 
     Returns
     -------
@@ -1413,7 +1419,8 @@ def check_output_path(
     parent = resolved.parent
     if not parent.exists():
         if not mkdir:
-            raise _err(out, f"folder '{out.parent}' does not exist (create it or use --mkdir)")
+            hint = f"create it or use {mkdir_option}" if mkdir_option else "create it first"
+            raise _err(out, f"folder '{out.parent}' does not exist ({hint})")
         try:
             parent.mkdir(parents=True, exist_ok=True)
         except OSError as exc:

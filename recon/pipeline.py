@@ -117,7 +117,10 @@ def choose_spacing(points: np.ndarray, cfg: ReconConfig) -> tuple[float, float]:
             factor = min(factor, max(floor, 0.8))
         r0 = factor * d_nn
     if not (r0 > 0 and math.isfinite(r0)):
-        raise InputError(f"cannot derive a rest spacing from the data (median spacing {d_nn!r})")
+        msg = f"cannot derive a rest spacing: the median point spacing is {d_nn!r}"
+        if d_nn == 0.0:
+            msg += " (most points are exact duplicates: set io.merge_duplicates: true)"
+        raise InputError(msg + "; or give --spacing")
     return float(r0), float(d_nn)
 
 
@@ -421,6 +424,7 @@ def reconstruct(
     diag = bbox_diagonal(points)
     surface = DataSurface.build(points / r0, normals, k=cfg.normals.k)
     clock.lap("setup")
+    clock.check()
 
     fitter = _Fitter(surface, cfg, rng, clock, on_progress)
     state, seed_points = fitter.make_seeds()
@@ -454,6 +458,7 @@ def reconstruct(
         project=lambda c: surface.project(c)[0],
     )
     clock.lap("triangulate")
+    clock.check()
 
     origin = np.asarray(cloud.origin, dtype=np.float64)
     vertices = tri.vertices * r0 + origin

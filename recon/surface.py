@@ -271,6 +271,10 @@ def _max_angular_gap_kernel(cands, normals, nbr_pts, nbr_count):  # pragma: no c
     return out
 
 
+#: Centres per k-NN query in max_angular_gap (memory per call ~ _GAP_CHUNK x 2.4 kB).
+_GAP_CHUNK = 32_768
+
+
 def max_angular_gap(
     centers: np.ndarray,
     normals: np.ndarray,
@@ -287,6 +291,19 @@ def max_angular_gap(
     """
     if len(centers) == 0:
         return np.zeros(0)
+    if len(centers) > _GAP_CHUNK:  # bound the (m, k) temporaries: ~2.4 kB per centre
+        parts = [
+            max_angular_gap(
+                centers[i : i + _GAP_CHUNK],
+                normals[i : i + _GAP_CHUNK],
+                tree,
+                tree_points,
+                radius,
+                k,
+            )
+            for i in range(0, len(centers), _GAP_CHUNK)
+        ]
+        return np.concatenate(parts)
     k = int(min(k, len(tree_points)))
     dist, idx = tree.query(centers, k=k, distance_upper_bound=radius, workers=-1)
     dist = dist.reshape(len(centers), k)

@@ -480,6 +480,15 @@ def _same_path_spelling(tmp_path: Path, src: Path) -> str:
     return str(tmp_path / "." / "sub" / ".." / src.name)
 
 
+def _link(kind: str) -> Callable[[Path, Path], str]:
+    def make(tmp: Path, src: Path) -> str:
+        link = tmp / "link.ply"
+        getattr(link, kind)(src)
+        return str(link)
+
+    return make
+
+
 PATH_CASES = [
     ("output-is-input", lambda tmp, src: str(src), ("refusing to overwrite an input",)),
     ("output-is-input-other-spelling", _same_path_spelling, ("refusing to overwrite an input",)),
@@ -488,7 +497,8 @@ PATH_CASES = [
         lambda tmp, src: "./" + src.name,
         ("refusing to overwrite an input",),
     ),
-    ("output-is-symlink-to-input", None, ("refusing to overwrite an input",)),
+    ("output-is-symlink-to-input", _link("symlink_to"), ("refusing to overwrite an input",)),
+    ("output-is-hardlink-to-input", _link("hardlink_to"), ("refusing to overwrite an input",)),
     ("output-folder-missing", lambda tmp, src: str(tmp / "nope" / "m.ply"), ("--mkdir",)),
     ("output-is-a-folder", lambda tmp, src: str(tmp), ("is a directory",)),
     ("output-bad-extension", lambda tmp, src: str(tmp / "m.stl"), ("cannot write meshes",)),
@@ -505,12 +515,7 @@ def test_output_path_refused(tmp_path, monkeypatch, case, command):
     src = tmp_path / "scan.ply"
     src.write_bytes(ply_bytes(S))
     before = _sha(src)
-    if make_out is None:
-        link = tmp_path / "link.ply"
-        link.symlink_to(src)
-        out = str(link)
-    else:
-        out = make_out(tmp_path, src)
+    out = make_out(tmp_path, src)
     monkeypatch.chdir(tmp_path)
     listing = sorted(os.listdir(tmp_path))
     res = _run([command, str(src), "-o", out, *(FAST if command == "fit" else [])])
@@ -743,3 +748,121 @@ def test_divergence_twice_is_a_clear_error(tmp_path, monkeypatch, exploding):
     res = _run(["fit", str(src), "-o", str(out_dir / "m.ply"), *FAST])
     _assert_clean_failure(res, 2, [str(src)], ("diverged during growth", "halved to 0.1"))
     assert os.listdir(out_dir) == []
+
+
+def test_particle_cap_is_a_clear_error(tmp_path):
+    src = tmp_path / "scan.ply"
+    src.write_bytes(ply_bytes(S))
+    out_dir = tmp_path / "out"
+    out_dir.mkdir()
+    res = _run(["fit", str(src), "-o", str(out_dir / "m.ply"), "--max-particles", "10", *FAST])
+    _assert_clean_failure(res, 2, [str(src)], ("max_particles=10",))
+    assert os.listdir(out_dir) == []
+
+
+@pytest.mark.parametrize(
+    "case",
+    [c for c in VALID_ODD_INPUTS if "normals" in c[0] or "finite" in c[0]],
+    ids=lambda c: c[0],
+)
+def test_normals_output_is_finite(tmp_path, case):
+    _, name, make = case
+    src = tmp_path / name
+    src.write_bytes(make())
+    out = tmp_path / "n" / "o.ply"
+    res = _run(["normals", str(src), "-o", str(out), "--mkdir", "-q"])
+    assert res.exit_code == 0, res.stderr
+    cloud = read_points(out, merge_duplicates=False)
+    assert np.isfinite(cloud.absolute_points()).all() and np.isfinite(cloud.normals).all()
+    assert np.allclose(np.linalg.norm(cloud.normals, axis=1), 1.0, atol=1e-6)
+    assert os.listdir(out.parent) == ["o.ply"]
+
+
+def test_exit_codes_of_compare_and_report(tmp_path):
+    """0 success, 1 a completed run that failed a check, 2 bad input."""
+    from recon.io import write_mesh
+
+    v = sphere(40)
+    f = np.array([[0, 1, 2], [0, 2, 3], [0, 3, 1], [1, 3, 2]])
+    a, b = tmp_path / "a.ply", tmp_path / "b.ply"
+    write_mesh(a, v, f)
+    write_mesh(b, v + 0.5, f)
+    assert _run(["compare", str(a), str(a), "--max-chamfer", "1e-3"]).exit_code == 0
+    failed = _run(["compare", str(a), str(b), "--max-chamfer", "1e-6"])
+    assert failed.exit_code == 1 and "Traceback" not in failed.output
+    bad = tmp_path / "bad.ply"
+    bad.write_bytes(ply_bytes(S, header_count=10**9))
+    for args in (["compare", str(bad), str(a)], ["report", str(bad)], ["info", str(bad)]):
+        _assert_clean_failure(_run(args), 2, [str(bad)], ("truncated",))
+    png = tmp_path / "sub" / "m.png"
+    _assert_clean_failure(
+        _run(["report", str(a), "--png", str(png)]),
+        2,
+        [str(png)],
+        ("does not exist", "create it first"),
+    )
+    _assert_clean_failure(_run(["report", str(a), "--png", str(a)]), 2, [str(a)], ("refusing",))
+
+
+def test_duplicates_kept_on_request_is_a_clear_error(tmp_path):
+    src = tmp_path / "scan.ply"
+    src.write_bytes(ply_bytes(np.vstack([S, S, S])))
+    res = _run(
+        [
+            "fit",
+            str(src),
+            "-o",
+            str(tmp_path / "m.ply"),
+            "--set",
+            "io.merge_duplicates=false",
+            *FAST,
+        ]
+    )
+    _assert_clean_failure(res, 2, [str(src)], ("exact duplicates", "io.merge_duplicates"))
+    assert os.listdir(tmp_path) == ["scan.ply"]
+
+
+def test_divergence_in_release_restarts_release_only(tmp_path, monkeypatch):
+    from recon.dynamics import Simulation
+    from recon.errors import DivergenceError
+
+    real = Simulation.run
+    seen = {"failed": False, "dt": []}
+
+    def run(self, n_steps, callback=None):
+        released = not self.state.is_pinned.any()
+        seen["dt"].append((released, self.params.dt))
+        if released and not seen["failed"]:
+            seen["failed"] = True
+            raise DivergenceError("particle dynamics diverged: test")
+        return real(self, n_steps, callback)
+
+    monkeypatch.setattr(Simulation, "run", run)
+    src = tmp_path / "scan.ply"
+    src.write_bytes(ply_bytes(S))
+    out = tmp_path / "m.ply"
+    res = _run(["fit", str(src), "-o", str(out), "-q", *FAST])
+    assert res.exit_code == 0, (res.stderr, res.exception)
+    report = json.loads(out.with_name("m.report.json").read_text())
+    assert any("during release" in w for w in report["warnings"])
+    assert {dt for released, dt in seen["dt"] if not released} == {0.2}
+    assert {dt for released, dt in seen["dt"][-3:]} == {0.1}
+
+
+@pytest.mark.parametrize(
+    "text,words",
+    [
+        ("max_chamfer: [1\n", ("invalid yaml at line 2", "column")),
+        ("max_chamfer: !!python/object/apply:os.getcwd []\n", ("tag", "not allowed")),
+        ("max_chamfr: 0.1\n", ("unknown key 'max_chamfr'",)),
+    ],
+)
+def test_compare_tolerance_file_errors(tmp_path, text, words):
+    from recon.io import write_mesh
+
+    mesh = tmp_path / "a.ply"
+    write_mesh(mesh, sphere(10), np.array([[0, 1, 2], [0, 2, 3]]))
+    tol = tmp_path / "tol.yaml"
+    tol.write_text(text)
+    res = _run(["compare", str(mesh), str(mesh), "--tolerances", str(tol)])
+    _assert_clean_failure(res, 2, [str(tol)], words)
