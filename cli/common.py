@@ -4,11 +4,7 @@ from __future__ import annotations
 
 import functools
 import logging
-import os
-import signal
 import sys
-import threading
-import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -17,6 +13,7 @@ import click
 
 from recon.config import ReconConfig, load_config
 from recon.errors import OpreconError
+from recon.interrupts import deferred_interrupts, wait_for_query_threads
 
 EXIT_OK = 0
 EXIT_CHECK_FAILED = 1
@@ -102,101 +99,6 @@ def common_run_options(func: Callable[..., Any]) -> Callable[..., Any]:
         return func(*args, quiet=quiet, **kwargs)
 
     return wrapper
-
-
-#: Code that must not be interrupted half-way: a module being imported (an extension such as
-#: open3d then fails to initialise and its C++ teardown turns exit 130 into 1), and numba's and
-#: llvmlite's compile and cache-load callbacks (they swallow or garble a KeyboardInterrupt).
-_FRAGILE_DIRS = tuple(f"{os.sep}{name}{os.sep}" for name in ("numba", "llvmlite", "open3d"))
-_FRAGILE_FILES = ("<frozen importlib._bootstrap>", "<frozen importlib._bootstrap_external>")
-
-
-def _is_query_thread(thread: Any) -> bool:
-    """A worker of ``cKDTree.query(..., workers=-1)`` (a daemon thread running _thread_func)."""
-    return isinstance(thread, threading.Thread) and thread.name.endswith("(_thread_func)")
-
-
-def _unsafe_to_interrupt(frame: Any) -> bool:
-    """Is the main thread importing, inside numba, or starting or waiting for k-d tree workers?
-
-    scipy's ``cKDTree.query(workers=-1)`` hands raw pointers to its output arrays to daemon
-    threads and waits for them; a KeyboardInterrupt in that wait frees the arrays while the
-    threads still write into them (a segmentation fault).
-    """
-    outer = frame
-    while outer is not None:
-        name = outer.f_code.co_filename
-        if name in _FRAGILE_FILES or any(d in name for d in _FRAGILE_DIRS):
-            return True
-        outer = outer.f_back
-    for _ in range(8):
-        if frame is None or frame.f_code.co_filename != threading.__file__:
-            return False
-        if _is_query_thread(frame.f_locals.get("self")):
-            return True
-        frame = frame.f_back
-    return False
-
-
-class deferred_interrupts:  # noqa: N801 - used like a function
-    """Within the block, Ctrl-C is raised only where it is safe (see _unsafe_to_interrupt).
-
-    An interrupt that arrives at an unsafe point is retried every 20 ms (SIGALRM) until the
-    main thread has left the fragile code. SIGTERM (``timeout``, ``kill``) is treated as Ctrl-C
-    when it has its default action, so that temporary files are removed then too. Does nothing
-    outside the main thread, when SIGINT has a custom handler already, or without
-    ``setitimer`` (Windows).
-    """
-
-    RETRY_S = 0.02
-
-    def __enter__(self) -> deferred_interrupts:
-        self.active = (
-            hasattr(signal, "setitimer")
-            and threading.current_thread() is threading.main_thread()
-            and signal.getsignal(signal.SIGINT) is signal.default_int_handler
-        )
-        if self.active:
-            self.old_alarm = signal.signal(signal.SIGALRM, self._handle)
-            signal.signal(signal.SIGINT, self._handle)
-            self.term = signal.getsignal(signal.SIGTERM) == signal.SIG_DFL
-            if self.term:
-                signal.signal(signal.SIGTERM, self._handle)
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        if self.active:
-            signal.setitimer(signal.ITIMER_REAL, 0.0)
-            signal.signal(signal.SIGINT, signal.default_int_handler)
-            signal.signal(signal.SIGALRM, self.old_alarm)
-            if self.term:
-                signal.signal(signal.SIGTERM, signal.SIG_DFL)
-
-    def _handle(self, signum: int, frame: Any) -> None:
-        if _unsafe_to_interrupt(frame):
-            signal.setitimer(signal.ITIMER_REAL, self.RETRY_S)
-            return
-        signal.setitimer(signal.ITIMER_REAL, 0.0)
-        raise KeyboardInterrupt
-
-
-def wait_for_query_threads(timeout: float = 10.0) -> None:
-    """Let the workers of an interrupted k-d tree query finish before the interpreter exits.
-
-    A last line of defence behind :class:`deferred_interrupts`: an interpreter shutting down
-    under running daemon threads can crash. A thread that was started but has not run yet
-    (still in ``threading``'s limbo) cannot be joined; it is polled until it can.
-    """
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        pending = [t for t in threading.enumerate() if _is_query_thread(t) and t.daemon]
-        if not pending:
-            return
-        for thread in pending:
-            try:
-                thread.join(max(0.0, deadline - time.monotonic()))
-            except RuntimeError:  # started, not yet running
-                time.sleep(0.005)
 
 
 def _caused_by_interrupt(exc: BaseException) -> bool:

@@ -45,7 +45,11 @@ def _register() -> None:
         app.add_command(module.command)
 
 
-_register()
+try:
+    _register()
+except KeyboardInterrupt:  # Ctrl-C while the commands are still being imported
+    sys.stderr.write("oprecon: interrupted\n")
+    sys.exit(EXIT_INTERRUPTED)
 
 
 def main() -> None:

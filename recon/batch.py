@@ -100,6 +100,7 @@ from .config import (
     parse_override,
 )
 from .errors import ConfigError, LimitExceeded, OpreconError
+from .interrupts import deferred_interrupts
 
 log = logging.getLogger(__name__)
 
@@ -1315,7 +1316,8 @@ def _child_main() -> None:
         def on_progress(phase: str, info: dict[str, Any]) -> None:
             _write_frame(proto, ("progress", str(phase), _plain(info)))
 
-        metrics = job(spec, on_progress)
+        with deferred_interrupts():  # never stop a k-d tree query or a compile half-way
+            metrics = job(spec, on_progress)
         finished.set()
         _write_frame(proto, ("done", dict(metrics or {}), time.perf_counter() - t0))
     except KeyboardInterrupt:
