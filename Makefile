@@ -35,3 +35,4 @@ refresh-references: setup
 
 clean:
 	rm -rf demo_output bench_output .pytest_cache
+	find recon -name '*.nbi' -delete -o -name '*.nbc' -delete  # numba's compile cache
