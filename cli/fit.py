@@ -86,8 +86,9 @@ def format_summary(report: dict[str, Any]) -> str:
         rows.append(
             (
                 "mesh on the data",
-                f"{100 * m2i.get('within_r0', 0):.1f}% of the surface within r0 "
-                f"of an input point (p95 {m2i.get('p95', float('nan')):.4g})",
+                f"{100 * m2i.get('within_reach', 0):.1f}% of the surface within "
+                f"{m2i.get('reach', float('nan')):.4g} of an input point (max of r0 and 2.1x "
+                f"the point spacing; p95 {m2i.get('p95', float('nan')):.4g})",
             )
         )
     if topo:

@@ -124,6 +124,11 @@ def choose_spacing(points: np.ndarray, cfg: ReconConfig) -> tuple[float, float]:
     return float(r0), float(d_nn)
 
 
+#: On a surface sampled uniformly at random, 95 % of the surface lies within about 2.1 median
+#: nearest-neighbour spacings of a sample (Poisson process: P(d > t) = exp(-pi rho t^2), with
+#: rho ~ 0.22 / spacing^2). Mesh farther than max(r0, this) from every input point has grown
+#: past the data rather than between samples.
+SAMPLING_REACH = 2.1
 #: Default max_gap, in median data spacings.
 AUTO_GAP = 10.0
 
@@ -480,9 +485,12 @@ def reconstruct(
     # the other direction: does the mesh stay on the data (nothing grown past it)?
     samples, _ = sample_surface(tri.vertices, tri.faces, min(20_000, 4 * len(tri.faces)), cfg.seed)
     d_mesh, _ = surface.nearest(samples)
+    reach = max(1.0, SAMPLING_REACH * d_nn / r0)
     quality["mesh_to_input"] = {
         **distance_stats(d_mesh * r0, diag),
         "within_r0": float(np.mean(d_mesh <= 1.0)),
+        "reach": reach * r0,
+        "within_reach": float(np.mean(d_mesh <= reach)),
     }
     clock.lap("report")
     report = {

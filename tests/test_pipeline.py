@@ -54,6 +54,7 @@ def test_open_square_keeps_outer_boundary_and_real_hole():
     assert np.linalg.norm(v[:, :2], axis=1).min() > 0.2 - r0
     assert np.abs(v[:, 2]).max() < 1e-6
     assert res.report["mesh_to_input"]["within_r0"] > 0.95
+    assert res.report["mesh_to_input"]["within_reach"] >= res.report["mesh_to_input"]["within_r0"]
 
 
 def test_small_hole_is_filled_large_hole_is_kept():
@@ -94,6 +95,7 @@ def test_bundled_sparse_bunny_is_interpolated():
     rep = res.report
     assert rep["particles"] > 3 * rep["input"]["points"]  # resolution floor: between samples
     assert rep["fidelity"]["within_r0"] > 0.9
+    assert rep["mesh_to_input"]["within_reach"] > 0.9  # between samples, not past them
     assert rep["triangle_quality"]["min_angle_mean_deg"] > 50
     assert rep["topology"]["non_manifold_edges"] == 0
 
