@@ -18,6 +18,7 @@ Examples::
     python benchmarks/bench_quality.py                      # every case, every method
     python benchmarks/bench_quality.py --cases bunny-clean sphere-clean --methods oprecon poisson8
     python benchmarks/bench_quality.py --out bench_output/quality.md --json-out bench_output/q.json
+    python benchmarks/bench_quality.py --methods oprecon --preset closed_scan --cases torus-missing
 """
 
 from __future__ import annotations
@@ -37,7 +38,7 @@ ROOT = Path(__file__).resolve().parent.parent
 METHODS = ("oprecon", "poisson8", "poisson9", "ball_pivoting", "alpha_shape")
 
 
-def _peer_normals(o3d: Any, pcd: Any, spacing: float) -> None:
+def _peer_normals(o3d: Any, pcd: Any) -> None:
     pcd.estimate_normals(o3d.geometry.KDTreeSearchParamKNN(20))
     try:
         pcd.orient_normals_consistent_tangent_plane(10)
@@ -45,7 +46,9 @@ def _peer_normals(o3d: Any, pcd: Any, spacing: float) -> None:
         pcd.orient_normals_towards_camera_location(np.asarray(pcd.get_center()) + [0, 0, 1e3])
 
 
-def run_method(method: str, input_path: str, seed: int = 0) -> dict[str, Any]:
+def run_method(
+    method: str, input_path: str, preset: str | None = None, seed: int = 0
+) -> dict[str, Any]:
     """Reconstruct one input with one method (runs in a worker process)."""
     import open3d as o3d
 
@@ -57,23 +60,25 @@ def run_method(method: str, input_path: str, seed: int = 0) -> dict[str, Any]:
     pts = cloud.points
     t0 = time.perf_counter()
     if method == "oprecon":
+        from recon.config import apply_overrides, load_config
         from recon.pipeline import reconstruct
 
-        res = reconstruct(cloud, ReconConfig(seed=seed))
+        cfg = load_config(ROOT / "configs" / f"{preset}.yaml") if preset else ReconConfig()
+        res = reconstruct(cloud, apply_overrides(cfg, {"seed": seed}))
         v, f = res.mesh.vertices - cloud.origin, res.mesh.faces
     else:
         o3d.utility.set_verbosity_level(o3d.utility.VerbosityLevel.Error)
         spacing = median_nearest_neighbor_distance(pts)
         pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts))
         if method.startswith("poisson"):
-            _peer_normals(o3d, pcd, spacing)
+            _peer_normals(o3d, pcd)
             mesh, dens = o3d.geometry.TriangleMesh.create_from_point_cloud_poisson(
                 pcd, depth=int(method[-1])
             )
             dens = np.asarray(dens)
             mesh.remove_vertices_by_mask(dens < np.quantile(dens, 0.02))
         elif method == "ball_pivoting":
-            _peer_normals(o3d, pcd, spacing)
+            _peer_normals(o3d, pcd)
             radii = o3d.utility.DoubleVector([spacing, 2 * spacing, 4 * spacing])
             mesh = o3d.geometry.TriangleMesh.create_from_point_cloud_ball_pivoting(pcd, radii)
         elif method == "alpha_shape":
@@ -92,14 +97,16 @@ def run_method(method: str, input_path: str, seed: int = 0) -> dict[str, Any]:
     }
 
 
-def evaluate(case_dir: Path, gt_path: Path, method: str, n_samples: int) -> dict[str, Any]:
+def evaluate(
+    case_dir: Path, gt_path: Path, method: str, n_samples: int, preset: str | None = None
+) -> dict[str, Any]:
     from recon.io import read_mesh
     from recon.metrics import compare_meshes
     from recon.topology import mesh_topology, triangle_quality
 
     with ProcessPoolExecutor(max_workers=1) as pool:
         try:
-            out = pool.submit(run_method, method, str(case_dir / "input.ply")).result()
+            out = pool.submit(run_method, method, str(case_dir / "input.ply"), preset).result()
         except Exception as exc:  # a peer crashing is a result too
             return {"method": method, "error": f"{type(exc).__name__}: {exc}"[:200]}
     v, f = out["v"], out["f"]
@@ -163,6 +170,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--cases", nargs="*", help="case ids (default: all in the manifest)")
     ap.add_argument("--methods", nargs="*", default=list(METHODS), choices=METHODS)
     ap.add_argument("--samples", type=int, default=100_000)
+    ap.add_argument("--preset", help="run oprecon with configs/PRESET.yaml instead of defaults")
     ap.add_argument("--out", type=Path, help="write the Markdown table here too")
     ap.add_argument("--json-out", type=Path)
     args = ap.parse_args(argv)
@@ -176,7 +184,11 @@ def main(argv: list[str] | None = None) -> int:
         rows = []
         for method in args.methods:
             row = evaluate(
-                args.data / "cases" / case["id"], args.data / case["gt"], method, args.samples
+                args.data / "cases" / case["id"],
+                args.data / case["gt"],
+                method,
+                args.samples,
+                args.preset,
             )
             rows.append(row)
             print(
