@@ -3,6 +3,7 @@
 #   make test   run the test-suite
 PY := .venv/bin/python
 OPRECON := .venv/bin/oprecon
+LINTED := recon cli configs tests benchmarks scripts
 
 .PHONY: setup demo test lint format bench refresh-references clean
 
@@ -16,16 +17,23 @@ demo: setup
 		--particles demo_output/bunny-sparse-particles.ply --preview demo_output/bunny-sparse.png
 	@echo "demo: wrote demo_output/bunny-sparse.ply, its .report.json and a preview PNG"
 
+# make test: lint, the docstring examples, a pure-Python pass of the kernel tests (numba's JIT
+# off, so coverage and tracebacks see the kernels' source), the installed wheel, then the suite.
 test: setup
+	$(PY) -m ruff check $(LINTED)
+	$(PY) -m ruff format --check $(LINTED)
+	$(PY) -m pytest -q -p no:cacheprovider --doctest-modules recon
+	NUMBA_DISABLE_JIT=1 $(PY) -m pytest -q -p no:cacheprovider tests/kernels
+	bash scripts/check_wheel.sh
 	$(PY) -m pytest -q
 
 lint: setup
-	$(PY) -m ruff check recon cli tests benchmarks scripts
-	$(PY) -m ruff format --check recon cli tests benchmarks scripts
+	$(PY) -m ruff check $(LINTED)
+	$(PY) -m ruff format --check $(LINTED)
 
 format: setup
-	$(PY) -m ruff format recon cli tests benchmarks scripts
-	$(PY) -m ruff check --fix recon cli tests benchmarks scripts
+	$(PY) -m ruff format $(LINTED)
+	$(PY) -m ruff check --fix $(LINTED)
 
 # Refit the regression samples, print each metric change (vs the old reference and the ground
 # truth), re-measure the float noise and write sample_data/references/. Only look, write

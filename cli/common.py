@@ -14,13 +14,12 @@ import click
 from recon.config import ReconConfig, load_config
 from recon.errors import OpreconError
 from recon.interrupts import deferred_interrupts, wait_for_query_threads
+from recon.presets import preset_path
 
 EXIT_OK = 0
 EXIT_CHECK_FAILED = 1
 EXIT_BAD_INPUT = 2
 EXIT_INTERRUPTED = 130
-
-PRESET_DIR = Path(__file__).resolve().parent.parent / "configs"
 
 
 def fail(message: str, code: int = EXIT_BAD_INPUT) -> None:
@@ -40,16 +39,9 @@ def setup_logging(quiet: bool = False, verbose: bool = False) -> None:
     root.propagate = False
 
 
-def available_presets() -> list[str]:
-    return sorted(p.stem for p in PRESET_DIR.glob("*.yaml")) if PRESET_DIR.is_dir() else []
-
-
 def resolve_preset(name: str) -> Path:
-    path = PRESET_DIR / f"{name}.yaml"
-    if not path.is_file():
-        names = ", ".join(available_presets()) or "none installed"
-        raise OpreconError(f"unknown preset '{name}' (available: {names})")
-    return path
+    """The YAML file of a bundled preset (package data of ``recon.configs``)."""
+    return preset_path(name)
 
 
 def config_options(func: Callable[..., Any]) -> Callable[..., Any]:
