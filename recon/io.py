@@ -659,6 +659,10 @@ def _parse_ply_header(path: Path, fh: BinaryIO, size: int) -> _PlyHeader:
                 "binary_big_endian",
             ):
                 raise _err(path, f"PLY header: unsupported format line '{line}'")
+            if words[2] != "1.0":
+                raise _err(
+                    path, f"PLY version '{words[2]}' is not supported (PLY has only version 1.0)"
+                )
             fmt = words[1]
         elif key == "element":
             if len(words) != 3:

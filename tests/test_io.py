@@ -556,6 +556,22 @@ def test_bad_ply_headers(tmp_path):
     _bad(path, "unknown property type")
 
 
+@pytest.mark.parametrize("version", ["2.0", "0.9", "1.1", "1.0.1", "one"])
+@pytest.mark.parametrize("encoding", ["ascii", "binary_little_endian", "binary_big_endian"])
+def test_ply_version_other_than_1_0_is_refused(tmp_path, encoding, version):
+    """PLY has only version 1.0 (issue #10): any other version names the file and the version."""
+    path = tmp_path / "v.ply"
+    order = {"ascii": "=", "binary_little_endian": "<", "binary_big_endian": ">"}[encoding]
+    write_plyfile(path, xyz_fields(cloud(20)), text=encoding == "ascii", byte_order=order)
+    good = path.read_bytes()
+    assert f"format {encoding} 1.0\n".encode() in good
+    path.write_bytes(good.replace(b" 1.0\n", f" {version}\n".encode(), 1))
+    err = _bad(path, "PLY version", f"'{version}'", "1.0")
+    with pytest.raises(InputError) as e:
+        read_mesh(path)
+    assert str(e.value) == str(err)
+
+
 @pytest.mark.parametrize(
     "points,needle",
     [
