@@ -65,8 +65,8 @@ from .errors import ConfigError, InputError
 from .geometry import as_points
 
 if TYPE_CHECKING:
+    from .cloud import PointCloud
     from .config import NormalsConfig
-    from .io import PointCloud
 
 logger = logging.getLogger(__name__)
 

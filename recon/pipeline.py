@@ -570,9 +570,15 @@ def fit_file(
     Writing onto the input is refused.
     """
     import json
-    from contextlib import ExitStack
 
-    from .io import atomic_output, check_output_path, read_points, write_mesh, write_points
+    from .io import (
+        atomic_output,
+        atomic_outputs,
+        check_output_path,
+        read_points,
+        write_mesh,
+        write_points,
+    )
 
     cfg = config if config is not None else ReconConfig()
     input_path = Path(input_path)
@@ -590,30 +596,39 @@ def fit_file(
     result.report["input"]["path"] = str(input_path)
     result.report["output"] = {"mesh": str(output_path)}
     normals = result.mesh.normals if cfg.output.vertex_normals else None
-    with ExitStack() as stack:
-        tmp = stack.enter_context(atomic_output(output_path))
-        write_mesh(tmp, result.mesh.vertices, result.mesh.faces, normals, ascii=cfg.io.ascii)
+    with atomic_outputs() as outputs:  # all files appear together, or none
+        write_mesh(
+            output_path,
+            result.mesh.vertices,
+            result.mesh.faces,
+            normals,
+            ascii=cfg.io.ascii,
+            outputs=outputs,
+        )
         if particles_path is not None:
             result.report["output"]["particles"] = str(particles_path)
-            tmp = stack.enter_context(atomic_output(Path(particles_path)))
             write_points(
-                tmp, result.particles.positions, result.particles.normals, ascii=cfg.io.ascii
+                Path(particles_path),
+                result.particles.positions,
+                result.particles.normals,
+                ascii=cfg.io.ascii,
+                outputs=outputs,
             )
         if preview_path is not None:
             from .render import render_mesh_png
 
             result.report["output"]["preview"] = str(preview_path)
-            tmp = stack.enter_context(atomic_output(Path(preview_path)))
             render_mesh_png(
-                tmp,
+                Path(preview_path),
                 result.mesh.vertices,
                 result.mesh.faces,
                 history=result.report["history"],
                 title=input_path.name,
+                outputs=outputs,
             )
         if want_report:
             rpath = report_path_for(output_path)
             result.report["output"]["report"] = str(rpath)
-            tmp = stack.enter_context(atomic_output(rpath))
-            tmp.write_text(json.dumps(result.report, indent=1, default=_json_default) + "\n")
+            with atomic_output(rpath, outputs) as tmp:
+                tmp.write_text(json.dumps(result.report, indent=1, default=_json_default) + "\n")
     return result

@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from .errors import InputError
-from .io import atomic_output
+from .io import AtomicOutputs, atomic_output
 from .topology import count_edge_faces, validate_mesh
 
 __all__ = ["render_mesh_png"]
@@ -211,6 +211,7 @@ def render_mesh_png(
     title: str | None = None,
     size: tuple[int, int] = (1500, 500),
     max_faces: int = 60_000,
+    outputs: AtomicOutputs | None = None,
 ) -> None:
     """Write a PNG of a mesh from three sides, defects marked, plus an optional convergence plot.
 
@@ -233,6 +234,9 @@ def render_mesh_png(
         Image width and height in pixels.
     max_faces : int
         Draw at most this many triangles (big meshes are simplified for the picture only).
+    outputs : AtomicOutputs, optional
+        Write as part of this set of outputs (moved into place together when its
+        :func:`recon.io.atomic_outputs` block ends) instead of on its own.
 
     Raises
     ------
@@ -278,5 +282,5 @@ def render_mesh_png(
         + "   back side of faces: tan"
     )
     fig.suptitle(f"{title}\n{summary}" if title else summary, fontsize=10)
-    with atomic_output(path) as tmp:
+    with atomic_output(path, outputs) as tmp:
         fig.savefig(tmp, format="png", dpi=_DPI, facecolor="white")

@@ -386,6 +386,29 @@ def test_bad_input_fails_cleanly(tmp_path, case):
     assert _sha(src) == before
 
 
+@pytest.mark.parametrize("command", ["fit", "info", "normals"])
+def test_ply_version_2_0_exits_2_and_writes_nothing(tmp_path, command):
+    """Issue #10: ``format binary_little_endian 2.0`` used to be read as 1.0 and exit 0."""
+    src = tmp_path / "in" / "scan.ply"
+    src.parent.mkdir()
+    good = ply_bytes(S)
+    assert b"format binary_little_endian 1.0\n" in good
+    src.write_bytes(good.replace(b"binary_little_endian 1.0", b"binary_little_endian 2.0", 1))
+    before = _sha(src)
+    out_dir = tmp_path / "out"
+    out_dir.mkdir()
+    args = [command, str(src)]
+    if command != "info":
+        args += ["-o", str(out_dir / "mesh.ply")]
+    if command == "fit":
+        args += ["--particles", str(out_dir / "particles.ply"), *FAST]
+    res = _run(args)
+    _assert_clean_failure(res, 2, [str(src)], ("ply version", "2.0"))
+    assert os.listdir(out_dir) == []
+    assert os.listdir(src.parent) == ["scan.ply"]
+    assert _sha(src) == before
+
+
 def test_there_are_at_least_thirty_adversarial_cases():
     assert len(BAD_INPUTS) + len(VALID_ODD_INPUTS) + len(PATH_CASES) + len(CONFIG_CASES) >= 30
 

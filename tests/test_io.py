@@ -15,6 +15,7 @@ from recon.errors import InputError
 from recon.io import (
     PointCloud,
     atomic_output,
+    atomic_outputs,
     check_output_path,
     choose_origin,
     cloud_from_arrays,
@@ -556,6 +557,22 @@ def test_bad_ply_headers(tmp_path):
     _bad(path, "unknown property type")
 
 
+@pytest.mark.parametrize("version", ["2.0", "0.9", "1.1", "1.0.1", "one"])
+@pytest.mark.parametrize("encoding", ["ascii", "binary_little_endian", "binary_big_endian"])
+def test_ply_version_other_than_1_0_is_refused(tmp_path, encoding, version):
+    """PLY has only version 1.0 (issue #10): any other version names the file and the version."""
+    path = tmp_path / "v.ply"
+    order = {"ascii": "=", "binary_little_endian": "<", "binary_big_endian": ">"}[encoding]
+    write_plyfile(path, xyz_fields(cloud(20)), text=encoding == "ascii", byte_order=order)
+    good = path.read_bytes()
+    assert f"format {encoding} 1.0\n".encode() in good
+    path.write_bytes(good.replace(b" 1.0\n", f" {version}\n".encode(), 1))
+    err = _bad(path, "PLY version", f"'{version}'", "1.0")
+    with pytest.raises(InputError) as e:
+        read_mesh(path)
+    assert str(e.value) == str(err)
+
+
 @pytest.mark.parametrize(
     "points,needle",
     [
@@ -609,18 +626,54 @@ def test_atomic_output_success_and_failure(tmp_path):
         assert sorted(p.name for p in tmp_path.iterdir()) == ["out.ply"]
 
 
-def test_writer_failure_leaves_nothing(tmp_path, monkeypatch):
-    dest = tmp_path / "w.ply"
+@pytest.mark.parametrize("name", ["w.ply", "w.obj"])
+def test_writer_failure_leaves_nothing(tmp_path, monkeypatch, name):
+    """The format writer fails half-way through its temporary file: nothing is left."""
+    import recon.io.obj
+    import recon.io.ply
 
-    def boom(*a, **k):
+    module = recon.io.ply if name.endswith(".ply") else recon.io.obj
+    real = module.write
+
+    def boom(fh, *a, **k):
+        real(fh, *a, **k)
+        fh.flush()
+        assert [p.stat().st_size > 0 for p in tmp_path.iterdir()] == [True]
         raise KeyboardInterrupt
 
-    import recon.io as rio
-
-    monkeypatch.setattr(rio, "_ply_header", boom)
+    monkeypatch.setattr(module, "write", boom)
+    p = cloud(10)
     with pytest.raises(KeyboardInterrupt):
-        write_points(dest, cloud(10))
+        if name.endswith(".ply"):
+            write_points(tmp_path / name, p)
+        write_mesh(tmp_path / name, p, np.array([[0, 1, 2]]))
     assert list(tmp_path.iterdir()) == []
+
+
+def test_atomic_outputs_all_or_nothing(tmp_path):
+    """One set for several files (as ``fit_file`` writes them): none appears before the end."""
+    p = cloud(10)
+    mesh, points, report = tmp_path / "m.obj", tmp_path / "p.ply", tmp_path / "r.json"
+    with atomic_outputs() as outputs:
+        write_mesh(mesh, p, np.array([[0, 1, 2]]), outputs=outputs)
+        write_points(points, p, outputs=outputs)
+        with atomic_output(report, outputs) as tmp:
+            tmp.write_text("{}")
+        assert not mesh.exists() and not points.exists() and not report.exists()
+        assert len(list(tmp_path.iterdir())) == 3  # one temporary each, no nested ones
+    assert sorted(q.name for q in tmp_path.iterdir()) == ["m.obj", "p.ply", "r.json"]
+    assert read_mesh(mesh)[1].tolist() == [[0, 1, 2]]
+    before = {q.name: q.read_bytes() for q in tmp_path.iterdir()}
+    for exc in (OSError(28, "No space left on device"), KeyboardInterrupt()):
+        with pytest.raises(InputError if isinstance(exc, OSError) else KeyboardInterrupt) as e:
+            with atomic_outputs() as outputs:
+                write_mesh(mesh, p + 1, np.array([[0, 1, 2]]), outputs=outputs)
+                with atomic_output(report, outputs) as tmp:
+                    tmp.write_text("partial")
+                    raise exc
+        if isinstance(exc, OSError):
+            assert str(e.value) == f"{report}: cannot write: No space left on device"
+        assert {q.name: q.read_bytes() for q in tmp_path.iterdir()} == before
 
 
 def test_check_output_path(tmp_path, monkeypatch):

@@ -1,0 +1,367 @@
+"""Reading and writing point clouds and meshes: the only package that knows file formats.
+
+Readers return a :class:`~recon.cloud.PointCloud` whose coordinates are float64 and *relative*
+to an ``origin`` (the rounded bounding-box centre when the coordinates are large compared with
+the extent, e.g. georeferenced scans at x ~ 5e6 with mm detail; zero otherwise), so that nothing
+downstream loses precision. Writers add the origin back and store float64 (``double``) vertex
+coordinates whenever float32 would lose more than ``1e-7`` of the extent.
+
+This module dispatches by extension (or content) to one module per format and holds the public
+API; the layers below it are:
+
+==================  =========================================================================
+:mod:`.ply`         PLY (``.ply``): ascii, binary little and big endian; points, meshes, writer
+:mod:`.xyz`         XYZ text (``.xyz .xyzn .txt .csv .asc .pts``): columns, CSV header, PTS
+:mod:`.pcd`         PCD (``.pcd``): ascii and binary (``binary_compressed`` is not supported)
+:mod:`.obj`         OBJ (``.obj``): ``v`` (and ``vn``), faces; writer
+:mod:`.clean`       non-finite rows, duplicates, normals, origin, degenerate inputs
+:mod:`.files`       output-path checks and the one layer of atomic writes
+:mod:`.common`      helpers shared by the format modules (errors, columns, fans)
+==================  =========================================================================
+
+Every problem with an input file raises :class:`~recon.errors.InputError` with a message of the
+form ``"<path>: <what is wrong>"``; sizes claimed by headers are checked against the file size
+before anything is allocated. Files of an unknown extension are recognised by their content.
+Every written file appears complete or not at all (:mod:`recon.io.files`).
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..cloud import PointCloud
+from ..errors import InputError
+from . import obj, pcd, ply, xyz
+from .clean import choose_origin, make_cloud
+from .common import as_input_points, check_readable, input_error
+from .files import AtomicOutputs, atomic_output, atomic_outputs, check_output_path
+
+__all__ = [
+    "SUPPORTED_POINT_FORMATS",
+    "AtomicOutputs",
+    "PointCloud",
+    "atomic_output",
+    "atomic_outputs",
+    "check_output_path",
+    "choose_origin",
+    "cloud_from_arrays",
+    "read_mesh",
+    "read_points",
+    "write_mesh",
+    "write_points",
+]
+
+SUPPORTED_POINT_FORMATS = "PLY (.ply), XYZ/XYZN/PTS/TXT/CSV text, PCD (.pcd), OBJ (.obj)"
+
+
+# --------------------------------------------------------------------------------------------
+# format detection
+
+
+def _sniff(path: Path) -> str:
+    """Format family from the extension, else from the first bytes."""
+    ext = path.suffix.lower()
+    if ext == ".ply":
+        return "ply"
+    if ext == ".pcd":
+        return "pcd"
+    if ext == ".obj":
+        return "obj"
+    if ext in xyz.TEXT_EXTENSIONS:
+        return "text"
+    with open(path, "rb") as fh:
+        head = fh.read(4096)
+    if head.startswith(b"ply"):
+        return "ply"
+    if re.search(rb"^(# \.PCD|VERSION|FIELDS)", head, re.MULTILINE) and b"FIELDS" in head:
+        return "pcd"
+    try:
+        text = head.decode("ascii")
+    except UnicodeDecodeError:
+        text = None
+    if text is not None:
+        if re.search(r"^\s*v\s+[-+.\d]", text, re.MULTILINE):
+            return "obj"
+        for line in text.splitlines():
+            line = line.strip()
+            if not line or line.startswith(("#", "//")):
+                continue
+            tokens = re.split(r"[\s,;]+", line)
+            if {"x", "y", "z"} <= {t.strip("\"'").lower() for t in tokens}:
+                return "text"  # a CSV header line
+            try:
+                [float(t) for t in tokens if t]
+            except ValueError:
+                break
+            return "text"
+    raise input_error(
+        path,
+        f"unknown file format (extension '{path.suffix}'); supported: {SUPPORTED_POINT_FORMATS}",
+    )
+
+
+# --------------------------------------------------------------------------------------------
+# readers
+
+
+def read_points(
+    path: str | os.PathLike[str],
+    *,
+    max_points: int = 50_000_000,
+    merge_duplicates: bool = True,
+) -> PointCloud:
+    """Read a point cloud (PLY, XYZ text, PCD or OBJ) into float64 relative coordinates.
+
+    Parameters
+    ----------
+    path : path-like
+        The file. The format comes from the extension, or from the content when the extension
+        is not a known one.
+    max_points : int
+        Refuse files with more points than this (checked from headers before reading).
+    merge_duplicates : bool
+        Merge exactly repeated points (the first occurrence is kept).
+
+    Returns
+    -------
+    PointCloud
+        Non-finite rows dropped, duplicates merged, ``origin`` chosen by :func:`choose_origin`.
+
+    Raises
+    ------
+    InputError
+        Missing, empty, truncated or malformed file; fewer than 4 distinct points; points on
+        one line.
+    """
+    p = Path(path)
+    size = check_readable(p)
+    kind = _sniff(p)
+    info: dict[str, Any] = {"has_faces": False, "elements": {}, "properties": []}
+    try:
+        # hostile values (signalling NaNs, 1e39 in a float field) are data, not warnings
+        with np.errstate(invalid="ignore", over="ignore"):
+            if kind == "ply":
+                fmt, pts, nrm, col = ply.read_points(p, size, max_points, info)
+            elif kind == "pcd":
+                fmt, pts, nrm, col = pcd.read_points(p, size, max_points, info)
+            elif kind == "obj":
+                fmt, pts, nrm, col = obj.read_points(p, max_points, info)
+            else:
+                fmt, pts, nrm, col = xyz.read_points(p, max_points, info)
+    except InputError:
+        raise
+    except MemoryError:
+        raise input_error(p, "out of memory while reading (file too large?)") from None
+    except OSError as exc:
+        raise input_error(p, f"cannot read: {exc.strerror or exc}") from None
+    return make_cloud(p, fmt, pts, nrm, col, merge_duplicates, info)
+
+
+def cloud_from_arrays(
+    points: np.ndarray,
+    normals: np.ndarray | None = None,
+    *,
+    colors: np.ndarray | None = None,
+    merge_duplicates: bool = True,
+) -> PointCloud:
+    """A :class:`PointCloud` from arrays, cleaned and checked exactly like a file.
+
+    Parameters
+    ----------
+    points : (n, 3) array_like [length]
+        Absolute coordinates.
+    normals : (n, 3) array_like, optional
+    colors : (n, 3) array_like in [0, 1], optional
+    merge_duplicates : bool
+
+    Returns
+    -------
+    PointCloud
+        ``path`` None, ``format`` ``'array'``.
+
+    Raises
+    ------
+    InputError
+        Wrong shapes, fewer than 4 distinct finite points, collinear points.
+    """
+    xyz = as_input_points(points, "points", where="input array")
+    nrm = None if normals is None else np.asarray(normals, dtype=np.float64)
+    col = None if colors is None else np.asarray(colors, dtype=np.float64)
+    for name, arr in (("normals", nrm), ("colors", col)):
+        if arr is not None and arr.shape != xyz.shape:
+            raise input_error(None, f"{name}: expected shape {xyz.shape}, got {arr.shape}")
+    info: dict[str, Any] = {
+        "has_faces": False,
+        "elements": {"vertex": int(xyz.shape[0])},
+        "properties": ["x", "y", "z"] + (["nx", "ny", "nz"] if nrm is not None else []),
+    }
+    return make_cloud(None, "array", xyz, nrm, col, merge_duplicates, info)
+
+
+def read_mesh(path: str | os.PathLike[str]) -> tuple[np.ndarray, np.ndarray]:
+    """Read a triangle mesh from PLY or OBJ; polygons are triangulated as fans.
+
+    Parameters
+    ----------
+    path : path-like
+        ``.ply`` (any encoding; face list ``vertex_indices`` or ``vertex_index``) or ``.obj``.
+
+    Returns
+    -------
+    vertices : (V, 3) float64 [length]
+        Absolute (file) coordinates.
+    faces : (F, 3) int64
+        Vertex indices; ``(0, 3)`` when the file has no faces (a point cloud).
+
+    Raises
+    ------
+    InputError
+        Unreadable or malformed file, non-finite vertices, face indices out of range.
+    """
+    p = Path(path)
+    size = check_readable(p)
+    kind = _sniff(p)
+    try:
+        with np.errstate(invalid="ignore", over="ignore"):
+            if kind == "ply":
+                vertices, faces = ply.read_mesh(p, size)
+            elif kind == "obj":
+                vertices, faces = obj.read_mesh(p)
+            else:
+                raise input_error(p, "meshes can be read from .ply and .obj files only")
+    except InputError:
+        raise
+    except MemoryError:
+        raise input_error(p, "out of memory while reading (file too large?)") from None
+    except OSError as exc:
+        raise input_error(p, f"cannot read: {exc.strerror or exc}") from None
+    vertices = np.ascontiguousarray(vertices, dtype=np.float64)
+    faces = np.ascontiguousarray(faces, dtype=np.int64).reshape(-1, 3)
+    if faces.size and (faces.min() < 0 or faces.max() >= vertices.shape[0]):
+        raise input_error(p, f"face vertex index out of range [0, {vertices.shape[0]})")
+    used = vertices[np.unique(faces)] if faces.size else vertices
+    if not np.isfinite(used).all():
+        raise input_error(p, "non-finite vertex coordinates")
+    return vertices, faces
+
+
+# --------------------------------------------------------------------------------------------
+# writers
+
+
+def write_points(
+    path: str | os.PathLike[str],
+    points: np.ndarray,
+    normals: np.ndarray | None = None,
+    *,
+    origin: np.ndarray | None = None,
+    ascii: bool = False,
+    outputs: AtomicOutputs | None = None,
+) -> None:
+    """Write an (oriented) point cloud as PLY, atomically.
+
+    Parameters
+    ----------
+    path : path-like
+        Output file (PLY whatever the extension).
+    points : (n, 3) float64 [length]
+        Coordinates relative to ``origin``.
+    normals : (n, 3) float64, optional
+        Stored as float32 ``nx, ny, nz``.
+    origin : (3,) float64 [length], optional
+        Added to ``points`` before writing (file coordinates are absolute).
+    ascii : bool
+        ASCII PLY instead of binary little-endian.
+    outputs : AtomicOutputs, optional
+        Write as part of this set of outputs (moved into place together when its
+        :func:`~recon.io.files.atomic_outputs` block ends) instead of on its own.
+
+    Notes
+    -----
+    Coordinates are stored as ``double`` when float32 would lose more than 1e-7 of the extent
+    (large offsets), else as ``float``; ascii output prints enough digits to round-trip.
+    """
+    xyz = _absolute(points, origin)
+    nrm = _check_normals(normals, xyz.shape[0])
+    with atomic_output(path, outputs) as tmp, open(tmp, "wb") as fh:
+        ply.write(fh, xyz, nrm, None, ascii)
+
+
+def write_mesh(
+    path: str | os.PathLike[str],
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    normals: np.ndarray | None = None,
+    *,
+    origin: np.ndarray | None = None,
+    ascii: bool = False,
+    outputs: AtomicOutputs | None = None,
+) -> None:
+    """Write a triangle mesh as PLY or OBJ (chosen by the extension), atomically.
+
+    Parameters
+    ----------
+    path : path-like
+        ``.ply`` or ``.obj``.
+    vertices : (V, 3) float64 [length]
+        Relative to ``origin``.
+    faces : (F, 3) integer
+        Vertex indices (0-based).
+    normals : (V, 3) float64, optional
+        Per-vertex normals.
+    origin : (3,) float64 [length], optional
+    ascii : bool
+        ASCII PLY (OBJ is always text, with 17 significant digits: vertices read back exactly).
+    outputs : AtomicOutputs, optional
+        Write as part of this set of outputs (moved into place together when its
+        :func:`~recon.io.files.atomic_outputs` block ends) instead of on its own.
+
+    Raises
+    ------
+    InputError
+        Unsupported extension, bad shapes, face indices out of range.
+    """
+    p = Path(path)
+    xyz = _absolute(vertices, origin)
+    f = np.asarray(faces)
+    if f.size == 0:
+        f = np.zeros((0, 3), dtype=np.int64)
+    if f.ndim != 2 or f.shape[1] != 3 or not np.issubdtype(f.dtype, np.integer):
+        raise InputError(f"faces: expected an (F, 3) integer array, got {f.dtype} {f.shape}")
+    if f.size and (f.min() < 0 or f.max() >= xyz.shape[0]):
+        raise InputError(f"faces: vertex index out of range [0, {xyz.shape[0]})")
+    if xyz.shape[0] >= 2**31:
+        raise InputError("vertices: too many for 32-bit face indices")
+    nrm = _check_normals(normals, xyz.shape[0])
+    ext = p.suffix.lower()
+    if ext not in (".ply", ".obj"):
+        raise input_error(p, f"cannot write meshes as '{p.suffix}'; use .ply or .obj")
+    with atomic_output(p, outputs) as tmp, open(tmp, "wb") as fh:
+        if ext == ".ply":
+            ply.write(fh, xyz, nrm, f.astype(np.int64), ascii)
+        else:
+            obj.write(fh, xyz, nrm, f.astype(np.int64))
+
+
+def _absolute(points: Any, origin: Any) -> np.ndarray:
+    pts = as_input_points(points, "points")
+    if origin is None:
+        return pts
+    o = np.asarray(origin, dtype=np.float64).reshape(-1)
+    if o.shape != (3,):
+        raise InputError(f"origin: expected 3 numbers, got shape {np.shape(origin)}")
+    return pts + o if np.any(o) else pts
+
+
+def _check_normals(normals: Any, n: int) -> np.ndarray | None:
+    if normals is None:
+        return None
+    nrm = as_input_points(normals, "normals")
+    if nrm.shape != (n, 3):
+        raise InputError(f"normals: expected shape ({n}, 3), got {nrm.shape}")
+    return nrm
