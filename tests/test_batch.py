@@ -26,6 +26,9 @@ from recon.batch import (
     plan_batch,
     run_batch,
 )
+from recon.batch.outputs import remove_temp_files
+from recon.batch.protocol import read_frame, write_frame
+from recon.batch.supervise import child_command
 from recon.errors import ConfigError, InputError, LimitExceeded, OpreconError
 
 # --------------------------------------------------------------------------------------------
@@ -383,8 +386,8 @@ def test_temp_file_pattern_matches_io_atomic_output(tmp_path):
     writer.__enter__().write_text("{}")
     (tmp_path / "y.report.json").write_text("{}")
     assert len(temp_files(tmp_path)) == 1
-    assert batch._remove_temp_files(tmp_path, [dest.name], os.getpid() + 1) == 0
-    assert batch._remove_temp_files(tmp_path, ["y.report.json", dest.name], os.getpid()) == 1
+    assert remove_temp_files(tmp_path, [dest.name], os.getpid() + 1) == 0
+    assert remove_temp_files(tmp_path, ["y.report.json", dest.name], os.getpid()) == 1
     assert temp_files(tmp_path) == []
     assert sorted(p.name for p in tmp_path.iterdir()) == ["y.report.json"]
 
@@ -579,19 +582,19 @@ def test_child_stops_and_cleans_up_when_its_stdin_closes(tmp_path):
         "job_path": str(Path(__file__).parent),
     }
     proc = subprocess.Popen(
-        batch._child_command(),
+        child_command(),
         stdin=subprocess.PIPE,
         stdout=subprocess.PIPE,
         stderr=subprocess.DEVNULL,
     )
     try:
-        batch._write_frame(proc.stdin, spec)
-        assert batch._read_frame(proc.stdout)[0] == "start"
-        assert batch._read_frame(proc.stdout)[0] == "progress"
-        assert batch._read_frame(proc.stdout)[1] == "release"  # inside atomic_output
+        write_frame(proc.stdin, spec)
+        assert read_frame(proc.stdout)[0] == "start"
+        assert read_frame(proc.stdout)[0] == "progress"
+        assert read_frame(proc.stdout)[1] == "release"  # inside atomic_output
         assert len(temp_files(out)) == 1
         proc.stdin.close()
-        assert batch._read_frame(proc.stdout)[0] == "interrupted"
+        assert read_frame(proc.stdout)[0] == "interrupted"
         assert proc.wait(timeout=10) == 130
     finally:
         if proc.poll() is None:
