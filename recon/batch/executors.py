@@ -49,7 +49,24 @@ def default_jobs() -> int:
 def run_local(
     specs: list[dict[str, Any]], jobs: int, emit: EventFn, results: dict[str, ItemResult]
 ) -> bool:
-    """Supervisor threads in this process; returns True when interrupted."""
+    """Run the items on ``jobs`` supervisor threads in this process.
+
+    Parameters
+    ----------
+    specs : list of dict
+        Item specs (see :func:`recon.batch.supervise.supervise_item`).
+    jobs : int
+        Items at a time.
+    emit : callable(BatchEvent)
+        Receives start, progress and finish events, from this thread.
+    results : dict
+        Filled with an :class:`ItemResult` per item name (also for interrupted items).
+
+    Returns
+    -------
+    bool
+        True when Ctrl-C stopped the run (every child was stopped before returning).
+    """
     stop = threading.Event()
     events: queue.Queue[BatchEvent] = queue.Queue()
     pool = ThreadPoolExecutor(max_workers=jobs, thread_name_prefix="oprecon-batch")
@@ -117,10 +134,12 @@ def run_local(
 
 
 def _input_of(specs: list[dict[str, Any]], name: str) -> str:
+    """The input of the item called ``name``."""
     return next((s["input"] for s in specs if s["name"] == name), "")
 
 
 def _worker_version() -> str:
+    """The oprecon version a Dask worker imports."""
     from recon import __version__ as version
 
     return version
@@ -157,6 +176,7 @@ def _dask_item(spec: dict[str, Any], stop_name: str) -> ItemResult:
 
 
 def import_dask() -> Any:
+    """``dask.distributed``, or an :class:`OpreconError` with the install hint."""
     try:
         import dask.distributed as dd
     except ImportError:
@@ -198,7 +218,27 @@ def run_dask(
     emit: EventFn,
     results: dict[str, ItemResult],
 ) -> bool:
-    """Supervisors as tasks on a Dask cluster; returns True when interrupted."""
+    """Run the items as supervisor tasks on a Dask cluster.
+
+    Parameters
+    ----------
+    specs, emit, results
+        As for :func:`run_local` (only finish events are emitted).
+    jobs : int
+        Workers of the LocalCluster started when no ``scheduler`` is given.
+    scheduler : str or None
+        Address of a running scheduler.
+
+    Returns
+    -------
+    bool
+        True when Ctrl-C stopped the run.
+
+    Raises
+    ------
+    OpreconError
+        Dask missing or unreachable, or its workers run another oprecon version.
+    """
     dd = import_dask()
     cluster = None
     client = None

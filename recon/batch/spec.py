@@ -218,10 +218,8 @@ def read_boolean(at: Located, data: Any, key: KeyPath) -> bool:
         raise at.located(key, exc) from None
 
 
-def read_settings(at: Located, data: Any, key: KeyPath) -> dict[str, Setting] | None:
+def read_settings(at: Located, data: Any, key: KeyPath) -> dict[str, Setting]:
     """A ``set`` mapping (dotted or nested keys) flattened to ``{dotted key: Setting}``."""
-    if data is None:
-        return None
     read_mapping(at, data, key, None)
     out: dict[str, Setting] = {}
 
@@ -237,6 +235,11 @@ def read_settings(at: Located, data: Any, key: KeyPath) -> dict[str, Setting] | 
 
     walk(data, "", tuple(key))
     return out
+
+
+def read_optional_settings(at: Located, data: Any, key: KeyPath) -> dict[str, Setting] | None:
+    """A ``set`` mapping (see :func:`read_settings`), or null."""
+    return None if data is None else read_settings(at, data, key)
 
 
 def read_formats(at: Located, data: Any, key: KeyPath) -> tuple[str, ...]:
@@ -351,7 +354,7 @@ class BatchFile:
     output_dir: str = _key("Folder the outputs go to.", read_string, required=True)
     config: str | None = _key("Base configuration file.", read_optional_string)
     preset: str | None = _key("Named preset (instead of config).", read_optional_string)
-    set: dict[str, Setting] | None = _key("Overrides for every item.", read_settings)
+    set: dict[str, Setting] | None = _key("Overrides for every item.", read_optional_settings)
     overrides: tuple[OverrideEntry, ...] = _key("Per-item overrides.", read_overrides, ())
     formats: tuple[str, ...] = _key("Mesh formats: ply and/or obj.", read_formats, ("ply",))
     particles: bool = _key("Also write <name>.particles.ply.", read_boolean, False)

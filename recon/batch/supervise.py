@@ -66,6 +66,7 @@ def kill_grace_for(limit: float) -> float:
 
 
 def _signal_text(code: int | None) -> str:
+    """How a process ended, from its return code."""
     if code is None:
         return "unknown status"
     if code < 0:
@@ -79,6 +80,7 @@ def _signal_text(code: int | None) -> str:
 
 
 def _tail(fh: Any, n_lines: int = 6, n_chars: int = 800) -> str:
+    """The last non-empty lines of a captured stderr, on one line."""
     try:
         fh.seek(0)
         text = fh.read().decode("utf-8", "replace")
@@ -100,6 +102,7 @@ def child_command() -> list[str]:
 
 
 def _child_env(threads: int | None) -> dict[str, str]:
+    """This environment, with ``threads`` threads for numba and BLAS unless already set."""
     env = dict(os.environ)
     if threads:
         for var in (
@@ -283,6 +286,7 @@ def supervise_item(
 
 
 def _since(t: float | None) -> float | None:
+    """Seconds since the monotonic time ``t`` (rounded), or None."""
     return None if t is None else round(time.monotonic() - t, 3)
 
 
