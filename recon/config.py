@@ -295,7 +295,7 @@ def _type_name(tp: Any) -> str:
     return getattr(tp, "__name__", str(tp)).replace("NoneType", "null")
 
 
-def _coerce(key: str, value: Any, tp: Any) -> Any:
+def coerce(key: str, value: Any, tp: Any) -> Any:
     """Check ``value`` against the annotation ``tp``; return it converted (int -> float ok)."""
     origin = get_origin(tp)
     args = get_args(tp)
@@ -303,14 +303,14 @@ def _coerce(key: str, value: Any, tp: Any) -> Any:
         if value is None and type(None) in args:
             return None
         inner = [a for a in args if a is not type(None)]
-        return _coerce(key, value, inner[0])
+        return coerce(key, value, inner[0])
     if value is None:
         raise ConfigError(f"{key}: null is not allowed (expected {_type_name(tp)})")
     if origin is list:
         (item_tp,) = args or (Any,)
         if not isinstance(value, (list, tuple)):
             raise ConfigError(f"{key}: expected a list, got {type(value).__name__} {value!r}")
-        return [_coerce(f"{key}[{i}]", v, item_tp) for i, v in enumerate(value)]
+        return [coerce(f"{key}[{i}]", v, item_tp) for i, v in enumerate(value)]
     if tp is bool:
         if not isinstance(value, bool):
             raise ConfigError(f"{key}: expected true or false, got {value!r}")
@@ -335,7 +335,8 @@ def _coerce(key: str, value: Any, tp: Any) -> Any:
     return value
 
 
-def _check_range(key: str, value: Any, meta: Mapping[str, Any]) -> None:
+def check_range(key: str, value: Any, meta: Mapping[str, Any]) -> None:
+    """Check ``value`` against a field's ``choices`` and ``min``/``max`` metadata."""
     choices = meta.get("choices")
     if choices is not None and value not in choices:
         allowed = ", ".join(map(str, choices))
@@ -372,9 +373,9 @@ def _build(cls: type, data: Mapping[str, Any], prefix: str) -> Any:
         if is_dataclass(tp):
             kwargs[name] = _build(tp, value if value is not None else {}, key + ".")
             continue
-        value = _coerce(key, value, tp)
+        value = coerce(key, value, tp)
         if value is not None:
-            _check_range(key, value, f.metadata)
+            check_range(key, value, f.metadata)
         kwargs[name] = value
     obj = cls(**kwargs)
     _check_cross(obj, prefix)

@@ -26,6 +26,9 @@ from recon.batch import (
     plan_batch,
     run_batch,
 )
+from recon.batch.outputs import remove_temp_files
+from recon.batch.protocol import JobRef, read_frame, write_frame
+from recon.batch.supervise import child_command
 from recon.errors import ConfigError, InputError, LimitExceeded, OpreconError
 
 # --------------------------------------------------------------------------------------------
@@ -68,6 +71,11 @@ def fake_job(spec: dict, on_progress) -> dict:
     return batch.metrics_from_report(report)
 
 
+def slow_prepare() -> None:
+    """A job's preparation (imports, compilation) that takes a while (runs in the child)."""
+    time.sleep(2.0)
+
+
 # --------------------------------------------------------------------------------------------
 # helpers
 
@@ -91,7 +99,8 @@ def run(path: Path, **kw) -> batch.BatchReport:
         spec, force=kw.pop("force", False), item_time_limit=kw.pop("item_time_limit", 60.0)
     )
     kw.setdefault("jobs", 2)
-    return run_batch(plan, job=fake_job, **kw)
+    kw.setdefault("job", fake_job)
+    return run_batch(plan, **kw)
 
 
 def statuses(report: batch.BatchReport) -> dict[str, str]:
@@ -383,8 +392,8 @@ def test_temp_file_pattern_matches_io_atomic_output(tmp_path):
     writer.__enter__().write_text("{}")
     (tmp_path / "y.report.json").write_text("{}")
     assert len(temp_files(tmp_path)) == 1
-    assert batch._remove_temp_files(tmp_path, [dest.name], os.getpid() + 1) == 0
-    assert batch._remove_temp_files(tmp_path, ["y.report.json", dest.name], os.getpid()) == 1
+    assert remove_temp_files(tmp_path, [dest.name], os.getpid() + 1) == 0
+    assert remove_temp_files(tmp_path, ["y.report.json", dest.name], os.getpid()) == 1
     assert temp_files(tmp_path) == []
     assert sorted(p.name for p in tmp_path.iterdir()) == ["y.report.json"]
 
@@ -579,19 +588,19 @@ def test_child_stops_and_cleans_up_when_its_stdin_closes(tmp_path):
         "job_path": str(Path(__file__).parent),
     }
     proc = subprocess.Popen(
-        batch._child_command(),
+        child_command(),
         stdin=subprocess.PIPE,
         stdout=subprocess.PIPE,
         stderr=subprocess.DEVNULL,
     )
     try:
-        batch._write_frame(proc.stdin, spec)
-        assert batch._read_frame(proc.stdout)[0] == "start"
-        assert batch._read_frame(proc.stdout)[0] == "progress"
-        assert batch._read_frame(proc.stdout)[1] == "release"  # inside atomic_output
+        write_frame(proc.stdin, spec)
+        assert read_frame(proc.stdout)[0] == "start"
+        assert read_frame(proc.stdout)[0] == "progress"
+        assert read_frame(proc.stdout)[1] == "release"  # inside atomic_output
         assert len(temp_files(out)) == 1
         proc.stdin.close()
-        assert batch._read_frame(proc.stdout)[0] == "interrupted"
+        assert read_frame(proc.stdout)[0] == "interrupted"
         assert proc.wait(timeout=10) == 130
     finally:
         if proc.poll() is None:
@@ -612,6 +621,21 @@ def test_a_failing_progress_callback_stops_the_children(tmp_path):
         run(path, on_event=broken)
     assert time.monotonic() - t0 < 30  # the hanging child was stopped, not waited for
     assert temp_files(tmp_path / "out") == []
+
+
+def test_job_preparation_runs_before_the_clock_starts(tmp_path):
+    make_inputs(tmp_path, **{"a.xyz": "ok"})
+    path = write_batch(tmp_path, "inputs: a.xyz\noutput_dir: out\n")
+    plain = JobRef.of(fake_job)
+    assert plain.prepare is None and plain.target.endswith(":fake_job")
+    job = JobRef(plain.target, plain.path, prepare=f"{__name__}:slow_prepare")
+    t0 = time.monotonic()
+    report = run(path, job=job)
+    assert time.monotonic() - t0 > 2.0  # it ran ...
+    assert statuses(report) == {"a": "ok"}
+    assert report.results[0].time_s < 1.5  # ... and did not count against the item
+    with pytest.raises(ValueError, match="module-level function"):
+        JobRef.of(lambda spec, on_progress: {})
 
 
 def test_dask_missing_gives_an_install_hint(tmp_path, monkeypatch):
