@@ -18,9 +18,10 @@ __all__ = ["ConfigError", "InputError", "OpreconError", "__version__", "fit", "l
 
 def __getattr__(name: str):  # lazy: keep `import recon` (and `oprecon --help`) light
     if name == "fit":
-        from .pipeline import fit
+        # the package recon.fit, which is callable: recon.fit(points, config) runs the fit
+        from importlib import import_module
 
-        return fit
+        return import_module(".fit", __name__)
     if name == "load_config":
         from .config import load_config
 
