@@ -69,6 +69,18 @@ def _plain(value: Any) -> Any:
     return value
 
 
+def _check_keys(
+    what: str, data: Mapping[str, Any], required: list[str], optional: list[str]
+) -> None:
+    """Raise ValueError naming the keys of ``data`` that are missing or unknown."""
+    missing = [k for k in required if k not in data]
+    unknown = [str(k) for k in data if k not in required and k not in optional]
+    problems = [f"missing {', '.join(missing)}"] if missing else []
+    problems += [f"unknown {', '.join(unknown)}"] if unknown else []
+    if problems:
+        raise ValueError(f"{what}: {'; '.join(problems)}")
+
+
 class _Section:
     """``to_dict``/``from_dict`` of a flat report section whose field names are its JSON keys."""
 
@@ -93,21 +105,13 @@ class _Section:
         """
         if not isinstance(data, Mapping):
             raise ValueError(f"{cls.__name__}: expected a mapping, got {type(data).__name__}")
-        known = {f.name: f for f in fields(cls)}  # type: ignore[arg-type]
-        missing = [n for n, f in known.items() if n not in data and f.default is MISSING]
-        unknown = [k for k in data if k not in known]
-        if missing or unknown:
-            raise ValueError(
-                f"{cls.__name__}: "
-                + "; ".join(
-                    s
-                    for s in (
-                        f"missing {', '.join(missing)}" if missing else "",
-                        f"unknown {', '.join(map(str, unknown))}" if unknown else "",
-                    )
-                    if s
-                )
-            )
+        known = fields(cls)  # type: ignore[arg-type]
+        _check_keys(
+            cls.__name__,
+            data,
+            required=[f.name for f in known if f.default is MISSING],
+            optional=[f.name for f in known if f.default is not MISSING],
+        )
         return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in data.items()})
 
 
@@ -411,11 +415,8 @@ class FitReport:
         """
         if not isinstance(data, Mapping):
             raise ValueError(f"fit report: expected a mapping, got {type(data).__name__}")
-        expected = {f.name for f in fields(cls)} - {"timings"} | {"time_s", "time_total_s"}
-        missing = sorted(expected - set(data) - {"output"})
-        unknown = sorted(set(data) - expected)
-        if missing or unknown:
-            raise ValueError(f"fit report: missing keys {missing}, unknown keys {unknown}")
+        keys = [f.name for f in fields(cls) if f.name not in ("timings", "output")]
+        _check_keys("fit report", data, [*keys, "time_s", "time_total_s"], ["output"])
         times = data["time_s"]
         if not isinstance(times, Mapping):
             raise ValueError("fit report: time_s must be a mapping")
