@@ -61,7 +61,7 @@ def run_method(
     t0 = time.perf_counter()
     if method == "oprecon":
         from recon.config import apply_overrides, load_config
-        from recon.pipeline import reconstruct
+        from recon.fitting import reconstruct
 
         cfg = load_config(ROOT / "configs" / f"{preset}.yaml") if preset else ReconConfig()
         res = reconstruct(cloud, apply_overrides(cfg, {"seed": seed}))

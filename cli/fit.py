@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import sys
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import click
 
@@ -18,6 +18,9 @@ from .common import (
     config_options,
     parse_viewpoint,
 )
+
+if TYPE_CHECKING:
+    from recon.fitting import FitReport
 
 
 class Progress:
@@ -53,74 +56,56 @@ class Progress:
             self.bar = None
 
 
-def format_summary(report: dict[str, Any]) -> str:
+def format_summary(report: FitReport) -> str:
     """A short human summary of a fit report (stderr)."""
-    fid = report.get("fidelity") or {}
-    topo = report.get("topology") or {}
-    qual = report.get("triangle_quality") or {}
-    steps = report.get("steps", {})
-    times = report.get("time_s", {})
+    fid, m2i, topo, qual = (
+        report.fidelity,
+        report.mesh_to_input,
+        report.topology,
+        report.triangle_quality,
+    )
+    times = report.timings
     rows = [
-        ("input points", f"{report['input']['points']:,}"),
-        ("spacing r0", f"{report['spacing']:.6g}"),
-        ("seeds / particles", f"{report['seeds']:,} / {report['particles']:,}"),
-        ("steps grow / release", f"{steps.get('grow', 0)} / {steps.get('release', 0)}"),
+        ("input points", f"{report.input.points:,}"),
+        ("spacing r0", f"{report.spacing:.6g}"),
+        ("seeds / particles", f"{report.seeds:,} / {report.particles:,}"),
+        ("steps grow / release", f"{report.steps.grow} / {report.steps.release}"),
         (
             "time",
-            "  ".join(f"{k} {v:.2f}s" for k, v in times.items())
-            + f"  (total {report.get('time_total_s', 0):.2f}s)",
+            "  ".join(f"{k} {v:.2f}s" for k, v in times.phases().items())
+            + f"  (total {times.total:.2f}s)",
         ),
-        ("coverage", f"{100 * (report.get('coverage') or 0):.1f}% of the data near a particle"),
+        ("coverage", f"{100 * (report.coverage or 0):.1f}% of the data near a particle"),
+        (
+            "fidelity (input->mesh)",
+            f"mean {fid.mean:.4g}  p95 {fid.p95:.4g}  max {fid.max:.4g}  "
+            f"(mean {fid.mean_relative:.2e} of bbox diagonal)",
+        ),
+        (
+            "mesh on the data",
+            f"{100 * m2i.within_reach:.1f}% of the surface within {m2i.reach:.4g} of an input "
+            f"point (max of r0 and 2.1x the point spacing; p95 {m2i.p95:.4g})",
+        ),
+        (
+            "mesh",
+            f"{topo.n_vertices:,} vertices, {topo.n_faces:,} faces, {topo.components} component(s)",
+        ),
+        (
+            "topology",
+            f"boundary loops {topo.boundary_loops}, non-manifold edges "
+            f"{topo.non_manifold_edges}, vertices {topo.non_manifold_vertices},"
+            f" watertight {'yes' if topo.watertight else 'no'}, genus {topo.genus}",
+        ),
+        (
+            "min angle",
+            f"mean {qual.min_angle_mean_deg:.1f} deg, 5th pct {qual.min_angle_p5_deg:.1f} deg",
+        ),
     ]
-    if fid:
-        rows.append(
-            (
-                "fidelity (input->mesh)",
-                f"mean {fid.get('mean', float('nan')):.4g}  p95 {fid.get('p95', float('nan')):.4g}"
-                f"  max {fid.get('max', float('nan')):.4g}  "
-                f"(mean {fid.get('mean_relative', float('nan')):.2e} of bbox diagonal)",
-            )
-        )
-    m2i = report.get("mesh_to_input") or {}
-    if m2i:
-        rows.append(
-            (
-                "mesh on the data",
-                f"{100 * m2i.get('within_reach', 0):.1f}% of the surface within "
-                f"{m2i.get('reach', float('nan')):.4g} of an input point (max of r0 and 2.1x "
-                f"the point spacing; p95 {m2i.get('p95', float('nan')):.4g})",
-            )
-        )
-    if topo:
-        rows.append(
-            (
-                "mesh",
-                f"{topo.get('n_vertices', 0):,} vertices, {topo.get('n_faces', 0):,} faces,"
-                f" {topo.get('components')} component(s)",
-            )
-        )
-        rows.append(
-            (
-                "topology",
-                f"boundary loops {topo.get('boundary_loops')}, non-manifold edges "
-                f"{topo.get('non_manifold_edges')}, vertices {topo.get('non_manifold_vertices')},"
-                f" watertight {'yes' if topo.get('watertight') else 'no'}, genus "
-                f"{topo.get('genus')}",
-            )
-        )
-    if qual:
-        rows.append(
-            (
-                "min angle",
-                f"mean {qual.get('min_angle_mean_deg', 0):.1f} deg, 5th pct "
-                f"{qual.get('min_angle_p5_deg', 0):.1f} deg",
-            )
-        )
-    if report.get("stop_reason"):
-        rows.append(("growth stopped", report["stop_reason"]))
+    if report.stop_reason:
+        rows.append(("growth stopped", report.stop_reason))
     width = max(len(k) for k, _ in rows)
     lines = [f"  {k:<{width}}  {v}" for k, v in rows]
-    lines += [f"  warning: {w}" for w in report.get("warnings", [])]
+    lines += [f"  warning: {w}" for w in report.warnings]
     return "\n".join(lines)
 
 
@@ -224,9 +209,8 @@ def command(
 
     Exit codes: 0 success, 2 bad input or usage, 130 interrupted.
     """
-    import json
-
-    from recon.pipeline import _json_default, fit_file, report_path_for
+    from recon.fitting import fit_file, report_path_for
+    from recon.serialize import dumps
 
     cfg = build_config(config_path, preset, overrides)
     cfg = with_values(
@@ -278,4 +262,4 @@ def command(
         click.echo(f"oprecon: wrote {output_path}", err=True)
         click.echo(format_summary(result.report), err=True)
     if as_json:
-        click.echo(json.dumps(result.report, indent=1, default=_json_default))
+        click.echo(dumps(result.report.to_dict()))

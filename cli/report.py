@@ -89,14 +89,11 @@ def read_mesh_checked(path: Path, role: str = "MESH") -> tuple[Any, Any]:
     return vertices, faces
 
 
-def fit_report_path(mesh_path: Path) -> Path:
-    """``mesh.ply`` -> ``mesh.report.json``, the report ``oprecon fit`` writes beside it."""
-    return mesh_path.with_name(mesh_path.stem + ".report.json")
-
-
 def load_fit_history(mesh_path: Path) -> tuple[Path | None, dict[str, Any] | None]:
     """The fit report beside a mesh and its ``history``; unreadable ones are skipped (warned)."""
-    path = fit_report_path(mesh_path)
+    from recon.fitting import report_path_for
+
+    path = report_path_for(mesh_path)
     if not path.is_file():
         return None, None
     try:

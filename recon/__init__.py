@@ -18,7 +18,7 @@ __all__ = ["ConfigError", "InputError", "OpreconError", "__version__", "fit", "l
 
 def __getattr__(name: str):  # lazy: keep `import recon` (and `oprecon --help`) light
     if name == "fit":
-        from .pipeline import fit
+        from .fitting import fit
 
         return fit
     if name == "load_config":

@@ -242,7 +242,9 @@ def sample_surface(
     return points, normals
 
 
-def fidelity(points: Any, vertices: Any, faces: Any, diag: float) -> dict[str, Any]:
+def fidelity(
+    points: Any, vertices: Any, faces: Any, diag: float, *, within: dict[str, float] | None = None
+) -> dict[str, Any]:
     """How far input points lie from a mesh.
 
     Parameters
@@ -255,19 +257,26 @@ def fidelity(points: Any, vertices: Any, faces: Any, diag: float) -> dict[str, A
         Mesh triangles, ``F >= 1``.
     diag : float [length]
         Normalising length, usually the bounding-box diagonal of ``points``.
+    within : dict of str to float [length], optional
+        For each ``name: distance``, also ``within_<name>``: the fraction of the points at most
+        ``distance`` from the mesh.
 
     Returns
     -------
     dict
         ``n`` (number of points), ``diag``, and the point-to-surface distance ``mean``, ``rms``,
-        ``p95``, ``max`` [length], each also as ``*_relative`` (divided by ``diag``).
+        ``p95``, ``max`` [length], each also as ``*_relative`` (divided by ``diag``), then the
+        ``within_<name>`` fractions.
     """
     p = _as_points(points)
     diag = float(diag)
     if not np.isfinite(diag) or diag < 0:
         raise InputError(f"diag must be a finite length >= 0, got {diag}")
     d = point_to_mesh_distance(p, vertices, faces)
-    return {"diag": diag, **distance_stats(d, diag)}
+    result = {"diag": diag, **distance_stats(d, diag)}
+    for name, distance in (within or {}).items():
+        result[f"within_{name}"] = float(np.mean(d <= distance))
+    return result
 
 
 def _split_reference(reference: Any) -> tuple[str, np.ndarray, np.ndarray | None]:

@@ -1,7 +1,7 @@
 """Refresh (or check) the reference meshes of the regression tests, printing what changed.
 
 ``sample_data/references/manifest.json`` lists the references. For each entry the script fits
-the entry's input with the entry's fit options (in-process, ``recon.pipeline.fit_file``, so
+the entry's input with the entry's fit options (in-process, ``recon.fitting.fit_file``, so
 the file is what ``oprecon fit`` writes), then prints, against the OLD reference and against
 the ground truth (when the development data set is beside the checkout), a table of
 Chamfer-L1, F-score at 1 %, Hausdorff-95, faces, boundary loops and watertightness, and the
@@ -72,9 +72,9 @@ from recon import __version__  # noqa: E402
 from recon.config import ReconConfig, config_to_dict, load_config  # noqa: E402
 from recon.dynamics import warmup  # noqa: E402
 from recon.errors import OpreconError  # noqa: E402
+from recon.fitting import fit_file, reconstruct  # noqa: E402
 from recon.io import atomic_output, cloud_from_arrays, read_mesh, read_points  # noqa: E402
 from recon.metrics import check_comparison, compare_meshes, mesh_topology  # noqa: E402
-from recon.pipeline import fit_file, reconstruct  # noqa: E402
 
 MANIFEST = ROOT / "sample_data" / "references" / "manifest.json"
 DEFAULT_DATA = ROOT.parent / "shared" / "data"

@@ -1,5 +1,6 @@
 """End-to-end tests of the fit stage on small generated and bundled inputs."""
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -7,11 +8,12 @@ import pytest
 
 import recon
 from recon.config import ReconConfig, load_config
-from recon.errors import LimitExceeded
+from recon.errors import InputError, LimitExceeded
+from recon.fitting import FitReport, choose_spacing, fit, fit_file, reconstruct, report_path_for
 from recon.io import read_points
 from recon.metrics import compare_meshes, point_to_mesh_distance
 from recon.normals import choose_neighborhood_size
-from recon.pipeline import choose_spacing, fit, reconstruct
+from recon.serialize import dumps
 
 SAMPLE = Path(__file__).resolve().parent.parent / "sample_data"
 FAST = ["seeds.min_particles=0"]
@@ -33,36 +35,36 @@ def _square_with_hole(n=2500, hole=0.2, seed=1):
 
 def test_sphere_closes_watertight_genus_zero_and_on_the_surface():
     res = fit(_sphere(), load_config(overrides=FAST))
-    topo = res.report["topology"]
-    assert topo["watertight"] and topo["components"] == 1 and topo["genus"] == 0
+    topo = res.report.topology
+    assert topo.watertight and topo.components == 1 and topo.genus == 0
     r = np.linalg.norm(res.mesh.vertices, axis=1)
     assert abs(np.median(r) - 1.0) < 0.01
-    assert res.report["triangle_quality"]["min_angle_mean_deg"] > 50
-    assert res.report["triangle_quality"]["min_angle_p5_deg"] > 30
+    assert res.report.triangle_quality.min_angle_mean_deg > 50
+    assert res.report.triangle_quality.min_angle_p5_deg > 30
 
 
 def test_open_square_keeps_outer_boundary_and_real_hole():
     pts = _square_with_hole()
     res = fit(pts, load_config(overrides=FAST))
-    topo = res.report["topology"]
-    assert topo["boundary_loops"] == 2
-    assert topo["non_manifold_edges"] == 0
+    topo = res.report.topology
+    assert topo.boundary_loops == 2
+    assert topo.non_manifold_edges == 0
     # nothing grows past the data by more than r0
-    r0 = res.report["spacing"]
+    r0 = res.report.spacing
     v = res.mesh.vertices
     assert np.abs(v[:, :2]).max() < 0.5 + r0
     assert np.linalg.norm(v[:, :2], axis=1).min() > 0.2 - r0
     assert np.abs(v[:, 2]).max() < 1e-6
-    assert res.report["mesh_to_input"]["within_r0"] > 0.95
-    assert res.report["mesh_to_input"]["within_reach"] >= res.report["mesh_to_input"]["within_r0"]
+    assert res.report.mesh_to_input.within_r0 > 0.95
+    assert res.report.mesh_to_input.within_reach >= res.report.mesh_to_input.within_r0
 
 
 def test_small_hole_is_filled_large_hole_is_kept():
     cfg = load_config(overrides=FAST)
     pts = _square_with_hole(hole=0.2)
     r0, d_nn = choose_spacing(pts, cfg)
-    small = fit(_square_with_hole(hole=1.2 * r0), cfg).report["topology"]["boundary_loops"]
-    big = fit(pts, cfg).report["topology"]["boundary_loops"]
+    small = fit(_square_with_hole(hole=1.2 * r0), cfg).report.topology.boundary_loops
+    big = fit(pts, cfg).report.topology.boundary_loops
     assert small == 1
     assert big == 2
 
@@ -93,11 +95,11 @@ def test_bundled_sparse_bunny_is_interpolated():
     cloud = read_points(SAMPLE / "bunny-sparse.ply")
     res = reconstruct(cloud, ReconConfig())
     rep = res.report
-    assert rep["particles"] > 3 * rep["input"]["points"]  # resolution floor: between samples
-    assert rep["fidelity"]["within_r0"] > 0.9
-    assert rep["mesh_to_input"]["within_reach"] > 0.9  # between samples, not past them
-    assert rep["triangle_quality"]["min_angle_mean_deg"] > 50
-    assert rep["topology"]["non_manifold_edges"] == 0
+    assert rep.particles > 3 * rep.input.points  # resolution floor: between samples
+    assert rep.fidelity.within_r0 > 0.9
+    assert rep.mesh_to_input.within_reach > 0.9  # between samples, not past them
+    assert rep.triangle_quality.min_angle_mean_deg > 50
+    assert rep.topology.non_manifold_edges == 0
 
 
 def test_noise_raises_the_neighbourhood_size():
@@ -135,8 +137,8 @@ def test_fidelity_zero_shrinks_more_than_default():
 
 def test_particle_cap_stops_growth_with_a_warning():
     res = fit(_sphere(1500), load_config(overrides=FAST + ["dynamics.max_particles=700"]))
-    assert res.report["particles"] <= 700
-    assert any("max_particles" in w for w in res.report["warnings"])
+    assert res.report.particles <= 700
+    assert any("max_particles" in w for w in res.report.warnings)
 
 
 def test_seed_cap_below_seed_count_is_an_error():
@@ -159,4 +161,38 @@ def test_reconstruction_matches_the_analytic_sphere():
 
 
 def test_python_api_is_exported():
+    """``recon.fit`` is the library's main function, :func:`recon.fitting.fit`."""
     assert recon.fit is fit
+    with pytest.raises(InputError):
+        recon.fit(np.zeros((4, 2)))  # the call reaches fit's input check
+
+
+def test_report_round_trips_through_its_json(tmp_path):
+    """to_dict() is the JSON written beside the mesh; from_dict() reads it back unchanged."""
+    src = tmp_path / "s.xyz"
+    np.savetxt(src, _sphere(800))
+    res = fit_file(src, tmp_path / "m.ply", load_config(overrides=FAST))
+    path = report_path_for(tmp_path / "m.ply")
+    text = path.read_text()
+    assert text == dumps(res.report.to_dict()) + "\n"
+    data = json.loads(text)
+    assert list(data)[:3] == ["oprecon_version", "input", "spacing"]
+    assert list(data)[-3:] == ["fidelity", "mesh_to_input", "output"]
+    assert data["output"] == {"mesh": str(tmp_path / "m.ply"), "report": str(path)}
+    back = FitReport.from_dict(data)
+    assert back.to_dict() == data
+    assert back.history == res.report.history and back.topology == res.report.topology
+    assert back.input.path == str(src)
+    with pytest.raises(ValueError, match="unknown"):
+        FitReport.from_dict({**data, "extra": 1})
+    with pytest.raises(ValueError, match="missing"):
+        FitReport.from_dict({k: v for k, v in data.items() if k != "fidelity"})
+
+
+def test_in_memory_report_has_no_paths():
+    rep = fit(_sphere(800), load_config(overrides=FAST)).report
+    d = rep.to_dict()
+    assert "output" not in d and "path" not in d["input"] and rep.output is None
+    assert d["fidelity"] == rep.fidelity.to_dict() and "within_r0" in d["fidelity"]
+    assert list(d["time_s"]) == ["normals", "setup", "grow", "release", "triangulate", "report"]
+    assert d["history"]["step"] == list(rep.history.step)

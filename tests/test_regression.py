@@ -22,8 +22,8 @@ from click.testing import CliRunner
 from cli.compare import TOLERANCE_KEYS
 from cli.main import app
 from recon.config import ReconConfig, apply_overrides, config_to_dict, load_config
+from recon.fitting import fit_file
 from recon.io import read_mesh, write_mesh
-from recon.pipeline import fit_file
 
 ROOT = Path(__file__).resolve().parent.parent
 REF_DIR = ROOT / "sample_data" / "references"

@@ -43,7 +43,7 @@ def run_item(
     ----------
     spec : mapping
         Built by :func:`~recon.batch.run.run_batch`: ``input``, ``config`` (a config dict),
-        ``meshes`` (paths, first one written by :func:`recon.pipeline.fit_file`),
+        ``meshes`` (paths, first one written by :func:`recon.fitting.fit_file`),
         ``particles``, ``preview``.
     on_progress : callable(phase, info), optional
         Passed to the pipeline.
@@ -53,8 +53,8 @@ def run_item(
     dict
         Summary columns, see :func:`metrics_from_report`.
     """
+    from ..fitting import fit_file
     from ..io import write_mesh
-    from ..pipeline import fit_file
 
     cfg = config_from_dict(spec["config"])
     meshes = [Path(m) for m in spec["meshes"]]
@@ -71,12 +71,12 @@ def run_item(
     normals = result.mesh.normals if cfg.output.vertex_normals else None
     for extra in meshes[1:]:
         write_mesh(extra, result.mesh.vertices, result.mesh.faces, normals, ascii=cfg.io.ascii)
-    return metrics_from_report(result.report)
+    return metrics_from_report(result.report.to_dict())
 
 
 def prepare_run_item() -> None:
     """Import the pipeline and compile its kernels before the item's clock starts."""
-    from .. import pipeline  # noqa: F401
+    from .. import fitting  # noqa: F401
     from ..dynamics import warmup
 
     try:

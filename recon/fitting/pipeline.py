@@ -1,0 +1,347 @@
+"""The one entry point of the reconstruction: points in, mesh + particles + report out.
+
+:func:`reconstruct` runs the stages on a :class:`~recon.cloud.PointCloud`, :func:`fit` on arrays
+and :func:`fit_file` from a file to the output files (mesh, report, particles, preview), written
+all-or-nothing.
+
+Schedule (S&T92 §7, with the changes of ``DESIGN.md`` §4):
+
+1. normals (estimated or from the file) and the rest spacing r0 from the data
+   (:mod:`recon.fitting.scale`);
+2. seeds, 3. growth rounds, 4. release: :mod:`recon.fitting.schedule`;
+5. drop particles farther than ``trim_distance`` from the data, triangulate, fill small holes;
+6. measure the result (topology, triangle quality, fidelity to the input):
+   :mod:`recon.fitting.report`.
+
+All dynamics run in normalised coordinates (positions relative to the cloud's origin, divided
+by r0), so nothing depends on the input's units or offset. One :class:`numpy.random.Generator`
+seeded with ``config.seed`` draws the coverage sample and the seeds; the points sampled on the
+mesh for the report come from a second generator with the same seed (as they always did, so
+the numbers are unchanged).
+
+References
+----------
+[ST92] Szeliski & Tonnesen 1992, §7 "Surface fitting" and §8.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+
+from .. import __version__
+from ..cloud import PointCloud
+from ..config import ReconConfig, config_to_dict, with_values
+from ..errors import InputError
+from ..geometry import bbox_diagonal
+from ..normals import compute_normals
+from ..serialize import dumps
+from ..state import ParticleState
+from ..surface import DataSurface
+from ..triangulate import TriangulationResult, triangulate_particles
+from .report import (
+    FitReport,
+    History,
+    InputSummary,
+    OutputPaths,
+    StepCounts,
+    Timings,
+    TriangulationStats,
+    measure_mesh,
+    report_path_for,
+)
+from .scale import check_grid_size, choose_spacing, with_max_gap, with_neighborhood_size
+from .schedule import Clock, ProgressFn, run_schedule
+
+__all__ = [
+    "HOLE_COVER_DISTANCE",
+    "TRIM_GAP_FRACTION",
+    "FitResult",
+    "Mesh",
+    "Particles",
+    "fit",
+    "fit_file",
+    "reconstruct",
+]
+
+#: After the release, particles farther than TRIM_GAP_FRACTION x ``growth.max_gap`` [r0] from
+#: the nearest data point are dropped (as are those off the data plane by more than
+#: ``triangulation.trim_distance``): they bridge a gap the mesh should keep open.
+TRIM_GAP_FRACTION = 0.5
+#: A hole candidate counts as covered by data (and is filled) when the data point nearest to
+#: its projection onto the data lies within this distance [r0].
+HOLE_COVER_DISTANCE = 1.0
+
+
+@dataclass
+class Mesh:
+    """A triangle mesh in absolute (file) coordinates."""
+
+    vertices: np.ndarray  # (V, 3) float64 [length]
+    faces: np.ndarray  # (F, 3) int64
+    normals: np.ndarray  # (V, 3) float64 unit vertex normals
+
+
+@dataclass
+class Particles:
+    """The final oriented particles in absolute (file) coordinates."""
+
+    positions: np.ndarray  # (n, 3) float64 [length]
+    normals: np.ndarray  # (n, 3) float64
+
+
+@dataclass
+class FitResult:
+    """What a fit returns: the mesh, the particles and the report.
+
+    Attributes
+    ----------
+    mesh : Mesh
+    particles : Particles
+    report : FitReport
+        ``report.to_dict()`` is the JSON of ``<mesh>.report.json``.
+    origin : (3,) float64 [length]
+        The cloud's origin (mesh and particles are already absolute).
+    """
+
+    mesh: Mesh
+    particles: Particles
+    report: FitReport
+    origin: np.ndarray = field(default_factory=lambda: np.zeros(3))
+
+
+def _trim(state: ParticleState, surface: DataSurface, cfg: ReconConfig) -> int:
+    """Drop particles off the data (optionally projecting the rest onto it); returns how many."""
+    tri_cfg = cfg.triangulation
+    projected, _, offset = surface.project(state.position)
+    dist, _ = surface.nearest(state.position)
+    keep = (np.abs(offset) <= tri_cfg.trim_distance) & (
+        dist <= TRIM_GAP_FRACTION * cfg.growth.max_gap
+    )
+    if tri_cfg.project_to_data:
+        state.position = projected
+    n_trimmed = int((~keep).sum())
+    if n_trimmed:
+        state.remove(keep)
+    return n_trimmed
+
+
+def _triangulate(
+    state: ParticleState, surface: DataSurface, cfg: ReconConfig
+) -> TriangulationResult:
+    """Triangulate the particles; holes up to ``max_hole`` (default ``max_gap``) are filled."""
+    tri_cfg = cfg.triangulation
+    max_hole = tri_cfg.max_hole if tri_cfg.max_hole is not None else cfg.growth.max_gap
+    return triangulate_particles(
+        state.position,
+        state.normal,
+        tri_cfg,
+        max_hole,
+        is_covered=lambda c: surface.nearest(surface.project(c)[0])[0] < HOLE_COVER_DISTANCE,
+        project=lambda c: surface.project(c)[0],
+    )
+
+
+def reconstruct(
+    cloud: PointCloud, config: ReconConfig | None = None, on_progress: ProgressFn | None = None
+) -> FitResult:
+    """Reconstruct a mesh from a point cloud.
+
+    Parameters
+    ----------
+    cloud : PointCloud
+        Points relative to ``cloud.origin``; normals are used when present and
+        ``normals.mode`` allows it.
+    config : ReconConfig, optional
+        Defaults when omitted.
+    on_progress : callable(phase, info), optional
+        Called after every growth round and release chunk with the step count, particle
+        count, kinetic energy and coverage.
+
+    Returns
+    -------
+    FitResult
+        Mesh and particles in absolute coordinates, and the report.
+    """
+    cfg = config if config is not None else ReconConfig()
+    clock = Clock(cfg.dynamics.time_limit)
+    rng = np.random.default_rng(cfg.seed)
+    points = np.asarray(cloud.points, dtype=np.float64)
+
+    cfg = with_neighborhood_size(points, cfg)
+    normals, normals_info = compute_normals(cloud, cfg.normals)
+    clock.lap("normals")
+    clock.check()
+
+    r0, d_nn = choose_spacing(points, cfg)
+    check_grid_size(points, r0)
+    cfg = with_max_gap(cfg, r0, d_nn)
+    diag = bbox_diagonal(points)
+    surface = DataSurface.build(points / r0, normals, k=cfg.normals.k)
+    clock.lap("setup")
+    clock.check()
+
+    sched = run_schedule(surface, cfg, rng, clock, on_progress)
+    state = sched.state
+    if sched.dt != cfg.dynamics.dt:
+        cfg = with_values(cfg, dynamics={"dt": sched.dt})
+
+    n_trimmed = _trim(state, surface, cfg)
+    tri = _triangulate(state, surface, cfg)
+    clock.lap("triangulate")
+    clock.check()
+
+    origin = np.asarray(cloud.origin, dtype=np.float64)
+    vertices = tri.vertices * r0 + origin
+    mesh = Mesh(vertices, tri.faces, tri.normals)
+    particles = Particles(state.position * r0 + origin, state.normal.copy())
+
+    if len(tri.faces) == 0:
+        raise InputError(
+            "the reconstruction produced no triangles: the data may be too sparse "
+            "for the spacing (try a smaller --spacing or a larger --max-gap)"
+        )
+    measures = measure_mesh(
+        points,
+        tri.vertices,
+        tri.faces,
+        surface,
+        r0=r0,
+        median_spacing=d_nn,
+        diag=diag,
+        rng=np.random.default_rng(cfg.seed),
+    )
+    clock.lap("report")
+    coverage = sched.history["coverage"]
+    report = FitReport(
+        oprecon_version=__version__,
+        input=InputSummary(
+            points=int(len(points)),
+            bbox_diagonal=diag,
+            median_spacing=d_nn,
+            normals=normals_info,
+        ),
+        spacing=r0,
+        seeds=sched.n_seeds,
+        particles=int(state.n),
+        particles_trimmed=n_trimmed,
+        steps=StepCounts.from_dict(sched.steps),
+        timings=Timings.from_phases(clock.phases),
+        coverage=coverage[-1] if coverage else None,
+        stop_reason=sched.stop_reason,
+        warnings=tuple(sched.warnings),
+        triangulation=TriangulationStats.from_dict(tri.stats),
+        noise_estimate=surface.noise * r0,
+        history=History.from_dict(sched.history),
+        config=config_to_dict(cfg),
+        topology=measures.topology,
+        triangle_quality=measures.triangle_quality,
+        mesh_bbox_diag=measures.mesh_bbox_diag,
+        fidelity=measures.fidelity,
+        mesh_to_input=measures.mesh_to_input,
+    )
+    return FitResult(mesh, particles, report, origin)
+
+
+def fit(
+    points: np.ndarray,
+    config: ReconConfig | None = None,
+    *,
+    normals: np.ndarray | None = None,
+    on_progress: ProgressFn | None = None,
+) -> FitResult:
+    """Python API: reconstruct from an (n, 3) array (and optional (n, 3) normals).
+
+    Mirrors ``oprecon fit``: ``recon.fit(points, config) -> FitResult(mesh, particles, report)``.
+    """
+    from ..io import cloud_from_arrays
+
+    cloud = cloud_from_arrays(points, normals)
+    return reconstruct(cloud, config, on_progress)
+
+
+def fit_file(
+    input_path: str | Path,
+    output_path: str | Path,
+    config: ReconConfig | None = None,
+    *,
+    particles_path: str | Path | None = None,
+    preview_path: str | Path | None = None,
+    write_report: bool | None = None,
+    mkdir: bool = False,
+    on_progress: ProgressFn | None = None,
+) -> FitResult:
+    """Read ``input_path``, reconstruct, and write the mesh (+ report, particles, preview).
+
+    Every output is written to a temporary file beside its target and renamed into place only
+    after all of them were written, so a failure or an interrupt leaves no partial file.
+    Writing onto the input is refused. The report (``report_path_for(output_path)``) is written
+    when ``write_report`` is true, or when it is None and ``output.write_report`` is.
+    """
+    from ..io import (
+        atomic_output,
+        atomic_outputs,
+        check_output_path,
+        read_points,
+        write_mesh,
+        write_points,
+    )
+
+    cfg = config if config is not None else ReconConfig()
+    input_path = Path(input_path)
+    output_path = check_output_path(Path(output_path), inputs=[input_path], mkdir=mkdir)
+    want_report = cfg.output.write_report if write_report is None else write_report
+    report_path = report_path_for(output_path) if want_report else None
+    for p in (particles_path, preview_path, report_path):
+        if p is not None:
+            check_output_path(Path(p), inputs=[input_path, output_path], mkdir=mkdir)
+    cloud = read_points(
+        input_path, max_points=cfg.io.max_points, merge_duplicates=cfg.io.merge_duplicates
+    )
+    result = reconstruct(cloud, cfg, on_progress)
+    report = result.report
+    result.report = replace(
+        report,
+        input=replace(report.input, path=str(input_path)),
+        output=OutputPaths(
+            mesh=str(output_path),
+            particles=None if particles_path is None else str(particles_path),
+            preview=None if preview_path is None else str(preview_path),
+            report=None if report_path is None else str(report_path),
+        ),
+    )
+    normals = result.mesh.normals if cfg.output.vertex_normals else None
+    with atomic_outputs() as outputs:  # all files appear together, or none
+        write_mesh(
+            output_path,
+            result.mesh.vertices,
+            result.mesh.faces,
+            normals,
+            ascii=cfg.io.ascii,
+            outputs=outputs,
+        )
+        if particles_path is not None:
+            write_points(
+                Path(particles_path),
+                result.particles.positions,
+                result.particles.normals,
+                ascii=cfg.io.ascii,
+                outputs=outputs,
+            )
+        if preview_path is not None:
+            from ..render import render_mesh_png
+
+            render_mesh_png(
+                Path(preview_path),
+                result.mesh.vertices,
+                result.mesh.faces,
+                history=result.report.history.to_dict(),
+                title=input_path.name,
+                outputs=outputs,
+            )
+        if report_path is not None:
+            with atomic_output(report_path, outputs) as tmp:
+                tmp.write_text(dumps(result.report.to_dict()) + "\n")
+    return result

@@ -1,0 +1,134 @@
+"""The length scales of a fit, derived from the data: rest spacing r0, neighbourhoods, max gap.
+
+- :func:`with_neighborhood_size`: resolve ``normals.auto_scale`` (a larger k on noisy data) once,
+  so the normals and the local data surfaces share it.
+- :func:`choose_spacing`: the rest spacing r0 from the median point spacing, with the resolution
+  floor that puts particles between the samples of sparse inputs (S&T92 §7).
+- :func:`check_grid_size`: refuse inputs whose extent over r0 makes the neighbour grid absurd.
+- :func:`with_max_gap`: resolve ``growth.max_gap`` (default: ``AUTO_GAP`` data spacings).
+
+All lengths here are in input units; the dynamics then run in units of r0.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..config import ReconConfig, with_values
+from ..errors import InputError
+from ..geometry import bbox_diagonal, median_nearest_neighbor_distance
+from ..normals import choose_neighborhood_size
+
+__all__ = [
+    "AREA_PER_POINT",
+    "AUTO_GAP",
+    "HEX_AREA",
+    "MAX_GRID_CELLS",
+    "MIN_AUTO_GAP",
+    "MIN_SPACING_FACTOR",
+    "SPACING_SAMPLE_SEED",
+    "check_grid_size",
+    "choose_spacing",
+    "with_max_gap",
+    "with_neighborhood_size",
+]
+
+#: Area per point of a uniform random sample is about AREA_PER_POINT x (median NN distance)^2,
+#: and a hexagonal sheet at spacing r0 holds one particle per HEX_AREA r0^2: together they
+#: predict the particle count for a given r0 (used by the resolution floor).
+AREA_PER_POINT = 4.0
+#: Area per particle of a hexagonal sheet at spacing 1 (sqrt(3)/2, rounded as it always was).
+HEX_AREA = 0.866
+#: The resolution floor never lowers r0 below this many median point spacings: closer
+#: particles would resolve the sampling noise rather than the surface.
+MIN_SPACING_FACTOR = 0.8
+#: Seed of the subsample the median point spacing is measured on (inputs of more than 20,000
+#: points). Fixed, not ``config.seed``: r0 is a property of the data, the same for every seed.
+SPACING_SAMPLE_SEED = 0
+#: Largest cell grid (cells of side r0 over the data's bounding box) the neighbour search accepts.
+MAX_GRID_CELLS = 2.0**60
+#: Default max_gap, in median data spacings.
+AUTO_GAP = 10.0
+#: The default max_gap is at least this many r0 (a gap narrower than one particle spacing is
+#: no gap for the growing rule).
+MIN_AUTO_GAP = 1.0
+
+
+def with_neighborhood_size(points: np.ndarray, cfg: ReconConfig) -> ReconConfig:
+    """``cfg`` with ``normals.k`` resolved when ``normals.auto_scale`` is on (else ``cfg``).
+
+    Resolved once so that the normals and the local data surfaces share the neighbourhood size.
+    """
+    if not cfg.normals.auto_scale:
+        return cfg
+    k = choose_neighborhood_size(points, cfg.normals.k)
+    return with_values(cfg, normals={"k": k, "auto_scale": False})
+
+
+def choose_spacing(points: np.ndarray, cfg: ReconConfig) -> tuple[float, float]:
+    """Rest spacing r0 [length] and the median nearest-neighbour distance of the data.
+
+    By default r0 = ``spacing_factor`` x median spacing, lowered (not below
+    ``MIN_SPACING_FACTOR`` x median spacing) so that the sheet gets about ``min_particles``
+    particles: sparse inputs get particles between their samples (S&T92 §7) instead of a mesh
+    coarser than the shape.
+
+    Parameters
+    ----------
+    points : (n, 3) float64 [length]
+        The input points.
+    cfg : ReconConfig
+        ``seeds.spacing`` (absolute), ``seeds.spacing_relative`` (of the bounding-box
+        diagonal) or ``seeds.spacing_factor`` with ``seeds.min_particles``.
+
+    Returns
+    -------
+    r0 : float [length]
+    median_spacing : float [length]
+
+    Raises
+    ------
+    InputError
+        No positive finite spacing can be derived (e.g. mostly duplicate points).
+    """
+    d_nn = median_nearest_neighbor_distance(points, rng=np.random.default_rng(SPACING_SAMPLE_SEED))
+    s = cfg.seeds
+    if s.spacing is not None:
+        r0 = s.spacing
+    elif s.spacing_relative is not None:
+        r0 = s.spacing_relative * bbox_diagonal(points)
+    else:
+        factor = s.spacing_factor
+        if s.min_particles > 0:
+            floor = math.sqrt(AREA_PER_POINT * len(points) / (HEX_AREA * s.min_particles))
+            factor = min(factor, max(floor, MIN_SPACING_FACTOR))
+        r0 = factor * d_nn
+    if not (r0 > 0 and math.isfinite(r0)):
+        msg = f"cannot derive a rest spacing: the median point spacing is {d_nn!r}"
+        if d_nn == 0.0:
+            msg += " (most points are exact duplicates: set io.merge_duplicates: true)"
+        raise InputError(msg + "; or give --spacing")
+    return float(r0), float(d_nn)
+
+
+def check_grid_size(points: np.ndarray, r0: float) -> None:
+    """Raise :class:`~recon.errors.InputError` when cells of side r0 over the data are too many.
+
+    Far outliers (or a tiny spacing) would make the neighbour search's cell grid overflow.
+    """
+    span = points.max(axis=0) - points.min(axis=0)
+    if float(np.prod(np.floor(span / r0) + 1.0)) > MAX_GRID_CELLS:
+        raise InputError(
+            f"the points span {', '.join(f'{x:.3g}' for x in span)} (x, y, z) but the rest "
+            f"spacing r0 is {r0:.3g}: far too many cells for the neighbour search; remove far "
+            "outliers or raise the spacing"
+        )
+
+
+def with_max_gap(cfg: ReconConfig, r0: float, median_spacing: float) -> ReconConfig:
+    """``cfg`` with ``growth.max_gap`` [r0] resolved: ``AUTO_GAP`` data spacings when unset."""
+    if cfg.growth.max_gap is not None:
+        return cfg
+    return with_values(cfg, growth={"max_gap": max(AUTO_GAP * median_spacing / r0, MIN_AUTO_GAP)})

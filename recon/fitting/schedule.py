@@ -1,0 +1,437 @@
+"""The fit schedule: seeds, growth rounds, release, with one divergence retry per phase.
+
+Steps 2 to 4 of the reconstruction (see :mod:`recon.fitting`), in normalised units (lengths in r0):
+
+2. seeds: Poisson-disk thinned samples on their local data planes, pinned;
+3. growth rounds: relax ``relax_steps`` steps with the fidelity pull on, then the growing and
+   stretching rules propose particles that are accepted when supported by the data; stop when
+   a round adds fewer than ``min_add_fraction`` of the particles and the sheet is at rest;
+4. release the seeds and relax ``release_steps`` steps (smoothing, fidelity pull kept), refilling
+   the gaps the release opens during the first chunks.
+
+If the dynamics diverge during a phase, the phase restarts once from its start with the time
+step halved (:meth:`_Schedule.run_phase`). :class:`Clock` accounts the wall time per phase and
+enforces ``dynamics.time_limit``.
+
+References
+----------
+[ST92] Szeliski & Tonnesen 1992, §7 "Surface fitting".
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from ..config import ReconConfig
+from ..dynamics import PhysicsParams, Simulation
+from ..errors import DivergenceError, LimitExceeded
+from ..growth import accept_candidates, grow_candidates, neighbor_csr, stretch_candidates
+from ..seeds import select_seeds
+from ..state import ParticleState
+from ..surface import DataSurface
+
+__all__ = [
+    "ANCHOR_REFRESH",
+    "COVER_RADIUS",
+    "COVER_SAMPLE",
+    "EXPLODING_ENERGY",
+    "PLATEAU_ADD_FRACTION",
+    "PLATEAU_AFTER_ROUND",
+    "RELEASE_CHUNK",
+    "RELEASE_REFILLS",
+    "RETRY_DT_FACTOR",
+    "Clock",
+    "ProgressFn",
+    "ScheduleResult",
+    "run_schedule",
+]
+
+log = logging.getLogger(__name__)
+
+#: Covering radius of a hexagonal sheet at spacing 1 is 1/sqrt(3) ~ 0.577; a data point
+#: within this distance [r0] of a particle counts as covered by the sheet.
+COVER_RADIUS = 0.65
+#: The coverage is measured on at most this many data points, drawn once from the fit's
+#: generator (so the size changes which seeds are drawn, hence the mesh).
+COVER_SAMPLE = 20_000
+#: Anchors (nearest data planes) are refreshed this often during relaxation [steps].
+ANCHOR_REFRESH = 5
+#: The release phase runs in chunks of this many steps; after each chunk the history gets a
+#: record and, during the first ``RELEASE_REFILLS`` chunks, a growth round refills gaps.
+RELEASE_CHUNK = 20
+#: Growth rounds run during the release phase: unpinning the seeds lets the sheet relax, which
+#: opens small gaps; refilling them keeps ball pivoting from bridging them with long edges.
+RELEASE_REFILLS = 3
+#: Growth also stops on a plateau: after round PLATEAU_AFTER_ROUND (0-based), a round that adds
+#: at least as many particles as the previous one, but fewer than PLATEAU_ADD_FRACTION of the
+#: sheet, is taken as the rules re-filling their own churn rather than covering new data.
+PLATEAU_AFTER_ROUND = 5
+#: See ``PLATEAU_AFTER_ROUND``.
+PLATEAU_ADD_FRACTION = 0.05
+#: Potential energy per particle above which the dynamics count as exploding (a sheet at rest
+#: has |E| of order 1 per particle; coincident particles make it grow without bound).
+EXPLODING_ENERGY = 1e6
+#: A phase that diverged restarts once with its time step multiplied by this factor.
+RETRY_DT_FACTOR = 0.5
+
+#: ``on_progress(phase, info)``: called after every growth round and release chunk.
+ProgressFn = Callable[[str, dict[str, Any]], None]
+
+
+class Clock:
+    """Wall-clock accounting per phase, and the run's time limit.
+
+    Parameters
+    ----------
+    limit : float or None [s]
+        :meth:`check` raises :class:`~recon.errors.LimitExceeded` once the run took longer.
+    """
+
+    def __init__(self, limit: float | None) -> None:
+        self.start = time.perf_counter()
+        self.limit = limit
+        #: Seconds per phase, in the order the phases ended.
+        self.phases: dict[str, float] = {}
+        self._t = self.start
+
+    def lap(self, phase: str) -> None:
+        """Add the time since the previous lap (or the start) to ``phase``."""
+        now = time.perf_counter()
+        self.phases[phase] = self.phases.get(phase, 0.0) + now - self._t
+        self._t = now
+
+    def check(self) -> None:
+        """Raise :class:`~recon.errors.LimitExceeded` when the time limit is reached."""
+        if self.limit is not None and time.perf_counter() - self.start > self.limit:
+            raise LimitExceeded(
+                f"time limit of {self.limit:g} s reached "
+                "(raise dynamics.time_limit or --time-limit)"
+            )
+
+
+@dataclass
+class ScheduleResult:
+    """The particle sheet after the release, and how the schedule went.
+
+    Attributes
+    ----------
+    state : ParticleState
+        Final particles (normalised units).
+    n_seeds : int
+        Number of seed particles.
+    dt : float
+        The time step in use at the end (``dynamics.dt``, halved after a restart).
+    steps : dict
+        Dynamics steps per phase: ``grow``, ``release``.
+    history : dict of lists
+        ``step``, ``particles``, ``kinetic``, ``coverage``, ``phase``: one entry per growth
+        round and release chunk.
+    warnings : list of str
+    stop_reason : str
+        Why growth stopped (empty when growth is disabled and nothing capped it).
+    """
+
+    state: ParticleState
+    n_seeds: int
+    dt: float
+    steps: dict[str, int]
+    history: dict[str, list]
+    warnings: list[str]
+    stop_reason: str
+
+
+def run_schedule(
+    surface: DataSurface,
+    cfg: ReconConfig,
+    rng: np.random.Generator,
+    clock: Clock,
+    on_progress: ProgressFn | None = None,
+) -> ScheduleResult:
+    """Seed, grow and release a particle sheet over the data surface (normalised units).
+
+    Parameters
+    ----------
+    surface : DataSurface
+        The data, in units of r0.
+    cfg : ReconConfig
+        Resolved configuration (``growth.max_gap`` set).
+    rng : numpy.random.Generator
+        The fit's generator: draws the coverage sample, then the seeds' visiting order.
+    clock : Clock
+        Checked during the dynamics; laps ``grow`` and ``release``.
+    on_progress : callable(phase, info), optional
+        See :data:`ProgressFn`.
+
+    Returns
+    -------
+    ScheduleResult
+
+    Raises
+    ------
+    DivergenceError
+        A phase diverged twice.
+    LimitExceeded
+        Too many seeds for ``dynamics.max_particles``, or the time limit.
+    """
+    schedule = _Schedule(surface, cfg, rng, clock, on_progress)
+    state, seed_points = schedule.make_seeds()
+    n_seeds = state.n
+    params = PhysicsParams.from_config(cfg, spacing=1.0)
+    state, params = schedule.run_phase(
+        "growth", state, params, lambda sim, st: schedule.grow(sim, st, seed_points)
+    )
+    clock.lap("grow")
+    state, params = schedule.run_phase("release", state, params, schedule.release)
+    clock.lap("release")
+    return ScheduleResult(
+        state=state,
+        n_seeds=int(n_seeds),
+        dt=params.dt,
+        steps=dict(schedule.steps),
+        history=schedule.history,
+        warnings=schedule.warnings,
+        stop_reason=schedule.stop_reason,
+    )
+
+
+class _Schedule:
+    """State of one run of the schedule (normalised units)."""
+
+    def __init__(
+        self,
+        surface: DataSurface,
+        cfg: ReconConfig,
+        rng: np.random.Generator,
+        clock: Clock,
+        on_progress: ProgressFn | None,
+    ) -> None:
+        self.surface = surface
+        self.cfg = cfg
+        self.rng = rng
+        self.clock = clock
+        self.on_progress = on_progress
+        self.steps = {"grow": 0, "release": 0}
+        self.history: dict[str, list] = {
+            "step": [],
+            "particles": [],
+            "kinetic": [],
+            "coverage": [],
+            "phase": [],
+        }
+        self.warnings: list[str] = []
+        self.stop_reason = ""
+        n = surface.n_points
+        take = (
+            rng.choice(n, size=min(n, COVER_SAMPLE), replace=False)
+            if n > COVER_SAMPLE
+            else np.arange(n)
+        )
+        self.cover_sample = surface.points[np.sort(take)]
+
+    # -- helpers -------------------------------------------------------------------------
+    def total_steps(self) -> int:
+        return self.steps["grow"] + self.steps["release"]
+
+    def coverage(self, positions: np.ndarray) -> float:
+        d, _ = cKDTree(positions).query(self.cover_sample, k=1, workers=-1)
+        return float(np.mean(d <= COVER_RADIUS))
+
+    def relax(self, sim: Simulation, state: ParticleState, n_steps: int, phase: str) -> float:
+        dyn = self.cfg.dynamics
+        kinetic = 0.0
+        done = 0
+        while done < n_steps:
+            if self.total_steps() >= dyn.max_steps:
+                break
+            chunk = min(ANCHOR_REFRESH, n_steps - done, dyn.max_steps - self.total_steps())
+            pts, nrm, _ = self.surface.anchors(state.position)
+            sim.set_anchors(pts, nrm, dyn.fidelity, dyn.fidelity_normal)
+            stats = sim.run(chunk)
+            if not (
+                math.isfinite(stats.kinetic)
+                and math.isfinite(stats.potential)
+                and stats.potential <= EXPLODING_ENERGY * max(state.n, 1)
+            ):
+                raise DivergenceError(
+                    f"particle dynamics diverged at step {self.total_steps() + chunk}: energy "
+                    f"kinetic {stats.kinetic:.3g}, potential {stats.potential:.3g} for "
+                    f"{state.n} particles"
+                )
+            kinetic = stats.kinetic / max(state.n, 1)
+            done += chunk
+            self.steps[phase] += chunk
+            self.clock.check()
+        return kinetic
+
+    def record(self, phase: str, state: ParticleState, kinetic: float, coverage: float) -> None:
+        h = self.history
+        h["step"].append(self.total_steps())
+        h["particles"].append(int(state.n))
+        h["kinetic"].append(float(kinetic))
+        h["coverage"].append(float(coverage))
+        h["phase"].append(phase)
+        if self.on_progress is not None:
+            self.on_progress(
+                phase,
+                {
+                    "step": self.total_steps(),
+                    "particles": int(state.n),
+                    "kinetic": kinetic,
+                    "coverage": coverage,
+                    "max_steps": self.cfg.dynamics.max_steps,
+                },
+            )
+
+    def run_phase(
+        self,
+        phase: str,
+        state: ParticleState,
+        params: PhysicsParams,
+        run: Callable[[Simulation, ParticleState], None],
+    ) -> tuple[ParticleState, PhysicsParams]:
+        """Run one phase; if the dynamics diverge, restart it once from its start, dt halved.
+
+        Returns the state after the phase (a restored copy after a restart) and the physics
+        parameters in use (with the halved dt after a restart, for the phases that follow).
+        """
+        saved = state.copy()
+        steps, stop_reason = dict(self.steps), self.stop_reason
+        n_history, n_warnings = len(self.history["step"]), len(self.warnings)
+        try:
+            run(Simulation(state, params), state)
+            return state, params
+        except DivergenceError as exc:
+            first = exc
+        params = replace(params, dt=RETRY_DT_FACTOR * params.dt)
+        log.warning(
+            "%s; restarting the %s phase with dynamics.dt halved to %g", first, phase, params.dt
+        )
+        self.steps, self.stop_reason = steps, stop_reason
+        for values in self.history.values():
+            del values[n_history:]
+        del self.warnings[n_warnings:]
+        self.warnings.append(
+            f"the dynamics diverged during {phase} ({first}); the phase was "
+            f"restarted with dynamics.dt = {params.dt:g}"
+        )
+        state = saved
+        try:
+            run(Simulation(state, params), state)
+        except DivergenceError as exc:
+            raise DivergenceError(
+                f"the particle dynamics diverged during {phase}, also after restarting it with "
+                f"dynamics.dt halved to {params.dt:g} ({exc}); lower dynamics.dt or raise the "
+                "spacing, and check the input for clusters of near-duplicate points"
+            ) from None
+        return state, params
+
+    # -- phases --------------------------------------------------------------------------
+    def make_seeds(self) -> tuple[ParticleState, np.ndarray]:
+        s = self.surface
+        idx = select_seeds(s.points, self.cfg.seeds.thinning, self.rng)
+        pos, pn, _ = s.project(s.points[idx])
+        cap = self.cfg.dynamics.max_particles
+        if len(idx) > cap:
+            raise LimitExceeded(
+                f"{len(idx)} seed particles exceed dynamics.max_particles={cap}; "
+                "raise the cap or the spacing"
+            )
+        state = ParticleState.from_points(pos, pn, pinned=True)
+        return state, pos
+
+    def grow_round(self, sim: Simulation, state: ParticleState) -> int:
+        """One application of the growing and stretching rules; returns particles added."""
+        g = self.cfg.growth
+        dyn = self.cfg.dynamics
+        pos, nrm = state.position, state.normal
+        tree = cKDTree(pos)
+        offsets, indices = neighbor_csr(tree, state.n, g.grow_radius)
+        frontier = np.diff(offsets) <= g.max_neighbors
+        cands = np.vstack(
+            [
+                grow_candidates(pos, nrm, offsets, indices, g),
+                stretch_candidates(pos, nrm, tree, frontier, g),
+            ]
+        )
+        acc = accept_candidates(cands, tree, self.surface, self.seed_tree, self.seed_points, g)
+        added = len(acc.positions)
+        room = dyn.max_particles - state.n
+        if added > room:
+            acc.positions, acc.normals = acc.positions[:room], acc.normals[:room]
+            added = room
+            self.stop_reason = f"particle cap dynamics.max_particles={dyn.max_particles} reached"
+            self.warnings.append(self.stop_reason)
+        if added:
+            state.add(acc.positions, acc.normals, pinned=False)
+            sim.notify_changed()
+        log.debug(
+            "growth: %d candidates, %d added (%d close, %d unsupported, %d off-plane), "
+            "%d particles",
+            acc.n_candidates,
+            added,
+            acc.n_too_close,
+            acc.n_unsupported,
+            acc.n_off_plane,
+            state.n,
+        )
+        return added
+
+    def grow(self, sim: Simulation, state: ParticleState, seed_points: np.ndarray) -> None:
+        g = self.cfg.growth
+        dyn = self.cfg.dynamics
+        self.seed_points = seed_points
+        self.seed_tree = cKDTree(seed_points)
+        previous_added = None
+        for rnd in range(g.max_rounds if g.enabled else 0):
+            kinetic = self.relax(sim, state, dyn.relax_steps, "grow")
+            if self.total_steps() >= dyn.max_steps:
+                self.stop_reason = f"step cap dynamics.max_steps={dyn.max_steps} reached"
+                self.warnings.append(self.stop_reason + " during growth")
+                break
+            added = self.grow_round(sim, state)
+            self.record("grow", state, kinetic, self.coverage(state.position))
+            if self.stop_reason:
+                break
+            small = added <= g.min_add_fraction * state.n
+            not_shrinking = previous_added is not None and added >= previous_added and added > 0
+            plateau = (
+                not_shrinking
+                and rnd > PLATEAU_AFTER_ROUND
+                and added < PLATEAU_ADD_FRACTION * state.n
+            )
+            if small or plateau:
+                self.stop_reason = "converged: additions stopped"
+                break
+            previous_added = added
+        else:
+            if g.enabled:
+                self.stop_reason = f"growth.max_rounds={g.max_rounds} reached"
+        # settle what the last round added before the seeds let go
+        kinetic = self.relax(sim, state, dyn.relax_steps, "grow")
+        self.record("grow", state, kinetic, self.coverage(state.position))
+
+    def release(self, sim: Simulation, state: ParticleState) -> None:
+        """Unpin the seeds and smooth; the first chunks also refill gaps the release opens."""
+        state.set_pinned(False)
+        sim.notify_changed()
+        dyn = self.cfg.dynamics
+        remaining = dyn.release_steps
+        refills = RELEASE_REFILLS if self.cfg.growth.enabled else 0
+        while remaining > 0:
+            n = min(RELEASE_CHUNK, remaining)
+            kinetic = self.relax(sim, state, n, "release")
+            remaining -= n
+            if refills > 0 and remaining > 0 and not self.stop_reason.startswith("particle cap"):
+                refills -= 1
+                self.grow_round(sim, state)
+            self.record("release", state, kinetic, self.coverage(state.position))
+            if self.total_steps() >= dyn.max_steps:
+                break
