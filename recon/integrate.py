@@ -180,7 +180,7 @@ def integrate_step(
             "The state was left unchanged; reduce dynamics.dt or check the input for "
             "duplicate points."
         )
-    old = state._swap_dynamic(
+    old = state.swap_dynamic(
         buffers.position, buffers.orientation, buffers.velocity, buffers.angular_velocity
     )
     buffers.position, buffers.orientation, buffers.velocity, buffers.angular_velocity = old

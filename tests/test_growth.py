@@ -2,14 +2,15 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from recon.config import GrowthConfig
-from recon.growth import accept_candidates, grow_candidates, neighbor_csr, stretch_candidates
+from recon.growth import accept_candidates, grow_candidates, stretch_candidates
+from recon.neighbors import build_neighbor_list
 from recon.surface import DataSurface
 
 
 def test_isolated_particle_grows_a_hexagon_in_its_tangent_plane():
     pos = np.array([[0.0, 0.0, 0.0]])
     nrm = np.array([[0.0, 0.0, 1.0]])
-    off, idx = neighbor_csr(cKDTree(pos), 1, 1.5)
+    off, idx = build_neighbor_list(pos, 1.5)
     c = grow_candidates(pos, nrm, off, idx, GrowthConfig())
     assert len(c) == 6
     assert np.allclose(np.linalg.norm(c, axis=1), 1.0)
@@ -24,7 +25,7 @@ def test_boundary_particle_fills_only_the_open_side():
     nb = np.column_stack([np.cos(ang), np.sin(ang), np.zeros(4)])
     pos = np.vstack([[0.0, 0, 0], nb])
     nrm = np.tile([0.0, 0, 1], (5, 1))
-    off, idx = neighbor_csr(cKDTree(pos), 5, 1.5)
+    off, idx = build_neighbor_list(pos, 1.5)
     cfg = GrowthConfig(max_neighbors=5)
     c = grow_candidates(pos[:1], nrm[:1], off[:2], idx, cfg)
     # gap of 180 degrees on the +x side: 2 candidates at 330 and 30 degrees
@@ -36,7 +37,7 @@ def test_full_ring_does_not_grow():
     ang = np.deg2rad(np.arange(0, 360, 60))
     pos = np.vstack([[0.0, 0, 0], np.column_stack([np.cos(ang), np.sin(ang), np.zeros(6)])])
     nrm = np.tile([0.0, 0, 1], (7, 1))
-    off, idx = neighbor_csr(cKDTree(pos), 7, 1.5)
+    off, idx = build_neighbor_list(pos, 1.5)
     c = grow_candidates(pos[:1], nrm[:1], off[:2], idx, GrowthConfig(max_neighbors=6))
     assert len(c) == 0
 

@@ -45,6 +45,17 @@ instead of raising ``ZeroDivisionError`` from inside a kernel, and divisions car
 zero test."""
 
 
+EXACT_JIT_OPTIONS: dict = {**JIT_OPTIONS, "fastmath": False}
+"""Keyword arguments for the geometry kernels of the stages (Poisson-disk thinning, growing
+rule, local quadrics, angular gaps, circumspheres): :data:`JIT_OPTIONS` without fast-math.
+
+These kernels were compiled without fast-math before they moved here, and their results feed
+discrete decisions (which seed or candidate is kept, which triangle passes). ``arcp`` lets LLVM
+replace several divisions by one value with a multiplication by its reciprocal (the quadric
+fit divides five coefficients by the same scale), which changes last bits and so could change
+those decisions; exact IEEE arithmetic keeps every mesh byte-identical."""
+
+
 @contextlib.contextmanager
 def thread_limit(parallel: bool) -> Iterator[None]:
     """Run the ``parallel=True`` kernels in the calling thread only (when ``parallel`` is False).
