@@ -19,6 +19,11 @@ from scipy.spatial import cKDTree
 
 from .kernels.poisson_disk import poisson_disk_kernel
 
+#: Seed of the spacing subsample when a caller of :func:`median_nearest_neighbor_distance`
+#: passes no generator (``recon.pipeline.choose_spacing`` and ``oprecon info`` do so today;
+#: they should pass ``np.random.default_rng(SPACING_SAMPLE_SEED)`` themselves).
+SPACING_SAMPLE_SEED = 0
+
 __all__ = [
     "as_points",
     "bbox_diagonal",
@@ -122,8 +127,10 @@ def median_nearest_neighbor_distance(
     sample : int or None
         Query at most this many points (the tree always holds all of them); None = all.
     rng : numpy.random.Generator, optional
-        Chooses the sample. Default: a generator seeded with 0, so the result is
-        deterministic.
+        Chooses the sample when there are more than ``sample`` points; pass the caller's
+        generator. ``None`` stands for ``np.random.default_rng(SPACING_SAMPLE_SEED)`` (a fixed
+        seed, so the result is deterministic); it remains only for callers that do not pass a
+        generator yet and will become an error.
 
     Returns
     -------
@@ -142,7 +149,7 @@ def median_nearest_neighbor_distance(
         raise ValueError(f"points: need at least 2 points for a spacing, got {n}")
     tree = cKDTree(pts)
     if sample is not None and n > sample:
-        gen = rng if rng is not None else np.random.default_rng(0)
+        gen = rng if rng is not None else np.random.default_rng(SPACING_SAMPLE_SEED)
         query = pts[np.sort(gen.choice(n, size=sample, replace=False))]
     else:
         query = pts
