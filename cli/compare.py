@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import sys
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any
 
@@ -39,6 +39,9 @@ class CompareTolerances(Schema):
     samples: int | None = option(None, "Points sampled on each surface.", 1)
     seed: int | None = option(None, "Sampling seed.", 0)
 
+
+#: Keys of a --tolerances file.
+TOLERANCE_KEYS: tuple[str, ...] = tuple(f.name for f in fields(CompareTolerances))
 
 #: Check metric -> option that sets its limit (for the failure table).
 OPTION_OF = {
