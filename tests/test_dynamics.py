@@ -437,3 +437,13 @@ def test_empty_state_and_growth_from_nothing():
     sim.notify_changed()
     stats = sim.step()
     assert stats.rebuilt and stats.potential < 0.0
+
+
+def test_coefficients_are_a_named_tuple_of_floats():
+    from recon.forces import pack_coefficients
+    from recon.params import Coefficients
+
+    c = pack_coefficients(DEFAULTS)
+    assert isinstance(c, Coefficients)
+    assert all(isinstance(v, float) for v in c)
+    assert c.cutoff2 == DEFAULTS.cutoff**2 and c.has_anchors == 0.0

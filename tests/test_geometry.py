@@ -62,3 +62,16 @@ def test_unit_vectors_and_as_points():
     np.testing.assert_allclose(v, [[0.6, 0.8, 0.0], [0.0, 0.0, 0.0]])
     with pytest.raises(ValueError, match=r"expected shape \(n, 3\), got \(4, 2\)"):
         as_points(np.zeros((4, 2)))
+
+
+def test_as_points_is_the_one_validator():
+    from recon.errors import InputError
+
+    assert as_points([1.0, 2.0, 3.0], allow_single=True).shape == (1, 3)
+    with pytest.raises(ValueError, match=r"normals: expected 2 rows, got 3"):
+        as_points(np.zeros((3, 3)), "normals", rows=2)
+    bad = np.zeros((4, 3))
+    bad[2, 1] = np.nan
+    as_points(bad)  # finiteness is checked only when asked
+    with pytest.raises(InputError, match=r"points: row 2 is not finite"):
+        as_points(bad, finite=True, error=InputError)

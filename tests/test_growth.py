@@ -7,6 +7,14 @@ from recon.neighbors import build_neighbor_list
 from recon.surface import DataSurface
 
 
+def _only_first_row(offsets):
+    """CSR offsets with every row but the first emptied (so only particle 0 can grow when
+    ``min_neighbors >= 1``), keeping the arrays in bounds for the kernel."""
+    out = np.full_like(offsets, offsets[1])
+    out[0] = 0
+    return out
+
+
 def test_isolated_particle_grows_a_hexagon_in_its_tangent_plane():
     pos = np.array([[0.0, 0.0, 0.0]])
     nrm = np.array([[0.0, 0.0, 1.0]])
@@ -26,8 +34,8 @@ def test_boundary_particle_fills_only_the_open_side():
     pos = np.vstack([[0.0, 0, 0], nb])
     nrm = np.tile([0.0, 0, 1], (5, 1))
     off, idx = build_neighbor_list(pos, 1.5)
-    cfg = GrowthConfig(max_neighbors=5)
-    c = grow_candidates(pos[:1], nrm[:1], off[:2], idx, cfg)
+    cfg = GrowthConfig(min_neighbors=1, max_neighbors=5)
+    c = grow_candidates(pos, nrm, _only_first_row(off), idx, cfg)
     # gap of 180 degrees on the +x side: 2 candidates at 330 and 30 degrees
     assert len(c) == 2
     assert np.all(c[:, 0] > 0.8)
@@ -38,7 +46,8 @@ def test_full_ring_does_not_grow():
     pos = np.vstack([[0.0, 0, 0], np.column_stack([np.cos(ang), np.sin(ang), np.zeros(6)])])
     nrm = np.tile([0.0, 0, 1], (7, 1))
     off, idx = build_neighbor_list(pos, 1.5)
-    c = grow_candidates(pos[:1], nrm[:1], off[:2], idx, GrowthConfig(max_neighbors=6))
+    cfg = GrowthConfig(min_neighbors=1, max_neighbors=6)
+    c = grow_candidates(pos, nrm, _only_first_row(off), idx, cfg)
     assert len(c) == 0
 
 
