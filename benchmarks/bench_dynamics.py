@@ -124,7 +124,7 @@ def run_case(n: int, steps: int, parallel: bool | None = None) -> dict:
             pairs_within / float(np.median(plain)) if plain.size else None
         ),
         "rebuilds": int(rebuilt.sum()),
-        "parallel": sim._use_parallel(),
+        "parallel": sim.uses_parallel(),
     }
 
 

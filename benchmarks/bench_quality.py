@@ -53,7 +53,7 @@ def run_method(
     import open3d as o3d
 
     from recon.config import ReconConfig
-    from recon.geometry import median_nearest_neighbor_distance
+    from recon.geometry import SPACING_SAMPLE_SEED, median_nearest_neighbor_distance
     from recon.io import read_points
 
     cloud = read_points(input_path)
@@ -68,7 +68,9 @@ def run_method(
         v, f = res.mesh.vertices - cloud.origin, res.mesh.faces
     else:
         o3d.utility.set_verbosity_level(o3d.utility.VerbosityLevel.Error)
-        spacing = median_nearest_neighbor_distance(pts)
+        spacing = median_nearest_neighbor_distance(
+            pts, rng=np.random.default_rng(SPACING_SAMPLE_SEED)
+        )
         pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts))
         if method.startswith("poisson"):
             _peer_normals(o3d, pcd)

@@ -3,29 +3,45 @@
 from __future__ import annotations
 
 import sys
+from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any
 
 import click
 from click.core import ParameterSource
 
+from recon.config import load_yaml_file
 from recon.errors import ConfigError, InputError
+from recon.schema import Schema, from_dict, option, to_dict
 
 from .common import EXIT_CHECK_FAILED, catch_errors
 from .report import TOPOLOGY_ROWS, fmt, read_mesh_checked, table, to_json
 
-#: Keys of a --tolerances file and their types (the option names with '_' for '-').
-TOLERANCE_KEYS: dict[str, type] = {
-    "max_chamfer": float,
-    "max_chamfer_abs": float,
-    "min_fscore": float,
-    "max_hausdorff95": float,
-    "same_topology": bool,
-    "tau": float,
-    "tau_relative": float,
-    "samples": int,
-    "seed": int,
-}
+
+@dataclass(frozen=True)
+class CompareTolerances(Schema):
+    """The keys of a ``--tolerances`` file (the option names with '_' for '-').
+
+    Validated by the same machinery as the pipeline configuration (:mod:`recon.schema`), with
+    the same bounds as the command-line options. ``None`` means "not given": the option's value
+    (or default) applies.
+    """
+
+    max_chamfer: float | None = option(None, "Chamfer-L1 / reference diagonal limit.", 0.0)
+    max_chamfer_abs: float | None = option(None, "Chamfer-L1 limit in input units.", 0.0)
+    min_fscore: float | None = option(None, "Lowest F-score at tau.", 0.0, 1.0)
+    max_hausdorff95: float | None = option(None, "95% Hausdorff / diagonal limit.", 0.0)
+    same_topology: bool | None = option(None, "Require the reference's topology.")
+    tau: float | None = option(None, "F-score threshold [input units].", 0.0, lo_open=True)
+    tau_relative: float | None = option(
+        None, "F-score threshold / reference diagonal.", 0.0, lo_open=True
+    )
+    samples: int | None = option(None, "Points sampled on each surface.", 1)
+    seed: int | None = option(None, "Sampling seed.", 0)
+
+
+#: Keys of a --tolerances file.
+TOLERANCE_KEYS: tuple[str, ...] = tuple(f.name for f in fields(CompareTolerances))
 
 #: Check metric -> option that sets its limit (for the failure table).
 OPTION_OF = {
@@ -36,35 +52,17 @@ OPTION_OF = {
 }
 
 
-def _check_range(key: str, value: Any, where: str) -> None:
-    """Range check of a tolerance-file value (the options check the same with click types)."""
-    bad = None
-    if key == "samples" and value < 1:
-        bad = "must be >= 1"
-    elif key == "seed" and value < 0:
-        bad = "must be >= 0"
-    elif key in ("tau", "tau_relative") and not value > 0:
-        bad = "must be > 0"
-    elif key == "min_fscore" and not 0 <= value <= 1:
-        bad = "must lie in [0, 1]"
-    elif key.startswith("max_") and not value >= 0:
-        bad = "must be >= 0"
-    if bad:
-        raise ConfigError(f"{where}: {key} {bad}, got {value}")
-
-
 def load_tolerances(path: Path) -> dict[str, Any]:
-    """Read a YAML tolerance file: a mapping with keys from :data:`TOLERANCE_KEYS`.
+    """Read a YAML tolerance file (:class:`CompareTolerances`); return the keys it sets.
 
     Raises
     ------
     InputError
         Missing or unreadable file.
     ConfigError
-        Not YAML, not a mapping, an unknown key (named), or a value of the wrong type/range.
+        Not YAML, not a mapping, an unknown key (named, with the closest valid key), or a value
+        of the wrong type or out of range; the message starts with the file name.
     """
-    from recon.config import load_yaml_file
-
     if not path.is_file():
         raise InputError(f"{path}: no such file" if not path.exists() else f"{path}: not a file")
     data = load_yaml_file(path)  # safe loader; syntax errors give the line and column
@@ -72,29 +70,13 @@ def load_tolerances(path: Path) -> dict[str, Any]:
         return {}
     if not isinstance(data, dict):
         raise ConfigError(f"{path}: expected a mapping of tolerances, got {type(data).__name__}")
-    out: dict[str, Any] = {}
-    for raw_key, value in data.items():
-        key = str(raw_key).replace("-", "_")
-        if key not in TOLERANCE_KEYS:
-            known = ", ".join(TOLERANCE_KEYS)
-            raise ConfigError(f"{path}: unknown key '{raw_key}' (known keys: {known})")
-        kind = TOLERANCE_KEYS[key]
-        if kind is bool:
-            ok = isinstance(value, bool)
-        elif kind is int:
-            ok = isinstance(value, int) and not isinstance(value, bool)
-        else:
-            ok = isinstance(value, (int, float)) and not isinstance(value, bool)
-        if not ok:
-            raise ConfigError(
-                f"{path}: {raw_key} must be a {kind.__name__}, got {value!r} "
-                f"({type(value).__name__})"
-            )
-        value = float(value) if kind is float else value
-        if kind is not bool:
-            _check_range(key, value, str(path))
-        out[key] = value
-    return out
+    try:
+        tolerances = from_dict(
+            CompareTolerances, {str(k).replace("-", "_"): v for k, v in data.items()}
+        )
+    except ConfigError as exc:
+        raise ConfigError(f"{path}: {exc}") from None
+    return {k: v for k, v in to_dict(tolerances).items() if v is not None}
 
 
 def read_reference(path: Path, as_points: bool) -> Any:

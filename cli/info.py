@@ -14,7 +14,13 @@ from .common import catch_errors
 
 def describe(path: Path) -> dict[str, Any]:
     """Read ``path`` and summarise it as a JSON-ready dict (absolute coordinates)."""
-    from recon.geometry import bbox_diagonal, median_nearest_neighbor_distance
+    import numpy as np
+
+    from recon.geometry import (
+        SPACING_SAMPLE_SEED,
+        bbox_diagonal,
+        median_nearest_neighbor_distance,
+    )
     from recon.io import read_points
 
     cloud = read_points(path)
@@ -33,7 +39,9 @@ def describe(path: Path) -> dict[str, Any]:
         "bbox_max": hi.tolist(),
         "bbox_size": (hi - lo).tolist(),
         "bbox_diagonal": bbox_diagonal(cloud.points),
-        "spacing_median_nn": median_nearest_neighbor_distance(cloud.points),
+        "spacing_median_nn": median_nearest_neighbor_distance(
+            cloud.points, rng=np.random.default_rng(SPACING_SAMPLE_SEED)
+        ),
         "origin": cloud.origin.tolist(),
         "has_normals": cloud.normals is not None,
         "invalid_normals": info.get("n_invalid_normals", 0),

@@ -10,8 +10,7 @@ References
 """
 
 from .errors import ConfigError, InputError, OpreconError
-
-__version__ = "0.1.0"
+from .version import __version__
 
 __all__ = ["ConfigError", "InputError", "OpreconError", "__version__", "fit", "load_config"]
 

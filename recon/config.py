@@ -14,98 +14,97 @@ Precedence (highest first): command-line options > ``--set section.key=value`` >
 
 from __future__ import annotations
 
-import dataclasses
-import difflib
-import math
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field, fields, is_dataclass
 from pathlib import Path
-from typing import Any, Union, get_args, get_origin, get_type_hints
+from typing import Any, ClassVar
 
 import yaml
 
-from .errors import ConfigError
+from .errors import ConfigError, did_you_mean
+from .schema import Schema, from_dict, option, range_text, to_dict
 
 CONFIG_VERSION = 1
 
 
-def _f(
-    default: Any,
-    doc: str,
-    lo: float | None = None,
-    hi: float | None = None,
-    choices: tuple[Any, ...] | None = None,
-    lo_open: bool = False,
-) -> Any:
-    """A dataclass field with documentation and an allowed range."""
-    meta = {"doc": doc, "min": lo, "max": hi, "choices": choices, "min_open": lo_open}
-    if isinstance(default, (list, dict)):
-        return field(default_factory=lambda d=default: type(d)(d), metadata=meta)
-    return field(default=default, metadata=meta)
+@dataclass(frozen=True)
+class IOConfig(Schema):
+    PREFIX: ClassVar[str] = "io."
+
+    ascii: bool = option(False, "Write PLY files as ASCII instead of binary little-endian.")
+    merge_duplicates: bool = option(True, "Merge exactly repeated points on reading.")
+    max_points: int = option(50_000_000, "Refuse inputs with more points than this.", 4, None)
 
 
 @dataclass(frozen=True)
-class IOConfig:
-    ascii: bool = _f(False, "Write PLY files as ASCII instead of binary little-endian.")
-    merge_duplicates: bool = _f(True, "Merge exactly repeated points on reading.")
-    max_points: int = _f(50_000_000, "Refuse inputs with more points than this.", 4, None)
+class NormalsConfig(Schema):
+    PREFIX: ClassVar[str] = "normals."
 
-
-@dataclass(frozen=True)
-class NormalsConfig:
-    mode: str = _f(
+    mode: str = option(
         "auto",
         "auto: use the file's normals when present and valid, else estimate; "
         "estimate: always estimate; input: require normals in the file.",
         choices=("auto", "estimate", "input"),
     )
-    k: int = _f(20, "Neighbours for the PCA normal estimate and the local data surfaces.", 3, 500)
-    auto_scale: bool = _f(
+    k: int = option(
+        20, "Neighbours for the PCA normal estimate and the local data surfaces.", 3, 500
+    )
+    auto_scale: bool = option(
         True,
         "Raise k (up to 4x) on noisy data until the local surfaces are "
         "thin (median surface variation below 0.05).",
     )
-    radius: float | None = _f(
+    radius: float | None = option(
         None, "Optional PCA radius [input length units]; null = k-NN only.", 0.0, None, lo_open=True
     )
-    orient_k: int = _f(10, "Neighbours in the orientation graph (Hoppe et al. 1992 MST).", 3, 100)
-    orientation: str = _f(
+    orient_k: int = option(
+        10, "Neighbours in the orientation graph (Hoppe et al. 1992 MST).", 3, 100
+    )
+    orientation: str = option(
         "auto",
         "Global sign: auto (outward if the surface looks closed, else "
         "toward the viewpoint or +z), outward, viewpoint, or none.",
         choices=("auto", "outward", "viewpoint", "none"),
     )
-    viewpoint: list[float] | None = _f(
+    viewpoint: list[float] | None = option(
         None,
         "Scanner position [x, y, z] for range scans "
         "(input length units); implies orientation toward it.",
     )
 
+    def check(self, prefix: str) -> None:
+        if self.viewpoint is not None and len(self.viewpoint) != 3:
+            raise ConfigError(
+                f"{prefix}viewpoint: expected 3 numbers [x, y, z], got {self.viewpoint}"
+            )
+
 
 @dataclass(frozen=True)
-class SeedsConfig:
-    spacing: float | None = _f(
+class SeedsConfig(Schema):
+    PREFIX: ClassVar[str] = "seeds."
+
+    spacing: float | None = option(
         None,
         "Absolute rest spacing r0 [input length units]; null = derived from the data.",
         0.0,
         None,
         lo_open=True,
     )
-    spacing_relative: float | None = _f(
+    spacing_relative: float | None = option(
         None,
         "Rest spacing r0 as a fraction of the bounding-box diagonal; null = derived from the data.",
         0.0,
         1.0,
         lo_open=True,
     )
-    spacing_factor: float = _f(
+    spacing_factor: float = option(
         2.5,
         "r0 = spacing_factor x median nearest-neighbour distance "
         "of the input (used when spacing and spacing_relative are null).",
         0.1,
         100.0,
     )
-    min_particles: int = _f(
+    min_particles: int = option(
         10_000,
         "Resolution floor: r0 shrinks (down to the data spacing x "
         "0.8) so that the sheet has about this many particles; sparse "
@@ -113,63 +112,77 @@ class SeedsConfig:
         0,
         None,
     )
-    thinning: float = _f(1.0, "Seeds are Poisson-disk thinned to this distance [r0].", 0.3, 5.0)
+    thinning: float = option(1.0, "Seeds are Poisson-disk thinned to this distance [r0].", 0.3, 5.0)
+
+    def check(self, prefix: str) -> None:
+        if self.spacing is not None and self.spacing_relative is not None:
+            raise ConfigError(
+                f"{prefix}spacing and {prefix}spacing_relative are exclusive; set one"
+            )
 
 
 @dataclass(frozen=True)
-class DynamicsConfig:
-    dt: float = _f(0.2, "Time step [r0-units of time; m = I = 1].", 0.0, 1.0, lo_open=True)
-    max_steps: int = _f(3000, "Hard cap on dynamics steps over all phases.", 1, None)
-    max_particles: int = _f(2_000_000, "Hard cap on the particle count.", 4, None)
-    damping_linear: float = _f(2.0, "beta_0: linear velocity damping.", 0.0, None)
-    damping_angular: float = _f(2.0, "beta_2: angular velocity damping.", 0.0, None)
-    damping_relative_linear: float = _f(
+class DynamicsConfig(Schema):
+    PREFIX: ClassVar[str] = "dynamics."
+
+    dt: float = option(0.2, "Time step [r0-units of time; m = I = 1].", 0.0, 1.0, lo_open=True)
+    max_steps: int = option(3000, "Hard cap on dynamics steps over all phases.", 1, None)
+    max_particles: int = option(2_000_000, "Hard cap on the particle count.", 4, None)
+    damping_linear: float = option(2.0, "beta_0: linear velocity damping.", 0.0, None)
+    damping_angular: float = option(2.0, "beta_2: angular velocity damping.", 0.0, None)
+    damping_relative_linear: float = option(
         0.0, "beta_1: relative damping between neighbours (T-thesis eq. 4.10 sign).", 0.0, None
     )
-    damping_relative_angular: float = _f(0.0, "beta_3: relative angular damping.", 0.0, None)
-    max_displacement: float = _f(0.1, "Per-step displacement cap [r0].", 0.0, 10.0, lo_open=True)
-    max_rotation_deg: float = _f(17.0, "Per-step rotation cap [degrees].", 0.0, 180.0, lo_open=True)
-    skin: float = _f(
+    damping_relative_angular: float = option(0.0, "beta_3: relative angular damping.", 0.0, None)
+    max_displacement: float = option(
+        0.1, "Per-step displacement cap [r0].", 0.0, 10.0, lo_open=True
+    )
+    max_rotation_deg: float = option(
+        17.0, "Per-step rotation cap [degrees].", 0.0, 180.0, lo_open=True
+    )
+    skin: float = option(
         0.4,
         "Neighbour-list skin [r0]; lists are rebuilt after skin/2 motion.",
         0.0,
         5.0,
         lo_open=True,
     )
-    relax_steps: int = _f(15, "Relaxation steps after each growth round.", 1, 10_000)
-    release_steps: int = _f(100, "Steps after the seeds are released (smoothing).", 0, 100_000)
-    fidelity: float = _f(
+    relax_steps: int = option(15, "Relaxation steps after each growth round.", 1, 10_000)
+    release_steps: int = option(100, "Steps after the seeds are released (smoothing).", 0, 100_000)
+    fidelity: float = option(
         5.0, "Point-to-plane pull toward the data (0 = pure smoothing).", 0.0, 100.0
     )
-    fidelity_normal: float = _f(
+    fidelity_normal: float = option(
         0.5, "Torque aligning particle normals with data normals.", 0.0, 100.0
     )
-    time_limit: float | None = _f(
+    time_limit: float | None = option(
         None, "Wall-clock limit for one fit [s]; null = none.", 0.0, None, lo_open=True
     )
 
 
 @dataclass(frozen=True)
-class PotentialsConfig:
-    w_lj: float = _f(
+class PotentialsConfig(Schema):
+    PREFIX: ClassVar[str] = "potentials."
+
+    w_lj: float = option(
         1.0, "alpha_LJ: weight of the spacing (Lennard-Jones 4-2) potential.", 0.0, None
     )
-    w_planarity: float = _f(1.0, "alpha_P: co-planarity weight (S&T92 eq. 3).", 0.0, None)
-    w_normality: float = _f(1.0, "alpha_N: co-normality weight (S&T92 eq. 4).", 0.0, None)
-    w_circularity: float = _f(0.0, "alpha_C: co-circularity weight (S&T92 eq. 5).", 0.0, None)
-    cutoff: float = _f(
+    w_planarity: float = option(1.0, "alpha_P: co-planarity weight (S&T92 eq. 3).", 0.0, None)
+    w_normality: float = option(1.0, "alpha_N: co-normality weight (S&T92 eq. 4).", 0.0, None)
+    w_circularity: float = option(0.0, "alpha_C: co-circularity weight (S&T92 eq. 5).", 0.0, None)
+    cutoff: float = option(
         2.0, "Interaction cutoff [r0] (LJ shifted-force truncation and psi).", 1.2, 5.0
     )
-    weighting: str = _f(
+    weighting: str = option(
         "poly",
         "psi: poly (1-(d/rc)^2)^2, gaussian exp(-d^2/(2 s^2)), or "
         "anisotropic (S&T92 eq. 7 in the particle frame).",
         choices=("poly", "gaussian", "anisotropic"),
     )
-    influence_radius: float = _f(
+    influence_radius: float = option(
         1.0, "sigma of the gaussian/anisotropic weight [r0].", 0.0, 5.0, lo_open=True
     )
-    anisotropy: float = _f(
+    anisotropy: float = option(
         2.0,
         "Anisotropic weight: normal-direction sigma divisor "
         "(sigma_n = influence_radius / anisotropy).",
@@ -179,24 +192,30 @@ class PotentialsConfig:
 
 
 @dataclass(frozen=True)
-class GrowthConfig:
-    enabled: bool = _f(True, "Run the growing and stretching rules.")
-    max_rounds: int = _f(40, "Cap on growth rounds.", 0, 10_000)
-    grow_radius: float = _f(
+class GrowthConfig(Schema):
+    PREFIX: ClassVar[str] = "growth."
+
+    enabled: bool = option(True, "Run the growing and stretching rules.")
+    max_rounds: int = option(40, "Cap on growth rounds.", 0, 10_000)
+    grow_radius: float = option(
         1.5, "Neighbours within this distance count for the growing rule [r0].", 0.5, 5.0
     )
-    gap_angle_deg: float = _f(
+    gap_angle_deg: float = option(
         100.0, "An angular gap wider than this gets new particles.", 30.0, 359.0
     )
-    gap_step_deg: float = _f(60.0, "One new particle per this many degrees of gap.", 10.0, 180.0)
-    min_neighbors: int = _f(
+    gap_step_deg: float = option(
+        60.0, "One new particle per this many degrees of gap.", 10.0, 180.0
+    )
+    min_neighbors: int = option(
         0, "Growing rule applies to particles with at least this many neighbours.", 0, 50
     )
-    max_neighbors: int = _f(5, "... and at most this many.", 1, 50)
-    stretch_min: float = _f(2.0, "Stretching rule: pair distance lower bound [r0].", 1.0, 10.0)
-    stretch_max: float = _f(2.5, "Stretching rule: pair distance upper bound [r0].", 1.0, 10.0)
-    reject_radius: float = _f(0.8, "Reject a candidate this close to a particle [r0].", 0.1, 2.0)
-    max_gap: float | None = _f(
+    max_neighbors: int = option(5, "... and at most this many.", 1, 50)
+    stretch_min: float = option(2.0, "Stretching rule: pair distance lower bound [r0].", 1.0, 10.0)
+    stretch_max: float = option(2.5, "Stretching rule: pair distance upper bound [r0].", 1.0, 10.0)
+    reject_radius: float = option(
+        0.8, "Reject a candidate this close to a particle [r0].", 0.1, 2.0
+    )
+    max_gap: float | None = option(
         None,
         "Holes wider than this are not filled; candidates farther "
         "than max_gap/2 from the data are rejected [r0]. null = 10 x the "
@@ -204,33 +223,44 @@ class GrowthConfig:
         0.5,
         1000.0,
     )
-    tangent_tolerance: float = _f(
+    tangent_tolerance: float = option(
         0.5, "Reject a candidate farther than this from the local data plane [r0].", 0.01, 5.0
     )
-    min_add_fraction: float = _f(
+    min_add_fraction: float = option(
         0.005, "Stop growing when a round adds fewer than this fraction of the particles.", 0.0, 1.0
     )
 
+    def check(self, prefix: str) -> None:
+        if self.stretch_min > self.stretch_max:
+            raise ConfigError(
+                f"{prefix}stretch_min ({self.stretch_min}) must not exceed "
+                f"{prefix}stretch_max ({self.stretch_max})"
+            )
+        if self.min_neighbors > self.max_neighbors:
+            raise ConfigError(f"{prefix}min_neighbors must not exceed {prefix}max_neighbors")
+
 
 @dataclass(frozen=True)
-class TriangulationConfig:
-    method: str = _f(
+class TriangulationConfig(Schema):
+    PREFIX: ClassVar[str] = "triangulation."
+
+    method: str = option(
         "ball_pivoting",
         "ball_pivoting (manifold, default) or circumsphere "
         "(S&T92 empty-circumsphere test, for comparison).",
         choices=("ball_pivoting", "circumsphere"),
     )
-    radii: list[float] = _f([0.7, 1.0, 1.4, 2.0], "Ball-pivoting radii [r0].")
-    fill_holes: bool = _f(True, "Fill holes whose perimeter is below pi * max_hole.")
-    max_hole: float | None = _f(
+    radii: list[float] = option([0.7, 1.0, 1.4, 2.0], "Ball-pivoting radii [r0].")
+    fill_holes: bool = option(True, "Fill holes whose perimeter is below pi * max_hole.")
+    max_hole: float | None = option(
         None, "Largest hole diameter to fill [r0]; null = growth.max_gap.", 0.0, None
     )
-    project_to_data: bool = _f(
+    project_to_data: bool = option(
         True,
         "Move the final particles onto the local data surface "
         "(quadric fit) along its normal before meshing.",
     )
-    trim_distance: float = _f(
+    trim_distance: float = option(
         1.0,
         "Drop particles farther than this from the local data plane, "
         "or farther than max_gap/2 from any data point [r0].",
@@ -239,17 +269,25 @@ class TriangulationConfig:
         lo_open=True,
     )
 
+    def check(self, prefix: str) -> None:
+        if not self.radii:
+            raise ConfigError(f"{prefix}radii: expected at least one radius")
+        if any(r <= 0 for r in self.radii):
+            raise ConfigError(f"{prefix}radii: every radius must be > 0, got {self.radii}")
+
 
 @dataclass(frozen=True)
-class OutputConfig:
-    write_report: bool = _f(True, "Write <mesh>.report.json beside the mesh.")
-    vertex_normals: bool = _f(True, "Write per-vertex normals.")
+class OutputConfig(Schema):
+    PREFIX: ClassVar[str] = "output."
+
+    write_report: bool = option(True, "Write <mesh>.report.json beside the mesh.")
+    vertex_normals: bool = option(True, "Write per-vertex normals.")
 
 
 @dataclass(frozen=True)
-class ReconConfig:
-    version: int = _f(CONFIG_VERSION, "Configuration format version.", 1, 1)
-    seed: int = _f(0, "Random seed: same input, config and seed give the same mesh.", 0, None)
+class ReconConfig(Schema):
+    version: int = option(CONFIG_VERSION, "Configuration format version.", 1, 1)
+    seed: int = option(0, "Random seed: same input, config and seed give the same mesh.", 0, None)
     io: IOConfig = field(default_factory=IOConfig, metadata={"doc": "Reading and writing."})
     normals: NormalsConfig = field(
         default_factory=NormalsConfig, metadata={"doc": "Normal estimation and orientation."}
@@ -282,142 +320,18 @@ SECTIONS: tuple[str, ...] = tuple(
 )
 
 
-# --------------------------------------------------------------------------------------------
-# validation
-
-
-def _suggest(name: str, valid: Iterable[str]) -> str:
-    close = difflib.get_close_matches(name, list(valid), n=1, cutoff=0.5)
-    return f" (did you mean '{close[0]}'?)" if close else ""
-
-
-def _type_name(tp: Any) -> str:
-    return getattr(tp, "__name__", str(tp)).replace("NoneType", "null")
-
-
-def coerce(key: str, value: Any, tp: Any) -> Any:
-    """Check ``value`` against the annotation ``tp``; return it converted (int -> float ok)."""
-    origin = get_origin(tp)
-    args = get_args(tp)
-    if origin is Union or (origin is not None and type(None) in args and len(args) >= 2):
-        if value is None and type(None) in args:
-            return None
-        inner = [a for a in args if a is not type(None)]
-        return coerce(key, value, inner[0])
-    if value is None:
-        raise ConfigError(f"{key}: null is not allowed (expected {_type_name(tp)})")
-    if origin is list:
-        (item_tp,) = args or (Any,)
-        if not isinstance(value, (list, tuple)):
-            raise ConfigError(f"{key}: expected a list, got {type(value).__name__} {value!r}")
-        return [coerce(f"{key}[{i}]", v, item_tp) for i, v in enumerate(value)]
-    if tp is bool:
-        if not isinstance(value, bool):
-            raise ConfigError(f"{key}: expected true or false, got {value!r}")
-        return value
-    if tp is int:
-        if isinstance(value, bool) or not isinstance(value, int):
-            if isinstance(value, float) and value.is_integer():
-                return int(value)
-            raise ConfigError(f"{key}: expected an integer, got {value!r}")
-        return value
-    if tp is float:
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise ConfigError(f"{key}: expected a number, got {value!r}")
-        value = float(value)
-        if not math.isfinite(value):
-            raise ConfigError(f"{key}: expected a finite number, got {value!r}")
-        return value
-    if tp is str:
-        if not isinstance(value, str):
-            raise ConfigError(f"{key}: expected a string, got {value!r}")
-        return value
-    return value
-
-
-def check_range(key: str, value: Any, meta: Mapping[str, Any]) -> None:
-    """Check ``value`` against a field's ``choices`` and ``min``/``max`` metadata."""
-    choices = meta.get("choices")
-    if choices is not None and value not in choices:
-        allowed = ", ".join(map(str, choices))
-        raise ConfigError(
-            f"{key}: {value!r} is not one of: {allowed}{_suggest(str(value), map(str, choices))}"
-        )
-    values = value if isinstance(value, list) else [value]
-    lo, hi, lo_open = meta.get("min"), meta.get("max"), meta.get("min_open", False)
-    for v in values:
-        if not isinstance(v, (int, float)) or isinstance(v, bool):
-            continue
-        bad = (lo is not None and (v < lo or (lo_open and v == lo))) or (hi is not None and v > hi)
-        if bad:
-            lo_s = "-inf" if lo is None else f"{lo:g}"
-            hi_s = "inf" if hi is None else f"{hi:g}"
-            bracket = "(" if lo_open else "["
-            raise ConfigError(f"{key}: {v!r} is out of range, allowed {bracket}{lo_s}, {hi_s}]")
-
-
-def _build(cls: type, data: Mapping[str, Any], prefix: str) -> Any:
-    if not isinstance(data, Mapping):
-        where = prefix.rstrip(".") or "configuration"
-        raise ConfigError(f"{where}: expected a mapping of keys to values, got {data!r}")
-    hints = get_type_hints(cls)
-    known = {f.name: f for f in fields(cls)}
-    for k in data:
-        if not isinstance(k, str) or k not in known:
-            raise ConfigError(f"unknown key '{prefix}{k}'{_suggest(str(k), known)}")
-    kwargs: dict[str, Any] = {}
-    for name, value in data.items():
-        f = known[name]
-        key = prefix + name
-        tp = hints[name]
-        if is_dataclass(tp):
-            kwargs[name] = _build(tp, value if value is not None else {}, key + ".")
-            continue
-        value = coerce(key, value, tp)
-        if value is not None:
-            check_range(key, value, f.metadata)
-        kwargs[name] = value
-    obj = cls(**kwargs)
-    _check_cross(obj, prefix)
-    return obj
-
-
-def _check_cross(obj: Any, prefix: str) -> None:
-    """Constraints that involve more than one key."""
-    if isinstance(obj, GrowthConfig) and obj.stretch_min > obj.stretch_max:
-        raise ConfigError(
-            f"{prefix}stretch_min ({obj.stretch_min}) must not exceed "
-            f"{prefix}stretch_max ({obj.stretch_max})"
-        )
-    if isinstance(obj, GrowthConfig) and obj.min_neighbors > obj.max_neighbors:
-        raise ConfigError(f"{prefix}min_neighbors must not exceed {prefix}max_neighbors")
-    if isinstance(obj, NormalsConfig) and obj.viewpoint is not None and len(obj.viewpoint) != 3:
-        raise ConfigError(f"{prefix}viewpoint: expected 3 numbers [x, y, z], got {obj.viewpoint}")
-    if isinstance(obj, TriangulationConfig):
-        if not obj.radii:
-            raise ConfigError(f"{prefix}radii: expected at least one radius")
-        if any(r <= 0 for r in obj.radii):
-            raise ConfigError(f"{prefix}radii: every radius must be > 0, got {obj.radii}")
-    if (
-        isinstance(obj, SeedsConfig)
-        and obj.spacing is not None
-        and obj.spacing_relative is not None
-    ):
-        raise ConfigError(f"{prefix}spacing and {prefix}spacing_relative are exclusive; set one")
-
-
 def config_from_dict(data: Mapping[str, Any] | None) -> ReconConfig:
     """Build and validate a :class:`ReconConfig` from a (YAML-like) mapping.
 
     Raises :class:`ConfigError` naming the dotted key for unknown keys (with the nearest valid
     key), wrong types and out-of-range values.
     """
-    return _build(ReconConfig, data or {}, "")
+    return from_dict(ReconConfig, data or {}, "")
 
 
 def config_to_dict(cfg: Any) -> dict[str, Any]:
     """Plain nested dict of a config (lists copied), suitable for YAML/JSON."""
-    return dataclasses.asdict(cfg)
+    return to_dict(cfg)
 
 
 def load_yaml_file(path: str | Path) -> Any:
@@ -478,11 +392,11 @@ def apply_overrides(cfg: ReconConfig, overrides: Mapping[str, Any]) -> ReconConf
                     else []
                 )
                 where = ".".join(parts[: i + 1])
-                raise ConfigError(f"unknown section '{where}'{_suggest(part, valid)}")
+                raise ConfigError(f"unknown section '{where}'{did_you_mean(part, valid)}")
             node = node[part]
         leaf = parts[-1]
         if leaf not in node:
-            raise ConfigError(f"unknown key '{dotted}'{_suggest(leaf, node)}")
+            raise ConfigError(f"unknown key '{dotted}'{did_you_mean(leaf, node)}")
         if isinstance(node[leaf], dict):
             raise ConfigError(
                 f"'{dotted}' is a section; set one of its keys, e.g. {dotted}."
@@ -559,20 +473,9 @@ def dump_config(cfg: ReconConfig | None = None, comments: bool = True) -> str:
                 continue
             entry = f"{indent}{f.name}: {_yaml_scalar(value)}"
             if comments and doc:
-                extra = _range_text(f.metadata)
+                extra = range_text(f.metadata)
                 entry = f"{entry}  # {doc}{extra}"
             lines.append(entry)
 
     emit(cfg, "")
     return "\n".join(lines) + "\n"
-
-
-def _range_text(meta: Mapping[str, Any]) -> str:
-    if meta.get("choices"):
-        return ""
-    lo, hi = meta.get("min"), meta.get("max")
-    if lo is None and hi is None:
-        return ""
-    lo_s = "-inf" if lo is None else f"{lo:g}"
-    hi_s = "inf" if hi is None else f"{hi:g}"
-    return f" Range {'(' if meta.get('min_open') else '['}{lo_s}, {hi_s}]."

@@ -1,11 +1,9 @@
-"""The oriented-particle engine: parameters, the simulation loop and kernel warm-up.
+"""The oriented-particle engine: the simulation loop and kernel warm-up.
 
-:class:`PhysicsParams` gathers everything the kernels need in absolute units;
-:meth:`PhysicsParams.from_config` converts the ``dynamics`` and ``potentials`` sections of a
-:class:`~recon.config.ReconConfig` (lengths in units of r0) for a given spacing r0.
-:class:`Simulation` owns the neighbour list, the anchors and the scratch buffers of one
-:class:`~recon.state.ParticleState` and advances it with one fused, damped semi-implicit Euler
-step per :meth:`Simulation.step` (:mod:`recon.integrate`).
+The parameters (:class:`~recon.params.PhysicsParams`, in absolute units) live in
+:mod:`recon.params`. :class:`Simulation` owns the neighbour list, the anchors and the scratch
+buffers of one :class:`~recon.state.ParticleState` and advances it with one fused, damped semi-
+implicit Euler step per :meth:`Simulation.step` (:mod:`recon.integrate`).
 
 The model (DESIGN §1–3, S&T92 §4, T-thesis ch. 4): soft 4-2 Lennard-Jones spacing with a
 shifted-force cutoff, co-planarity (S&T92 eq. 3), co-normality (eq. 4) and co-circularity
@@ -25,165 +23,17 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, fields
-from typing import TYPE_CHECKING
+from dataclasses import dataclass
 
 import numpy as np
 
-from .forces import (
-    Anchors,
-    accumulate_forces,
-    kernel_extras,
-    lj_minimum,
-    pack_coefficients,
-)
+from .forces import Anchors, accumulate_forces, evaluate_pair, kernel_extras, pack_coefficients
 from .integrate import StepBuffers, integrate_step
-from .kernels.weights import WEIGHT_MODES
 from .neighbors import PARALLEL_MIN_PARTICLES, NeighborList, sort_order_by_cell
+from .params import PhysicsParams
 from .state import ParticleState
 
-if TYPE_CHECKING:
-    from .config import ReconConfig
-
-
-@dataclass(frozen=True)
-class PhysicsParams:
-    """Everything the kernels need, in absolute units.
-
-    Build it with :meth:`from_config`; defaults live in :mod:`recon.config` only.
-
-    Attributes
-    ----------
-    spacing : float
-        Rest spacing r0 [length].
-    cutoff : float
-        Interaction cutoff r_c of all terms [length].
-    w_lj, w_planarity, w_normality, w_circularity : float
-        α_LJ, α_P, α_N, α_C [dimensionless].
-    weighting : int
-        ψ: 0 poly, 1 Gaussian, 2 anisotropic (:mod:`recon.kernels.weights`); a config name
-        ("poly", ...) is accepted and converted.
-    influence_radius : float
-        σ of the Gaussian weights [length].
-    anisotropy : float
-        a ≥ 1: σ along the normal is σ/a (anisotropic weight only).
-    dt : float
-        Time step [model time].
-    damping_linear, damping_angular : float
-        β0, β2 [1/time, with m = I = 1].
-    damping_relative_linear, damping_relative_angular : float
-        β1, β3 (relative damping between neighbours within the cutoff).
-    max_displacement : float
-        Per-step displacement cap [length].
-    max_rotation : float
-        Per-step rotation cap [radians].
-    skin : float
-        Neighbour-list skin [length].
-    lj_minimum : float or None
-        σ of the 4-2 potential [length]; None (default) calibrates it so that the flat
-        hexagonal lattice rests at ``spacing`` (:func:`recon.kernels.calibrate_lj_minimum`).
-    """
-
-    spacing: float
-    cutoff: float
-    w_lj: float
-    w_planarity: float
-    w_normality: float
-    w_circularity: float
-    weighting: int
-    influence_radius: float
-    anisotropy: float
-    dt: float
-    damping_linear: float
-    damping_angular: float
-    damping_relative_linear: float
-    damping_relative_angular: float
-    max_displacement: float
-    max_rotation: float
-    skin: float
-    lj_minimum: float | None = None
-
-    def __post_init__(self) -> None:
-        if isinstance(self.weighting, str):
-            if self.weighting not in WEIGHT_MODES:
-                raise ValueError(
-                    f"weighting: expected one of {sorted(WEIGHT_MODES)}, got {self.weighting!r}"
-                )
-            object.__setattr__(self, "weighting", WEIGHT_MODES[self.weighting])
-        if int(self.weighting) not in WEIGHT_MODES.values():
-            raise ValueError(f"weighting: expected 0, 1 or 2, got {self.weighting!r}")
-        object.__setattr__(self, "weighting", int(self.weighting))
-        for f in fields(self):
-            if f.name in ("weighting", "lj_minimum"):
-                continue
-            value = getattr(self, f.name)
-            if not isinstance(value, (int, float)) or not math.isfinite(value):
-                raise ValueError(f"{f.name}: expected a finite number, got {value!r}")
-            object.__setattr__(self, f.name, float(value))
-        positive = ("spacing", "cutoff", "influence_radius", "dt", "max_displacement")
-        positive += ("max_rotation", "skin")
-        for name in positive:
-            if not getattr(self, name) > 0.0:
-                raise ValueError(f"{name}: expected > 0, got {getattr(self, name)}")
-        nonnegative = ("w_lj", "w_planarity", "w_normality", "w_circularity", "damping_linear")
-        nonnegative += ("damping_angular", "damping_relative_linear", "damping_relative_angular")
-        for name in nonnegative:
-            if not getattr(self, name) >= 0.0:
-                raise ValueError(f"{name}: expected >= 0, got {getattr(self, name)}")
-        if self.anisotropy < 1.0:
-            raise ValueError(f"anisotropy: expected >= 1, got {self.anisotropy}")
-        if self.max_rotation > math.pi:
-            raise ValueError(f"max_rotation: expected <= pi radians, got {self.max_rotation}")
-        if self.lj_minimum is None:
-            if not self.cutoff > self.spacing:
-                raise ValueError(
-                    f"cutoff ({self.cutoff}) must exceed spacing ({self.spacing}) "
-                    "for the LJ calibration"
-                )
-        elif not (math.isfinite(self.lj_minimum) and 0.0 < self.lj_minimum < self.cutoff):
-            raise ValueError(f"lj_minimum: expected 0 < value < cutoff, got {self.lj_minimum}")
-
-    @classmethod
-    def from_config(cls, cfg: ReconConfig, spacing: float) -> PhysicsParams:
-        """Absolute parameters from the ``dynamics`` and ``potentials`` config sections.
-
-        Parameters
-        ----------
-        cfg : ReconConfig
-            Configuration; its lengths are in units of r0, angles in degrees.
-        spacing : float
-            r0 [length] (1.0 when positions are already divided by r0).
-
-        Returns
-        -------
-        PhysicsParams
-        """
-        d = cfg.dynamics
-        p = cfg.potentials
-        return cls(
-            spacing=float(spacing),
-            cutoff=p.cutoff * spacing,
-            w_lj=p.w_lj,
-            w_planarity=p.w_planarity,
-            w_normality=p.w_normality,
-            w_circularity=p.w_circularity,
-            weighting=WEIGHT_MODES[p.weighting],
-            influence_radius=p.influence_radius * spacing,
-            anisotropy=p.anisotropy,
-            dt=d.dt,
-            damping_linear=d.damping_linear,
-            damping_angular=d.damping_angular,
-            damping_relative_linear=d.damping_relative_linear,
-            damping_relative_angular=d.damping_relative_angular,
-            max_displacement=d.max_displacement * spacing,
-            max_rotation=math.radians(d.max_rotation_deg),
-            skin=d.skin * spacing,
-        )
-
-    @property
-    def lj_sigma(self) -> float:
-        """σ actually used by the spacing potential [length]."""
-        return lj_minimum(self)
+__all__ = ["PhysicsParams", "Simulation", "StepStats", "warmup"]
 
 
 @dataclass(frozen=True)
@@ -322,15 +172,21 @@ class Simulation:
         )
 
     # ------------------------------------------------------------------ neighbours
-    def _use_parallel(self) -> bool:
+    def uses_parallel(self) -> bool:
+        """Whether steps run the threaded kernels (``parallel``, else by the particle count)."""
         if self.parallel is not None:
             return bool(self.parallel)
         return self.state.n >= PARALLEL_MIN_PARTICLES
 
     def _rebuild(self) -> None:
-        self._neighbors.build(self.state.position, parallel=self._use_parallel())
+        self._neighbors.build(self.state.position, parallel=self.uses_parallel())
         self.n_rebuilds += 1
         self._needs_rebuild = False
+
+    @property
+    def neighbor_list(self) -> NeighborList:
+        """The cached :class:`~recon.neighbors.NeighborList` (built lazily by :attr:`neighbors`)."""
+        return self._neighbors
 
     @property
     def neighbors(self) -> tuple[np.ndarray, np.ndarray]:
@@ -406,7 +262,7 @@ class Simulation:
             self._neighbors.reference_position,
             kernel_extras(self._anchors, self._external_force),
             self._buffers,
-            parallel=self._use_parallel(),
+            parallel=self.uses_parallel(),
             step_index=self.n_steps_done,
         )
         half_skin = 0.5 * self.params.skin
@@ -460,7 +316,7 @@ class Simulation:
             neighbors=self.neighbors,
             anchors=self._anchors,
             external_force=self._external_force,
-            parallel=self._use_parallel(),
+            parallel=self.uses_parallel(),
         )
         v2 = np.einsum("ij,ij->i", st.velocity, st.velocity)
         w2 = np.einsum("ij,ij->i", st.angular_velocity, st.angular_velocity)
@@ -501,7 +357,5 @@ def warmup() -> None:
         sim.current_stats()
         sim.sort_particles()
         sim.neighbors  # noqa: B018  (builds the list)
-    from .forces import evaluate_pair
-
     evaluate_pair(position[0], position[1], normal[0], normal[1], params)
-    sim._neighbors.needs_rebuild(state.position)
+    sim.neighbor_list.needs_rebuild(state.position)

@@ -1,10 +1,10 @@
 r"""Parameters to kernel coefficients; force, torque and energy evaluation without integration.
 
-:func:`pack_coefficients` turns :class:`recon.dynamics.PhysicsParams` (absolute units) into the
-flat tuple the kernels read. :func:`accumulate_forces` evaluates the forces, torques and energy of
-a whole state (used by tests and diagnostics; the simulation itself uses the fused step in
-:mod:`recon.integrate`). :func:`evaluate_pair` exposes the per-pair kernel with the force and
-torque on both particles.
+:func:`pack_coefficients` turns :class:`recon.params.PhysicsParams` (absolute units) into the
+:class:`recon.params.Coefficients` the kernels read. :func:`accumulate_forces` evaluates the
+forces, torques and energy of a whole state (used by tests and diagnostics; the simulation
+itself uses the fused step in :mod:`recon.integrate`). :func:`evaluate_pair` exposes the
+per-pair kernel with the force and torque on both particles.
 
 Energy (DESIGN §1, S&T92 eqs. 3–5 and 7, T-thesis 4.11–4.17), summed over unordered pairs with
 d < r_c, plus anchors (see :mod:`recon.kernels.anchor`):
@@ -25,7 +25,6 @@ References
 
 from __future__ import annotations
 
-import functools
 import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
@@ -33,38 +32,16 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from .kernels import pair_loop as _pl
-from .kernels.lennard_jones import calibrate_lj_minimum, lj_cutoff_values
+from .kernels.lennard_jones import lj_cutoff_values
 from .kernels.options import thread_limit
 from .kernels.weights import WEIGHT_ANISOTROPIC
 from .neighbors import PARALLEL_MIN_PARTICLES, build_neighbor_list
+from .params import Coefficients, PhysicsParams, lj_minimum
 
 if TYPE_CHECKING:
-    from .dynamics import PhysicsParams
     from .state import ParticleState
 
 _EMPTY3 = np.zeros((0, 3))
-
-
-@functools.lru_cache(maxsize=64)
-def _lj_minimum_ratio(cutoff_ratio: float) -> float:
-    return calibrate_lj_minimum(1.0, cutoff_ratio)
-
-
-def lj_minimum(params: PhysicsParams) -> float:
-    """σ of the 4-2 potential: ``params.lj_minimum`` or the hexagonal-lattice calibration.
-
-    Parameters
-    ----------
-    params : PhysicsParams
-
-    Returns
-    -------
-    float
-        σ [length] (≈ 0.983 · spacing for cutoff = 2 · spacing).
-    """
-    if params.lj_minimum is not None:
-        return float(params.lj_minimum)
-    return params.spacing * _lj_minimum_ratio(params.cutoff / params.spacing)
 
 
 @dataclass(frozen=True)
@@ -114,8 +91,8 @@ def pack_coefficients(
     *,
     anchors: Anchors | None = None,
     has_external_force: bool = False,
-) -> tuple[float, ...]:
-    """The flat coefficient tuple read by :mod:`recon.kernels.pair_loop`.
+) -> Coefficients:
+    """The packed coefficients read by :mod:`recon.kernels.pair_loop`.
 
     Parameters
     ----------
@@ -128,38 +105,38 @@ def pack_coefficients(
 
     Returns
     -------
-    tuple of ``N_COEFFICIENTS`` floats
+    Coefficients
     """
-    c = [0.0] * _pl.N_COEFFICIENTS
     sigma = lj_minimum(params)
     phi_c, dphi_c = lj_cutoff_values(sigma, params.cutoff)
-    c[_pl.C_SPACING] = params.spacing
-    c[_pl.C_INV_SPACING2] = 1.0 / params.spacing**2
-    c[_pl.C_CUTOFF] = params.cutoff
-    c[_pl.C_CUTOFF2] = params.cutoff**2
-    c[_pl.C_INV_CUTOFF2] = 1.0 / params.cutoff**2
-    c[_pl.C_LJ_SIGMA2] = sigma * sigma
-    c[_pl.C_LJ_PHI_CUTOFF] = phi_c
-    c[_pl.C_LJ_DPHI_CUTOFF] = dphi_c
-    c[_pl.C_W_LJ] = params.w_lj
-    c[_pl.C_W_PLANARITY] = params.w_planarity
-    c[_pl.C_W_NORMALITY] = params.w_normality
-    c[_pl.C_W_CIRCULARITY] = params.w_circularity
-    c[_pl.C_INV_2SIGMA2] = 1.0 / (2.0 * params.influence_radius**2)
-    c[_pl.C_KAPPA] = params.anisotropy**2 - 1.0 if params.weighting == WEIGHT_ANISOTROPIC else 0.0
-    c[_pl.C_DT] = params.dt
-    c[_pl.C_DAMPING_LINEAR] = params.damping_linear
-    c[_pl.C_DAMPING_RELATIVE_LINEAR] = params.damping_relative_linear
-    c[_pl.C_DAMPING_ANGULAR] = params.damping_angular
-    c[_pl.C_DAMPING_RELATIVE_ANGULAR] = params.damping_relative_angular
-    c[_pl.C_MAX_DISPLACEMENT] = params.max_displacement
-    c[_pl.C_MAX_ROTATION] = params.max_rotation
-    if anchors is not None:
-        c[_pl.C_ANCHOR_STIFFNESS] = anchors.stiffness
-        c[_pl.C_ANCHOR_NORMAL_STIFFNESS] = anchors.normal_stiffness
-        c[_pl.C_HAS_ANCHORS] = 1.0
-    c[_pl.C_HAS_EXTERNAL_FORCE] = 1.0 if has_external_force else 0.0
-    return tuple(float(v) for v in c)
+    anchored = anchors is not None
+    return Coefficients(
+        spacing=float(params.spacing),
+        inv_spacing2=float(1.0 / params.spacing**2),
+        cutoff=float(params.cutoff),
+        cutoff2=float(params.cutoff**2),
+        inv_cutoff2=float(1.0 / params.cutoff**2),
+        lj_sigma2=float(sigma * sigma),
+        lj_phi_cutoff=float(phi_c),
+        lj_dphi_cutoff=float(dphi_c),
+        w_lj=float(params.w_lj),
+        w_planarity=float(params.w_planarity),
+        w_normality=float(params.w_normality),
+        w_circularity=float(params.w_circularity),
+        inv_2sigma2=float(1.0 / (2.0 * params.influence_radius**2)),
+        kappa=float(params.anisotropy**2 - 1.0 if params.weighting == WEIGHT_ANISOTROPIC else 0.0),
+        dt=float(params.dt),
+        damping_linear=float(params.damping_linear),
+        damping_relative_linear=float(params.damping_relative_linear),
+        damping_angular=float(params.damping_angular),
+        damping_relative_angular=float(params.damping_relative_angular),
+        max_displacement=float(params.max_displacement),
+        max_rotation=float(params.max_rotation),
+        anchor_stiffness=float(anchors.stiffness) if anchored else 0.0,
+        anchor_normal_stiffness=float(anchors.normal_stiffness) if anchored else 0.0,
+        has_anchors=1.0 if anchored else 0.0,
+        has_external_force=1.0 if has_external_force else 0.0,
+    )
 
 
 def kernel_extras(

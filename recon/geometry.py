@@ -1,7 +1,10 @@
-"""Small geometric helpers shared by the stages: sizes, spacing, best-fit planes.
+"""Small geometric helpers shared by the stages: point validation, sizes, spacing, best-fit
+planes and Poisson-disk thinning.
 
 References
 ----------
+[B07]     R. Bridson. "Fast Poisson disk sampling in arbitrary dimensions". SIGGRAPH sketches
+          2007 (:mod:`recon.kernels.poisson_disk`).
 [Hoppe92] H. Hoppe, T. DeRose, T. Duchamp, J. McDonald, W. Stuetzle. "Surface reconstruction
           from unorganized points". SIGGRAPH '92, Computer Graphics 26(2):71-78, 1992
           (tangent planes by PCA of k nearest neighbours, section 3.2).
@@ -9,26 +12,53 @@ References
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 from scipy.spatial import cKDTree
+
+from .kernels.poisson_disk import poisson_disk_kernel
+
+#: Seed of the subsample the median point spacing is measured on (inputs of more than 20,000
+#: points): ``fit`` and ``info`` pass ``np.random.default_rng(SPACING_SAMPLE_SEED)``. Fixed, not
+#: ``config.seed``: r0 is a property of the data, the same for every seed.
+SPACING_SAMPLE_SEED = 0
 
 __all__ = [
     "as_points",
     "bbox_diagonal",
     "fit_plane",
     "median_nearest_neighbor_distance",
+    "poisson_disk_thin",
     "unit_vectors",
 ]
 
 
-def as_points(points: np.ndarray, name: str = "points") -> np.ndarray:
-    """Check and convert an array of 3-D points.
+def as_points(
+    points: Any,
+    name: str = "points",
+    *,
+    rows: int | None = None,
+    finite: bool = False,
+    allow_single: bool = False,
+    error: type[Exception] = ValueError,
+) -> np.ndarray:
+    """Check and convert an array of 3-D points: the one ``(n, 3)`` validator.
 
     Parameters
     ----------
     points : array_like, (n, 3)
     name : str
-        Used in the error message.
+        Names the array in the error message.
+    rows : int, optional
+        Required number of rows.
+    finite : bool
+        Reject NaN and infinite coordinates (the message names the first bad row).
+    allow_single : bool
+        Accept one point of shape (3,) as (1, 3) (when ``rows`` is None or 1).
+    error : exception class
+        Raised on a bad array: ``ValueError`` for programming errors (default),
+        :class:`~recon.errors.InputError` where the array comes from the user.
 
     Returns
     -------
@@ -36,12 +66,27 @@ def as_points(points: np.ndarray, name: str = "points") -> np.ndarray:
 
     Raises
     ------
-    ValueError
-        Wrong shape (the message gives expected and received shapes).
+    ValueError (or ``error``)
+        Wrong shape (the message gives expected and received shapes), wrong row count, or a
+        non-finite row when ``finite``.
+
+    Examples
+    --------
+    >>> as_points([[0, 0, 1]]).dtype
+    dtype('float64')
     """
     arr = np.ascontiguousarray(points, dtype=np.float64)
+    if allow_single and arr.ndim == 1 and arr.shape[0] == 3 and rows in (None, 1):
+        arr = arr[None, :]
     if arr.ndim != 2 or arr.shape[1] != 3:
-        raise ValueError(f"{name}: expected shape (n, 3), got {arr.shape}")
+        raise error(f"{name}: expected shape (n, 3), got {arr.shape}")
+    if rows is not None and arr.shape[0] != rows:
+        raise error(f"{name}: expected {rows} rows, got {arr.shape[0]}")
+    if finite:
+        ok = np.isfinite(arr).all(axis=1)
+        if not ok.all():
+            first = int(np.flatnonzero(~ok)[0])
+            raise error(f"{name}: row {first} is not finite ({arr[first]})")
     return arr
 
 
@@ -71,7 +116,8 @@ def bbox_diagonal(points: np.ndarray) -> float:
 def median_nearest_neighbor_distance(
     points: np.ndarray,
     sample: int | None = 20000,
-    rng: np.random.Generator | None = None,
+    *,
+    rng: np.random.Generator,
 ) -> float:
     """Median distance from a point to its nearest other point (the data spacing).
 
@@ -81,9 +127,9 @@ def median_nearest_neighbor_distance(
         At least 2 points.
     sample : int or None
         Query at most this many points (the tree always holds all of them); None = all.
-    rng : numpy.random.Generator, optional
-        Chooses the sample. Default: a generator seeded with 0, so the result is
-        deterministic.
+    rng : numpy.random.Generator
+        Chooses the sample when there are more than ``sample`` points (the fit passes
+        ``np.random.default_rng(SPACING_SAMPLE_SEED)``).
 
     Returns
     -------
@@ -93,7 +139,7 @@ def median_nearest_neighbor_distance(
     Examples
     --------
     >>> grid = np.stack(np.meshgrid(np.arange(4.0), np.arange(4.0), [0.0]), -1).reshape(-1, 3)
-    >>> median_nearest_neighbor_distance(grid)
+    >>> median_nearest_neighbor_distance(grid, rng=np.random.default_rng(0))
     1.0
     """
     pts = as_points(points)
@@ -102,8 +148,7 @@ def median_nearest_neighbor_distance(
         raise ValueError(f"points: need at least 2 points for a spacing, got {n}")
     tree = cKDTree(pts)
     if sample is not None and n > sample:
-        gen = rng if rng is not None else np.random.default_rng(0)
-        query = pts[np.sort(gen.choice(n, size=sample, replace=False))]
+        query = pts[np.sort(rng.choice(n, size=sample, replace=False))]
     else:
         query = pts
     dist, _ = tree.query(query, k=2, workers=-1)
@@ -147,3 +192,38 @@ def unit_vectors(vectors: np.ndarray) -> np.ndarray:
     v = np.asarray(vectors, dtype=np.float64)
     length = np.linalg.norm(v, axis=-1, keepdims=True)
     return np.divide(v, length, out=np.zeros_like(v), where=length > 0)
+
+
+def poisson_disk_thin(
+    points: np.ndarray, radius: float, order: np.ndarray | None = None, keep_first: int = 0
+) -> np.ndarray:
+    """Greedy Poisson-disk selection: keep a point unless a kept point lies within ``radius``.
+
+    Parameters
+    ----------
+    points : (n, 3) float64 [length]
+    radius : float [length]
+    order : (n,) int, optional
+        Visiting order (a permutation). Earlier points win. Default: index order.
+    keep_first : int
+        The first ``keep_first`` points of ``order`` are kept unconditionally (used to accept new
+        candidates against existing particles placed first in the order).
+
+    Returns
+    -------
+    keep : (n,) bool
+        Kept points are pairwise at least ``radius`` apart (except among the forced ones).
+
+    Examples
+    --------
+    >>> poisson_disk_thin(np.array([[0.0, 0, 0], [0.5, 0, 0], [2, 0, 0]]), 1.0).tolist()
+    [True, False, True]
+    """
+    points = np.ascontiguousarray(points, dtype=np.float64)
+    if order is None:
+        order = np.arange(len(points), dtype=np.int64)
+    if radius <= 0:
+        raise ValueError(f"radius must be > 0, got {radius}")
+    return poisson_disk_kernel(
+        points, np.ascontiguousarray(order, dtype=np.int64), float(radius), int(keep_first)
+    )

@@ -24,74 +24,24 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numba as nb
 import numpy as np
 from scipy.spatial import cKDTree
 
 from .config import GrowthConfig
-from .seeds import poisson_disk_thin
-from .surface import DataSurface, max_angular_gap, tangent_frame
+from .geometry import poisson_disk_thin
+from .kernels.growth_rules import MAX_PER_PARTICLE, grow_kernel
+from .surface import DataSurface, max_angular_gap
 
-MAX_PER_PARTICLE = 6
-
-
-def neighbor_csr(tree: cKDTree, n: int, radius: float) -> tuple[np.ndarray, np.ndarray]:
-    """Full neighbour lists within ``radius`` as CSR ``(offsets, indices)``, sorted rows."""
-    pairs = tree.query_pairs(radius, output_type="ndarray")
-    if len(pairs) == 0:
-        return np.zeros(n + 1, dtype=np.int64), np.zeros(0, dtype=np.int64)
-    src = np.concatenate([pairs[:, 0], pairs[:, 1]])
-    dst = np.concatenate([pairs[:, 1], pairs[:, 0]])
-    order = np.lexsort((dst, src))
-    src, dst = src[order], dst[order]
-    counts = np.bincount(src, minlength=n)
-    offsets = np.zeros(n + 1, dtype=np.int64)
-    np.cumsum(counts, out=offsets[1:])
-    return offsets, dst.astype(np.int64)
-
-
-@nb.njit(cache=True)
-def _grow_kernel(
-    pos, nrm, offsets, indices, min_nb, max_nb, gap_angle, gap_step, out, count
-):  # pragma: no cover - numba
-    """Growing rule (S&T92 §6): candidates in angular gaps of sparse particles."""
-    n = pos.shape[0]
-    two_pi = 2.0 * np.pi
-    for i in range(n):
-        m = offsets[i + 1] - offsets[i]
-        count[i] = 0
-        if m < min_nb or m > max_nb:
-            continue
-        u, v = tangent_frame(nrm[i])
-        c = 0
-        if m == 0:
-            for a in range(MAX_PER_PARTICLE):
-                th = a * two_pi / MAX_PER_PARTICLE
-                out[i, c] = pos[i] + np.cos(th) * u + np.sin(th) * v
-                c += 1
-            count[i] = c
-            continue
-        ang = np.empty(m)
-        for a in range(m):
-            d = pos[indices[offsets[i] + a]] - pos[i]
-            ang[a] = np.arctan2(
-                d[0] * v[0] + d[1] * v[1] + d[2] * v[2], d[0] * u[0] + d[1] * u[1] + d[2] * u[2]
-            )
-        ang.sort()
-        for a in range(m):
-            start = ang[a]
-            end = ang[a + 1] if a + 1 < m else ang[0] + two_pi
-            gap = end - start
-            if gap <= gap_angle:
-                continue
-            k = max(1, int(np.floor(gap / gap_step + 0.5)) - 1)
-            for b in range(1, k + 1):
-                if c >= MAX_PER_PARTICLE:
-                    break
-                th = start + gap * b / (k + 1)
-                out[i, c] = pos[i] + np.cos(th) * u + np.sin(th) * v
-                c += 1
-        count[i] = c
+#: Candidates closer than this to a data point [r0] count as supported without the
+#: surrounding test (half the rest spacing: they lie on the data).
+NEAR_DATA = 0.5
+#: A candidate away from the data is kept only if the widest angular gap of the data around it
+#: (within ``max_gap``, in its tangent plane) is below this [deg]: growth fills holes but never
+#: extends an open boundary (a point past a boundary sees a gap of 180 deg or more).
+SUPPORT_ANGLE_DEG = 150.0
+#: The stretching rule pairs only particles whose normals agree: n_i . n_j above this
+#: (cos 60 deg), so that two sides of a thin part are never bridged.
+STRETCH_NORMAL_AGREEMENT = 0.5
 
 
 def grow_candidates(
@@ -115,7 +65,7 @@ def grow_candidates(
     n = len(position)
     out = np.zeros((n, MAX_PER_PARTICLE, 3))
     count = np.zeros(n, dtype=np.int64)
-    _grow_kernel(
+    grow_kernel(
         position,
         normal,
         offsets,
@@ -153,7 +103,7 @@ def stretch_candidates(
     if len(a) == 0:
         return np.zeros((0, 3))
     # the two normals must agree (not two sides of a thin part)
-    agree = np.einsum("ij,ij->i", normal[a], normal[b]) > 0.5
+    agree = np.einsum("ij,ij->i", normal[a], normal[b]) > STRETCH_NORMAL_AGREEMENT
     a, b = a[agree], b[agree]
     mid = 0.5 * (position[a] + position[b])
     if len(mid) == 0:
@@ -181,7 +131,7 @@ def accept_candidates(
     seed_tree: cKDTree,
     seed_points: np.ndarray,
     cfg: GrowthConfig,
-    near_data: float = 0.5,
+    near_data: float = NEAR_DATA,
 ) -> Acceptance:
     """Filter candidates: spacing from particles and each other, data support, tangent plane.
 
@@ -191,7 +141,8 @@ def accept_candidates(
     * its nearest data point is farther than ``max_gap / 2`` (holes wider than ``max_gap`` stay);
     * it lies farther than ``tangent_tolerance`` from the local data plane (DESIGN §4.4);
     * it is not within ``near_data`` of the data and the data does not surround it in its
-      tangent plane within ``max_gap`` (largest angular gap of the surrounding data >= 150°):
+      tangent plane within ``max_gap`` (largest angular gap of the surrounding data >=
+      ``SUPPORT_ANGLE_DEG`` = 150°):
       growth fills holes but never extends an open boundary.
 
     Survivors are projected onto the local data plane and thinned to ``reject_radius`` among
@@ -200,7 +151,7 @@ def accept_candidates(
     if cfg.max_gap is None:
         raise ValueError(
             "growth.max_gap must be resolved to a length before growth "
-            "(recon.pipeline.reconstruct does this)"
+            "(recon.fitting.reconstruct does this)"
         )
     m = len(candidates)
     empty = Acceptance(np.zeros((0, 3)), np.zeros((0, 3)), m, 0, 0, 0)
@@ -222,7 +173,7 @@ def accept_candidates(
     far = d_data > near_data
     if far.any():
         gap = max_angular_gap(c[far], pn[far], seed_tree, seed_points, cfg.max_gap)
-        inside = gap < np.deg2rad(150.0)
+        inside = gap < np.deg2rad(SUPPORT_ANGLE_DEG)
         keep = np.ones(len(c), dtype=bool)
         keep[np.flatnonzero(far)[~inside]] = False
         n_unsup += int((~inside).sum())

@@ -36,6 +36,7 @@ import numpy as np
 from .errors import DivergenceError
 from .kernels import pair_loop as _pl
 from .kernels.options import thread_limit
+from .params import Coefficients
 from .state import ParticleState
 
 
@@ -101,7 +102,7 @@ def _describe_status(status: int) -> str:
 
 def integrate_step(
     state: ParticleState,
-    coefficients: tuple[float, ...],
+    coefficients: Coefficients,
     mode: int,
     neighbors: tuple[np.ndarray, np.ndarray],
     reference_position: np.ndarray,
@@ -117,8 +118,8 @@ def integrate_step(
     ----------
     state : ParticleState
         Updated in place (its dynamic buffers are swapped with ``buffers``).
-    coefficients : tuple of float
-        :func:`recon.forces.pack_coefficients` output.
+    coefficients : Coefficients
+        :func:`recon.forces.pack_coefficients` output (:class:`recon.params.Coefficients`).
     mode : int
         Weighting mode.
     neighbors : (offsets, indices)
@@ -180,7 +181,7 @@ def integrate_step(
             "The state was left unchanged; reduce dynamics.dt or check the input for "
             "duplicate points."
         )
-    old = state._swap_dynamic(
+    old = state.swap_dynamic(
         buffers.position, buffers.orientation, buffers.velocity, buffers.angular_velocity
     )
     buffers.position, buffers.orientation, buffers.velocity, buffers.angular_velocity = old

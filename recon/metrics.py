@@ -57,6 +57,8 @@ from typing import Any
 import numpy as np
 
 from .errors import InputError
+from .geometry import as_points
+from .mesh import face_area_vectors, face_normals
 from .topology import mesh_topology, triangle_quality, validate_mesh
 
 __all__ = [
@@ -78,15 +80,6 @@ TOPOLOGY_KEYS = ("components", "boundary_loops", "genus", "watertight")
 # helpers
 
 
-def _as_points(points: Any, name: str = "points") -> np.ndarray:
-    p = np.asarray(points, dtype=np.float64)
-    if p.ndim != 2 or p.shape[1] != 3:
-        raise InputError(f"{name} must have shape (n, 3), got {p.shape}")
-    if not np.all(np.isfinite(p)):
-        raise InputError(f"{name} contain {int(np.sum(~np.isfinite(p)))} non-finite values")
-    return p
-
-
 def _require_faces(vertices: np.ndarray, faces: np.ndarray, name: str = "mesh") -> None:
     if len(faces) == 0:
         raise InputError(f"{name} has no faces")
@@ -96,13 +89,6 @@ def _bbox_diag(points: np.ndarray) -> float:
     if len(points) == 0:
         return 0.0
     return float(np.linalg.norm(points.max(axis=0) - points.min(axis=0)))
-
-
-def _face_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    p = vertices[faces]
-    n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
-    length = np.linalg.norm(n, axis=1, keepdims=True)
-    return np.divide(n, length, out=np.zeros_like(n), where=length > 0)
 
 
 def _closest_on_mesh(
@@ -176,7 +162,7 @@ def point_to_mesh_distance(points: Any, vertices: Any, faces: Any) -> np.ndarray
     >>> point_to_mesh_distance([[0.2, 0.2, 0.5], [2, 0, 0]], v, [[0, 1, 2]]).round(6)
     array([0.5, 1. ])
     """
-    p = _as_points(points)
+    p = as_points(points, finite=True, error=InputError)
     v, f = validate_mesh(vertices, faces)
     _require_faces(v, f)
     if len(p) == 0:
@@ -226,7 +212,7 @@ def sample_surface(
         raise InputError(f"number of samples must be >= 0, got {n}")
     _require_faces(v, f)
     p = v[f]
-    cross = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    cross = face_area_vectors(v, f)
     area2 = np.linalg.norm(cross, axis=1)
     total = float(area2.sum())
     if not total > 0:
@@ -268,7 +254,7 @@ def fidelity(
         ``p95``, ``max`` [length], each also as ``*_relative`` (divided by ``diag``), then the
         ``within_<name>`` fractions.
     """
-    p = _as_points(points)
+    p = as_points(points, finite=True, error=InputError)
     diag = float(diag)
     if not np.isfinite(diag) or diag < 0:
         raise InputError(f"diag must be a finite length >= 0, got {diag}")
@@ -370,7 +356,7 @@ def compare_meshes(
     notes: list[str] = []
 
     pts_m, nrm_m = sample_surface(v_m, f_m, n_samples, np.random.default_rng(seq_mesh))
-    fn_m = _face_normals(v_m, f_m)
+    fn_m = face_normals(v_m, f_m)
 
     if kind == "mesh":
         v_r, f_r = validate_mesh(ref_a, ref_b)
@@ -381,7 +367,7 @@ def compare_meshes(
         d_rm, face_m = _closest_on_mesh(pts_r, v_m, f_m)
         dots = np.concatenate(
             [
-                np.einsum("ij,ij->i", nrm_m, _face_normals(v_r, f_r)[face_r]),
+                np.einsum("ij,ij->i", nrm_m, face_normals(v_r, f_r)[face_r]),
                 np.einsum("ij,ij->i", nrm_r, fn_m[face_m]),
             ]
         )
@@ -389,7 +375,7 @@ def compare_meshes(
     else:
         from scipy.spatial import cKDTree
 
-        pts_r = _as_points(ref_a, "reference points")
+        pts_r = as_points(ref_a, "reference points", finite=True, error=InputError)
         if len(pts_r) == 0:
             raise InputError("reference point cloud is empty")
         nrm_r = None if ref_b is None else np.asarray(ref_b, dtype=np.float64)
@@ -581,6 +567,6 @@ def quality_report(
         "fidelity": None,
     }
     if points is not None and len(f):
-        p = _as_points(points)
+        p = as_points(points, finite=True, error=InputError)
         report["fidelity"] = fidelity(p, v, f, _bbox_diag(p) if diag is None else diag)
     return report

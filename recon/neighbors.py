@@ -23,6 +23,7 @@ from __future__ import annotations
 import numpy as np
 
 from .errors import DivergenceError
+from .geometry import as_points
 from .kernels.cell_list import bin_particles, build_neighbor_list_kernel, max_displacement2
 from .kernels.options import thread_limit
 
@@ -39,9 +40,7 @@ _ROW_CAPACITY = 32  # scratch row length; a surface at skin 0.4 r0 has ~20 neigh
 
 
 def _check_positions(position: np.ndarray) -> np.ndarray:
-    pos = np.ascontiguousarray(position, dtype=np.float64)
-    if pos.ndim != 2 or pos.shape[1] != 3:
-        raise ValueError(f"position: expected shape (n, 3), got {pos.shape}")
+    pos = as_points(position, "position")
     finite = np.isfinite(pos).all(axis=1)
     if not finite.all():
         first = int(np.flatnonzero(~finite)[0])

@@ -26,8 +26,9 @@ from typing import Any
 import numpy as np
 
 from .errors import InputError
-from .io import AtomicOutputs, atomic_output
-from .topology import count_edge_faces, validate_mesh
+from .io.files import AtomicOutputs, atomic_output
+from .mesh import count_edge_faces, face_normals
+from .topology import validate_mesh
 
 __all__ = ["render_mesh_png"]
 
@@ -116,9 +117,7 @@ def _draw_view(
     else:
         s = vertices @ basis.T
         tri = s[faces]
-        p = vertices[faces]
-        n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
-        n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+        n = face_normals(vertices, faces)
         facing = n @ basis[2]
         light = basis[2] + 0.3 * basis[1] + 0.2 * basis[0]  # a head light, up and right
         light /= np.linalg.norm(light)

@@ -29,25 +29,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from .geometry import as_points
 from .kernels.quaternion import normals_from_quaternions, quaternions_from_normals
 
 _GROWTH = 1.5
 _MIN_CAPACITY = 16
-
-
-def _as_points(name: str, values: np.ndarray, n: int | None = None) -> np.ndarray:
-    """Validate an (n, 3) finite float array; return it as float64."""
-    arr = np.asarray(values, dtype=np.float64)
-    if arr.ndim == 1 and arr.shape[0] == 3 and n in (None, 1):
-        arr = arr[None, :]
-    if arr.ndim != 2 or arr.shape[1] != 3:
-        raise ValueError(f"{name}: expected shape (n, 3), got {arr.shape}")
-    if n is not None and arr.shape[0] != n:
-        raise ValueError(f"{name}: expected {n} rows, got {arr.shape[0]}")
-    if not np.all(np.isfinite(arr)):
-        first = int(np.flatnonzero(~np.all(np.isfinite(arr), axis=1))[0])
-        raise ValueError(f"{name}: row {first} is not finite ({arr[first]})")
-    return arr
 
 
 def _per_particle(name: str, value, k: int, dtype) -> np.ndarray:
@@ -219,7 +205,7 @@ class ParticleState:
 
     @normal.setter
     def normal(self, values) -> None:
-        n = _as_points("normal", values, self._n)
+        n = as_points(values, "normal", rows=self._n, finite=True, allow_single=True)
         self._orientation[: self._n] = quaternions_from_normals(n)
 
     # ------------------------------------------------------------------ construction
@@ -249,7 +235,7 @@ class ParticleState:
         -------
         ParticleState
         """
-        pos = _as_points("positions", positions)
+        pos = as_points(positions, "positions", finite=True, allow_single=True)
         n = pos.shape[0]
         cap = max(n, int(capacity) if capacity is not None else n + n // 2 + _MIN_CAPACITY)
         state = cls(cap)
@@ -292,7 +278,7 @@ class ParticleState:
         ValueError
             On a shape mismatch, a non-finite value or a zero normal.
         """
-        pos = _as_points("positions", positions)
+        pos = as_points(positions, "positions", finite=True, allow_single=True)
         k = pos.shape[0]
         if normals is None:
             quat = np.zeros((k, 4))
@@ -301,7 +287,7 @@ class ParticleState:
                 "oriented", False if oriented is None else oriented, k, bool
             )
         else:
-            nrm = _as_points("normals", normals, k)
+            nrm = as_points(normals, "normals", rows=k, finite=True, allow_single=True)
             quat = quaternions_from_normals(nrm)
             is_oriented = _per_particle("oriented", True if oriented is None else oriented, k, bool)
         is_pinned = _per_particle("pinned", pinned, k, bool)
@@ -392,7 +378,7 @@ class ParticleState:
         return other
 
     # ------------------------------------------------------------------ engine internals
-    def _swap_dynamic(
+    def swap_dynamic(
         self,
         position: np.ndarray,
         orientation: np.ndarray,

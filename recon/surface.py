@@ -28,9 +28,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numba as nb
 import numpy as np
 from scipy.spatial import cKDTree
+
+from .kernels.local_surface import fit_quadrics_kernel, max_angular_gap_kernel
 
 
 @dataclass
@@ -129,81 +130,6 @@ def _quadric_foot(
     return foot, nrm
 
 
-@nb.njit(cache=True)
-def _fit_quadrics_kernel(
-    points, normals, idx, out_p, out_n, out_u, out_a, out_r
-):  # pragma: no cover - numba
-    n, k = idx.shape
-    for i in range(n):
-        c = np.zeros(3)
-        for a in range(k):
-            c += points[idx[i, a]]
-        c /= k
-        cov = np.zeros((3, 3))
-        for a in range(k):
-            d = points[idx[i, a]] - c
-            for r in range(3):
-                for s in range(3):
-                    cov[r, s] += d[r] * d[s]
-        cov /= k
-        w, vec = np.linalg.eigh(cov)
-        nn = vec[:, 0].copy()
-        if nn[0] * normals[i, 0] + nn[1] * normals[i, 1] + nn[2] * normals[i, 2] < 0.0:
-            nn = -nn
-        u = vec[:, 2].copy()
-        v = np.cross(nn, u)
-        # least squares height field over the frame (c; u, v, nn)
-        ata = np.zeros((6, 6))
-        atb = np.zeros(6)
-        row = np.zeros(6)
-        scale = max(np.sqrt(w[2]), 1e-12)
-        for a in range(k):
-            d = points[idx[i, a]] - c
-            x = (d[0] * u[0] + d[1] * u[1] + d[2] * u[2]) / scale
-            y = (d[0] * v[0] + d[1] * v[1] + d[2] * v[2]) / scale
-            z = d[0] * nn[0] + d[1] * nn[1] + d[2] * nn[2]
-            row[0] = 1.0
-            row[1] = x
-            row[2] = y
-            row[3] = x * x
-            row[4] = x * y
-            row[5] = y * y
-            for r in range(6):
-                atb[r] += row[r] * z
-                for s in range(6):
-                    ata[r, s] += row[r] * row[s]
-        ridge = 1e-6 * (ata[0, 0] + 1e-12)
-        for r in range(6):
-            ata[r, r] += ridge
-        coef = np.linalg.solve(ata, atb)
-        # undo the scaling of x, y
-        coef[1] /= scale
-        coef[2] /= scale
-        coef[3] /= scale * scale
-        coef[4] /= scale * scale
-        coef[5] /= scale * scale
-        res = 0.0
-        for a in range(k):
-            d = points[idx[i, a]] - c
-            x = d[0] * u[0] + d[1] * u[1] + d[2] * u[2]
-            y = d[0] * v[0] + d[1] * v[1] + d[2] * v[2]
-            z = d[0] * nn[0] + d[1] * nn[1] + d[2] * nn[2]
-            h = (
-                coef[0]
-                + coef[1] * x
-                + coef[2] * y
-                + coef[3] * x * x
-                + coef[4] * x * y
-                + coef[5] * y * y
-            )
-            res += (z - h) ** 2
-        out_p[i] = c
-        out_n[i] = nn
-        out_u[i] = u
-        out_a[i] = coef
-        out_r[i] = np.sqrt(res / k)
-
-
 def fit_local_quadrics(
     points: np.ndarray, normals: np.ndarray, neighbor_idx: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -229,45 +155,7 @@ def fit_local_quadrics(
     """
     n = len(points)
     out = (np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 6)), np.zeros(n))
-    _fit_quadrics_kernel(points, normals, np.ascontiguousarray(neighbor_idx, dtype=np.int64), *out)
-    return out
-
-
-@nb.njit(cache=True)
-def tangent_frame(nrm):  # pragma: no cover - numba
-    """Two unit tangents (u, v) completing the unit normal ``nrm`` to a right-handed frame."""
-    if abs(nrm[0]) < 0.9:
-        t = np.array([1.0, 0.0, 0.0])
-    else:
-        t = np.array([0.0, 1.0, 0.0])
-    u = t - (t[0] * nrm[0] + t[1] * nrm[1] + t[2] * nrm[2]) * nrm
-    u /= np.sqrt(u[0] ** 2 + u[1] ** 2 + u[2] ** 2)
-    v = np.cross(nrm, u)
-    return u, v
-
-
-@nb.njit(cache=True)
-def _max_angular_gap_kernel(cands, normals, nbr_pts, nbr_count):  # pragma: no cover - numba
-    m = cands.shape[0]
-    out = np.full(m, 2.0 * np.pi)
-    for i in range(m):
-        cnt = nbr_count[i]
-        if cnt < 3:
-            continue
-        u, v = tangent_frame(normals[i])
-        ang = np.zeros(cnt)
-        for a in range(cnt):
-            d = nbr_pts[i, a] - cands[i]
-            ang[a] = np.arctan2(
-                d[0] * v[0] + d[1] * v[1] + d[2] * v[2], d[0] * u[0] + d[1] * u[1] + d[2] * u[2]
-            )
-        ang.sort()
-        gap = ang[0] + 2.0 * np.pi - ang[cnt - 1]
-        for a in range(1, cnt):
-            g = ang[a] - ang[a - 1]
-            if g > gap:
-                gap = g
-        out[i] = gap
+    fit_quadrics_kernel(points, normals, np.ascontiguousarray(neighbor_idx, dtype=np.int64), *out)
     return out
 
 
@@ -313,7 +201,7 @@ def max_angular_gap(
     safe = np.where(valid, idx, 0)
     nbr = tree_points[safe]
     # push valid rows first (query returns sorted by distance, invalid at the end already)
-    return _max_angular_gap_kernel(
+    return max_angular_gap_kernel(
         np.ascontiguousarray(centers),
         np.ascontiguousarray(normals),
         np.ascontiguousarray(nbr),

@@ -18,10 +18,12 @@ Definitions (the ones used by every number this module reports):
 - An *edge* is an unordered vertex pair used by at least one face. It is a *boundary* edge if one
   face uses it, manifold if two do and *non-manifold* if three or more do.
 - *Components* are connected components of the referenced vertices, two vertices being connected
-  when a face uses both (so a bow-tie is one component). The Euler characteristic
-  ``chi = V - E + F`` is additive over these components.
-- *Boundary loops* are connected components of the graph of boundary edges. On a manifold mesh
-  each is one closed polygon; loops that touch at a (non-manifold) vertex count as one.
+  when a face uses both (so a bow-tie is one component; :func:`recon.mesh.vertex_components`).
+  The Euler characteristic ``chi = V - E + F`` is additive over these components.
+- *Boundary loops* are connected components of the graph of boundary edges
+  (:func:`recon.mesh.boundary_components`). On a manifold mesh each is one closed polygon;
+  loops that touch at a (non-manifold) vertex count as one. Hole repair walks the *simple*
+  loops instead (:func:`recon.mesh.boundary_loops`); both agree on a manifold boundary.
 - A *non-manifold vertex* is a vertex whose incident faces form more than one fan, a fan being a
   set of faces around the vertex connected through edges that contain the vertex (a bow-tie
   tip). Faces joined by a non-manifold edge count as connected, so a vertex that only lies on a
@@ -48,6 +50,7 @@ from scipy import sparse
 from scipy.sparse import csgraph
 
 from .errors import InputError
+from .mesh import boundary_components, count_edge_faces, vertex_components
 
 __all__ = ["count_edge_faces", "mesh_topology", "triangle_quality", "validate_mesh"]
 
@@ -96,37 +99,6 @@ def validate_mesh(vertices: Any, faces: Any) -> tuple[np.ndarray, np.ndarray]:
             f"face indices must lie in [0, {len(v)}), got range [{f.min()}, {f.max()}]"
         )
     return v, f
-
-
-def count_edge_faces(faces: Any) -> tuple[np.ndarray, np.ndarray]:
-    """Distinct edges of a triangle mesh and how many faces use each.
-
-    Faces with a repeated vertex index are skipped (as in :func:`mesh_topology`).
-
-    Parameters
-    ----------
-    faces : (F, 3) array_like of int
-        Triangles as vertex indices.
-
-    Returns
-    -------
-    edges : (E, 2) int64
-        Vertex pairs, smaller index first, sorted.
-    counts : (E,) int64
-        Faces per edge: 1 on the boundary, 2 inside, more on non-manifold edges.
-
-    Examples
-    --------
-    >>> edges, counts = count_edge_faces([[0, 1, 2], [2, 1, 3]])
-    >>> edges[counts == 2].tolist(), int(counts.sum())
-    ([[1, 2]], 6)
-    """
-    f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
-    f = f[(f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 2] != f[:, 0])]
-    a, b = f.ravel(), np.roll(f, -1, axis=1).ravel()
-    pairs = np.stack([np.minimum(a, b), np.maximum(a, b)], axis=1)
-    edges, counts = np.unique(pairs, axis=0, return_counts=True)
-    return edges.reshape(-1, 2), counts.astype(np.int64)
 
 
 def _face_geometry(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -255,24 +227,12 @@ def mesh_topology(vertices: Any, faces: Any) -> dict[str, Any]:
     orientable = consistent or _is_orientable(nf, fa, fb, flip_parity)
 
     # Components over vertices (faces link their three vertices).
-    rows = np.concatenate([f[:, 0], f[:, 1]])
-    cols = np.concatenate([f[:, 1], f[:, 2]])
-    graph = sparse.coo_matrix((np.ones(len(rows), np.int8), (rows, cols)), (n_vertices,) * 2)
-    _, vertex_label = csgraph.connected_components(graph, directed=False)
+    n_components, comp_of_vertex = vertex_components(f, n_vertices)
     ref_idx = np.flatnonzero(referenced)
-    comp_of_ref, comp_compact = np.unique(vertex_label[ref_idx], return_inverse=True)
-    n_components = len(comp_of_ref)
-    comp_of_vertex = np.full(n_vertices, -1, dtype=np.int64)
-    comp_of_vertex[ref_idx] = comp_compact
+    comp_compact = comp_of_vertex[ref_idx]
 
-    # Boundary loops: connected components of the boundary-edge graph.
-    if n_boundary:
-        bl, bh = edge_lo[boundary], edge_hi[boundary]
-        bgraph = sparse.coo_matrix((np.ones(n_boundary, np.int8), (bl, bh)), (n_vertices,) * 2)
-        _, blabel = csgraph.connected_components(bgraph, directed=False)
-        n_loops = len(np.unique(blabel[np.concatenate([bl, bh])]))
-    else:
-        n_loops = 0
+    # Boundary loops: connected components of the boundary-edge graph (recon.mesh).
+    n_loops = boundary_components(np.stack([edge_lo, edge_hi], axis=1), edge_count, n_vertices)
 
     # Non-manifold vertices: count fans of wedges (face corners) around each vertex.
     wedge_lo = np.where(forward, he_face * 3 + he_corner, he_face * 3 + (he_corner + 1) % 3)

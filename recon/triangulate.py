@@ -25,14 +25,14 @@ import logging
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-import numba as nb
 import numpy as np
 import open3d as o3d
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from .config import TriangulationConfig
+from .kernels.circumsphere import circumsphere_kernel
+from .mesh import boundary_loops, edge_keys, face_area_vectors, face_components
+from .neighbors import build_neighbor_list
 
 log = logging.getLogger(__name__)
 
@@ -48,6 +48,19 @@ class TriangulationResult:
 #: Loops whose interior holds data are triangulation gaps: closed up to this many times the
 #: ``max_hole`` perimeter.
 COVERED_HOLE_FACTOR = 3.0
+#: Debris removal: components with fewer faces than this and than ``MIN_COMPONENT_FRACTION``
+#: of the largest component are dropped.
+MIN_COMPONENT_FACES = 50
+MIN_COMPONENT_FRACTION = 0.01
+#: Hole-filling passes: a fill can meet an edge that already exists elsewhere; the repair after
+#: it can open a new small loop, which the second pass closes.
+FILL_PASSES = 2
+#: Triangles kept per particle by the circumsphere test (a hexagonal sheet has ~6).
+CIRCUMSPHERE_CAPACITY = 64
+#: Rounds of dropping faces on over-shared edges (each round settles the worst edges).
+NON_MANIFOLD_EDGE_ROUNDS = 10
+#: Rounds of dropping extra fans at bow-tie vertices (dropping a fan can leave a new bow-tie).
+NON_MANIFOLD_VERTEX_ROUNDS = 5
 
 
 def triangulate_particles(
@@ -89,7 +102,7 @@ def triangulate_particles(
     stats["faces_manifold"] = int(len(faces))
     vertices, vnormals = positions, normals
     stats["holes_filled"] = 0
-    for _ in range(2 if cfg.fill_holes else 0):
+    for _ in range(FILL_PASSES if cfg.fill_holes else 0):
         # a fill can meet an edge that already exists elsewhere; repair, then fill what opened
         n_before = len(vertices)
         vertices, vnormals, faces, n_filled = fill_small_holes(
@@ -107,7 +120,9 @@ def triangulate_particles(
         faces = make_manifold(faces, len(vertices))
         if n_filled == 0:
             break
-    faces, n_small = remove_small_components(faces, len(vertices))
+    faces, n_small = remove_small_components(
+        faces, len(vertices), MIN_COMPONENT_FRACTION, MIN_COMPONENT_FACES
+    )
     stats["small_components_removed"] = n_small
     vertices, vnormals, faces = drop_unreferenced(vertices, vnormals, faces)
     return TriangulationResult(vertices, faces, vnormals, stats)
@@ -129,58 +144,6 @@ def ball_pivoting(positions: np.ndarray, normals: np.ndarray, radii: list[float]
     return faces
 
 
-@nb.njit(cache=True)
-def _circumsphere_kernel(pos, offsets, indices, out, count):  # pragma: no cover - numba
-    """S&T92 §8: keep (i, j, k) when the smallest sphere through them is empty."""
-    n = pos.shape[0]
-    cap = out.shape[1]
-    for i in range(n):
-        c = 0
-        lo, hi = offsets[i], offsets[i + 1]
-        for a in range(lo, hi):
-            j = indices[a]
-            if j <= i:
-                continue
-            for b in range(a + 1, hi):
-                k = indices[b]
-                if k <= i:
-                    continue
-                # j and k must be neighbours of each other
-                found = False
-                for t in range(offsets[j], offsets[j + 1]):
-                    if indices[t] == k:
-                        found = True
-                        break
-                if not found:
-                    continue
-                pa = pos[j] - pos[i]
-                pb = pos[k] - pos[i]
-                axb = np.cross(pa, pb)
-                den = 2.0 * (axb[0] ** 2 + axb[1] ** 2 + axb[2] ** 2)
-                if den < 1e-12:
-                    continue
-                na = pa[0] ** 2 + pa[1] ** 2 + pa[2] ** 2
-                nb_ = pb[0] ** 2 + pb[1] ** 2 + pb[2] ** 2
-                cc = (na * np.cross(pb, axb) + nb_ * np.cross(axb, pa)) / den
-                r2 = cc[0] ** 2 + cc[1] ** 2 + cc[2] ** 2
-                center = pos[i] + cc
-                empty = True
-                for t in range(lo, hi):
-                    m = indices[t]
-                    if m == j or m == k:
-                        continue
-                    d = pos[m] - center
-                    if d[0] ** 2 + d[1] ** 2 + d[2] ** 2 < r2 * (1.0 - 1e-9):
-                        empty = False
-                        break
-                if empty and c < cap:
-                    out[i, c, 0] = i
-                    out[i, c, 1] = j
-                    out[i, c, 2] = k
-                    c += 1
-        count[i] = c
-
-
 def circumsphere_triangles(
     positions: np.ndarray, normals: np.ndarray, radius: float = 2.0
 ) -> np.ndarray:
@@ -189,39 +152,25 @@ def circumsphere_triangles(
     Only neighbours of the first corner are tested for emptiness, as in the paper (the sphere of
     an accepted triangle has a radius below ``radius``).
     """
-    from .growth import neighbor_csr
-
-    tree = cKDTree(positions)
-    offsets, indices = neighbor_csr(tree, len(positions), radius)
-    cap = 64
+    offsets, indices = build_neighbor_list(positions, radius)
+    cap = CIRCUMSPHERE_CAPACITY
     out = np.zeros((len(positions), cap, 3), dtype=np.int64)
     count = np.zeros(len(positions), dtype=np.int64)
-    _circumsphere_kernel(positions, offsets, indices, out, count)
+    circumsphere_kernel(positions, offsets, indices, out, count)
     mask = np.arange(cap)[None, :] < count[:, None]
     return out[mask]
-
-
-def face_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """Unnormalised face normals (twice the area vector), (F, 3)."""
-    v = vertices[faces]
-    return np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
 
 
 def orient_faces(vertices: np.ndarray, normals: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """Flip each face whose winding disagrees with the mean of its vertex normals."""
     if len(faces) == 0:
         return faces
-    fn = face_normals(vertices, faces)
+    fn = face_area_vectors(vertices, faces)
     vn = normals[faces].sum(axis=1)
     flip = np.einsum("ij,ij->i", fn, vn) < 0
     faces = faces.copy()
     faces[flip] = faces[flip][:, [0, 2, 1]]
     return faces
-
-
-def _edge_keys(faces: np.ndarray, n_vertices: int) -> np.ndarray:
-    e = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
-    return e[:, 0] * n_vertices + e[:, 1]
 
 
 def remove_non_manifold_faces(faces: np.ndarray, n_vertices: int) -> np.ndarray:
@@ -237,8 +186,8 @@ def remove_non_manifold_faces(faces: np.ndarray, n_vertices: int) -> np.ndarray:
     key = np.sort(faces, axis=1)
     _, first = np.unique(key, axis=0, return_index=True)
     faces = faces[np.sort(first)]
-    for _ in range(10):
-        keys = _edge_keys(faces, n_vertices)
+    for _ in range(NON_MANIFOLD_EDGE_ROUNDS):
+        keys = edge_keys(faces, n_vertices)
         uniq, inv, cnt = np.unique(keys, return_inverse=True, return_counts=True)
         over = cnt[inv] > 2
         if not over.any():
@@ -260,7 +209,7 @@ def remove_non_manifold_faces(faces: np.ndarray, n_vertices: int) -> np.ndarray:
 def make_manifold(faces: np.ndarray, n_vertices: int) -> np.ndarray:
     """Drop faces until no edge has more than two faces and every vertex has one fan."""
     faces = remove_non_manifold_faces(faces, n_vertices)
-    for _ in range(5):  # dropping a fan can leave a new bow-tie next to it
+    for _ in range(NON_MANIFOLD_VERTEX_ROUNDS):
         bad = non_manifold_vertex_faces(faces, n_vertices)
         if not bad.any():
             break
@@ -318,44 +267,6 @@ def non_manifold_vertex_faces(faces: np.ndarray, n_vertices: int) -> np.ndarray:
         keep = labels[np.argmax(counts)]
         drop[inc[roots != keep]] = True
     return drop
-
-
-def boundary_loops(faces: np.ndarray) -> list[np.ndarray]:
-    """Simple boundary loops as vertex sequences in face winding order.
-
-    A boundary half-edge (a, b) is one whose edge belongs to a single face. Loops through a
-    vertex with more than one outgoing boundary half-edge are not simple and are skipped.
-    """
-    if len(faces) == 0:
-        return []
-    he = faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
-    n_v = int(faces.max()) + 1
-    und = np.sort(he, axis=1)
-    keys = und[:, 0] * n_v + und[:, 1]
-    _, inv, cnt = np.unique(keys, return_inverse=True, return_counts=True)
-    bnd = he[cnt[inv] == 1]
-    if len(bnd) == 0:
-        return []
-    out_deg = np.bincount(bnd[:, 0], minlength=n_v)
-    nxt = np.full(n_v, -1, dtype=np.int64)
-    nxt[bnd[:, 0]] = bnd[:, 1]
-    visited = np.zeros(n_v, dtype=bool)
-    loops = []
-    for start in bnd[:, 0]:
-        if visited[start]:
-            continue
-        loop = [start]
-        visited[start] = True
-        simple = out_deg[start] == 1
-        v = nxt[start]
-        while v != start and v >= 0 and not visited[v]:
-            simple &= out_deg[v] == 1
-            visited[v] = True
-            loop.append(v)
-            v = nxt[v]
-        if v == start and simple:
-            loops.append(np.asarray(loop, dtype=np.int64))
-    return loops
 
 
 def fill_small_holes(
@@ -436,23 +347,11 @@ def fill_small_holes(
     return vertices, normals, faces, filled
 
 
-def face_components(faces: np.ndarray, n_vertices: int) -> tuple[int, np.ndarray]:
-    """Connected components of faces through shared vertices: (count, label per face)."""
-    if len(faces) == 0:
-        return 0, np.zeros(0, dtype=np.int64)
-    rows = np.repeat(np.arange(len(faces)), 3)
-    cols = faces.reshape(-1)
-    m = coo_matrix(
-        (np.ones(len(rows)), (rows, cols + len(faces))), shape=(len(faces) + n_vertices,) * 2
-    )
-    n, labels = connected_components(m, directed=False)
-    face_labels = labels[: len(faces)]
-    _, face_labels = np.unique(face_labels, return_inverse=True)
-    return int(face_labels.max()) + 1, face_labels
-
-
 def remove_small_components(
-    faces: np.ndarray, n_vertices: int, min_fraction: float = 0.01, min_faces: int = 50
+    faces: np.ndarray,
+    n_vertices: int,
+    min_fraction: float = MIN_COMPONENT_FRACTION,
+    min_faces: int = MIN_COMPONENT_FACES,
 ) -> tuple[np.ndarray, int]:
     """Drop debris: components smaller than ``min_faces`` and ``min_fraction`` of the largest."""
     n, labels = face_components(faces, n_vertices)

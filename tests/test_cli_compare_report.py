@@ -256,3 +256,17 @@ def test_help_has_examples():
         r = run(name, "--help")
         assert r.exit_code == 0 and "Examples:" in r.output
     assert "reference's bounding-box diagonal" in run("compare", "--help").output
+
+
+def test_compare_tolerances_share_the_config_machinery(tmp_path):
+    from cli.compare import CompareTolerances, load_tolerances
+    from recon.errors import ConfigError
+
+    with pytest.raises(ConfigError, match=r"^samples: 0 is out of range, allowed \[1, inf\]"):
+        CompareTolerances(samples=0)
+    tol = tmp_path / "tol.yaml"
+    tol.write_text("max_champher: 2\n")
+    with pytest.raises(ConfigError, match=r"unknown key 'max_champher' \(did you mean"):
+        load_tolerances(tol)
+    tol.write_text("max-chamfer: 1\nseed: 3\n")
+    assert load_tolerances(tol) == {"max_chamfer": 1.0, "seed": 3}

@@ -163,3 +163,23 @@ def test_config_and_preset_are_exclusive(tmp_path):
     assert r.exit_code == 2
     r = run("config", "show", "--preset", "no-such-preset")
     assert r.exit_code == 2 and "unknown preset 'no-such-preset'" in r.stderr
+
+
+def test_sections_validate_however_they_are_built():
+    from recon.config import DynamicsConfig, GrowthConfig
+
+    with pytest.raises(ConfigError, match=r"dynamics\.dt: -1\.0 is out of range"):
+        ReconConfig(dynamics=DynamicsConfig(dt=-1))
+    with pytest.raises(ConfigError, match=r"growth\.stretch_min"):
+        GrowthConfig(stretch_min=3.0, stretch_max=2.5)
+    with pytest.raises(ConfigError, match=r"normals\.k: expected an integer"):
+        NormalsConfig(k="many")
+    with pytest.raises(ConfigError, match=r"^dynamics: expected a DynamicsConfig section"):
+        ReconConfig(dynamics={"dt": 0.1})
+    # the same coercion as the dict loader: an int where a float is expected becomes a float
+    assert DynamicsConfig(dt=1).dt == 1.0 and isinstance(DynamicsConfig(dt=1).dt, float)
+    # a nested prefix given to the dict loader names the full key
+    from recon.schema import from_dict
+
+    with pytest.raises(ConfigError, match=r"^config\.growth\.stretch_min"):
+        from_dict(ReconConfig, {"growth": {"stretch_min": 3.0, "stretch_max": 2.5}}, "config.")

@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 from recon.config import ReconConfig
-from recon.dynamics import PhysicsParams, Simulation, StepStats, warmup
-from recon.errors import DivergenceError
-from recon.kernels import pair_loop
+from recon.dynamics import Simulation, StepStats, warmup
+from recon.errors import ConfigError, DivergenceError
+from recon.params import PhysicsParams
 from recon.state import ParticleState
 from tests.reference import (
     brute_force_neighbors,
@@ -67,12 +67,16 @@ def test_from_config_converts_to_absolute_units():
 
 
 def test_params_validation():
-    with pytest.raises(ValueError, match="dt"):
+    with pytest.raises(ConfigError, match=r"^dt: 0\.0 is out of range"):
         _params(dt=0.0)
-    with pytest.raises(ValueError, match="damping_relative_linear"):
+    with pytest.raises(ConfigError, match="damping_relative_linear"):
         _params(damping_relative_linear=-1.0)
-    with pytest.raises(ValueError, match="weighting"):
+    with pytest.raises(ConfigError, match="weighting: 'cubic' is not one of"):
         _params(weighting="cubic")
+    with pytest.raises(ConfigError, match="max_rotation"):
+        _params(max_rotation=4.0)
+    with pytest.raises(ConfigError, match="lj_minimum"):
+        _params(lj_minimum=5.0)
     assert _params(weighting="anisotropic").weighting == 2
 
 
@@ -94,10 +98,11 @@ def test_damped_energy_never_increases_and_wrong_relative_sign_adds_energy(relat
     )
     sim = Simulation(_patch(), params)
     if relative_sign < 0:  # direct kernel coefficients: PhysicsParams rejects negative damping
-        c = list(sim._coefficients)
-        c[pair_loop.C_DAMPING_RELATIVE_LINEAR] *= -1.0
-        c[pair_loop.C_DAMPING_RELATIVE_ANGULAR] *= -1.0
-        sim._coefficients = tuple(c)
+        c = sim._coefficients
+        sim._coefficients = c._replace(
+            damping_relative_linear=-c.damping_relative_linear,
+            damping_relative_angular=-c.damping_relative_angular,
+        )
     totals = np.array([sim.step().total for _ in range(1000)])
     increase = np.diff(totals)
     if relative_sign > 0:
@@ -432,3 +437,13 @@ def test_empty_state_and_growth_from_nothing():
     sim.notify_changed()
     stats = sim.step()
     assert stats.rebuilt and stats.potential < 0.0
+
+
+def test_coefficients_are_a_named_tuple_of_floats():
+    from recon.forces import pack_coefficients
+    from recon.params import Coefficients
+
+    c = pack_coefficients(DEFAULTS)
+    assert isinstance(c, Coefficients)
+    assert all(isinstance(v, float) for v in c)
+    assert c.cutoff2 == DEFAULTS.cutoff**2 and c.has_anchors == 0.0

@@ -27,15 +27,17 @@ def test_bbox_diagonal():
 
 @pytest.mark.parametrize("step", [1e-6, 1.0, 1e3])
 def test_median_nn_on_grid_any_scale(step):
-    assert median_nearest_neighbor_distance(grid(10, step)) == pytest.approx(step)
+    assert median_nearest_neighbor_distance(
+        grid(10, step), rng=np.random.default_rng(0)
+    ) == pytest.approx(step)
 
 
 def test_median_nn_sampling_is_deterministic():
     rng = np.random.default_rng(0)
     p = rng.uniform(size=(5000, 3))
-    a = median_nearest_neighbor_distance(p, sample=500)
-    b = median_nearest_neighbor_distance(p, sample=500)
-    full = median_nearest_neighbor_distance(p, sample=None)
+    a = median_nearest_neighbor_distance(p, sample=500, rng=np.random.default_rng(0))
+    b = median_nearest_neighbor_distance(p, sample=500, rng=np.random.default_rng(0))
+    full = median_nearest_neighbor_distance(p, sample=None, rng=np.random.default_rng(0))
     assert a == b
     assert a == pytest.approx(full, rel=0.1)
     c = median_nearest_neighbor_distance(p, sample=500, rng=np.random.default_rng(5))
@@ -44,7 +46,7 @@ def test_median_nn_sampling_is_deterministic():
 
 def test_median_nn_needs_two_points():
     with pytest.raises(ValueError, match="at least 2"):
-        median_nearest_neighbor_distance(np.zeros((1, 3)))
+        median_nearest_neighbor_distance(np.zeros((1, 3)), rng=np.random.default_rng(0))
 
 
 def test_fit_plane():
@@ -62,3 +64,16 @@ def test_unit_vectors_and_as_points():
     np.testing.assert_allclose(v, [[0.6, 0.8, 0.0], [0.0, 0.0, 0.0]])
     with pytest.raises(ValueError, match=r"expected shape \(n, 3\), got \(4, 2\)"):
         as_points(np.zeros((4, 2)))
+
+
+def test_as_points_is_the_one_validator():
+    from recon.errors import InputError
+
+    assert as_points([1.0, 2.0, 3.0], allow_single=True).shape == (1, 3)
+    with pytest.raises(ValueError, match=r"normals: expected 2 rows, got 3"):
+        as_points(np.zeros((3, 3)), "normals", rows=2)
+    bad = np.zeros((4, 3))
+    bad[2, 1] = np.nan
+    as_points(bad)  # finiteness is checked only when asked
+    with pytest.raises(InputError, match=r"points: row 2 is not finite"):
+        as_points(bad, finite=True, error=InputError)

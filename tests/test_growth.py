@@ -2,14 +2,23 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from recon.config import GrowthConfig
-from recon.growth import accept_candidates, grow_candidates, neighbor_csr, stretch_candidates
+from recon.growth import accept_candidates, grow_candidates, stretch_candidates
+from recon.neighbors import build_neighbor_list
 from recon.surface import DataSurface
+
+
+def _only_first_row(offsets):
+    """CSR offsets with every row but the first emptied (so only particle 0 can grow when
+    ``min_neighbors >= 1``), keeping the arrays in bounds for the kernel."""
+    out = np.full_like(offsets, offsets[1])
+    out[0] = 0
+    return out
 
 
 def test_isolated_particle_grows_a_hexagon_in_its_tangent_plane():
     pos = np.array([[0.0, 0.0, 0.0]])
     nrm = np.array([[0.0, 0.0, 1.0]])
-    off, idx = neighbor_csr(cKDTree(pos), 1, 1.5)
+    off, idx = build_neighbor_list(pos, 1.5)
     c = grow_candidates(pos, nrm, off, idx, GrowthConfig())
     assert len(c) == 6
     assert np.allclose(np.linalg.norm(c, axis=1), 1.0)
@@ -24,9 +33,9 @@ def test_boundary_particle_fills_only_the_open_side():
     nb = np.column_stack([np.cos(ang), np.sin(ang), np.zeros(4)])
     pos = np.vstack([[0.0, 0, 0], nb])
     nrm = np.tile([0.0, 0, 1], (5, 1))
-    off, idx = neighbor_csr(cKDTree(pos), 5, 1.5)
-    cfg = GrowthConfig(max_neighbors=5)
-    c = grow_candidates(pos[:1], nrm[:1], off[:2], idx, cfg)
+    off, idx = build_neighbor_list(pos, 1.5)
+    cfg = GrowthConfig(min_neighbors=1, max_neighbors=5)
+    c = grow_candidates(pos, nrm, _only_first_row(off), idx, cfg)
     # gap of 180 degrees on the +x side: 2 candidates at 330 and 30 degrees
     assert len(c) == 2
     assert np.all(c[:, 0] > 0.8)
@@ -36,8 +45,9 @@ def test_full_ring_does_not_grow():
     ang = np.deg2rad(np.arange(0, 360, 60))
     pos = np.vstack([[0.0, 0, 0], np.column_stack([np.cos(ang), np.sin(ang), np.zeros(6)])])
     nrm = np.tile([0.0, 0, 1], (7, 1))
-    off, idx = neighbor_csr(cKDTree(pos), 7, 1.5)
-    c = grow_candidates(pos[:1], nrm[:1], off[:2], idx, GrowthConfig(max_neighbors=6))
+    off, idx = build_neighbor_list(pos, 1.5)
+    cfg = GrowthConfig(min_neighbors=1, max_neighbors=6)
+    c = grow_candidates(pos, nrm, _only_first_row(off), idx, cfg)
     assert len(c) == 0
 
 

@@ -1,7 +1,8 @@
 import numpy as np
 from scipy.spatial import cKDTree
 
-from recon.seeds import poisson_disk_thin, select_seeds
+from recon.geometry import poisson_disk_thin
+from recon.seeds import select_seeds
 
 
 def _plane(n=4000, seed=0):

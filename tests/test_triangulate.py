@@ -1,8 +1,8 @@
 import numpy as np
 
 from recon.config import TriangulationConfig
+from recon.mesh import boundary_loops
 from recon.triangulate import (
-    boundary_loops,
     circumsphere_triangles,
     fill_small_holes,
     orient_faces,

@@ -26,8 +26,8 @@ from collections.abc import Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
 from typing import Any
 
-from .. import __version__
 from ..errors import OpreconError
+from ..version import __version__
 from .summary import STATUS_FAILED, STATUS_INTERRUPTED, BatchEvent, EventFn, ItemResult
 from .supervise import POLL, STOP_GRACE, supervise_item
 
@@ -140,7 +140,7 @@ def _input_of(specs: list[dict[str, Any]], name: str) -> str:
 
 def _worker_version() -> str:
     """The oprecon version a Dask worker imports."""
-    from recon import __version__ as version
+    from recon.version import __version__ as version
 
     return version
 

@@ -16,8 +16,8 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
-from .. import __version__
 from ..config import ReconConfig, config_to_dict
+from ..version import __version__
 from .outputs import ItemOutputs, read_json, write_json
 
 __all__ = ["check_up_to_date", "config_hash", "item_fingerprint", "write_record"]

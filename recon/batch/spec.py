@@ -26,8 +26,8 @@ win) > global ``set`` > ``config``/``preset`` > defaults.
 
 Each section of the file is a frozen dataclass (:class:`BatchFile`, :class:`OverrideEntry`)
 whose fields name their reader in ``metadata``; :func:`read_section` builds one from a mapping.
-Values are checked by the configuration's own :func:`recon.config.coerce` and
-:func:`recon.config.check_range` where the batch file accepts what a configuration key would,
+Values are checked by the configuration's own :func:`recon.schema.coerce` and
+:func:`recon.schema.check_range` where the batch file accepts what a configuration key would,
 and ``set`` sections by :func:`recon.config.apply_overrides`, so errors read the same. Every
 error names the batch file, the line and the dotted key (with the nearest valid key for an
 unknown one).
@@ -46,13 +46,12 @@ import yaml
 from ..config import (
     ReconConfig,
     apply_overrides,
-    check_range,
-    coerce,
     load_config,
     load_yaml_file,
     parse_override,
 )
 from ..errors import ConfigError, OpreconError, did_you_mean
+from ..schema import check_range, coerce
 
 __all__ = [
     "BATCH_VERSION",

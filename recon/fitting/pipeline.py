@@ -31,7 +31,6 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import __version__
 from ..cloud import PointCloud
 from ..config import ReconConfig, config_to_dict, with_values
 from ..errors import InputError
@@ -41,6 +40,7 @@ from ..serialize import dumps
 from ..state import ParticleState
 from ..surface import DataSurface
 from ..triangulate import TriangulationResult, triangulate_particles
+from ..version import __version__
 from .report import (
     FitReport,
     History,

@@ -18,7 +18,7 @@ import numpy as np
 
 from ..config import ReconConfig, with_values
 from ..errors import InputError
-from ..geometry import bbox_diagonal, median_nearest_neighbor_distance
+from ..geometry import SPACING_SAMPLE_SEED, bbox_diagonal, median_nearest_neighbor_distance
 from ..normals import choose_neighborhood_size
 
 __all__ = [
@@ -44,9 +44,6 @@ HEX_AREA = 0.866
 #: The resolution floor never lowers r0 below this many median point spacings: closer
 #: particles would resolve the sampling noise rather than the surface.
 MIN_SPACING_FACTOR = 0.8
-#: Seed of the subsample the median point spacing is measured on (inputs of more than 20,000
-#: points). Fixed, not ``config.seed``: r0 is a property of the data, the same for every seed.
-SPACING_SAMPLE_SEED = 0
 #: Largest cell grid (cells of side r0 over the data's bounding box) the neighbour search accepts.
 MAX_GRID_CELLS = 2.0**60
 #: Default max_gap, in median data spacings.

@@ -31,9 +31,11 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ..config import ReconConfig
-from ..dynamics import PhysicsParams, Simulation
+from ..dynamics import Simulation
 from ..errors import DivergenceError, LimitExceeded
-from ..growth import accept_candidates, grow_candidates, neighbor_csr, stretch_candidates
+from ..growth import accept_candidates, grow_candidates, stretch_candidates
+from ..neighbors import build_neighbor_list
+from ..params import PhysicsParams
 from ..seeds import select_seeds
 from ..state import ParticleState
 from ..surface import DataSurface
@@ -353,7 +355,7 @@ class _Schedule:
         dyn = self.cfg.dynamics
         pos, nrm = state.position, state.normal
         tree = cKDTree(pos)
-        offsets, indices = neighbor_csr(tree, state.n, g.grow_radius)
+        offsets, indices = build_neighbor_list(pos, g.grow_radius)
         frontier = np.diff(offsets) <= g.max_neighbors
         cands = np.vstack(
             [

@@ -5,6 +5,13 @@ One module per term: :mod:`.lennard_jones` (spacing, S&T92 §4), :mod:`.planarit
 :mod:`.anchor` (data fidelity), :mod:`.quaternion` (frames), :mod:`.cell_list` (neighbour lists)
 and :mod:`.pair_loop` (the one per-particle loop: forces, torques, damping, integration).
 
+Geometry kernels of the stages: :mod:`.poisson_disk` (seed and candidate thinning),
+:mod:`.local_surface` (tangent frames, local quadrics, angular gaps), :mod:`.growth_rules` (the
+growing rule, S&T92 §6) and :mod:`.circumsphere` (S&T92 §8). They are compiled with
+:data:`.options.EXACT_JIT_OPTIONS` (no fast-math); the particle kernels with
+:data:`.options.JIT_OPTIONS`. The packed coefficients the pair loop reads are laid out by
+:class:`recon.params.Coefficients`.
+
 Kernels never take jitted functions as arguments (that defeats ``cache=True``); the weighting
 function is chosen by an integer mode. See :func:`recon.dynamics.warmup` to compile them all.
 
@@ -21,8 +28,8 @@ from .anchor import anchor_interaction
 from .circularity import circularity_pair
 from .lennard_jones import calibrate_lj_minimum, lj_cutoff_values, lj_pair
 from .normality import normality_pair
-from .options import FASTMATH, JIT_OPTIONS
-from .pair_loop import N_COEFFICIENTS, pair_interaction
+from .options import EXACT_JIT_OPTIONS, FASTMATH, JIT_OPTIONS
+from .pair_loop import pair_interaction
 from .planarity import planarity_pair
 from .quaternion import (
     normals_from_quaternions,
@@ -40,9 +47,9 @@ from .weights import (
 )
 
 __all__ = [
+    "EXACT_JIT_OPTIONS",
     "FASTMATH",
     "JIT_OPTIONS",
-    "N_COEFFICIENTS",
     "WEIGHT_ANISOTROPIC",
     "WEIGHT_GAUSSIAN",
     "WEIGHT_MODES",

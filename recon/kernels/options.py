@@ -14,7 +14,7 @@ All kernels are compiled with ``cache=True`` and a reduced ``fastmath`` flag set
 What remains (``nsz``, ``arcp``, ``afn``) lets LLVM use reciprocals and ignore signed zeros.
 
 Numba's cache is keyed on the source file of each jitted function only: after editing a kernel
-module that others inline (quaternion, weights, the term modules, this file), delete
+module that others call (quaternion, weights, the term modules, local_surface, this file), delete
 ``recon/kernels/__pycache__/*.nb[ic]`` so that the callers are recompiled.
 
 References
@@ -43,6 +43,17 @@ JIT_OPTIONS: dict = {
 ``error_model="numpy"``: a division by zero gives inf/NaN (caught by the divergence check)
 instead of raising ``ZeroDivisionError`` from inside a kernel, and divisions carry no
 zero test."""
+
+
+EXACT_JIT_OPTIONS: dict = {**JIT_OPTIONS, "fastmath": False}
+"""Keyword arguments for the geometry kernels of the stages (Poisson-disk thinning, growing
+rule, local quadrics, angular gaps, circumspheres): :data:`JIT_OPTIONS` without fast-math.
+
+These kernels were compiled without fast-math before they moved here, and their results feed
+discrete decisions (which seed or candidate is kept, which triangle passes). ``arcp`` lets LLVM
+replace several divisions by one value with a multiplication by its reciprocal (the quadric
+fit divides five coefficients by the same scale), which changes last bits and so could change
+those decisions; exact IEEE arithmetic keeps every mesh byte-identical."""
 
 
 @contextlib.contextmanager

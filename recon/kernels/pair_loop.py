@@ -64,34 +64,6 @@ from .planarity import planarity_pair
 from .quaternion import quaternion_normal, rotate_quaternion
 from .weights import WEIGHT_ANISOTROPIC, pair_weights
 
-# Layout of the coefficient tuple (all lengths absolute; see recon.forces.pack_coefficients).
-C_SPACING = 0
-C_INV_SPACING2 = 1
-C_CUTOFF = 2
-C_CUTOFF2 = 3
-C_INV_CUTOFF2 = 4
-C_LJ_SIGMA2 = 5
-C_LJ_PHI_CUTOFF = 6
-C_LJ_DPHI_CUTOFF = 7
-C_W_LJ = 8
-C_W_PLANARITY = 9
-C_W_NORMALITY = 10
-C_W_CIRCULARITY = 11
-C_INV_2SIGMA2 = 12
-C_KAPPA = 13
-C_DT = 14
-C_DAMPING_LINEAR = 15
-C_DAMPING_RELATIVE_LINEAR = 16
-C_DAMPING_ANGULAR = 17
-C_DAMPING_RELATIVE_ANGULAR = 18
-C_MAX_DISPLACEMENT = 19
-C_MAX_ROTATION = 20
-C_ANCHOR_STIFFNESS = 21
-C_ANCHOR_NORMAL_STIFFNESS = 22
-C_HAS_ANCHORS = 23
-C_HAS_EXTERNAL_FORCE = 24
-N_COEFFICIENTS = 25
-
 # Columns of the per-particle output array of :func:`step_particles`.
 S_POTENTIAL = 0
 S_KINETIC = 1
@@ -208,8 +180,8 @@ def pair_interaction(rx, ry, rz, nix, niy, niz, njx, njy, njz, oriented, coef, m
         Unit normals n_i, n_j (ignored unless ``oriented``).
     oriented : bool
         Both particles are oriented; otherwise only the spacing term acts (creases).
-    coef : UniTuple(float64, N_COEFFICIENTS)
-        Packed parameters (:func:`recon.forces.pack_coefficients`).
+    coef : recon.params.Coefficients
+        Packed parameters, a named tuple of floats (:func:`recon.forces.pack_coefficients`).
     mode : int
         Weighting mode (:mod:`recon.kernels.weights`).
 
@@ -234,28 +206,28 @@ def pair_interaction(rx, ry, rz, nix, niy, niz, njx, njy, njz, oriented, coef, m
     """
     acc = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     d2 = rx * rx + ry * ry + rz * rz
-    if d2 >= coef[C_CUTOFF2]:
+    if d2 >= coef.cutoff2:
         return acc
-    w_lj = coef[C_W_LJ]
+    w_lj = coef.w_lj
     if w_lj != 0.0:
         phi, dphi_over_d = lj_pair(
-            d2, coef[C_LJ_SIGMA2], coef[C_CUTOFF], coef[C_LJ_PHI_CUTOFF], coef[C_LJ_DPHI_CUTOFF]
+            d2, coef.lj_sigma2, coef.cutoff, coef.lj_phi_cutoff, coef.lj_dphi_cutoff
         )
         c = w_lj * dphi_over_d
         acc = (w_lj * phi, c * rx, c * ry, c * rz, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     if not oriented:
         return acc
-    w_p = coef[C_W_PLANARITY]
-    w_n = coef[C_W_NORMALITY]
-    w_c = coef[C_W_CIRCULARITY]
+    w_p = coef.w_planarity
+    w_n = coef.w_normality
+    w_c = coef.w_circularity
     if w_p == 0.0 and w_n == 0.0 and w_c == 0.0:
         return acc
-    kappa = coef[C_KAPPA]
-    s2 = coef[C_INV_SPACING2]
+    kappa = coef.kappa
+    s2 = coef.inv_spacing2
     ri = nix * rx + niy * ry + niz * rz
     rj = njx * rx + njy * ry + njz * rz
     psi_i, dpsi_i, psi_j, dpsi_j = pair_weights(
-        d2, ri, rj, mode, coef[C_INV_CUTOFF2], coef[C_INV_2SIGMA2], kappa
+        d2, ri, rj, mode, coef.inv_cutoff2, coef.inv_2sigma2, kappa
     )
     if mode != WEIGHT_ANISOTROPIC:
         t = isotropic_orientation_terms(
@@ -334,8 +306,8 @@ def step_particles(
 
     Parameters
     ----------
-    coef : UniTuple(float64, N_COEFFICIENTS)
-        Packed parameters (:func:`recon.forces.pack_coefficients`).
+    coef : recon.params.Coefficients
+        Packed parameters, a named tuple of floats (:func:`recon.forces.pack_coefficients`).
     mode : int
         Weighting mode (:mod:`recon.kernels.weights`).
     integrate : bool
@@ -386,18 +358,18 @@ def step_particles(
     offsets, indices = neighbors
     anchor_point, anchor_normal, external = extras
     n = position.shape[0]
-    cutoff2 = coef[C_CUTOFF2]
-    inv_s2 = coef[C_INV_SPACING2]
-    spacing2 = coef[C_SPACING] * coef[C_SPACING]
-    dt = coef[C_DT]
-    beta0 = coef[C_DAMPING_LINEAR]
-    beta1 = coef[C_DAMPING_RELATIVE_LINEAR]
-    beta2 = coef[C_DAMPING_ANGULAR]
-    beta3 = coef[C_DAMPING_RELATIVE_ANGULAR]
-    max_step = coef[C_MAX_DISPLACEMENT]
-    max_turn = coef[C_MAX_ROTATION]
-    has_anchors = coef[C_HAS_ANCHORS] != 0.0
-    has_external = coef[C_HAS_EXTERNAL_FORCE] != 0.0
+    cutoff2 = coef.cutoff2
+    inv_s2 = coef.inv_spacing2
+    spacing2 = coef.spacing * coef.spacing
+    dt = coef.dt
+    beta0 = coef.damping_linear
+    beta1 = coef.damping_relative_linear
+    beta2 = coef.damping_angular
+    beta3 = coef.damping_relative_angular
+    max_step = coef.max_displacement
+    max_turn = coef.max_rotation
+    has_anchors = coef.has_anchors != 0.0
+    has_external = coef.has_external_force != 0.0
     for i in prange(n):
         status = 0
         x0 = position[i, 0]
@@ -485,8 +457,8 @@ def step_particles(
                 nix,
                 niy,
                 niz,
-                coef[C_ANCHOR_STIFFNESS],
-                coef[C_ANCHOR_NORMAL_STIFFNESS] if oriented_i else 0.0,
+                coef.anchor_stiffness,
+                coef.anchor_normal_stiffness if oriented_i else 0.0,
                 inv_s2,
             )
             energy += a[0]

@@ -7,8 +7,8 @@ import dataclasses
 import numpy as np
 
 from recon.config import ReconConfig
-from recon.dynamics import PhysicsParams
 from recon.forces import evaluate_pair
+from recon.params import PhysicsParams
 from tests.reference import pair_gradient_errors, random_pairs
 
 TERMS = ("w_lj", "w_planarity", "w_normality", "w_circularity")

@@ -1,0 +1,158 @@
+r"""Local surface kernels: tangent frames, quadric fits and angular gaps (S&T92 §7).
+
+Used by :mod:`recon.surface` (the data seen as a surface) and by the growing rule
+(:mod:`recon.kernels.growth_rules`).
+
+References
+----------
+.. [ST92] R. Szeliski, D. Tonnesen. "Surface Modeling with Oriented Particle Systems".
+   SIGGRAPH '92, §7.
+.. [H92] Hoppe, DeRose, Duchamp, McDonald, Stuetzle. "Surface reconstruction from unorganized
+   points". SIGGRAPH 1992 (tangent planes by PCA of k nearest neighbours).
+.. [L98] D. Levin. "The approximation power of moving least-squares". Math. Comp. 67, 1998.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from .options import EXACT_JIT_OPTIONS
+
+
+@njit(**EXACT_JIT_OPTIONS)
+def fit_quadrics_kernel(
+    points, normals, idx, out_p, out_n, out_u, out_a, out_r
+):  # pragma: no cover - numba
+    r"""PCA frame and least-squares quadric height field of each neighbourhood [H92, L98].
+
+    For point i with neighbours N_i (``idx[i]``, itself included): centroid c, frame normal the
+    least-variance axis (flipped to agree with ``normals[i]``), tangent u the largest-variance
+    axis and v = n x u; then, with x, y, z the coordinates of p - c in (u, v, n),
+
+    .. math::
+
+        \min_a \sum_{p \in N_i} \bigl(z - (a_0 + a_1 x + a_2 y + a_3 x^2 + a_4 x y
+            + a_5 y^2)\bigr)^2
+
+    solved on x, y scaled by the largest principal deviation, with a small ridge (1e-6 of the
+    trace's first entry). Writes centroid, normal, tangent, coefficients and the RMS residual
+    into ``out_p``, ``out_n``, ``out_u``, ``out_a``, ``out_r`` (row i).
+    """
+    n, k = idx.shape
+    for i in range(n):
+        c = np.zeros(3)
+        for a in range(k):
+            c += points[idx[i, a]]
+        c /= k
+        cov = np.zeros((3, 3))
+        for a in range(k):
+            d = points[idx[i, a]] - c
+            for r in range(3):
+                for s in range(3):
+                    cov[r, s] += d[r] * d[s]
+        cov /= k
+        w, vec = np.linalg.eigh(cov)
+        nn = vec[:, 0].copy()
+        if nn[0] * normals[i, 0] + nn[1] * normals[i, 1] + nn[2] * normals[i, 2] < 0.0:
+            nn = -nn
+        u = vec[:, 2].copy()
+        v = np.cross(nn, u)
+        # least squares height field over the frame (c; u, v, nn)
+        ata = np.zeros((6, 6))
+        atb = np.zeros(6)
+        row = np.zeros(6)
+        scale = max(np.sqrt(w[2]), 1e-12)
+        for a in range(k):
+            d = points[idx[i, a]] - c
+            x = (d[0] * u[0] + d[1] * u[1] + d[2] * u[2]) / scale
+            y = (d[0] * v[0] + d[1] * v[1] + d[2] * v[2]) / scale
+            z = d[0] * nn[0] + d[1] * nn[1] + d[2] * nn[2]
+            row[0] = 1.0
+            row[1] = x
+            row[2] = y
+            row[3] = x * x
+            row[4] = x * y
+            row[5] = y * y
+            for r in range(6):
+                atb[r] += row[r] * z
+                for s in range(6):
+                    ata[r, s] += row[r] * row[s]
+        ridge = 1e-6 * (ata[0, 0] + 1e-12)
+        for r in range(6):
+            ata[r, r] += ridge
+        coef = np.linalg.solve(ata, atb)
+        # undo the scaling of x, y
+        coef[1] /= scale
+        coef[2] /= scale
+        coef[3] /= scale * scale
+        coef[4] /= scale * scale
+        coef[5] /= scale * scale
+        res = 0.0
+        for a in range(k):
+            d = points[idx[i, a]] - c
+            x = d[0] * u[0] + d[1] * u[1] + d[2] * u[2]
+            y = d[0] * v[0] + d[1] * v[1] + d[2] * v[2]
+            z = d[0] * nn[0] + d[1] * nn[1] + d[2] * nn[2]
+            h = (
+                coef[0]
+                + coef[1] * x
+                + coef[2] * y
+                + coef[3] * x * x
+                + coef[4] * x * y
+                + coef[5] * y * y
+            )
+            res += (z - h) ** 2
+        out_p[i] = c
+        out_n[i] = nn
+        out_u[i] = u
+        out_a[i] = coef
+        out_r[i] = np.sqrt(res / k)
+
+
+@njit(**EXACT_JIT_OPTIONS)
+def tangent_frame(nrm):  # pragma: no cover - numba
+    """Two unit tangents (u, v) completing the unit normal ``nrm`` to a right-handed frame.
+
+    u is the x axis (or the y axis when ``nrm`` is within ~25 deg of x) projected onto the
+    tangent plane and normalised; v = nrm x u.
+    """
+    if abs(nrm[0]) < 0.9:
+        t = np.array([1.0, 0.0, 0.0])
+    else:
+        t = np.array([0.0, 1.0, 0.0])
+    u = t - (t[0] * nrm[0] + t[1] * nrm[1] + t[2] * nrm[2]) * nrm
+    u /= np.sqrt(u[0] ** 2 + u[1] ** 2 + u[2] ** 2)
+    v = np.cross(nrm, u)
+    return u, v
+
+
+@njit(**EXACT_JIT_OPTIONS)
+def max_angular_gap_kernel(cands, normals, nbr_pts, nbr_count):  # pragma: no cover - numba
+    """Largest angle [rad] between successive neighbour directions in each tangent plane.
+
+    Row i: the first ``nbr_count[i]`` points of ``nbr_pts[i]`` seen from ``cands[i]`` in the
+    frame :func:`tangent_frame` of ``normals[i]``; their polar angles are sorted and the widest
+    gap (wrapping around 2 pi) is returned. Fewer than 3 neighbours give 2 pi.
+    """
+    m = cands.shape[0]
+    out = np.full(m, 2.0 * np.pi)
+    for i in range(m):
+        cnt = nbr_count[i]
+        if cnt < 3:
+            continue
+        u, v = tangent_frame(normals[i])
+        ang = np.zeros(cnt)
+        for a in range(cnt):
+            d = nbr_pts[i, a] - cands[i]
+            ang[a] = np.arctan2(
+                d[0] * v[0] + d[1] * v[1] + d[2] * v[2], d[0] * u[0] + d[1] * u[1] + d[2] * u[2]
+            )
+        ang.sort()
+        gap = ang[0] + 2.0 * np.pi - ang[cnt - 1]
+        for a in range(1, cnt):
+            g = ang[a] - ang[a - 1]
+            if g > gap:
+                gap = g
+        out[i] = gap
+    return out

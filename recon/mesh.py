@@ -1,0 +1,212 @@
+"""Shared triangle-mesh helpers: edges, boundaries, components and face normals.
+
+Used by mesh repair (:mod:`recon.triangulate`) and by the report (:mod:`recon.topology`,
+:mod:`recon.metrics`), so both see the same edges and the same components. Faces are
+``(F, 3)`` integer vertex indices; everything is vectorised NumPy and ``scipy.sparse.csgraph``
+(except the loop walk).
+
+Definitions:
+
+- An *edge* is an unordered vertex pair used by a face; its *face count* is 1 on the boundary,
+  2 inside a manifold and more on a non-manifold edge.
+- *Boundary loops* (:func:`boundary_loops`) are the *simple* closed walks along boundary
+  half-edges, as vertex sequences in face winding order: what hole filling can close. A loop
+  through a vertex with two outgoing boundary half-edges is not simple and is skipped.
+- *Boundary components* (:func:`boundary_components`) are the connected components of the graph
+  of boundary edges: what the report counts as ``boundary_loops``. On a manifold mesh both
+  agree; where boundaries touch at a vertex (a figure of eight) the walk finds no simple loop
+  while the component count is one.
+- *Components* (:func:`vertex_components`, :func:`face_components`) are the connected
+  components of the referenced vertices, two vertices being connected when a face uses both
+  (so a bow-tie is one component).
+
+References
+----------
+[Bot10] M. Botsch, L. Kobbelt, M. Pauly, P. Alliez, B. Levy. "Polygon Mesh Processing".
+        AK Peters, 2010, ch. 1.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from scipy import sparse
+from scipy.sparse import csgraph
+
+__all__ = [
+    "boundary_components",
+    "boundary_loops",
+    "count_edge_faces",
+    "edge_keys",
+    "face_area_vectors",
+    "face_components",
+    "face_normals",
+    "vertex_components",
+]
+
+
+def edge_keys(faces: np.ndarray, n_vertices: int) -> np.ndarray:
+    """One integer key per face edge, ``(3 F,)``: ``lo * n_vertices + hi`` of its vertex pair.
+
+    Edge k of face i (corner k to k + 1) is entry ``3 i + k``; equal keys are the same edge.
+    """
+    e = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+    return e[:, 0] * n_vertices + e[:, 1]
+
+
+def count_edge_faces(faces: Any) -> tuple[np.ndarray, np.ndarray]:
+    """Distinct edges of a triangle mesh and how many faces use each.
+
+    Faces with a repeated vertex index are skipped (as in :func:`recon.topology.mesh_topology`).
+
+    Parameters
+    ----------
+    faces : (F, 3) array_like of int
+        Triangles as vertex indices.
+
+    Returns
+    -------
+    edges : (E, 2) int64
+        Vertex pairs, smaller index first, sorted.
+    counts : (E,) int64
+        Faces per edge: 1 on the boundary, 2 inside, more on non-manifold edges.
+
+    Examples
+    --------
+    >>> edges, counts = count_edge_faces([[0, 1, 2], [2, 1, 3]])
+    >>> edges[counts == 2].tolist(), int(counts.sum())
+    ([[1, 2]], 6)
+    """
+    f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    f = f[(f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 2] != f[:, 0])]
+    a, b = f.ravel(), np.roll(f, -1, axis=1).ravel()
+    pairs = np.stack([np.minimum(a, b), np.maximum(a, b)], axis=1)
+    edges, counts = np.unique(pairs, axis=0, return_counts=True)
+    return edges.reshape(-1, 2), counts.astype(np.int64)
+
+
+def boundary_loops(faces: np.ndarray) -> list[np.ndarray]:
+    """Simple boundary loops as vertex sequences in face winding order (for hole filling).
+
+    A boundary half-edge (a, b) is one whose edge belongs to a single face. Loops through a
+    vertex with more than one outgoing boundary half-edge are not simple and are skipped.
+
+    Examples
+    --------
+    >>> [loop.tolist() for loop in boundary_loops(np.array([[0, 1, 2], [0, 2, 3]]))]
+    [[0, 1, 2, 3]]
+    """
+    if len(faces) == 0:
+        return []
+    he = faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
+    n_v = int(faces.max()) + 1
+    keys = edge_keys(faces, n_v)
+    _, inv, cnt = np.unique(keys, return_inverse=True, return_counts=True)
+    bnd = he[cnt[inv] == 1]
+    if len(bnd) == 0:
+        return []
+    out_deg = np.bincount(bnd[:, 0], minlength=n_v)
+    nxt = np.full(n_v, -1, dtype=np.int64)
+    nxt[bnd[:, 0]] = bnd[:, 1]
+    visited = np.zeros(n_v, dtype=bool)
+    loops = []
+    for start in bnd[:, 0]:
+        if visited[start]:
+            continue
+        loop = [start]
+        visited[start] = True
+        simple = out_deg[start] == 1
+        v = nxt[start]
+        while v != start and v >= 0 and not visited[v]:
+            simple &= out_deg[v] == 1
+            visited[v] = True
+            loop.append(v)
+            v = nxt[v]
+        if v == start and simple:
+            loops.append(np.asarray(loop, dtype=np.int64))
+    return loops
+
+
+def boundary_components(edges: np.ndarray, counts: np.ndarray, n_vertices: int) -> int:
+    """Number of connected components of the boundary-edge graph (the report's loop count).
+
+    Parameters
+    ----------
+    edges : (E, 2) int
+        Distinct edges (:func:`count_edge_faces`).
+    counts : (E,) int
+        Faces per edge; edges with one face are the boundary.
+    n_vertices : int
+
+    Examples
+    --------
+    >>> boundary_components(*count_edge_faces([[0, 1, 2], [0, 2, 3]]), 4)
+    1
+    """
+    boundary = counts == 1
+    n_boundary = int(boundary.sum())
+    if not n_boundary:
+        return 0
+    bl, bh = edges[boundary, 0], edges[boundary, 1]
+    graph = sparse.coo_matrix((np.ones(n_boundary, np.int8), (bl, bh)), (n_vertices,) * 2)
+    _, label = csgraph.connected_components(graph, directed=False)
+    return len(np.unique(label[np.concatenate([bl, bh])]))
+
+
+def vertex_components(faces: np.ndarray, n_vertices: int) -> tuple[int, np.ndarray]:
+    """Connected components of the referenced vertices (faces link their three vertices).
+
+    Returns
+    -------
+    count : int
+    labels : (n_vertices,) int64
+        Component of each vertex, ``0 .. count - 1`` in order of the components' lowest vertex;
+        -1 for vertices no face uses.
+    """
+    labels = np.full(n_vertices, -1, dtype=np.int64)
+    if len(faces) == 0:
+        return 0, labels
+    rows = np.concatenate([faces[:, 0], faces[:, 1]])
+    cols = np.concatenate([faces[:, 1], faces[:, 2]])
+    graph = sparse.coo_matrix((np.ones(len(rows), np.int8), (rows, cols)), (n_vertices,) * 2)
+    _, vertex_label = csgraph.connected_components(graph, directed=False)
+    referenced = np.zeros(n_vertices, dtype=bool)
+    referenced[faces.ravel()] = True
+    ref_idx = np.flatnonzero(referenced)
+    comp_of_ref, compact = np.unique(vertex_label[ref_idx], return_inverse=True)
+    labels[ref_idx] = compact
+    return len(comp_of_ref), labels
+
+
+def face_components(faces: np.ndarray, n_vertices: int) -> tuple[int, np.ndarray]:
+    """Connected components of faces through shared vertices: (count, label per face).
+
+    The same components as :func:`vertex_components`, labelled per face.
+    """
+    if len(faces) == 0:
+        return 0, np.zeros(0, dtype=np.int64)
+    count, labels = vertex_components(faces, n_vertices)
+    return count, labels[faces[:, 0]]
+
+
+def face_area_vectors(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Area-weighted face normals ``(F, 3)``: ``(b - a) x (c - a)``, twice the area vector.
+
+    For sign tests (their direction is the winding's) and area weights.
+    """
+    p = vertices[faces]
+    return np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+
+
+def face_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Unit face normals ``(F, 3)`` oriented by the winding; degenerate faces give zero rows.
+
+    Examples
+    --------
+    >>> face_normals(np.eye(3), np.array([[0, 1, 2]])).round(6).tolist()
+    [[0.57735, 0.57735, 0.57735]]
+    """
+    n = face_area_vectors(vertices, faces)
+    length = np.linalg.norm(n, axis=1, keepdims=True)
+    return np.divide(n, length, out=np.zeros_like(n), where=length > 0)

@@ -1,0 +1,54 @@
+"""recon.mesh: the helpers shared by mesh repair and the report."""
+
+from __future__ import annotations
+
+import numpy as np
+from mesh_shapes import icosphere, open_cylinder
+
+from recon.mesh import (
+    boundary_components,
+    boundary_loops,
+    count_edge_faces,
+    face_area_vectors,
+    face_components,
+    face_normals,
+    vertex_components,
+)
+from recon.topology import mesh_topology
+
+
+def test_loops_and_components_agree_on_a_manifold_boundary():
+    v, f = open_cylinder(24, 5)
+    loops = boundary_loops(f)
+    assert len(loops) == 2 and all(len(lp) == 24 for lp in loops)
+    assert boundary_components(*count_edge_faces(f), len(v)) == 2
+    assert mesh_topology(v, f)["boundary_loops"] == 2
+
+
+def test_figure_of_eight_is_one_component_but_no_simple_loop():
+    # two triangles touching at vertex 0 (a bow-tie): repair sees no simple loop to fill,
+    # the report counts one boundary component
+    f = np.array([[0, 2, 1], [0, 3, 4]])
+    assert boundary_loops(f) == []
+    assert boundary_components(*count_edge_faces(f), 5) == 1
+
+
+def test_components_per_vertex_and_per_face():
+    f = np.array([[0, 1, 2], [2, 3, 4], [5, 6, 7]])
+    n, labels = vertex_components(f, 9)
+    assert n == 2 and labels.tolist() == [0, 0, 0, 0, 0, 1, 1, 1, -1]
+    n, face_labels = face_components(f, 9)
+    assert n == 2 and face_labels.tolist() == [0, 0, 1]
+    assert face_components(np.zeros((0, 3), int), 3)[0] == 0
+
+
+def test_face_normals_are_unit_and_follow_the_winding():
+    v, f = icosphere(1)
+    n = face_normals(v, f)
+    assert np.allclose(np.linalg.norm(n, axis=1), 1.0)
+    centres = v[f].mean(axis=1)
+    assert np.all(np.einsum("ij,ij->i", n, centres) > 0)  # outward on the icosphere
+    area = face_area_vectors(v, f)
+    assert np.allclose(n * np.linalg.norm(area, axis=1, keepdims=True), area)
+    flat = face_normals(np.zeros((3, 3)), np.array([[0, 1, 2]]))
+    assert flat.tolist() == [[0.0, 0.0, 0.0]]
