@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-import cli.batch as cli_batch
-from cli.main import app
+import recon.cli.batch as cli_batch
+from recon.cli.main import app
 from recon import batch
 
 FAST = "set:\n  dynamics.max_steps: 200\n"

@@ -10,7 +10,7 @@ import pytest
 from click.testing import CliRunner
 from mesh_shapes import icosphere, open_cylinder, torus
 
-from cli.main import app
+from recon.cli.main import app
 from recon.io import write_mesh, write_points
 
 FAST = ["--samples", "5000"]
@@ -259,7 +259,7 @@ def test_help_has_examples():
 
 
 def test_compare_tolerances_share_the_config_machinery(tmp_path):
-    from cli.compare import CompareTolerances, load_tolerances
+    from recon.cli.compare import CompareTolerances, load_tolerances
     from recon.errors import ConfigError
 
     with pytest.raises(ConfigError, match=r"^samples: 0 is out of range, allowed \[1, inf\]"):

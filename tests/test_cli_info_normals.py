@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from cli.main import app
+from recon.cli.main import app
 from recon.io import read_points, write_points
 
 SAMPLES = Path(__file__).resolve().parent.parent / "sample_data"
@@ -218,7 +218,7 @@ def test_bad_input_subprocess_no_traceback(tmp_path):
     out = tmp_path / "o.ply"
     root = Path(__file__).resolve().parent.parent
     proc = subprocess.run(
-        [sys.executable, "-m", "cli.main", "normals", str(path), "-o", str(out)],
+        [sys.executable, "-m", "recon.cli.main", "normals", str(path), "-o", str(out)],
         cwd=root,
         capture_output=True,
         text=True,

@@ -8,7 +8,7 @@ import pytest
 import yaml
 from click.testing import CliRunner
 
-from cli.main import app
+from recon.cli.main import app
 from recon.config import (
     SECTIONS,
     NormalsConfig,

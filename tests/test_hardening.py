@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from cli.main import app
+from recon.cli.main import app
 from recon.io import read_mesh, read_points
 
 #: Keep every fit that actually runs tiny.

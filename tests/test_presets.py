@@ -5,7 +5,7 @@ from pathlib import Path
 import pytest
 from click.testing import CliRunner
 
-from cli.main import app
+from recon.cli.main import app
 from recon.config import ReconConfig, load_config
 
 CONFIGS = Path(__file__).resolve().parent.parent / "configs"
