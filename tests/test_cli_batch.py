@@ -13,10 +13,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from click.testing import CliRunner
-
 import recon.cli.batch as cli_batch
+from click.testing import CliRunner
 from recon.cli.main import app
+
 from recon import batch
 
 FAST = "set:\n  dynamics.max_steps: 200\n"

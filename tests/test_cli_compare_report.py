@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 from mesh_shapes import icosphere, open_cylinder, torus
-
 from recon.cli.main import app
+
 from recon.io import write_mesh, write_points
 
 FAST = ["--samples", "5000"]
@@ -260,6 +260,7 @@ def test_help_has_examples():
 
 def test_compare_tolerances_share_the_config_machinery(tmp_path):
     from recon.cli.compare import CompareTolerances, load_tolerances
+
     from recon.errors import ConfigError
 
     with pytest.raises(ConfigError, match=r"^samples: 0 is out of range, allowed \[1, inf\]"):

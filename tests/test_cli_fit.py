@@ -5,8 +5,8 @@ from pathlib import Path
 
 import numpy as np
 from click.testing import CliRunner
-
 from recon.cli.main import app
+
 from recon.io import read_mesh, read_points, write_points
 
 FAST = ["--set", "seeds.min_particles=0"]

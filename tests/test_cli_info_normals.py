@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 from click.testing import CliRunner
-
 from recon.cli.main import app
+
 from recon.io import read_points, write_points
 
 SAMPLES = Path(__file__).resolve().parent.parent / "sample_data"

@@ -7,8 +7,8 @@ from pathlib import Path
 import pytest
 import yaml
 from click.testing import CliRunner
-
 from recon.cli.main import app
+
 from recon.config import (
     SECTIONS,
     NormalsConfig,

@@ -17,8 +17,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 from click.testing import CliRunner
-
 from recon.cli.main import app
+
 from recon.io import read_mesh, read_points
 
 #: Keep every fit that actually runs tiny.

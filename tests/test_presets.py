@@ -4,8 +4,8 @@ from pathlib import Path
 
 import pytest
 from click.testing import CliRunner
-
 from recon.cli.main import app
+
 from recon.config import ReconConfig, load_config
 
 CONFIGS = Path(__file__).resolve().parent.parent / "configs"

@@ -18,9 +18,9 @@ from typing import Any
 import numpy as np
 import pytest
 from click.testing import CliRunner
-
 from recon.cli.compare import TOLERANCE_KEYS
 from recon.cli.main import app
+
 from recon.config import ReconConfig, apply_overrides, config_to_dict, load_config
 from recon.fitting import fit_file
 from recon.io import read_mesh, write_mesh
