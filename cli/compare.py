@@ -13,9 +13,10 @@ from click.core import ParameterSource
 from recon.config import load_yaml_file
 from recon.errors import ConfigError, InputError
 from recon.schema import Schema, from_dict, option, to_dict
+from recon.serialize import dumps
 
 from .common import EXIT_CHECK_FAILED, catch_errors
-from .report import TOPOLOGY_ROWS, fmt, read_mesh_checked, table, to_json
+from .report import TOPOLOGY_ROWS, fmt, read_mesh_checked, table
 
 
 @dataclass(frozen=True)
@@ -335,7 +336,7 @@ def command(
             "checks": checks,
             "passed": passed,
         }
-        click.echo(to_json(payload))
+        click.echo(dumps(payload, strict=True))
     else:
         click.echo(format_comparison(result, checks, mesh_path, reference_path))
     if not passed:

@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 from typing import Any
 
 import click
+
+from recon.serialize import dumps
 
 from .common import catch_errors
 
@@ -114,4 +115,4 @@ def command(file: Path, as_json: bool) -> None:
       oprecon info scan.xyz --json | jq .spacing_median_nn
     """
     d = describe(file)
-    click.echo(json.dumps(d, indent=1) if as_json else format_table(d))
+    click.echo(dumps(d) if as_json else format_table(d))

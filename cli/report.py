@@ -3,37 +3,18 @@
 from __future__ import annotations
 
 import json
-import math
 from pathlib import Path
 from typing import Any
 
 import click
 
 from recon.errors import InputError
+from recon.serialize import dumps
 
 from .common import catch_errors
 
 # --------------------------------------------------------------------------------------------
 # helpers shared with ``oprecon compare``
-
-
-def to_json(obj: Any) -> str:
-    """JSON text with non-finite floats as ``null`` and paths as strings."""
-
-    def clean(x: Any) -> Any:
-        if isinstance(x, float) and not math.isfinite(x):
-            return None
-        if isinstance(x, dict):
-            return {str(k): clean(v) for k, v in x.items()}
-        if isinstance(x, (list, tuple)):
-            return [clean(v) for v in x]
-        if isinstance(x, Path):
-            return str(x)
-        if hasattr(x, "item"):  # numpy scalar
-            return clean(x.item())
-        return x
-
-    return json.dumps(clean(obj), indent=1, allow_nan=False)
 
 
 def fmt(value: Any, digits: int = 4) -> str:
@@ -240,7 +221,7 @@ def command(mesh_path: Path, input_path: Path | None, as_json: bool, png_path: P
             "png": None if png_path is None else str(png_path),
             **report,
         }
-        click.echo(to_json(payload))
+        click.echo(dumps(payload, strict=True))
     else:
         click.echo(format_quality(report, str(mesh_path), str(input_path)))
         if fit_path is not None:

@@ -18,13 +18,13 @@ import math
 from pathlib import PurePath
 from typing import Any
 
-import numpy as np
-
 __all__ = ["dumps", "json_default", "replace_non_finite"]
 
 
 def json_default(obj: Any) -> Any:
     """``default=`` hook for :func:`json.dumps`: numpy values, paths and report dataclasses."""
+    import numpy as np  # here, not at the top: `oprecon --help` imports this module
+
     if isinstance(obj, np.generic):
         return obj.item()
     if isinstance(obj, np.ndarray):
@@ -39,6 +39,8 @@ def json_default(obj: Any) -> Any:
 
 def replace_non_finite(obj: Any) -> Any:
     """A copy of ``obj`` with NaN and infinities as ``None`` (strict JSON has no NaN)."""
+    import numpy as np
+
     if isinstance(obj, float) and not math.isfinite(obj):
         return None
     if isinstance(obj, dict):
