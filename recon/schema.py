@@ -15,7 +15,7 @@ Every error is a :class:`~recon.errors.ConfigError` that names the dotted key
 :attr:`Schema.PREFIX` (e.g. ``"dynamics."``), or the prefix :func:`from_dict` was given.
 
 Users: the pipeline configuration (:mod:`recon.config`), the physics parameters
-(:mod:`recon.params`) and the ``oprecon compare`` tolerances (:mod:`cli.compare`).
+(:mod:`recon.params`) and the ``oprecon compare`` tolerances (:mod:`recon.cli.compare`).
 """
 
 from __future__ import annotations
