@@ -252,6 +252,13 @@ def test_estimate_grows_with_points_and_shrinks_with_spacing():
     assert b.particles == pytest.approx(2 * a.particles, rel=1e-5)
 
 
+def test_estimate_respects_the_particle_cap():
+    free = estimate_peak_memory(1_000_000, 1.0, 1.0)
+    capped = estimate_peak_memory(1_000_000, 1.0, 1.0, max_particles=100_000)
+    assert capped.particles == 100_000 < free.particles
+    assert capped.peak_bytes < free.peak_bytes
+
+
 def test_refusal_suggests_a_spacing_that_fits():
     est = estimate_peak_memory(2_000_000, 0.1, 0.1)
     cap = est.peak_bytes // 2

@@ -34,11 +34,11 @@ __all__ = [
 ]
 
 #: The process before any data: Python, numpy, scipy, numba and the JIT-compiled kernels.
-BASE_BYTES = 400 * 2**20
+BASE_BYTES = 280 * 2**20
 #: Per input point: coordinates, normals, k-d trees, neighbourhoods, local surfaces.
-BYTES_PER_POINT = 1000
+BYTES_PER_POINT = 350
 #: Per particle at the peak: state, neighbour lists, growth candidates, triangulation.
-BYTES_PER_PARTICLE = 2000
+BYTES_PER_PARTICLE = 1800
 
 
 @dataclass(frozen=True)
@@ -65,7 +65,9 @@ class MemoryEstimate:
         }
 
 
-def estimate_peak_memory(n_points: int, r0: float, median_spacing: float) -> MemoryEstimate:
+def estimate_peak_memory(
+    n_points: int, r0: float, median_spacing: float, max_particles: int | None = None
+) -> MemoryEstimate:
     """Estimated peak resident memory of a fit of ``n_points`` at rest spacing ``r0``.
 
     Parameters
@@ -74,6 +76,8 @@ def estimate_peak_memory(n_points: int, r0: float, median_spacing: float) -> Mem
     r0 : float [length]
     median_spacing : float [length]
         Median nearest-neighbour distance of the points.
+    max_particles : int, optional
+        The particle cap (``dynamics.max_particles``): the sheet never holds more.
 
     Returns
     -------
@@ -81,12 +85,16 @@ def estimate_peak_memory(n_points: int, r0: float, median_spacing: float) -> Mem
 
     Examples
     --------
-    >>> e = estimate_peak_memory(1_000_000, 1.0, 1.0)
-    >>> e.particles, round(e.peak_bytes / 2**30, 1)
-    (4618937, 10.0)
+    A million points at the default r0 (2.5 median spacings):
+
+    >>> e = estimate_peak_memory(1_000_000, 2.5, 1.0)
+    >>> e.particles, round(e.peak_bytes / 2**30, 2)
+    (739030, 1.84)
     """
     ratio = (median_spacing / r0) ** 2 if r0 > 0 else 0.0
     particles = int(round(AREA_PER_POINT * n_points * ratio / HEX_AREA))
+    if max_particles is not None:
+        particles = min(particles, int(max_particles))
     peak = BASE_BYTES + BYTES_PER_POINT * n_points + BYTES_PER_PARTICLE * particles
     return MemoryEstimate(int(n_points), particles, int(peak))
 
@@ -141,6 +149,6 @@ def estimate_fit_memory(points: np.ndarray, cfg: ReconConfig) -> MemoryEstimate:
         The estimate exceeds ``io.max_memory`` (the message says which spacing would fit).
     """
     r0, d_nn = choose_spacing(points, cfg)
-    estimate = estimate_peak_memory(len(points), r0, d_nn)
+    estimate = estimate_peak_memory(len(points), r0, d_nn, cfg.dynamics.max_particles)
     check_memory(estimate, cfg.io.max_memory, r0)
     return estimate
