@@ -128,8 +128,10 @@ def check_memory(
     if estimate.peak_bytes <= cap:
         return
     fixed = BASE_BYTES + BYTES_PER_POINT * estimate.points
-    hint = "subsample the input (fewer points)"
-    if fixed < cap and estimate.particles > 0:
+    hint = "thin the input (fewer points)"
+    if BASE_BYTES >= cap:
+        hint = f"oprecon itself needs about {format_bytes(BASE_BYTES)}"
+    elif fixed < cap and estimate.particles > 0:
         room = (cap - fixed) / BYTES_PER_PARTICLE
         factor = (estimate.particles / room) ** 0.5
         hint = f"use a larger --spacing (at least {1.05 * factor * r0:.4g}, now {r0:.4g})"
