@@ -387,3 +387,26 @@ def test_missing_package_gives_one_line_naming_the_extra(tmp_path, monkeypatch, 
     assert res.exit_code == 2
     assert f"needs the package '{module}': pip install \"oprecon[lidar]\"" in res.output
     assert res.output.count("\n") == 1
+
+
+def test_info_classes_describes_only_those_points(tmp_path):
+    pts, cls, _, _ = cloud_arrays()
+    src = write_las(tmp_path / "c.laz", pts, cls=cls)
+    res = CliRunner().invoke(app, ["info", str(src), "--classes", "6", "--json"])
+    assert res.exit_code == 0, res.output
+    d = json.loads(res.output)
+    assert d["points"] == int((cls == 6).sum())
+    assert d["classes_kept"] == [6]
+    assert d["classes"] == {"2": int((cls == 2).sum()), "6": int((cls == 6).sum())}
+    bad = CliRunner().invoke(app, ["info", str(src), "--classes", "two"])
+    assert bad.exit_code == 2 and "expected class numbers" in bad.output
+
+
+def test_info_on_e57_reports_scans_and_attributes(tmp_path):
+    pts, _, rgb8, intensity = cloud_arrays()
+    src = write_e57(tmp_path / "c.e57", pts, rgb8, intensity, scans=3)
+    res = CliRunner().invoke(app, ["info", str(src)])
+    assert res.exit_code == 0, res.output
+    assert "scans          3" in res.output
+    assert "attributes     intensity" in res.output
+    assert "colours        yes" in res.output
