@@ -10,6 +10,7 @@ Examples::
 
     python benchmarks/bench_memory.py                          # 10k .. 160k points
     python benchmarks/bench_memory.py --points 20000 80000 --spacing-factors 1 2 --fit
+    python benchmarks/bench_memory.py --reading 3000000         # reading memory, --classes
 """
 
 from __future__ import annotations
@@ -108,12 +109,51 @@ def run_fit(path: Path, out: Path, spacing_factor: float) -> tuple[int, dict]:
     return int(usage.ru_maxrss) * 1024, report
 
 
+def reading_memory(n: int) -> None:
+    """Peak RSS of ``read_points`` on an n-point LAZ (5 % class 6): whole, and class 6 only."""
+    import laspy
+
+    rng = np.random.default_rng(0)
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "big.laz"
+        header = laspy.LasHeader(point_format=3, version="1.2")
+        header.scales = np.array([0.001] * 3)
+        header.offsets = np.array([5e6, 5e6, 0.0])
+        las = laspy.LasData(header)
+        las.x = 5e6 + rng.uniform(0, 1000, n)
+        las.y = 5e6 + rng.uniform(0, 1000, n)
+        las.z = rng.uniform(0, 10, n)
+        las.classification = np.where(rng.uniform(size=n) < 0.05, 6, 2).astype(np.uint8)
+        las.write(str(path))
+        del las
+        for classes in ("None", "[6]"):
+            code = (
+                "from recon.io import read_points; "
+                f"print(len(read_points({str(path)!r}, classes={classes})))"
+            )
+            proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE)
+            _, _, usage = os.wait4(proc.pid, 0)
+            kept = proc.stdout.read().decode().strip() if proc.stdout else "?"
+            print(
+                f"classes {classes:>5}: {kept} points kept, peak {usage.ru_maxrss / 1024:.0f} MiB"
+            )
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--points", type=int, nargs="+", default=[10_000, 40_000, 160_000])
     ap.add_argument("--spacing-factors", type=float, nargs="+", default=[1.0, 2.0])
     ap.add_argument("--fit", action="store_true", help="print least-squares constants")
+    ap.add_argument(
+        "--reading",
+        type=int,
+        metavar="N",
+        help="only measure reading an N-point LAZ, whole and with --classes 6 (5 %%)",
+    )
     args = ap.parse_args()
+    if args.reading:
+        reading_memory(args.reading)
+        return
 
     from recon.fitting.memory import estimate_peak_memory
 
