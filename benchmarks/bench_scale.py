@@ -6,8 +6,9 @@ phase (from the report), particles, dynamics steps, particle-steps per second, p
 where pymeshlab is installed (``pip install -e ".[bench]"``), the wall time and peak RSS of
 screened Poisson (pymeshlab, its own normal estimation, ``OMP_WAIT_POLICY=PASSIVE``) on the same
 file, run alternately with oprecon, with medians over ``--repeats`` and the ratio. Then the
-log-log slope of wall time against input size (1.0 = linear). A benchmark, not a test: the machine is shared, so compare ratios measured
-in the same run rather than absolute times across runs.
+log-log slope of wall time against input size (1.0 = linear). A benchmark, not a test: the
+machine is shared, so compare ratios measured in the same run rather than absolute times across
+runs.
 
 Examples::
 

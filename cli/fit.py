@@ -56,6 +56,36 @@ class Progress:
             self.bar = None
 
 
+def parse_classes(ctx: click.Context, param: click.Parameter, text: str | None) -> list[int] | None:
+    """Click callback: ``"2,6"`` -> [2, 6] (LAS classes 0-255)."""
+    if text is None:
+        return None
+    try:
+        values = [int(v) for v in text.replace(" ", "").split(",") if v]
+    except ValueError:
+        raise click.BadParameter(f"expected class numbers such as 2,6, got {text!r}") from None
+    if not values or any(not 0 <= v <= 255 for v in values):
+        raise click.BadParameter(f"expected class numbers 0-255 such as 2,6, got {text!r}")
+    return values
+
+
+def _parse_transfer(
+    ctx: click.Context, param: click.Parameter, text: str | None
+) -> list[str] | None:
+    """Click callback: ``"intensity,classification"`` -> a list of attribute names."""
+    if text is None:
+        return None
+    from recon.attributes import TRANSFERABLE
+
+    names = [v for v in text.replace(" ", "").split(",") if v]
+    bad = [n for n in names if n not in TRANSFERABLE]
+    if bad or not names:
+        raise click.BadParameter(
+            f"expected a comma-separated list of {', '.join(TRANSFERABLE)}, got {text!r}"
+        )
+    return names
+
+
 def format_summary(report: FitReport) -> str:
     """A short human summary of a fit report (stderr)."""
     fid, m2i, topo, qual = (
@@ -101,6 +131,17 @@ def format_summary(report: FitReport) -> str:
             f"mean {qual.min_angle_mean_deg:.1f} deg, 5th pct {qual.min_angle_p5_deg:.1f} deg",
         ),
     ]
+    mem = report.input.memory_estimate
+    if mem:
+        from recon.fitting.memory import format_bytes
+
+        rows.insert(
+            3,
+            (
+                "memory (estimate)",
+                f"{format_bytes(mem['peak_bytes'])} peak for ~{mem['particles']:,} particles",
+            ),
+        )
     if report.stop_reason:
         rows.append(("growth stopped", report.stop_reason))
     width = max(len(k) for k, _ in rows)
@@ -159,6 +200,40 @@ def format_summary(report: FitReport) -> str:
     callback=parse_viewpoint,
     help="Scanner position x,y,z: orient normals toward it (range scans).",
 )
+@click.option(
+    "--classes",
+    callback=parse_classes,
+    help="LAS/LAZ input: keep only these classes, e.g. 2,6 (ground, buildings) (io.classes).",
+)
+@click.option(
+    "--max-memory",
+    help="Refuse (exit 2) when the estimated peak memory exceeds this, e.g. 8G or 512M "
+    "(io.max_memory); the message gives a --spacing that fits.",
+)
+@click.option(
+    "--transfer",
+    callback=_parse_transfer,
+    help="Add input attributes as PLY vertex properties: intensity (weighted mean of the "
+    "nearest points), classification (their majority) (output.transfer).",
+)
+@click.option(
+    "--quality",
+    is_flag=True,
+    default=None,
+    help="Add a PLY vertex property 'quality': distance to the nearest input point in r0.",
+)
+@click.option(
+    "--obj-colors",
+    is_flag=True,
+    default=None,
+    help="Write the input's colours into an OBJ mesh too, as 'v x y z r g b' (floats 0-1).",
+)
+@click.option(
+    "--no-colors",
+    is_flag=True,
+    default=None,
+    help="Do not carry the input's colours onto the mesh (output.colors: false).",
+)
 @click.option("--seed", type=int, help="Random seed (same seed, same mesh).")
 @click.option("--max-particles", type=int, help="Cap on particles (dynamics.max_particles).")
 @click.option("--max-steps", type=int, help="Cap on dynamics steps (dynamics.max_steps).")
@@ -181,6 +256,12 @@ def command(
     fidelity: float | None,
     normals_mode: str | None,
     viewpoint: list[float] | None,
+    classes: list[int] | None,
+    max_memory: str | None,
+    transfer: list[str] | None,
+    quality: bool | None,
+    obj_colors: bool | None,
+    no_colors: bool | None,
     seed: int | None,
     max_particles: int | None,
     max_steps: int | None,
@@ -196,9 +277,14 @@ def command(
 ) -> None:
     """Reconstruct a triangle mesh from the point cloud INPUT.
 
-    Reads PLY, XYZ/XYZN/PTS/TXT, PCD or OBJ points; estimates and orients normals (or uses the
-    file's), grows an oriented-particle sheet over the data, releases and smooths it, and
-    triangulates it. Prints a quality summary on stderr and writes OUTPUT.report.json.
+    Reads PLY, XYZ/XYZN/PTS/TXT, PCD, OBJ, LAS/LAZ or E57 points; estimates and orients
+    normals (or uses the file's), grows an oriented-particle sheet over the data, releases and
+    smooths it, and triangulates it. Prints a quality summary on stderr and writes
+    OUTPUT.report.json.
+
+    When the input has colours, every mesh vertex gets the distance-weighted mean colour of
+    its nearest input points (PLY red/green/blue; OBJ with --obj-colors). Before fitting, the
+    peak memory is estimated from the point count and r0 (--max-memory refuses past a limit).
 
     \b
     Examples:
@@ -206,6 +292,8 @@ def command(
       oprecon fit scan.ply -o mesh.obj --preset open_scan --viewpoint 0,0,1000
       oprecon fit sparse.xyz -o mesh.ply --max-gap 6 --preview mesh.png
       oprecon fit scan.ply -o mesh.ply --set dynamics.release_steps=200 --seed 3
+      oprecon fit city.laz -o roofs.ply --classes 2,6 --transfer classification --quality
+      oprecon fit site.e57 -o site.obj --obj-colors --max-memory 8G
 
     Exit codes: 0 success, 2 bad input or usage, 130 interrupted.
     """
@@ -224,7 +312,13 @@ def command(
             "time_limit": time_limit,
         },
         normals={"mode": normals_mode, "viewpoint": viewpoint},
-        io={"ascii": ascii_},
+        io={"ascii": ascii_, "classes": classes, "max_memory": max_memory},
+        output={
+            "transfer": transfer,
+            "quality": quality,
+            "obj_colors": obj_colors,
+            "colors": False if no_colors else None,
+        },
     )
     if seed is not None:
         cfg = apply_overrides(cfg, {"seed": seed})

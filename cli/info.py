@@ -11,10 +11,16 @@ import click
 from recon.serialize import dumps
 
 from .common import catch_errors
+from .fit import parse_classes
 
 
-def describe(path: Path) -> dict[str, Any]:
-    """Read ``path`` and summarise it as a JSON-ready dict (absolute coordinates)."""
+def describe(path: Path, classes: list[int] | None = None) -> dict[str, Any]:
+    """Read ``path`` and summarise it as a JSON-ready dict (absolute coordinates).
+
+    LAS/LAZ files add ``point_format``, ``las_version``, ``crs`` (WKT or EPSG codes, None when
+    the file has none) and ``classes`` (class -> count in the file, before ``classes``
+    filtering); E57 files add ``scans``.
+    """
     import numpy as np
 
     from recon.geometry import (
@@ -24,7 +30,7 @@ def describe(path: Path) -> dict[str, Any]:
     )
     from recon.io import read_points
 
-    cloud = read_points(path)
+    cloud = read_points(path, classes=classes)
     pts = cloud.absolute_points()
     lo = pts.min(axis=0)
     hi = pts.max(axis=0)
@@ -51,7 +57,34 @@ def describe(path: Path) -> dict[str, Any]:
         "has_faces": bool(info.get("has_faces", False)),
         "elements": dict(info.get("elements", {})),
         "properties": list(info.get("properties", [])),
+        "attributes": sorted(cloud.attributes),
+        **{k: info[k] for k in _LIDAR_KEYS if k in info},
     }
+
+
+#: LAS/LAZ and E57 header facts copied from ``PointCloud.info``.
+_LIDAR_KEYS = ("point_format", "las_version", "compressed", "crs", "classes", "classes_kept")
+_LIDAR_KEYS += ("scans",)
+
+#: ASPRS standard class names (LAS 1.4, point formats 6-10; 0-12 also for formats 0-5).
+CLASS_NAMES = {
+    0: "never classified",
+    1: "unassigned",
+    2: "ground",
+    3: "low vegetation",
+    4: "medium vegetation",
+    5: "high vegetation",
+    6: "building",
+    7: "low point (noise)",
+    9: "water",
+    10: "rail",
+    11: "road surface",
+    13: "wire guard",
+    14: "wire conductor",
+    15: "transmission tower",
+    17: "bridge deck",
+    18: "high noise",
+}
 
 
 def _num(x: float) -> str:
@@ -92,6 +125,24 @@ def format_table(d: dict[str, Any]) -> str:
         ("colours", "yes" if d["has_colors"] else "no"),
         ("faces", "yes (ignored for fitting)" if d["has_faces"] else "no"),
     ]
+    if d.get("attributes"):
+        rows.append(("attributes", " ".join(d["attributes"])))
+    if "point_format" in d:
+        fmt = f"LAS {d['las_version']}, point format {d['point_format']}"
+        rows.append(("point format", fmt + (" (LAZ)" if d.get("compressed") else "")))
+    if "scans" in d:
+        rows.append(("scans", str(d["scans"])))
+    if "crs" in d:
+        crs = d["crs"] or "none in the file"
+        rows.append(("CRS", crs if len(crs) <= 200 else crs[:197] + "..."))
+    if "classes" in d:
+        classes = ", ".join(
+            f"{c} {CLASS_NAMES.get(int(c), '')} {n:,}".replace("  ", " ")
+            for c, n in d["classes"].items()
+        )
+        rows.append(("classes", classes or "-"))
+        if d.get("classes_kept"):
+            rows.append(("classes kept", ", ".join(map(str, d["classes_kept"]))))
     if any(d["origin"]):
         rows.append(("origin", f"{_vec(d['origin'])} (subtracted internally for precision)"))
     width = max(len(k) for k, _ in rows)
@@ -101,18 +152,27 @@ def format_table(d: dict[str, Any]) -> str:
 @click.command("info")
 @click.argument("file", type=click.Path(path_type=Path))
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON object instead of a table.")
+@click.option(
+    "--classes",
+    callback=parse_classes,
+    help="LAS/LAZ: describe only the points of these classes, e.g. 2,6.",
+)
 @catch_errors
-def command(file: Path, as_json: bool) -> None:
+def command(file: Path, as_json: bool, classes: list[int] | None) -> None:
     """Describe a point-cloud FILE: format, counts, bounding box, spacing, attributes.
 
-    Reads PLY (ascii/binary), XYZ/XYZN/PTS/TXT/CSV text, PCD (ascii/binary) and OBJ. Counts are
-    after cleaning: non-finite rows dropped, exactly repeated points merged. Coordinates are
-    the file's (absolute). The spacing is the median nearest-neighbour distance.
+    Reads PLY (ascii/binary), XYZ/XYZN/PTS/TXT/CSV text, PCD (ascii/binary), OBJ, LAS/LAZ and
+    E57 (LAS/LAZ/E57 need: pip install "oprecon[lidar]"). Counts are after cleaning:
+    non-finite rows dropped, exactly repeated points merged. Coordinates are the file's
+    (absolute). The spacing is the median nearest-neighbour distance. LAS/LAZ files also show
+    the point format, the coordinate reference system (WKT or EPSG) and the classes with their
+    counts.
 
     \b
     Examples:
       oprecon info scan.ply
       oprecon info scan.xyz --json | jq .spacing_median_nn
+      oprecon info city.laz --classes 2,6
     """
-    d = describe(file)
+    d = describe(file, classes)
     click.echo(dumps(d) if as_json else format_table(d))

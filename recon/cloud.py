@@ -39,7 +39,13 @@ class PointCloud:
     info : dict
         ``n_read`` (rows in the file), ``n_nonfinite_dropped``, ``n_duplicates_merged``,
         ``n_points`` (after cleaning), ``n_invalid_normals``, ``elements`` (name -> count),
-        ``has_faces``, ``properties`` (vertex field names), ``normals_dropped`` (bool).
+        ``has_faces``, ``properties`` (vertex field names), ``normals_dropped`` (bool); LAS and
+        E57 add ``point_format``, ``crs``, ``classes`` (class -> count in the file) and
+        ``classes_kept``.
+    attributes : dict of str -> (n,) array
+        Per-point scalars beside the colours, row-aligned with ``points``: ``intensity``
+        (float64, the file's scale, e.g. 0-65535 for LAS) and ``classification`` (uint8, LAS
+        classes) when the file has them.
     """
 
     points: np.ndarray
@@ -49,6 +55,7 @@ class PointCloud:
     path: Path | None = None
     format: str = ""
     info: dict[str, Any] = field(default_factory=dict)
+    attributes: dict[str, np.ndarray] = field(default_factory=dict)
 
     def __len__(self) -> int:
         return int(self.points.shape[0])

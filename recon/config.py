@@ -27,6 +27,41 @@ from .schema import Schema, from_dict, option, range_text, to_dict
 CONFIG_VERSION = 1
 
 
+_SIZE_UNITS = {"": 1, "B": 1, "K": 1 << 10, "M": 1 << 20, "G": 1 << 30, "T": 1 << 40}
+
+
+def parse_size(text: str | float, key: str = "size") -> int:
+    """Bytes of a size such as ``'8G'``, ``'512M'``, ``'1.5GiB'`` or ``4e9`` (powers of 1024).
+
+    Raises
+    ------
+    ConfigError
+        Naming ``key`` when the text is not a positive size.
+
+    Examples
+    --------
+    >>> parse_size("8G"), parse_size("512MiB"), parse_size("1000")
+    (8589934592, 536870912, 1000)
+    """
+    import re
+
+    if isinstance(text, (int, float)) and not isinstance(text, bool):
+        value, unit = float(text), ""
+    else:
+        m = re.fullmatch(
+            r"\s*([0-9]*\.?[0-9]+(?:[eE][+-]?[0-9]+)?)\s*([kKmMgGtT]?)(?:i?[bB])?\s*", str(text)
+        )
+        if m is None:
+            raise ConfigError(
+                f"{key}: {text!r} is not a size; write e.g. 8G, 512M or a number of bytes"
+            )
+        value, unit = float(m.group(1)), m.group(2).upper()
+    size = value * _SIZE_UNITS[unit]
+    if not (size > 0 and size < 2.0**63):
+        raise ConfigError(f"{key}: {text!r} must be a positive size, e.g. 8G")
+    return int(size)
+
+
 @dataclass(frozen=True)
 class IOConfig(Schema):
     PREFIX: ClassVar[str] = "io."
@@ -34,6 +69,18 @@ class IOConfig(Schema):
     ascii: bool = option(False, "Write PLY files as ASCII instead of binary little-endian.")
     merge_duplicates: bool = option(True, "Merge exactly repeated points on reading.")
     max_points: int = option(50_000_000, "Refuse inputs with more points than this.", 4, None)
+    classes: list[int] = option(
+        [], "Keep only the points of these LAS/LAZ classes, e.g. [2, 6]; [] keeps all.", 0, 255
+    )
+    max_memory: str | None = option(
+        None,
+        "Refuse fits whose estimated peak memory exceeds this, e.g. '8G' or '512M' (bytes, or "
+        "K/M/G/T, powers of 1024); null = no limit.",
+    )
+
+    def check(self, prefix: str) -> None:
+        if self.max_memory is not None:
+            parse_size(self.max_memory, f"{prefix}max_memory")
 
 
 @dataclass(frozen=True)
@@ -282,6 +329,34 @@ class OutputConfig(Schema):
 
     write_report: bool = option(True, "Write <mesh>.report.json beside the mesh.")
     vertex_normals: bool = option(True, "Write per-vertex normals.")
+    colors: bool = option(
+        True,
+        "When the input has colours, give each mesh vertex the distance-weighted mean colour "
+        "of its nearest input points (PLY red green blue).",
+    )
+    obj_colors: bool = option(
+        False, "Also write vertex colours into OBJ meshes, as 'v x y z r g b' (floats 0-1)."
+    )
+    transfer: list[str] = option(
+        [],
+        "Input attributes added as PLY vertex properties: intensity (weighted mean), "
+        "classification (majority of the nearest points).",
+        choices=None,
+    )
+    quality: bool = option(
+        False, "Add a PLY vertex property 'quality': distance to the nearest input point [r0]."
+    )
+    attribute_neighbors: int = option(
+        8, "Nearest input points per vertex for colours and transferred attributes.", 1, 64
+    )
+
+    def check(self, prefix: str) -> None:
+        for name in self.transfer:
+            if name not in ("intensity", "classification"):
+                raise ConfigError(
+                    f"{prefix}transfer: {name!r} is not one of: intensity, classification"
+                    f"{did_you_mean(name, ['intensity', 'classification'])}"
+                )
 
 
 @dataclass(frozen=True)

@@ -530,10 +530,10 @@ def test_ragged_text_rows(tmp_path):
 
 
 def test_unknown_binary_extension(tmp_path):
-    path = tmp_path / "x.las"
+    path = tmp_path / "x.bin"  # (.las is a supported format since issue #14)
     path.write_bytes(bytes(range(256)) * 4)
-    err = _bad(path, "unknown file format", "PLY", "PCD", "OBJ")
-    assert ".las" in str(err)
+    err = _bad(path, "unknown file format", "PLY", "PCD", "OBJ", "LAS/LAZ", "E57")
+    assert ".bin" in str(err)
 
 
 def test_binary_file_named_xyz(tmp_path):

@@ -31,6 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..attributes import check_attribute_output, check_transfer, transfer_for_output
 from ..cloud import PointCloud
 from ..config import ReconConfig, config_to_dict, with_values
 from ..errors import InputError
@@ -41,6 +42,7 @@ from ..state import ParticleState
 from ..surface import DataSurface
 from ..triangulate import TriangulationResult, triangulate_particles
 from ..version import __version__
+from .memory import estimate_fit_memory
 from .report import (
     FitReport,
     History,
@@ -297,14 +299,21 @@ def fit_file(
     for p in (particles_path, preview_path, report_path):
         if p is not None:
             check_output_path(Path(p), inputs=[input_path, output_path], mkdir=mkdir)
+    check_attribute_output(output_path, cfg.output)
     cloud = read_points(
-        input_path, max_points=cfg.io.max_points, merge_duplicates=cfg.io.merge_duplicates
+        input_path,
+        max_points=cfg.io.max_points,
+        merge_duplicates=cfg.io.merge_duplicates,
+        classes=cfg.io.classes,
     )
+    check_transfer(cloud, cfg.output.transfer)
+    memory = estimate_fit_memory(cloud.points, cfg)  # refuses early past io.max_memory
     result = reconstruct(cloud, cfg, on_progress)
     report = result.report
+    attributes = transfer_for_output(cloud, result.mesh.vertices, report.spacing, output_path, cfg)
     result.report = replace(
         report,
-        input=replace(report.input, path=str(input_path)),
+        input=replace(report.input, path=str(input_path), memory_estimate=memory.to_dict()),
         output=OutputPaths(
             mesh=str(output_path),
             particles=None if particles_path is None else str(particles_path),
@@ -321,6 +330,8 @@ def fit_file(
             normals,
             ascii=cfg.io.ascii,
             outputs=outputs,
+            colors=attributes.colors,
+            vertex_properties=attributes.properties,
         )
         if particles_path is not None:
             write_points(

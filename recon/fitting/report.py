@@ -136,6 +136,9 @@ class InputSummary(_Section):
         orientation fields).
     path : str or None
         The input file (set by :func:`recon.fitting.fit_file`; absent from in-memory fits).
+    memory_estimate : mapping or None
+        The peak memory estimated before the fit (``points``, ``particles``, ``peak_bytes``;
+        :mod:`recon.fitting.memory`), set by :func:`recon.fitting.fit_file`.
     """
 
     points: int
@@ -143,6 +146,7 @@ class InputSummary(_Section):
     median_spacing: float
     normals: Mapping[str, Any]
     path: str | None = field(default=None, metadata=_OPTIONAL)
+    memory_estimate: Mapping[str, Any] | None = field(default=None, metadata=_OPTIONAL)
 
 
 @dataclass(frozen=True)

@@ -14,6 +14,8 @@ API; the layers below it are:
 :mod:`.xyz`         XYZ text (``.xyz .xyzn .txt .csv .asc .pts``): columns, CSV header, PTS
 :mod:`.pcd`         PCD (``.pcd``): ascii and binary (``binary_compressed`` is not supported)
 :mod:`.obj`         OBJ (``.obj``): ``v`` (and ``vn``), faces; writer
+:mod:`.las`         LAS/LAZ (``.las .laz``, laspy + lazrs): chunked, colour, intensity, classes
+:mod:`.e57`         E57 (``.e57``, pye57): every scan, poses applied, colour, intensity
 :mod:`.clean`       non-finite rows, duplicates, normals, origin, degenerate inputs
 :mod:`.files`       output-path checks and the one layer of atomic writes
 :mod:`.common`      helpers shared by the format modules (errors, columns, fans)
@@ -36,7 +38,7 @@ import numpy as np
 
 from ..cloud import PointCloud
 from ..errors import InputError
-from . import obj, pcd, ply, xyz
+from . import e57, las, obj, pcd, ply, xyz
 from .clean import choose_origin, make_cloud
 from .common import as_input_points, check_readable, input_error
 from .files import AtomicOutputs, atomic_output, atomic_outputs, check_output_path
@@ -56,7 +58,9 @@ __all__ = [
     "write_points",
 ]
 
-SUPPORTED_POINT_FORMATS = "PLY (.ply), XYZ/XYZN/PTS/TXT/CSV text, PCD (.pcd), OBJ (.obj)"
+SUPPORTED_POINT_FORMATS = (
+    "PLY (.ply), XYZ/XYZN/PTS/TXT/CSV text, PCD (.pcd), OBJ (.obj), LAS/LAZ (.las .laz), E57 (.e57)"
+)
 
 
 # --------------------------------------------------------------------------------------------
@@ -72,12 +76,20 @@ def _sniff(path: Path) -> str:
         return "pcd"
     if ext == ".obj":
         return "obj"
+    if ext in (".las", ".laz"):
+        return "las"
+    if ext == ".e57":
+        return "e57"
     if ext in xyz.TEXT_EXTENSIONS:
         return "text"
     with open(path, "rb") as fh:
         head = fh.read(4096)
     if head.startswith(b"ply"):
         return "ply"
+    if head.startswith(b"LASF"):
+        return "las"
+    if head.startswith(b"ASTM-E57"):
+        return "e57"
     if re.search(rb"^(# \.PCD|VERSION|FIELDS)", head, re.MULTILINE) and b"FIELDS" in head:
         return "pcd"
     try:
@@ -114,8 +126,9 @@ def read_points(
     *,
     max_points: int = 50_000_000,
     merge_duplicates: bool = True,
+    classes: list[int] | tuple[int, ...] | None = None,
 ) -> PointCloud:
-    """Read a point cloud (PLY, XYZ text, PCD or OBJ) into float64 relative coordinates.
+    """Read a point cloud (PLY, XYZ text, PCD, OBJ, LAS/LAZ, E57) into relative coordinates.
 
     Parameters
     ----------
@@ -126,26 +139,42 @@ def read_points(
         Refuse files with more points than this (checked from headers before reading).
     merge_duplicates : bool
         Merge exactly repeated points (the first occurrence is kept).
+    classes : sequence of int, optional
+        Keep only the points of these LAS classes (e.g. ``[2, 6]``, ground and buildings);
+        None or empty keeps every point. Only LAS/LAZ files have classes.
 
     Returns
     -------
     PointCloud
-        Non-finite rows dropped, duplicates merged, ``origin`` chosen by :func:`choose_origin`.
+        Non-finite rows dropped, duplicates merged, ``origin`` chosen by :func:`choose_origin`;
+        LAS/LAZ and E57 also fill ``attributes`` (intensity, classification).
 
     Raises
     ------
     InputError
         Missing, empty, truncated or malformed file; fewer than 4 distinct points; points on
-        one line.
+        one line; ``classes`` for a file without classification, or no point of those
+        classes; a LAS/LAZ/E57 file without the optional packages (``oprecon[lidar]``).
     """
     p = Path(path)
     size = check_readable(p)
     kind = _sniff(p)
     info: dict[str, Any] = {"has_faces": False, "elements": {}, "properties": []}
+    attributes: dict[str, np.ndarray] = {}
+    if classes and kind != "las":
+        raise input_error(
+            p,
+            "the file has no point classification (only LAS/LAZ files have classes); "
+            "drop --classes (io.classes)",
+        )
     try:
         # hostile values (signalling NaNs, 1e39 in a float field) are data, not warnings
         with np.errstate(invalid="ignore", over="ignore"):
-            if kind == "ply":
+            if kind == "las":
+                fmt, pts, nrm, col, attributes = las.read_points(p, max_points, info, classes)
+            elif kind == "e57":
+                fmt, pts, nrm, col, attributes = e57.read_points(p, max_points, info)
+            elif kind == "ply":
                 fmt, pts, nrm, col = ply.read_points(p, size, max_points, info)
             elif kind == "pcd":
                 fmt, pts, nrm, col = pcd.read_points(p, size, max_points, info)
@@ -159,7 +188,7 @@ def read_points(
         raise input_error(p, "out of memory while reading (file too large?)") from None
     except OSError as exc:
         raise input_error(p, f"cannot read: {exc.strerror or exc}") from None
-    return make_cloud(p, fmt, pts, nrm, col, merge_duplicates, info)
+    return make_cloud(p, fmt, pts, nrm, col, merge_duplicates, info, attributes)
 
 
 def cloud_from_arrays(
@@ -167,6 +196,7 @@ def cloud_from_arrays(
     normals: np.ndarray | None = None,
     *,
     colors: np.ndarray | None = None,
+    attributes: dict[str, np.ndarray] | None = None,
     merge_duplicates: bool = True,
 ) -> PointCloud:
     """A :class:`PointCloud` from arrays, cleaned and checked exactly like a file.
@@ -177,6 +207,8 @@ def cloud_from_arrays(
         Absolute coordinates.
     normals : (n, 3) array_like, optional
     colors : (n, 3) array_like in [0, 1], optional
+    attributes : dict of str -> (n,) array_like, optional
+        Per-point scalars (``intensity``, ``classification`` ...).
     merge_duplicates : bool
 
     Returns
@@ -195,12 +227,16 @@ def cloud_from_arrays(
     for name, arr in (("normals", nrm), ("colors", col)):
         if arr is not None and arr.shape != xyz.shape:
             raise input_error(None, f"{name}: expected shape {xyz.shape}, got {arr.shape}")
+    attrs = {str(k): np.asarray(v) for k, v in (attributes or {}).items()}
+    for name, arr in attrs.items():
+        if arr.shape != (xyz.shape[0],):
+            raise input_error(None, f"{name}: expected shape ({xyz.shape[0]},), got {arr.shape}")
     info: dict[str, Any] = {
         "has_faces": False,
         "elements": {"vertex": int(xyz.shape[0])},
         "properties": ["x", "y", "z"] + (["nx", "ny", "nz"] if nrm is not None else []),
     }
-    return make_cloud(None, "array", xyz, nrm, col, merge_duplicates, info)
+    return make_cloud(None, "array", xyz, nrm, col, merge_duplicates, info, attrs)
 
 
 def read_mesh(path: str | os.PathLike[str]) -> tuple[np.ndarray, np.ndarray]:
@@ -301,6 +337,8 @@ def write_mesh(
     origin: np.ndarray | None = None,
     ascii: bool = False,
     outputs: AtomicOutputs | None = None,
+    colors: np.ndarray | None = None,
+    vertex_properties: dict[str, np.ndarray] | None = None,
 ) -> None:
     """Write a triangle mesh as PLY or OBJ (chosen by the extension), atomically.
 
@@ -320,11 +358,18 @@ def write_mesh(
     outputs : AtomicOutputs, optional
         Write as part of this set of outputs (moved into place together when its
         :func:`~recon.io.files.atomic_outputs` block ends) instead of on its own.
+    colors : (V, 3) uint8, optional
+        Vertex colours: PLY ``red green blue`` (uchar); OBJ ``v x y z r g b`` (floats in
+        [0, 1]).
+    vertex_properties : dict of name -> (V,) array, optional
+        More PLY vertex properties, in this order: uint8 arrays as ``uchar``, uint16 as
+        ``ushort``, other integers as ``int``, floats as ``float``. PLY only.
 
     Raises
     ------
     InputError
-        Unsupported extension, bad shapes, face indices out of range.
+        Unsupported extension, bad shapes, face indices out of range, vertex properties for
+        an OBJ file.
     """
     p = Path(path)
     xyz = _absolute(vertices, origin)
@@ -341,11 +386,18 @@ def write_mesh(
     ext = p.suffix.lower()
     if ext not in (".ply", ".obj"):
         raise input_error(p, f"cannot write meshes as '{p.suffix}'; use .ply or .obj")
+    rgb = _check_colors(colors, xyz.shape[0])
+    extra = _vertex_properties(vertex_properties, xyz.shape[0])
+    if extra and ext != ".ply":
+        names = ", ".join(name for name, _, _ in extra)
+        raise input_error(p, f"OBJ has no vertex properties ({names}); write a .ply mesh")
+    if rgb is not None:
+        extra = [(c, rgb[:, j], "u1") for j, c in enumerate(("red", "green", "blue"))] + extra
     with atomic_output(p, outputs) as tmp, open(tmp, "wb") as fh:
         if ext == ".ply":
-            ply.write(fh, xyz, nrm, f.astype(np.int64), ascii)
+            ply.write(fh, xyz, nrm, f.astype(np.int64), ascii, extra)
         else:
-            obj.write(fh, xyz, nrm, f.astype(np.int64))
+            obj.write(fh, xyz, nrm, f.astype(np.int64), rgb)
 
 
 def _absolute(points: Any, origin: Any) -> np.ndarray:
@@ -356,6 +408,38 @@ def _absolute(points: Any, origin: Any) -> np.ndarray:
     if o.shape != (3,):
         raise InputError(f"origin: expected 3 numbers, got shape {np.shape(origin)}")
     return pts + o if np.any(o) else pts
+
+
+def _check_colors(colors: Any, n: int) -> np.ndarray | None:
+    if colors is None:
+        return None
+    rgb = np.asarray(colors)
+    if rgb.shape != (n, 3) or rgb.dtype != np.uint8:
+        raise InputError(f"colors: expected a ({n}, 3) uint8 array, got {rgb.dtype} {rgb.shape}")
+    return rgb
+
+
+_PROPERTY_TYPES = {np.dtype(np.uint8): "u1", np.dtype(np.uint16): "u2"}
+
+
+def _vertex_properties(props: Any, n: int) -> list[tuple[str, np.ndarray, str]]:
+    out = []
+    for name, values in (props or {}).items():
+        a = np.asarray(values)
+        if a.shape != (n,):
+            raise InputError(f"vertex property '{name}': expected shape ({n},), got {a.shape}")
+        if name in ("x", "y", "z", "nx", "ny", "nz", "red", "green", "blue"):
+            raise InputError(f"vertex property '{name}': the name is taken")
+        if a.dtype in _PROPERTY_TYPES:
+            t = _PROPERTY_TYPES[a.dtype]
+        elif np.issubdtype(a.dtype, np.integer):
+            t = "i4"
+        elif np.issubdtype(a.dtype, np.floating):
+            t = "f4"
+        else:
+            raise InputError(f"vertex property '{name}': unsupported type {a.dtype}")
+        out.append((str(name), a, t))
+    return out
 
 
 def _check_normals(normals: Any, n: int) -> np.ndarray | None:

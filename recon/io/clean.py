@@ -75,6 +75,7 @@ def make_cloud(
     colors: np.ndarray | None,
     merge_duplicates: bool,
     info: dict[str, Any],
+    attributes: dict[str, np.ndarray] | None = None,
 ) -> PointCloud:
     """The cleaned :class:`~recon.cloud.PointCloud` of the columns a reader found.
 
@@ -91,6 +92,8 @@ def make_cloud(
         Merge exactly repeated points (the first occurrence is kept).
     info : dict
         The reader's ``PointCloud.info``; the cleaning counts are added to it.
+    attributes : dict of str -> (n,) array, optional
+        Per-point scalars (``PointCloud.attributes``), filtered like the points.
 
     Returns
     -------
@@ -102,10 +105,11 @@ def make_cloud(
         Fewer than 4 distinct finite points, unusable magnitudes, points on one line.
     """
     xyz = np.ascontiguousarray(xyz, dtype=np.float64)
+    attrs = dict(attributes or {})
     points, origin, normals, colors = _clean_points(
-        path, xyz, normals, colors, merge_duplicates, info
+        path, xyz, normals, colors, merge_duplicates, info, attrs
     )
-    return PointCloud(points, origin, normals, colors, path, fmt, info)
+    return PointCloud(points, origin, normals, colors, path, fmt, info, attrs)
 
 
 def _clean_points(
@@ -115,8 +119,12 @@ def _clean_points(
     colors: np.ndarray | None,
     merge_duplicates: bool,
     info: dict[str, Any],
+    attrs: dict[str, np.ndarray],
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
-    """Drop non-finite rows, merge duplicates, validate normals; returns relative points."""
+    """Drop non-finite rows, merge duplicates, validate normals; returns relative points.
+
+    ``attrs`` (per-point scalars) is filtered in place like the points.
+    """
     n_read = int(xyz.shape[0])
     info["n_read"] = n_read
     finite = np.isfinite(xyz).all(axis=1)
@@ -127,6 +135,7 @@ def _clean_points(
         xyz = xyz[finite]
         normals = normals[finite] if normals is not None else None
         colors = colors[finite] if colors is not None else None
+        attrs.update({k: v[finite] for k, v in attrs.items()})
     n_dup = 0
     if merge_duplicates and xyz.shape[0] > 1:
         keep = _first_occurrences(xyz)
@@ -135,6 +144,7 @@ def _clean_points(
             xyz = xyz[keep]
             normals = normals[keep] if normals is not None else None
             colors = colors[keep] if colors is not None else None
+            attrs.update({k: v[keep] for k, v in attrs.items()})
             logger.info("%s: merged %d exactly repeated point(s)", path, n_dup)
     info["n_duplicates_merged"] = n_dup
     info["n_points"] = int(xyz.shape[0])

@@ -19,6 +19,7 @@ from ..geometry import as_points
 
 __all__ = [
     "COLOR_NAMES",
+    "LIDAR_EXTRA",
     "MAX_HEADER_BYTES",
     "NORMAL_NAMES",
     "as_input_points",
@@ -28,6 +29,7 @@ __all__ = [
     "input_error",
     "loadtxt",
     "loadtxt_message",
+    "optional_module",
     "pick",
     "read_text_file",
     "triangulate_fans",
@@ -162,3 +164,29 @@ def triangulate_fans(path: Path, polys: Any) -> np.ndarray:
         k = poly.size
         out.append(np.stack([np.full(k - 2, poly[0]), poly[1:-1], poly[2:]], axis=1))
     return np.concatenate(out) if out else np.zeros((0, 3), dtype=np.int64)
+
+
+#: The extra that installs the LiDAR readers (named in the error when one is missing).
+LIDAR_EXTRA = 'pip install "oprecon[lidar]"'
+
+
+def optional_module(name: str, path: Path, what: str) -> Any:
+    """Import an optional reader package, or raise :class:`~recon.errors.InputError`.
+
+    Parameters
+    ----------
+    name : str
+        The module (``'laspy'``, ``'lazrs'``, ``'pye57'``).
+    path : Path
+        The file being read (named in the message).
+    what : str
+        What the package is needed for, e.g. ``'LAS/LAZ files'``.
+    """
+    import importlib
+
+    try:
+        return importlib.import_module(name)
+    except ImportError:
+        raise input_error(
+            path, f"reading {what} needs the package '{name}': {LIDAR_EXTRA}"
+        ) from None

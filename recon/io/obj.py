@@ -132,7 +132,13 @@ def read_mesh(path: Path) -> tuple[np.ndarray, np.ndarray]:
 # writing
 
 
-def write(fh: BinaryIO, xyz: np.ndarray, normals: np.ndarray | None, faces: np.ndarray) -> None:
+def write(
+    fh: BinaryIO,
+    xyz: np.ndarray,
+    normals: np.ndarray | None,
+    faces: np.ndarray,
+    colors: np.ndarray | None = None,
+) -> None:
     """Write a triangle mesh as OBJ text to an open binary file.
 
     Parameters
@@ -143,6 +149,9 @@ def write(fh: BinaryIO, xyz: np.ndarray, normals: np.ndarray | None, faces: np.n
     normals : (V, 3) float64 or None
     faces : (F, 3) int64
         0-based vertex indices.
+    colors : (V, 3) uint8 or None
+        Vertex colours, written as the common OBJ extension ``v x y z r g b`` with r, g, b
+        floats in [0, 1] (read by MeshLab, Blender, Open3D, trimesh).
     """
     # OBJ has no number type: a reader parses float64, so 17 digits are needed for the values
     # to come back exactly (9 would round-trip only through float32)
@@ -150,7 +159,11 @@ def write(fh: BinaryIO, xyz: np.ndarray, normals: np.ndarray | None, faces: np.n
     text = _io.TextIOWrapper(fh, encoding="ascii", newline="\n")
     try:
         text.write("# written by oprecon\n")
-        np.savetxt(text, xyz, fmt=vfmt)
+        if colors is None:
+            np.savetxt(text, xyz, fmt=vfmt)
+        else:
+            rgb = np.asarray(colors, dtype=np.float64) / 255.0
+            np.savetxt(text, np.hstack([xyz, rgb]), fmt=vfmt + " %.6g %.6g %.6g")
         if normals is not None:
             np.savetxt(text, normals, fmt="vn %.9g %.9g %.9g")
         if faces.shape[0]:

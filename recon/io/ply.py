@@ -485,7 +485,7 @@ def _coordinate_type(xyz: np.ndarray) -> str:
     return "f4" if err <= _FLOAT32_TOLERANCE * extent else "f8"
 
 
-_PLY_NAMES = {"f4": "float", "f8": "double", "i4": "int", "u1": "uchar"}
+_PLY_NAMES = {"f4": "float", "f8": "double", "i4": "int", "u1": "uchar", "u2": "ushort"}
 
 
 def _ply_header(
@@ -511,6 +511,7 @@ def write(
     normals: np.ndarray | None,
     faces: np.ndarray | None,
     ascii: bool,
+    extra: list[tuple[str, np.ndarray, str]] | None = None,
 ) -> None:
     """Write vertices (and faces) as PLY to an open binary file.
 
@@ -524,18 +525,26 @@ def write(
         None writes no ``face`` element (a point cloud).
     ascii : bool
         ASCII instead of binary little-endian.
+    extra : list of (name, (n,) array, type), optional
+        More vertex properties after the normals, in this order; ``type`` is ``'u1'``
+        (uchar), ``'u2'`` (ushort), ``'i4'`` (int) or ``'f4'`` (float), e.g.
+        ``("red", r, "u1")``. None or empty: the file is byte for byte as without them.
     """
     ct = _coordinate_type(xyz)
     props = [("x", ct), ("y", ct), ("z", ct)]
     if normals is not None:
         props += [("nx", "f4"), ("ny", "f4"), ("nz", "f4")]
+    extra = list(extra or [])
+    props += [(name, t) for name, _, t in extra]
     fh.write(_ply_header(xyz.shape[0], props, None if faces is None else faces.shape[0], ascii))
     if ascii:
         cols = [xyz] + ([normals] if normals is not None else [])
+        cols += [np.asarray(a, dtype=np.float64).reshape(-1, 1) for _, a, _ in extra]
         data = np.hstack(cols) if len(cols) > 1 else xyz
         fmt = ["%.17g" if ct == "f8" else "%.9g"] * 3
         if normals is not None:
             fmt += ["%.9g"] * 3
+        fmt += ["%.9g" if t[0] == "f" else "%d" for _, _, t in extra]
         np.savetxt(fh, data, fmt=fmt, delimiter=" ")
         if faces is not None and faces.shape[0]:
             np.savetxt(fh, np.hstack([np.full((faces.shape[0], 1), 3), faces]), fmt="%d")
@@ -546,6 +555,8 @@ def write(
         if normals is not None:
             for j, c in enumerate(("nx", "ny", "nz")):
                 rows[c] = normals[:, j]
+        for name, a, _ in extra:
+            rows[name] = a
         fh.write(rows.tobytes())
         if faces is not None and faces.shape[0]:
             frows = np.zeros(faces.shape[0], dtype=[("n", "u1"), ("v", "<i4", (3,))])

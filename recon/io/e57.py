@@ -1,0 +1,107 @@
+"""E57 (ASTM E2807, terrestrial scanners): reading points, colours and intensity.
+
+Read with ``pye57`` (the optional extra ``oprecon[lidar]``). Every scan of the file is read,
+its invalid points dropped and its pose applied (so several scans of one site land in one
+coordinate frame), one scan at a time. Cartesian and spherical scans are both read (pye57
+converts spherical to cartesian). Coordinates are float64 throughout. E57 has no point
+classification; ``--classes`` is refused for E57 files.
+
+References
+----------
+[E57] ASTM E2807-11. "Standard specification for 3D imaging data exchange, version 1.0".
+      http://www.libe57.org/
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .common import check_count, input_error, optional_module
+
+__all__ = ["read_points"]
+
+_MAGIC = b"ASTM-E57"
+
+
+def _message(exc: BaseException) -> str:
+    text = str(exc).strip() or type(exc).__name__
+    return text.splitlines()[0]
+
+
+def read_points(
+    path: Path, max_points: int, info: dict[str, Any]
+) -> tuple[str, np.ndarray, None, np.ndarray | None, dict[str, np.ndarray]]:
+    """Read every scan of an E57 file.
+
+    Returns
+    -------
+    format : str
+        ``'e57'``.
+    xyz : (n, 3) float64
+        Absolute coordinates (scan poses applied).
+    normals : None
+    colors : (n, 3) float64 in [0, 1] or None
+        When every scan has colours.
+    attributes : dict
+        ``intensity`` (float64, the file's scale) when every scan has it.
+    """
+    with open(path, "rb") as fh:
+        magic = fh.read(len(_MAGIC))
+    if magic != _MAGIC:
+        raise input_error(path, f"not an E57 file: wrong signature {magic!r} (expected 'ASTM-E57')")
+    pye57 = optional_module("pye57", path, "E57 files")
+    try:
+        e57 = pye57.E57(str(path))
+    except Exception as exc:  # libE57Format raises its own exception types
+        raise input_error(path, f"not a valid E57 file: {_message(exc)}") from None
+    xyz_parts: list[np.ndarray] = []
+    rgb_parts: list[np.ndarray] = []
+    int_parts: list[np.ndarray] = []
+    has_rgb = has_int = True
+    n_declared = 0
+    try:
+        n_scans = int(e57.scan_count)
+        headers = [e57.get_header(i) for i in range(n_scans)]
+        n_declared = sum(int(h.point_count) for h in headers)
+        check_count(path, n_declared, max_points)
+        fields = [set(h.point_fields) for h in headers]
+        has_rgb = n_scans > 0 and all({"colorRed", "colorGreen", "colorBlue"} <= f for f in fields)
+        has_int = n_scans > 0 and all("intensity" in f for f in fields)
+        for i in range(n_scans):
+            data = e57.read_scan(
+                i, intensity=has_int, colors=has_rgb, transform=True, ignore_missing_fields=True
+            )
+            xyz_parts.append(
+                np.stack([data[f"cartesian{c}"] for c in "XYZ"], axis=1).astype(np.float64)
+            )
+            if has_rgb:
+                rgb_parts.append(
+                    np.stack([data[f"color{c}"] for c in ("Red", "Green", "Blue")], axis=1)
+                )
+            if has_int:
+                int_parts.append(np.asarray(data["intensity"], dtype=np.float64))
+    except Exception as exc:
+        if type(exc).__name__ == "InputError":
+            raise
+        raise input_error(path, f"not a valid E57 file: {_message(exc)}") from None
+    finally:
+        close = getattr(e57, "close", None)
+        if close is not None:
+            try:
+                close()
+            except Exception:  # noqa: BLE001 - closing a damaged file must not hide the error
+                pass
+    info["elements"] = {"vertex": n_declared}
+    info["scans"] = len(xyz_parts)
+    info["properties"] = ["x", "y", "z"] + (["red", "green", "blue"] if has_rgb else [])
+    info["properties"] += ["intensity"] if has_int else []
+    xyz = np.concatenate(xyz_parts) if xyz_parts else np.zeros((0, 3))
+    colors = None
+    if has_rgb and rgb_parts:
+        rgb = np.concatenate(rgb_parts).astype(np.float64)
+        colors = rgb / (255.0 if rgb.size == 0 or rgb.max() <= 255 else 65535.0)
+    attributes = {"intensity": np.concatenate(int_parts)} if has_int and int_parts else {}
+    return "e57", xyz, None, colors, attributes
