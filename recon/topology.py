@@ -31,9 +31,13 @@ Definitions (the ones used by every number this module reports):
 - *Consistently oriented*: every manifold edge is traversed in opposite directions by its two
   faces. *Orientable*: some choice of per-face flips makes it so (a Moebius strip is not).
   Non-manifold edges are ignored for both.
-- *Watertight*: no boundary edge and no non-manifold edge.
+- *Watertight* (the standard definition, as Open3D's ``is_watertight`` and MeshLab use it,
+  without their self-intersection test): every edge in exactly two faces (no boundary edge, no
+  non-manifold edge) and every vertex's faces forming one fan (no non-manifold vertex).
 - *Genus* (sum over components of ``(2 - chi_c) / 2``) is reported only for closed orientable
-  manifolds: watertight, no non-manifold vertex, orientable; otherwise it is ``None``.
+  manifolds: watertight and orientable; otherwise it is ``None``.
+- ``largest_hole_perimeter``: the perimeter of the largest boundary loop (0 when closed), in
+  the mesh's units (:func:`recon.mesh.boundary_loop_perimeters`).
 
 References
 ----------
@@ -50,7 +54,13 @@ from scipy import sparse
 from scipy.sparse import csgraph
 
 from .errors import InputError
-from .mesh import boundary_components, count_edge_faces, vertex_components
+from .mesh import (
+    boundary_components,
+    boundary_loop_perimeters,
+    count_edge_faces,
+    vertex_components,
+    vertex_fans,
+)
 
 __all__ = ["count_edge_faces", "mesh_topology", "triangle_quality", "validate_mesh"]
 
@@ -139,6 +149,7 @@ def _empty_topology(n_vertices: int, n_faces: int, degenerate: int) -> dict[str,
         "degenerate_faces": degenerate,
         "duplicate_faces": 0,
         "unreferenced_vertices": n_vertices,
+        "largest_hole_perimeter": 0.0,
     }
 
 
@@ -160,11 +171,12 @@ def mesh_topology(vertices: Any, faces: Any) -> dict[str, Any]:
         ``n_vertices``, ``n_faces``, ``n_edges`` (int): sizes of the input and the number of
         distinct edges. ``components``, ``boundary_edges``, ``boundary_loops``,
         ``non_manifold_edges``, ``non_manifold_vertices`` (int). ``watertight`` (bool): no
-        boundary and no non-manifold edge. ``orientable``, ``consistently_oriented`` (bool).
+        boundary edge, no non-manifold edge and no non-manifold vertex. ``orientable``, ``consistently_oriented`` (bool).
         ``euler_characteristic`` (int): ``V - E + F`` over referenced vertices and proper faces.
         ``genus`` (int or None): total genus of a closed orientable manifold, ``None`` when the
         mesh is not one. ``degenerate_faces``, ``duplicate_faces`` (same three vertices in any
-        order), ``unreferenced_vertices`` (int).
+        order), ``unreferenced_vertices`` (int). ``largest_hole_perimeter`` (float): the
+        perimeter of the largest boundary loop, 0 when there is none.
 
     Raises
     ------
@@ -234,26 +246,22 @@ def mesh_topology(vertices: Any, faces: Any) -> dict[str, Any]:
     # Boundary loops: connected components of the boundary-edge graph (recon.mesh).
     n_loops = boundary_components(np.stack([edge_lo, edge_hi], axis=1), edge_count, n_vertices)
 
-    # Non-manifold vertices: count fans of wedges (face corners) around each vertex.
-    wedge_lo = np.where(forward, he_face * 3 + he_corner, he_face * 3 + (he_corner + 1) % 3)
-    wedge_hi = np.where(forward, he_face * 3 + (he_corner + 1) % 3, he_face * 3 + he_corner)
-    w_rows = np.concatenate([wedge_lo[a], wedge_hi[a]])
-    w_cols = np.concatenate([wedge_lo[b], wedge_hi[b]])
-    wgraph = sparse.coo_matrix((np.ones(len(w_rows), np.int8), (w_rows, w_cols)), (3 * nf,) * 2)
-    _, wlabel = csgraph.connected_components(wgraph, directed=False)
-    fan_keys = np.unique(f.ravel() * np.int64(3 * nf) + wlabel)  # distinct (vertex, fan)
+    # Non-manifold vertices: count fans of corners around each vertex (recon.mesh).
+    fan = vertex_fans(f).ravel()
+    fan_keys = np.unique(f.ravel() * np.int64(3 * nf) + fan)  # distinct (vertex, fan)
     fans_per_vertex = np.bincount(fan_keys // (3 * nf), minlength=n_vertices)
     n_non_manifold_vertices = int((fans_per_vertex > 1).sum())
 
     chi = int(len(ref_idx) - n_edges + nf)
-    watertight = n_boundary == 0 and n_non_manifold_edges == 0
+    watertight = n_boundary == 0 and n_non_manifold_edges == 0 and n_non_manifold_vertices == 0
     genus: int | None = None
-    if watertight and n_non_manifold_vertices == 0 and orientable:
+    if watertight and orientable:
         v_c = np.bincount(comp_compact, minlength=n_components)
         e_c = np.bincount(comp_of_vertex[edge_lo], minlength=n_components)
         f_c = np.bincount(comp_of_vertex[f[:, 0]], minlength=n_components)
         genus = int(np.sum((2 - (v_c - e_c + f_c)) // 2))
 
+    perimeters = boundary_loop_perimeters(v, f) if n_boundary else np.zeros(0)
     sf = np.sort(f, axis=1)
     sf = sf[np.lexsort(sf.T[::-1])]
     duplicates = int(np.all(sf[1:] == sf[:-1], axis=1).sum())
@@ -275,6 +283,7 @@ def mesh_topology(vertices: Any, faces: Any) -> dict[str, Any]:
         "degenerate_faces": n_degenerate,
         "duplicate_faces": int(duplicates),
         "unreferenced_vertices": int(n_vertices - len(ref_idx)),
+        "largest_hole_perimeter": float(perimeters[0]) if len(perimeters) else 0.0,
     }
 
 

@@ -31,7 +31,7 @@ from scipy.spatial import cKDTree
 
 from .config import TriangulationConfig
 from .kernels.circumsphere import circumsphere_kernel
-from .mesh import boundary_loops, edge_keys, face_area_vectors, face_components
+from .mesh import boundary_loops, edge_keys, face_area_vectors, face_components, vertex_fans
 from .neighbors import build_neighbor_list
 
 log = logging.getLogger(__name__)
@@ -61,6 +61,10 @@ CIRCUMSPHERE_CAPACITY = 64
 NON_MANIFOLD_EDGE_ROUNDS = 10
 #: Rounds of dropping extra fans at bow-tie vertices (dropping a fan can leave a new bow-tie).
 NON_MANIFOLD_VERTEX_ROUNDS = 5
+#: A bow-tie vertex is split into one copy per fan; each extra copy moves this fraction of the
+#: way to its fan's centroid, so the copies do not coincide (coincident vertices of different
+#: faces read as a self-intersection to Open3D's ``is_watertight``).
+SPLIT_SHIFT = 0.1
 
 
 def triangulate_particles(
@@ -215,6 +219,68 @@ def make_manifold(faces: np.ndarray, n_vertices: int) -> np.ndarray:
             break
         faces = remove_non_manifold_faces(faces[~bad], n_vertices)
     return faces
+
+
+def split_non_manifold_vertices(
+    vertices: np.ndarray, normals: np.ndarray, faces: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    """Give every extra fan of a bow-tie vertex its own copy of the vertex.
+
+    The largest fan (ties: the lowest fan label) keeps the vertex; every other fan gets a new
+    vertex moved ``SPLIT_SHIFT`` of the way towards its fan's centroid, with the same normal.
+    No face is dropped, so a closed fan stays closed and an open one leaves a simple boundary
+    loop that hole filling can walk. Expects no non-manifold edges.
+
+    Returns
+    -------
+    vertices, normals, faces, n_new_vertices
+    """
+    if len(faces) == 0:
+        return vertices, normals, faces, 0
+    fans = vertex_fans(faces).ravel()
+    corner_v = faces.ravel()
+    pair, corner_pair, size = np.unique(
+        np.stack([corner_v, fans], axis=1), axis=0, return_inverse=True, return_counts=True
+    )
+    corner_pair = corner_pair.reshape(-1)
+    # rank the fans of each vertex: largest first, then by label (deterministic)
+    order = np.lexsort((pair[:, 1], -size, pair[:, 0]))
+    first = np.searchsorted(pair[order, 0], pair[order, 0])
+    rank = np.empty(len(pair), dtype=np.int64)
+    rank[order] = np.arange(len(pair)) - first
+    extra = np.flatnonzero(rank > 0)
+    if len(extra) == 0:
+        return vertices, normals, faces, 0
+    new_id = np.full(len(pair), -1, dtype=np.int64)
+    new_id[extra] = len(vertices) + np.arange(len(extra))
+    # centroid of each extra fan: mean of its faces' centroids
+    face_centre = vertices[faces].mean(axis=1)
+    corner_face = np.repeat(np.arange(len(faces)), 3)
+    sel = new_id[corner_pair] >= 0
+    slot = np.searchsorted(extra, corner_pair[sel])
+    acc = np.zeros((len(extra), 3))
+    np.add.at(acc, slot, face_centre[corner_face[sel]])
+    cnt = np.bincount(slot, minlength=len(extra))[:, None]
+    base = vertices[pair[extra, 0]]
+    new_v = base + SPLIT_SHIFT * (acc / cnt - base)
+    faces = faces.copy().reshape(-1)
+    faces[sel] = new_id[corner_pair[sel]]
+    vertices = np.vstack([vertices, new_v])
+    normals = np.vstack([normals, normals[pair[extra, 0]]])
+    return vertices, normals, faces.reshape(-1, 3), len(extra)
+
+
+def repair_non_manifold(
+    vertices: np.ndarray, normals: np.ndarray, faces: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A manifold mesh: faces on over-shared edges dropped, then bow-tie vertices split.
+
+    Every edge ends up in one or two faces and every vertex with one fan
+    (:func:`remove_non_manifold_faces`, :func:`split_non_manifold_vertices`).
+    """
+    faces = remove_non_manifold_faces(faces, len(vertices))
+    vertices, normals, faces, _ = split_non_manifold_vertices(vertices, normals, faces)
+    return vertices, normals, faces
 
 
 def _find(parent: dict[int, int], x: int) -> int:

@@ -2,6 +2,7 @@ import numpy as np
 
 from recon.config import TriangulationConfig
 from recon.mesh import boundary_loops
+from recon.topology import mesh_topology
 from recon.triangulate import (
     circumsphere_triangles,
     fill_small_holes,
@@ -108,3 +109,49 @@ def test_bow_tie_vertex_keeps_its_larger_fan():
     drop = non_manifold_vertex_faces(faces, 6)
     assert drop.tolist() == [False, False, True]
     assert not non_manifold_vertex_faces(faces[:2], 6).any()
+
+
+def _octahedron(center):
+    v = np.array(
+        [[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], float
+    ) + np.asarray(center, float)
+    f = np.array(
+        [[0, 2, 4], [2, 1, 4], [1, 3, 4], [3, 0, 4], [2, 0, 5], [1, 2, 5], [3, 1, 5], [0, 3, 5]]
+    )
+    return v, f
+
+
+def test_bow_tie_vertex_of_two_closed_surfaces_is_split():
+    # two octahedra touching at one vertex: each fan is closed, so dropping a fan would open a
+    # hole; the repair splits the vertex instead and both stay closed
+    from recon.triangulate import repair_non_manifold
+
+    va, fa = _octahedron([0, 0, 0])
+    vb, fb = _octahedron([2, 0, 0])
+    fb = fb + len(va)
+    fb[fb == len(va) + 1] = 0  # b's vertex -x (at x = 1) is a's vertex +x
+    v = np.vstack([va, vb])
+    f = np.vstack([fa, fb])
+    assert mesh_topology(v, f)["non_manifold_vertices"] == 1
+    nrm = v / np.linalg.norm(v, axis=1, keepdims=True)
+    v2, n2, f2 = repair_non_manifold(v, nrm, f)
+    t = mesh_topology(v2, f2)
+    assert t["non_manifold_vertices"] == 0 and t["non_manifold_edges"] == 0
+    assert t["watertight"] and t["components"] == 2 and t["genus"] == 0
+    assert len(f2) == len(f) and len(v2) == len(n2)
+
+
+def test_figure_eight_boundary_is_split_into_two_simple_loops():
+    from recon.triangulate import repair_non_manifold
+
+    # two fans of two triangles each, meeting tip to tip at vertex 0: their boundaries form a
+    # figure of eight through 0
+    v = np.array(
+        [[0, 0, 0], [1, -1, 0], [2, 0, 0], [1, 1, 0], [-1, 1, 0], [-2, 0, 0], [-1, -1, 0]], float
+    )
+    f = np.array([[0, 1, 2], [0, 2, 3], [0, 4, 5], [0, 5, 6]])
+    nrm = np.tile([0.0, 0.0, 1.0], (len(v), 1))
+    assert len(boundary_loops(f)) == 0  # the walk cannot follow a figure of eight
+    v2, _, f2 = repair_non_manifold(v, nrm, f)
+    assert mesh_topology(v2, f2)["non_manifold_vertices"] == 0
+    assert len(boundary_loops(f2)) == 2
