@@ -46,6 +46,7 @@ __all__ = [
     "face_area_vectors",
     "face_components",
     "face_normals",
+    "orientation_flips",
     "vertex_components",
     "vertex_fans",
 ]
@@ -283,3 +284,73 @@ def boundary_loop_perimeters(vertices: np.ndarray, faces: np.ndarray) -> np.ndar
     length = np.linalg.norm(vertices[bl] - vertices[bh], axis=1)
     _, comp = np.unique(label[bl], return_inverse=True)
     return np.sort(np.bincount(comp, weights=length))[::-1]
+
+
+def orientation_flips(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per-face flips that make the winding consistent across every manifold edge.
+
+    The face graph through edges with exactly two faces is spanned by a breadth-first forest
+    (each component rooted at its lowest face, which keeps its winding); pointer jumping sums
+    the pair parities up to the root in ``O(F log depth)``.
+
+    Returns
+    -------
+    flip : (F,) bool
+        Reverse these faces.
+    conflict : (F,) bool
+        Faces on a manifold edge that both faces still run in the same direction after the
+        flips: none when the mesh is orientable (a Moebius strip has some; the flips are then
+        the forest's best guess).
+
+    Examples
+    --------
+    >>> flip, conflict = orientation_flips(np.array([[0, 1, 2], [1, 2, 3]]))
+    >>> flip.tolist(), bool(conflict.any())
+    ([False, True], False)
+    """
+    n_faces = len(faces)
+    if n_faces == 0:
+        return np.zeros(0, dtype=bool), np.zeros(0, dtype=bool)
+    f = np.asarray(faces, dtype=np.int64)
+    he_from = f.ravel()
+    he_to = np.roll(f, -1, axis=1).ravel()
+    he_face = np.repeat(np.arange(n_faces), 3)
+    lo = np.minimum(he_from, he_to)
+    hi = np.maximum(he_from, he_to)
+    forward = he_from < he_to
+    order = np.lexsort((he_face, hi, lo))
+    lo_s, hi_s = lo[order], hi[order]
+    is_new = np.ones(len(order), dtype=bool)
+    is_new[1:] = (lo_s[1:] != lo_s[:-1]) | (hi_s[1:] != hi_s[:-1])
+    edge_id = np.cumsum(is_new) - 1
+    count = np.bincount(edge_id)
+    same = ~is_new[1:] & (count[edge_id[1:]] == 2)
+    a, b = order[:-1][same], order[1:][same]
+    fa, fb = he_face[a], he_face[b]
+    parity = forward[a] == forward[b]  # True: the pair disagrees, one of them must flip
+    root = n_faces
+    face_graph = sparse.coo_matrix((np.ones(len(fa), np.int8), (fa, fb)), (n_faces,) * 2)
+    _, labels = csgraph.connected_components(face_graph, directed=False)
+    first = np.unique(labels, return_index=True)[1]
+    rows = np.concatenate([fa, fb, np.full(len(first), root)])
+    cols = np.concatenate([fb, fa, first])
+    graph = sparse.csr_matrix((np.ones(len(rows), np.int8), (rows, cols)), (n_faces + 1,) * 2)
+    _, pred = csgraph.breadth_first_order(graph, root, directed=True, return_predecessors=True)
+    pred = pred.astype(np.int64)
+    pred[root] = root
+    to_parent = np.zeros(n_faces + 1, dtype=bool)
+    tree_ab = pred[fb] == fa
+    tree_ba = pred[fa] == fb
+    to_parent[fb[tree_ab]] = parity[tree_ab]
+    to_parent[fa[tree_ba]] = parity[tree_ba]
+    flip = to_parent.copy()
+    ptr = pred.copy()
+    while np.any(ptr != root):
+        flip ^= np.where(ptr != root, flip[ptr], False)
+        ptr = ptr[ptr]
+    flip = flip[:n_faces]
+    bad = (flip[fa] ^ flip[fb]) != parity
+    conflict = np.zeros(n_faces, dtype=bool)
+    conflict[fa[bad]] = True
+    conflict[fb[bad]] = True
+    return flip, conflict

@@ -139,8 +139,9 @@ def _triangulate(
         state.normal,
         tri_cfg,
         max_hole,
-        is_covered=lambda c: surface.nearest(surface.project(c)[0])[0] < HOLE_COVER_DISTANCE,
-        project=lambda c: surface.project(c)[0],
+        is_covered=lambda c, spacing=1.0: (
+            surface.nearest(surface.project(c)[0])[0] < HOLE_COVER_DISTANCE * spacing
+        ),
     )
 
 

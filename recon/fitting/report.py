@@ -214,6 +214,7 @@ class TriangulationStats(_Section):
     faces_manifold: int
     holes_filled: int
     small_components_removed: int
+    vertices_split: int = 0
 
 
 @dataclass(frozen=True)
