@@ -50,14 +50,13 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-from scipy import sparse
-from scipy.sparse import csgraph
 
 from .errors import InputError
 from .mesh import (
     boundary_components,
     boundary_loop_perimeters,
     count_edge_faces,
+    orientation_flips,
     vertex_components,
     vertex_fans,
 )
@@ -171,7 +170,8 @@ def mesh_topology(vertices: Any, faces: Any) -> dict[str, Any]:
         ``n_vertices``, ``n_faces``, ``n_edges`` (int): sizes of the input and the number of
         distinct edges. ``components``, ``boundary_edges``, ``boundary_loops``,
         ``non_manifold_edges``, ``non_manifold_vertices`` (int). ``watertight`` (bool): no
-        boundary edge, no non-manifold edge and no non-manifold vertex. ``orientable``, ``consistently_oriented`` (bool).
+        boundary edge, no non-manifold edge and no non-manifold vertex. ``orientable``,
+        ``consistently_oriented`` (bool).
         ``euler_characteristic`` (int): ``V - E + F`` over referenced vertices and proper faces.
         ``genus`` (int or None): total genus of a closed orientable manifold, ``None`` when the
         mesh is not one. ``degenerate_faces``, ``duplicate_faces`` (same three vertices in any
@@ -208,7 +208,6 @@ def mesh_topology(vertices: Any, faces: Any) -> dict[str, Any]:
     he_from = f.ravel()
     he_to = np.roll(f, -1, axis=1).ravel()
     he_face = np.repeat(np.arange(nf), 3)
-    he_corner = np.tile(np.arange(3), nf)
     lo = np.minimum(he_from, he_to)
     hi = np.maximum(he_from, he_to)
     forward = he_from < he_to  # direction of the half-edge along its undirected edge
@@ -233,10 +232,9 @@ def mesh_topology(vertices: Any, faces: Any) -> dict[str, Any]:
 
     # Orientation: on manifold edges the two faces must run the edge in opposite directions.
     manifold_pair = edge_count[pair_edge] == 2
-    fa, fb = he_face[a][manifold_pair], he_face[b][manifold_pair]
     flip_parity = (forward[a] == forward[b])[manifold_pair]  # True: the pair disagrees
     consistent = not bool(flip_parity.any())
-    orientable = consistent or _is_orientable(nf, fa, fb, flip_parity)
+    orientable = consistent or not orientation_flips(f)[1].any()
 
     # Components over vertices (faces link their three vertices).
     n_components, comp_of_vertex = vertex_components(f, n_vertices)
@@ -285,41 +283,6 @@ def mesh_topology(vertices: Any, faces: Any) -> dict[str, Any]:
         "unreferenced_vertices": int(n_vertices - len(ref_idx)),
         "largest_hole_perimeter": float(perimeters[0]) if len(perimeters) else 0.0,
     }
-
-
-def _is_orientable(n_faces: int, fa: np.ndarray, fb: np.ndarray, parity: np.ndarray) -> bool:
-    """Whether per-face flips exist with ``flip[fa] ^ flip[fb] == parity`` for every pair.
-
-    A spanning forest of the face graph fixes the flips (root faces keep their orientation);
-    pointer jumping sums the parities up to the root in ``O(F log depth)``; then every pair,
-    tree or not, is checked.
-    """
-    # Root each face component at its lowest-index face, and join those roots to a virtual
-    # root (index n_faces) so that one breadth-first search covers every component.
-    root = n_faces
-    face_graph = sparse.coo_matrix((np.ones(len(fa), np.int8), (fa, fb)), (n_faces,) * 2)
-    _, labels = csgraph.connected_components(face_graph, directed=False)
-    first = np.unique(labels, return_index=True)[1]
-    rows = np.concatenate([fa, fb, np.full(len(first), root)])
-    cols = np.concatenate([fb, fa, first])
-    graph = sparse.csr_matrix((np.ones(len(rows), np.int8), (rows, cols)), (n_faces + 1,) * 2)
-    _, pred = csgraph.breadth_first_order(graph, root, directed=True, return_predecessors=True)
-    pred = pred.astype(np.int64)
-    pred[root] = root
-
-    # Parity of each tree link (face -> its BFS parent), looked up among the pairs.
-    to_parent = np.zeros(n_faces + 1, dtype=bool)
-    tree_ab = pred[fb] == fa
-    tree_ba = pred[fa] == fb
-    to_parent[fb[tree_ab]] = parity[tree_ab]
-    to_parent[fa[tree_ba]] = parity[tree_ba]
-
-    flip = to_parent.copy()
-    ptr = pred.copy()
-    while np.any(ptr != root):
-        flip ^= np.where(ptr != root, flip[ptr], False)
-        ptr = ptr[ptr]
-    return bool(np.all((flip[fa] ^ flip[fb]) == parity))
 
 
 def triangle_quality(vertices: Any, faces: Any) -> dict[str, Any]:
