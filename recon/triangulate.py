@@ -110,8 +110,10 @@ def triangulate_particles(
         over data however long. With ``local_spacing`` it is called as
         ``is_covered(points, spacing)`` with the local spacing [r0] at each point.
     local_spacing : (n,) float64 [r0], optional
-        Each particle's rest spacing (None: 1 everywhere, the uniform r0). Ball-pivoting radii,
-        hole perimeters, seam widths and the coverage test scale with it.
+        Each particle's rest spacing (None: 1 everywhere, the uniform r0). Ball-pivoting radii
+        (:func:`ball_radii`; a face is kept when its circumradius fits the largest radius times
+        the smallest spacing of its corners), hole perimeters, seam widths and the coverage
+        test scale with it.
     """
     positions = np.ascontiguousarray(positions, dtype=np.float64)
     normals = np.ascontiguousarray(normals, dtype=np.float64)
@@ -129,6 +131,10 @@ def triangulate_particles(
         )
     if cfg.method == "ball_pivoting":
         faces = ball_pivoting(positions, normals, ball_radii(cfg.radii, scale))
+        if scale is not None:
+            # a face must fit the largest ball of its own region (its densest corner)
+            fits = circumradius(positions, faces) <= max(cfg.radii) * scale[faces].min(axis=1)
+            faces = faces[fits]
     else:
         faces = circumsphere_triangles(positions, normals, radius=max(cfg.radii))
     stats: dict = {"method": cfg.method, "faces_raw": int(len(faces))}
@@ -180,6 +186,17 @@ def ball_radii(radii: list[float], scale: np.ndarray | None = None) -> list[floa
     q = np.percentile(scale, [5, 50, 95])
     out = {round(float(r) * float(x), 6) for r in radii for x in q}
     return sorted(out)
+
+
+def circumradius(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Circumradius of every face ``(F,)`` [units of ``vertices``]; inf for degenerate faces."""
+    p = vertices[faces]
+    a = np.linalg.norm(p[:, 1] - p[:, 2], axis=1)
+    b = np.linalg.norm(p[:, 2] - p[:, 0], axis=1)
+    c = np.linalg.norm(p[:, 0] - p[:, 1], axis=1)
+    area2 = np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(area2 > 0, a * b * c / (2.0 * area2), np.inf)
 
 
 def _extend(scale: np.ndarray | None, positions: np.ndarray, vertices: np.ndarray):
