@@ -112,7 +112,7 @@ def triangulate_particles(
     local_spacing : (n,) float64 [r0], optional
         Each particle's rest spacing (None: 1 everywhere, the uniform r0). Ball-pivoting radii
         (:func:`ball_radii`; a face is kept when its circumradius fits the largest radius times
-        the smallest spacing of its corners), hole perimeters, seam widths and the coverage
+        the largest spacing of its corners), hole perimeters, seam widths and the coverage
         test scale with it.
     """
     positions = np.ascontiguousarray(positions, dtype=np.float64)
@@ -132,8 +132,8 @@ def triangulate_particles(
     if cfg.method == "ball_pivoting":
         faces = ball_pivoting(positions, normals, ball_radii(cfg.radii, scale))
         if scale is not None:
-            # a face must fit the largest ball of its own region (its densest corner)
-            fits = circumradius(positions, faces) <= max(cfg.radii) * scale[faces].min(axis=1)
+            # a face must fit the largest ball of its region (at its sparsest corner)
+            fits = circumradius(positions, faces) <= max(cfg.radii) * scale[faces].max(axis=1)
             faces = faces[fits]
     else:
         faces = circumsphere_triangles(positions, normals, radius=max(cfg.radii))
