@@ -6,7 +6,10 @@ memory is that method's), compares the result with the ground-truth mesh and wri
 table (and JSON with ``--json-out``):
 
     Chamfer-L1 and Hausdorff95 (÷ GT bbox diagonal), F-score at 1 %, normal consistency,
-    boundary loops, watertight, mean minimum triangle angle, wall time, peak memory.
+    boundary loops, components, non-manifold vertices, genus, watertight (the standard
+    definition: every edge in two faces, every vertex one fan; ``recon.topology``) and Open3D's
+    ``is_watertight()`` (which also rejects self-intersections), mean minimum triangle angle,
+    wall time, peak memory.
 
 Methods: ``oprecon`` (defaults), Open3D screened Poisson depth 8 and 9 (normals estimated by
 PCA and oriented by Open3D's MST propagation on a k-NN graph, 2 % lowest-density vertices
@@ -120,6 +123,7 @@ def evaluate(
     cmp = compare_meshes((v, f), (gv, gf), n_samples=n_samples, seed=0)
     topo = mesh_topology(v, f)
     qual = triangle_quality(v, f)
+    o3d_mesh = _open3d_mesh(v, f)
     row.update(
         {
             "chamfer_l1": cmp["chamfer_l1_relative"],
@@ -129,12 +133,26 @@ def evaluate(
             "boundary_loops": topo["boundary_loops"],
             "components": topo["components"],
             "watertight": topo["watertight"],
+            "o3d_watertight": bool(o3d_mesh.is_watertight()),
+            "o3d_vertex_manifold": bool(o3d_mesh.is_vertex_manifold()),
             "non_manifold_edges": topo["non_manifold_edges"],
+            "non_manifold_vertices": topo["non_manifold_vertices"],
+            "genus": topo["genus"],
+            "consistently_oriented": topo["consistently_oriented"],
             "min_angle_mean": qual["min_angle_mean_deg"],
             "faces": int(len(f)),
         }
     )
     return row
+
+
+def _open3d_mesh(v: np.ndarray, f: np.ndarray) -> Any:
+    import open3d as o3d
+
+    return o3d.geometry.TriangleMesh(
+        o3d.utility.Vector3dVector(np.asarray(v, dtype=np.float64)),
+        o3d.utility.Vector3iVector(np.asarray(f, dtype=np.int32)),
+    )
 
 
 def _fmt(v: Any, spec: str) -> str:
@@ -147,20 +165,22 @@ def _fmt(v: Any, spec: str) -> str:
 
 def markdown(results: dict[str, list[dict[str, Any]]]) -> str:
     head = (
-        "| case | method | CD-L1 | F@1% | NC | H95 | loops | comps | watertight | "
-        "min angle | time s | peak MB |"
+        "| case | method | CD-L1 | F@1% | NC | H95 | loops | comps | nm verts | genus | "
+        "watertight | O3D watertight | min angle | time s | peak MB |"
     )
-    lines = [head, "|" + "---|" * 12]
+    lines = [head, "|" + "---|" * 15]
     for case, rows in results.items():
         for r in rows:
             if "error" in r and "chamfer_l1" not in r:
-                lines.append(f"| {case} | {r['method']} | failed: {r['error']} |" + " |" * 9)
+                lines.append(f"| {case} | {r['method']} | failed: {r['error']} |" + " |" * 12)
                 continue
             lines.append(
                 f"| {case} | {r['method']} | {_fmt(r['chamfer_l1'], '.5f')} | "
                 f"{_fmt(r['fscore'], '.3f')} | {_fmt(r['normal_consistency'], '.3f')} | "
                 f"{_fmt(r['hausdorff95'], '.4f')} | {r['boundary_loops']} | {r['components']} | "
-                f"{_fmt(r['watertight'], '')} | {_fmt(r['min_angle_mean'], '.1f')} | "
+                f"{r['non_manifold_vertices']} | {_fmt(r['genus'], 'd')} | "
+                f"{_fmt(r['watertight'], '')} | {_fmt(r['o3d_watertight'], '')} | "
+                f"{_fmt(r['min_angle_mean'], '.1f')} | "
                 f"{_fmt(r['seconds'], '.2f')} | {_fmt(r['peak_mb'], '.0f')} |"
             )
     return "\n".join(lines) + "\n"

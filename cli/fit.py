@@ -127,6 +127,13 @@ def format_summary(report: FitReport) -> str:
             f" watertight {'yes' if topo.watertight else 'no'}, genus {topo.genus}",
         ),
         (
+            "largest hole",
+            "none (closed)"
+            if topo.boundary_loops == 0
+            else f"{topo.largest_hole_r0:.1f} r0 across (perimeter / pi, "
+            f"perimeter {topo.largest_hole_perimeter:.4g})",
+        ),
+        (
             "min angle",
             f"mean {qual.min_angle_mean_deg:.1f} deg, 5th pct {qual.min_angle_p5_deg:.1f} deg",
         ),

@@ -57,6 +57,7 @@ TOPOLOGY_ROWS = (
     ("degenerate faces", "degenerate_faces"),
     ("duplicate faces", "duplicate_faces"),
     ("unreferenced vertices", "unreferenced_vertices"),
+    ("largest hole perimeter", "largest_hole_perimeter"),
 )
 
 

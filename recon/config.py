@@ -302,6 +302,14 @@ class TriangulationConfig(Schema):
     max_hole: float | None = option(
         None, "Largest hole diameter to fill [r0]; null = growth.max_gap.", 0.0, None
     )
+    max_density_scale: float = option(
+        4.0,
+        "Where the data is sparser than its median, ball radii, hole sizes and the "
+        "data-coverage test scale with the local point spacing, up to this factor "
+        "(1 = one uniform r0 everywhere).",
+        1.0,
+        None,
+    )
     project_to_data: bool = option(
         True,
         "Move the final particles onto the local data surface "

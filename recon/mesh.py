@@ -16,6 +16,9 @@ Definitions:
   of boundary edges: what the report counts as ``boundary_loops``. On a manifold mesh both
   agree; where boundaries touch at a vertex (a figure of eight) the walk finds no simple loop
   while the component count is one.
+- A vertex's *fans* (:func:`vertex_fans`) are its incident faces grouped by connection through
+  edges that contain the vertex; a manifold vertex has one fan, a bow-tie (non-manifold)
+  vertex more. Faces joined by an over-shared edge count as connected.
 - *Components* (:func:`vertex_components`, :func:`face_components`) are the connected
   components of the referenced vertices, two vertices being connected when a face uses both
   (so a bow-tie is one component).
@@ -36,13 +39,16 @@ from scipy.sparse import csgraph
 
 __all__ = [
     "boundary_components",
+    "boundary_loop_perimeters",
     "boundary_loops",
     "count_edge_faces",
     "edge_keys",
     "face_area_vectors",
     "face_components",
     "face_normals",
+    "orientation_flips",
     "vertex_components",
+    "vertex_fans",
 ]
 
 
@@ -210,3 +216,141 @@ def face_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     n = face_area_vectors(vertices, faces)
     length = np.linalg.norm(n, axis=1, keepdims=True)
     return np.divide(n, length, out=np.zeros_like(n), where=length > 0)
+
+
+def vertex_fans(faces: np.ndarray) -> np.ndarray:
+    """Fan label of every face corner, ``(F, 3)`` int64.
+
+    Two corners at the same vertex get the same label when their faces are joined, around that
+    vertex, through a chain of faces sharing an edge that contains the vertex. The number of
+    distinct labels among a vertex's corners is its number of fans (1 on a manifold vertex).
+    Faces with a repeated vertex index should be removed first.
+
+    Examples
+    --------
+    >>> fans = vertex_fans(np.array([[0, 1, 2], [0, 2, 3], [0, 4, 5]]))
+    >>> len(set(fans[:, 0].tolist()))  # vertex 0: the fan {0, 1} and the lone face 2
+    2
+    """
+    nf = len(faces)
+    if nf == 0:
+        return np.zeros((0, 3), dtype=np.int64)
+    f = np.asarray(faces, dtype=np.int64)
+    he_from = f.ravel()
+    he_to = np.roll(f, -1, axis=1).ravel()
+    he_face = np.repeat(np.arange(nf), 3)
+    he_corner = np.tile(np.arange(3), nf)
+    lo = np.minimum(he_from, he_to)
+    hi = np.maximum(he_from, he_to)
+    forward = he_from < he_to
+    order = np.lexsort((he_face, hi, lo))
+    lo_s, hi_s = lo[order], hi[order]
+    same = (lo_s[1:] == lo_s[:-1]) & (hi_s[1:] == hi_s[:-1])
+    a, b = order[:-1][same], order[1:][same]
+    # the corner of half-edge h at vertex lo (resp. hi) of its edge
+    c_next = he_face * 3 + (he_corner + 1) % 3
+    c_here = he_face * 3 + he_corner
+    wedge_lo = np.where(forward, c_here, c_next)
+    wedge_hi = np.where(forward, c_next, c_here)
+    rows = np.concatenate([wedge_lo[a], wedge_hi[a]])
+    cols = np.concatenate([wedge_lo[b], wedge_hi[b]])
+    graph = sparse.coo_matrix((np.ones(len(rows), np.int8), (rows, cols)), (3 * nf,) * 2)
+    _, label = csgraph.connected_components(graph, directed=False)
+    return label.reshape(nf, 3).astype(np.int64)
+
+
+def boundary_loop_perimeters(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Perimeter of every boundary component (:func:`boundary_components`), largest first.
+
+    Returns
+    -------
+    (L,) float64 [length of ``vertices``]
+        The summed length of each component's boundary edges; empty for a closed mesh.
+
+    Examples
+    --------
+    >>> v = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], float)
+    >>> boundary_loop_perimeters(v, np.array([[0, 1, 2], [0, 2, 3]])).tolist()
+    [4.0]
+    """
+    edges, counts = count_edge_faces(faces)
+    boundary = counts == 1
+    if not boundary.any():
+        return np.zeros(0)
+    bl, bh = edges[boundary, 0], edges[boundary, 1]
+    n_v = len(vertices)
+    graph = sparse.coo_matrix((np.ones(len(bl), np.int8), (bl, bh)), (n_v,) * 2)
+    _, label = csgraph.connected_components(graph, directed=False)
+    length = np.linalg.norm(vertices[bl] - vertices[bh], axis=1)
+    _, comp = np.unique(label[bl], return_inverse=True)
+    return np.sort(np.bincount(comp, weights=length))[::-1]
+
+
+def orientation_flips(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per-face flips that make the winding consistent across every manifold edge.
+
+    The face graph through edges with exactly two faces is spanned by a breadth-first forest
+    (each component rooted at its lowest face, which keeps its winding); pointer jumping sums
+    the pair parities up to the root in ``O(F log depth)``.
+
+    Returns
+    -------
+    flip : (F,) bool
+        Reverse these faces.
+    conflict : (F,) bool
+        Faces on a manifold edge that both faces still run in the same direction after the
+        flips: none when the mesh is orientable (a Moebius strip has some; the flips are then
+        the forest's best guess).
+
+    Examples
+    --------
+    >>> flip, conflict = orientation_flips(np.array([[0, 1, 2], [1, 2, 3]]))
+    >>> flip.tolist(), bool(conflict.any())
+    ([False, True], False)
+    """
+    n_faces = len(faces)
+    if n_faces == 0:
+        return np.zeros(0, dtype=bool), np.zeros(0, dtype=bool)
+    f = np.asarray(faces, dtype=np.int64)
+    he_from = f.ravel()
+    he_to = np.roll(f, -1, axis=1).ravel()
+    he_face = np.repeat(np.arange(n_faces), 3)
+    lo = np.minimum(he_from, he_to)
+    hi = np.maximum(he_from, he_to)
+    forward = he_from < he_to
+    order = np.lexsort((he_face, hi, lo))
+    lo_s, hi_s = lo[order], hi[order]
+    is_new = np.ones(len(order), dtype=bool)
+    is_new[1:] = (lo_s[1:] != lo_s[:-1]) | (hi_s[1:] != hi_s[:-1])
+    edge_id = np.cumsum(is_new) - 1
+    count = np.bincount(edge_id)
+    same = ~is_new[1:] & (count[edge_id[1:]] == 2)
+    a, b = order[:-1][same], order[1:][same]
+    fa, fb = he_face[a], he_face[b]
+    parity = forward[a] == forward[b]  # True: the pair disagrees, one of them must flip
+    root = n_faces
+    face_graph = sparse.coo_matrix((np.ones(len(fa), np.int8), (fa, fb)), (n_faces,) * 2)
+    _, labels = csgraph.connected_components(face_graph, directed=False)
+    first = np.unique(labels, return_index=True)[1]
+    rows = np.concatenate([fa, fb, np.full(len(first), root)])
+    cols = np.concatenate([fb, fa, first])
+    graph = sparse.csr_matrix((np.ones(len(rows), np.int8), (rows, cols)), (n_faces + 1,) * 2)
+    _, pred = csgraph.breadth_first_order(graph, root, directed=True, return_predecessors=True)
+    pred = pred.astype(np.int64)
+    pred[root] = root
+    to_parent = np.zeros(n_faces + 1, dtype=bool)
+    tree_ab = pred[fb] == fa
+    tree_ba = pred[fa] == fb
+    to_parent[fb[tree_ab]] = parity[tree_ab]
+    to_parent[fa[tree_ba]] = parity[tree_ba]
+    flip = to_parent.copy()
+    ptr = pred.copy()
+    while np.any(ptr != root):
+        flip ^= np.where(ptr != root, flip[ptr], False)
+        ptr = ptr[ptr]
+    flip = flip[:n_faces]
+    bad = (flip[fa] ^ flip[fb]) != parity
+    conflict = np.zeros(n_faces, dtype=bool)
+    conflict[fa[bad]] = True
+    conflict[fb[bad]] = True
+    return flip, conflict

@@ -27,7 +27,7 @@ import numpy as np
 
 from .errors import InputError
 from .io.files import AtomicOutputs, atomic_output
-from .mesh import count_edge_faces, face_normals
+from .mesh import count_edge_faces, face_normals, vertex_fans
 from .topology import validate_mesh
 
 __all__ = ["render_mesh_png"]
@@ -101,6 +101,7 @@ def _draw_view(
     faces: np.ndarray,
     edge_sets: list[tuple[np.ndarray, str, float]],
     all_vertices: np.ndarray,
+    markers: np.ndarray | None = None,
 ) -> None:
     from matplotlib.collections import LineCollection, PolyCollection
 
@@ -137,6 +138,22 @@ def _draw_view(
     for edges, color, width in edge_sets:
         if len(edges):
             ax.add_collection(LineCollection(q2[edges], colors=color, linewidths=width, zorder=3))
+    if markers is not None and len(markers):
+        m = markers @ basis.T
+        ax.scatter(m[:, 0], m[:, 1], s=40, facecolors="none", edgecolors=NON_MANIFOLD_COLOR,
+                   linewidths=1.2, zorder=4)  # fmt: skip
+
+
+def non_manifold_vertex_ids(faces: np.ndarray) -> np.ndarray:
+    """Vertices whose faces form more than one fan (bow-ties), as in :mod:`recon.topology`."""
+    f = faces[
+        (faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 2] != faces[:, 0])
+    ]
+    if len(f) == 0:
+        return np.zeros(0, dtype=np.int64)
+    pairs = np.unique(np.stack([f.ravel(), vertex_fans(f).ravel()], axis=1), axis=0)
+    ids, n_fans = np.unique(pairs[:, 0], return_counts=True)
+    return ids[n_fans > 1]
 
 
 def _check_history(history: Mapping[str, Any]) -> dict[str, list[Any]]:
@@ -255,6 +272,7 @@ def render_mesh_png(
 
     edges, counts = count_edge_faces(f)
     boundary, non_manifold = edges[counts == 1], edges[counts > 2]
+    bow_ties = v[non_manifold_vertex_ids(f)]
     used = v[np.unique(f)] if len(f) else (v if len(v) else np.zeros((1, 3)))
     draw_v, draw_f = _simplify_for_drawing(v, f, max_faces)
 
@@ -268,7 +286,7 @@ def render_mesh_png(
     edge_sets = [(boundary, BOUNDARY_COLOR, 1.0), (non_manifold, NON_MANIFOLD_COLOR, 1.6)]
     for col, (name, direction, up) in enumerate(VIEWS):
         ax = fig.add_subplot(views[0, col])
-        _draw_view(ax, name, _view_basis(direction, up), draw_v, draw_f, edge_sets, used)
+        _draw_view(ax, name, _view_basis(direction, up), draw_v, draw_f, edge_sets, used, bow_ties)
     if hist is not None:
         panel = outer[1].subgridspec(2, 1, hspace=0.08)
         _draw_history(fig, (panel[0, 0], panel[1, 0]), hist)
@@ -278,6 +296,7 @@ def render_mesh_png(
         + (f" (drawn: {len(draw_f):,})" if len(draw_f) != len(f) else "")
         + f"   boundary edges (red): {len(boundary):,}"
         + f"   non-manifold edges (magenta): {len(non_manifold):,}"
+        + f"   non-manifold vertices (magenta circles): {len(bow_ties):,}"
         + "   back side of faces: tan"
     )
     fig.suptitle(f"{title}\n{summary}" if title else summary, fontsize=10)

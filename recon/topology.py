@@ -31,9 +31,13 @@ Definitions (the ones used by every number this module reports):
 - *Consistently oriented*: every manifold edge is traversed in opposite directions by its two
   faces. *Orientable*: some choice of per-face flips makes it so (a Moebius strip is not).
   Non-manifold edges are ignored for both.
-- *Watertight*: no boundary edge and no non-manifold edge.
+- *Watertight* (the standard definition, as Open3D's ``is_watertight`` and MeshLab use it,
+  without their self-intersection test): every edge in exactly two faces (no boundary edge, no
+  non-manifold edge) and every vertex's faces forming one fan (no non-manifold vertex).
 - *Genus* (sum over components of ``(2 - chi_c) / 2``) is reported only for closed orientable
-  manifolds: watertight, no non-manifold vertex, orientable; otherwise it is ``None``.
+  manifolds: watertight and orientable; otherwise it is ``None``.
+- ``largest_hole_perimeter``: the perimeter of the largest boundary loop (0 when closed), in
+  the mesh's units (:func:`recon.mesh.boundary_loop_perimeters`).
 
 References
 ----------
@@ -46,11 +50,16 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-from scipy import sparse
-from scipy.sparse import csgraph
 
 from .errors import InputError
-from .mesh import boundary_components, count_edge_faces, vertex_components
+from .mesh import (
+    boundary_components,
+    boundary_loop_perimeters,
+    count_edge_faces,
+    orientation_flips,
+    vertex_components,
+    vertex_fans,
+)
 
 __all__ = ["count_edge_faces", "mesh_topology", "triangle_quality", "validate_mesh"]
 
@@ -139,6 +148,7 @@ def _empty_topology(n_vertices: int, n_faces: int, degenerate: int) -> dict[str,
         "degenerate_faces": degenerate,
         "duplicate_faces": 0,
         "unreferenced_vertices": n_vertices,
+        "largest_hole_perimeter": 0.0,
     }
 
 
@@ -160,11 +170,13 @@ def mesh_topology(vertices: Any, faces: Any) -> dict[str, Any]:
         ``n_vertices``, ``n_faces``, ``n_edges`` (int): sizes of the input and the number of
         distinct edges. ``components``, ``boundary_edges``, ``boundary_loops``,
         ``non_manifold_edges``, ``non_manifold_vertices`` (int). ``watertight`` (bool): no
-        boundary and no non-manifold edge. ``orientable``, ``consistently_oriented`` (bool).
+        boundary edge, no non-manifold edge and no non-manifold vertex. ``orientable``,
+        ``consistently_oriented`` (bool).
         ``euler_characteristic`` (int): ``V - E + F`` over referenced vertices and proper faces.
         ``genus`` (int or None): total genus of a closed orientable manifold, ``None`` when the
         mesh is not one. ``degenerate_faces``, ``duplicate_faces`` (same three vertices in any
-        order), ``unreferenced_vertices`` (int).
+        order), ``unreferenced_vertices`` (int). ``largest_hole_perimeter`` (float): the
+        perimeter of the largest boundary loop, 0 when there is none.
 
     Raises
     ------
@@ -196,7 +208,6 @@ def mesh_topology(vertices: Any, faces: Any) -> dict[str, Any]:
     he_from = f.ravel()
     he_to = np.roll(f, -1, axis=1).ravel()
     he_face = np.repeat(np.arange(nf), 3)
-    he_corner = np.tile(np.arange(3), nf)
     lo = np.minimum(he_from, he_to)
     hi = np.maximum(he_from, he_to)
     forward = he_from < he_to  # direction of the half-edge along its undirected edge
@@ -221,10 +232,9 @@ def mesh_topology(vertices: Any, faces: Any) -> dict[str, Any]:
 
     # Orientation: on manifold edges the two faces must run the edge in opposite directions.
     manifold_pair = edge_count[pair_edge] == 2
-    fa, fb = he_face[a][manifold_pair], he_face[b][manifold_pair]
     flip_parity = (forward[a] == forward[b])[manifold_pair]  # True: the pair disagrees
     consistent = not bool(flip_parity.any())
-    orientable = consistent or _is_orientable(nf, fa, fb, flip_parity)
+    orientable = consistent or not orientation_flips(f)[1].any()
 
     # Components over vertices (faces link their three vertices).
     n_components, comp_of_vertex = vertex_components(f, n_vertices)
@@ -234,26 +244,22 @@ def mesh_topology(vertices: Any, faces: Any) -> dict[str, Any]:
     # Boundary loops: connected components of the boundary-edge graph (recon.mesh).
     n_loops = boundary_components(np.stack([edge_lo, edge_hi], axis=1), edge_count, n_vertices)
 
-    # Non-manifold vertices: count fans of wedges (face corners) around each vertex.
-    wedge_lo = np.where(forward, he_face * 3 + he_corner, he_face * 3 + (he_corner + 1) % 3)
-    wedge_hi = np.where(forward, he_face * 3 + (he_corner + 1) % 3, he_face * 3 + he_corner)
-    w_rows = np.concatenate([wedge_lo[a], wedge_hi[a]])
-    w_cols = np.concatenate([wedge_lo[b], wedge_hi[b]])
-    wgraph = sparse.coo_matrix((np.ones(len(w_rows), np.int8), (w_rows, w_cols)), (3 * nf,) * 2)
-    _, wlabel = csgraph.connected_components(wgraph, directed=False)
-    fan_keys = np.unique(f.ravel() * np.int64(3 * nf) + wlabel)  # distinct (vertex, fan)
+    # Non-manifold vertices: count fans of corners around each vertex (recon.mesh).
+    fan = vertex_fans(f).ravel()
+    fan_keys = np.unique(f.ravel() * np.int64(3 * nf) + fan)  # distinct (vertex, fan)
     fans_per_vertex = np.bincount(fan_keys // (3 * nf), minlength=n_vertices)
     n_non_manifold_vertices = int((fans_per_vertex > 1).sum())
 
     chi = int(len(ref_idx) - n_edges + nf)
-    watertight = n_boundary == 0 and n_non_manifold_edges == 0
+    watertight = n_boundary == 0 and n_non_manifold_edges == 0 and n_non_manifold_vertices == 0
     genus: int | None = None
-    if watertight and n_non_manifold_vertices == 0 and orientable:
+    if watertight and orientable:
         v_c = np.bincount(comp_compact, minlength=n_components)
         e_c = np.bincount(comp_of_vertex[edge_lo], minlength=n_components)
         f_c = np.bincount(comp_of_vertex[f[:, 0]], minlength=n_components)
         genus = int(np.sum((2 - (v_c - e_c + f_c)) // 2))
 
+    perimeters = boundary_loop_perimeters(v, f) if n_boundary else np.zeros(0)
     sf = np.sort(f, axis=1)
     sf = sf[np.lexsort(sf.T[::-1])]
     duplicates = int(np.all(sf[1:] == sf[:-1], axis=1).sum())
@@ -275,42 +281,8 @@ def mesh_topology(vertices: Any, faces: Any) -> dict[str, Any]:
         "degenerate_faces": n_degenerate,
         "duplicate_faces": int(duplicates),
         "unreferenced_vertices": int(n_vertices - len(ref_idx)),
+        "largest_hole_perimeter": float(perimeters[0]) if len(perimeters) else 0.0,
     }
-
-
-def _is_orientable(n_faces: int, fa: np.ndarray, fb: np.ndarray, parity: np.ndarray) -> bool:
-    """Whether per-face flips exist with ``flip[fa] ^ flip[fb] == parity`` for every pair.
-
-    A spanning forest of the face graph fixes the flips (root faces keep their orientation);
-    pointer jumping sums the parities up to the root in ``O(F log depth)``; then every pair,
-    tree or not, is checked.
-    """
-    # Root each face component at its lowest-index face, and join those roots to a virtual
-    # root (index n_faces) so that one breadth-first search covers every component.
-    root = n_faces
-    face_graph = sparse.coo_matrix((np.ones(len(fa), np.int8), (fa, fb)), (n_faces,) * 2)
-    _, labels = csgraph.connected_components(face_graph, directed=False)
-    first = np.unique(labels, return_index=True)[1]
-    rows = np.concatenate([fa, fb, np.full(len(first), root)])
-    cols = np.concatenate([fb, fa, first])
-    graph = sparse.csr_matrix((np.ones(len(rows), np.int8), (rows, cols)), (n_faces + 1,) * 2)
-    _, pred = csgraph.breadth_first_order(graph, root, directed=True, return_predecessors=True)
-    pred = pred.astype(np.int64)
-    pred[root] = root
-
-    # Parity of each tree link (face -> its BFS parent), looked up among the pairs.
-    to_parent = np.zeros(n_faces + 1, dtype=bool)
-    tree_ab = pred[fb] == fa
-    tree_ba = pred[fa] == fb
-    to_parent[fb[tree_ab]] = parity[tree_ab]
-    to_parent[fa[tree_ba]] = parity[tree_ba]
-
-    flip = to_parent.copy()
-    ptr = pred.copy()
-    while np.any(ptr != root):
-        flip ^= np.where(ptr != root, flip[ptr], False)
-        ptr = ptr[ptr]
-    return bool(np.all((flip[fa] ^ flip[fb]) == parity))
 
 
 def triangle_quality(vertices: Any, faces: Any) -> dict[str, Any]:

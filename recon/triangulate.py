@@ -31,7 +31,15 @@ from scipy.spatial import cKDTree
 
 from .config import TriangulationConfig
 from .kernels.circumsphere import circumsphere_kernel
-from .mesh import boundary_loops, edge_keys, face_area_vectors, face_components
+from .mesh import (
+    boundary_loops,
+    edge_keys,
+    face_area_vectors,
+    face_components,
+    face_normals,
+    orientation_flips,
+    vertex_fans,
+)
 from .neighbors import build_neighbor_list
 
 log = logging.getLogger(__name__)
@@ -54,13 +62,24 @@ MIN_COMPONENT_FACES = 50
 MIN_COMPONENT_FRACTION = 0.01
 #: Hole-filling passes: a fill can meet an edge that already exists elsewhere; the repair after
 #: it can open a new small loop, which the second pass closes.
-FILL_PASSES = 2
+FILL_PASSES = 4
 #: Triangles kept per particle by the circumsphere test (a hexagonal sheet has ~6).
 CIRCUMSPHERE_CAPACITY = 64
 #: Rounds of dropping faces on over-shared edges (each round settles the worst edges).
 NON_MANIFOLD_EDGE_ROUNDS = 10
 #: Rounds of dropping extra fans at bow-tie vertices (dropping a fan can leave a new bow-tie).
 NON_MANIFOLD_VERTEX_ROUNDS = 5
+#: A bow-tie vertex is split into one copy per fan; each extra copy moves this fraction of the
+#: way to its fan's centroid, so the copies do not coincide (coincident vertices of different
+#: faces read as a self-intersection to Open3D's ``is_watertight``).
+SPLIT_SHIFT = 0.3
+#: A loop whose rim faces point against its patch is kept open when its component's area is
+#: below this many times the patch's area (the outer rim of a small open sheet).
+SHEET_AREA_FACTOR = 4.0
+#: A seam is closed when data lies at this fraction of the points across it.
+SEAM_SUPPORT = 0.9
+#: Rounds of dropping faces on orientation conflicts (a dropped face can expose another).
+ORIENTATION_ROUNDS = 5
 
 
 def triangulate_particles(
@@ -68,10 +87,14 @@ def triangulate_particles(
     normals: np.ndarray,
     cfg: TriangulationConfig,
     max_hole: float,
-    is_covered: Callable[[np.ndarray], np.ndarray] | None = None,
-    project: Callable[[np.ndarray], np.ndarray] | None = None,
+    is_covered: Callable[..., np.ndarray] | None = None,
+    local_spacing: np.ndarray | None = None,
 ) -> TriangulationResult:
-    """Mesh the particles (normalised units, r0 = 1).
+    """Mesh the particles (normalised units, r0 = 1) with a topology guarantee.
+
+    The result has no non-manifold edge and no non-manifold vertex, every component is
+    consistently oriented (closed ones outward), and every gap of the triangulation (a hole
+    narrower than ``max_hole`` whose inside holds data) is closed. Real boundaries stay open.
 
     Parameters
     ----------
@@ -79,32 +102,49 @@ def triangulate_particles(
     normals : (n, 3) float64, unit, consistently oriented
     cfg : TriangulationConfig
     max_hole : float [r0]
-        Diameter of the largest hole to fill (loops with perimeter <= pi * max_hole).
+        Diameter of the largest hole to fill (loops with perimeter <= pi * max_hole), and the
+        width of the widest seam to zip.
     is_covered : callable, optional
-        ``centres (m, 3) -> (m,) bool``: does data lie at these hole centres? Loops over data
-        are closed up to ``COVERED_HOLE_FACTOR`` times the ``max_hole`` perimeter.
-    project : callable, optional
-        ``points (m, 3) -> (m, 3)``: moves vertices added by hole filling onto the data.
+        ``points (m, 3) -> (m,) bool``: does data lie at these points? Loops over data are
+        closed up to ``COVERED_HOLE_FACTOR`` times the ``max_hole`` perimeter, and narrow seams
+        over data however long. With ``local_spacing`` it is called as
+        ``is_covered(points, spacing)`` with the local spacing [r0] at each point.
+    local_spacing : (n,) float64 [r0], optional
+        Each particle's rest spacing (None: 1 everywhere, the uniform r0). Ball-pivoting radii
+        (:func:`ball_radii`; a face is kept when its circumradius fits the largest radius times
+        the largest spacing of its corners), hole perimeters, seam widths and the coverage
+        test scale with it.
     """
     positions = np.ascontiguousarray(positions, dtype=np.float64)
     normals = np.ascontiguousarray(normals, dtype=np.float64)
+    scale = None
+    if local_spacing is not None:
+        scale = np.asarray(local_spacing, dtype=np.float64).reshape(-1)
+        if scale.shape != (len(positions),) or not np.all(np.isfinite(scale) & (scale > 0)):
+            raise ValueError(
+                f"local_spacing must hold {len(positions)} positive finite values, "
+                f"got shape {scale.shape}"
+            )
     if len(positions) < 3:
         return TriangulationResult(
             positions, np.zeros((0, 3), dtype=np.int64), normals, {"method": cfg.method}
         )
     if cfg.method == "ball_pivoting":
-        faces = ball_pivoting(positions, normals, cfg.radii)
+        faces = ball_pivoting(positions, normals, ball_radii(cfg.radii, scale))
+        if scale is not None:
+            # a face must fit the largest ball of its region (at its sparsest corner)
+            fits = circumradius(positions, faces) <= max(cfg.radii) * scale[faces].max(axis=1)
+            faces = faces[fits]
     else:
         faces = circumsphere_triangles(positions, normals, radius=max(cfg.radii))
     stats: dict = {"method": cfg.method, "faces_raw": int(len(faces))}
     faces = orient_faces(positions, normals, faces)
-    faces = make_manifold(faces, len(positions))
+    vertices, vnormals, faces = repair_non_manifold(positions, normals, faces)
+    faces = orient_consistently(vertices, vnormals, faces)
     stats["faces_manifold"] = int(len(faces))
-    vertices, vnormals = positions, normals
     stats["holes_filled"] = 0
     for _ in range(FILL_PASSES if cfg.fill_holes else 0):
         # a fill can meet an edge that already exists elsewhere; repair, then fill what opened
-        n_before = len(vertices)
         vertices, vnormals, faces, n_filled = fill_small_holes(
             vertices,
             vnormals,
@@ -112,20 +152,60 @@ def triangulate_particles(
             np.pi * max_hole,
             is_covered,
             COVERED_HOLE_FACTOR * np.pi * max_hole,
+            scale=_extend(scale, positions, vertices),
         )
         stats["holes_filled"] += n_filled
-        if project is not None and len(vertices) > n_before:
-            vertices = vertices.copy()
-            vertices[n_before:] = project(vertices[n_before:])
-        faces = make_manifold(faces, len(vertices))
+        vertices, vnormals, faces = repair_non_manifold(vertices, vnormals, faces)
+        faces = orient_consistently(vertices, vnormals, faces)
         if n_filled == 0:
             break
     faces, n_small = remove_small_components(
         faces, len(vertices), MIN_COMPONENT_FRACTION, MIN_COMPONENT_FACES
     )
     stats["small_components_removed"] = n_small
+    stats["vertices_split"] = int(len(vertices) - len(positions))
     vertices, vnormals, faces = drop_unreferenced(vertices, vnormals, faces)
+    faces = orient_consistently(vertices, vnormals, faces)
     return TriangulationResult(vertices, faces, vnormals, stats)
+
+
+def ball_radii(radii: list[float], scale: np.ndarray | None = None) -> list[float]:
+    """Ball-pivoting radii [r0]: ``radii``, or with a local spacing, ``radii`` times its 5th,
+    50th and 95th percentiles (balls are pivoted smallest first, so each region is meshed by
+    the balls that suit its spacing before larger ones close what is left).
+
+    Examples
+    --------
+    >>> ball_radii([1.0, 2.0])
+    [1.0, 2.0]
+    >>> ball_radii([1.0], np.array([1.0, 1.0, 3.0]))
+    [1.0, 2.8]
+    """
+    if scale is None:
+        return sorted(float(r) for r in radii)
+    q = np.percentile(scale, [5, 50, 95])
+    out = {round(float(r) * float(x), 6) for r in radii for x in q}
+    return sorted(out)
+
+
+def circumradius(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Circumradius of every face ``(F,)`` [units of ``vertices``]; inf for degenerate faces."""
+    p = vertices[faces]
+    a = np.linalg.norm(p[:, 1] - p[:, 2], axis=1)
+    b = np.linalg.norm(p[:, 2] - p[:, 0], axis=1)
+    c = np.linalg.norm(p[:, 0] - p[:, 1], axis=1)
+    area2 = np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(area2 > 0, a * b * c / (2.0 * area2), np.inf)
+
+
+def _extend(scale: np.ndarray | None, positions: np.ndarray, vertices: np.ndarray):
+    """The per-vertex spacing after repair added vertices: a new vertex takes its nearest
+    particle's."""
+    if scale is None or len(vertices) == len(positions):
+        return scale
+    _, nearest = cKDTree(positions).query(vertices[len(positions) :])
+    return np.concatenate([scale, scale[nearest]])
 
 
 def ball_pivoting(positions: np.ndarray, normals: np.ndarray, radii: list[float]) -> np.ndarray:
@@ -173,6 +253,41 @@ def orient_faces(vertices: np.ndarray, normals: np.ndarray, faces: np.ndarray) -
     return faces
 
 
+def orient_consistently(vertices: np.ndarray, normals: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """One winding per component, facing the side its vertex normals face (outward).
+
+    Flips propagate across manifold edges (:func:`recon.mesh.orientation_flips`); where they
+    conflict (a one-sided, Moebius-like seam, e.g. two sheets of a thin part glued crosswise)
+    the faces on the conflicting edges are dropped, which opens a small hole for hole filling.
+    Each component then keeps the winding that agrees with its vertex normals (area-weighted),
+    and a closed component whose signed volume is negative is turned inside out.
+    """
+    if len(faces) == 0:
+        return faces
+    faces = faces.copy()
+    for _ in range(ORIENTATION_ROUNDS):
+        flip, conflict = orientation_flips(faces)
+        faces[flip] = faces[flip][:, [0, 2, 1]]
+        if not conflict.any():
+            break
+        faces = faces[~conflict]
+    n, labels = face_components(faces, len(vertices))
+    fn = face_area_vectors(vertices, faces)
+    agree = np.einsum("ij,ij->i", fn, normals[faces].sum(axis=1))
+    vote = np.bincount(labels, weights=agree, minlength=n)
+    # signed volume (x6) of each component; meaningful for closed ones
+    p = vertices[faces]
+    vol = np.bincount(labels, weights=np.einsum("ij,ij->i", p[:, 0], fn), minlength=n)
+    edges = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+    _, inv, cnt = np.unique(edges, axis=0, return_inverse=True, return_counts=True)
+    open_face = (cnt[inv.reshape(-1)] == 1).reshape(-1, 3).any(axis=1)
+    closed = np.bincount(labels, weights=open_face, minlength=n) == 0
+    turn = np.where(closed, vol < 0, vote < 0)
+    bad = turn[labels]
+    faces[bad] = faces[bad][:, [0, 2, 1]]
+    return faces
+
+
 def remove_non_manifold_faces(faces: np.ndarray, n_vertices: int) -> np.ndarray:
     """Drop degenerate and duplicate faces, then faces on edges shared by more than two faces.
 
@@ -215,6 +330,99 @@ def make_manifold(faces: np.ndarray, n_vertices: int) -> np.ndarray:
             break
         faces = remove_non_manifold_faces(faces[~bad], n_vertices)
     return faces
+
+
+def split_non_manifold_vertices(
+    vertices: np.ndarray, normals: np.ndarray, faces: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    """Give every extra fan of a bow-tie vertex its own copy of the vertex.
+
+    The largest fan (ties: the lowest fan label) keeps the vertex; every other fan gets a new
+    vertex moved ``SPLIT_SHIFT`` of the way towards its fan's centroid, with the same normal.
+    No face is dropped, so a closed fan stays closed and an open one leaves a simple boundary
+    loop that hole filling can walk. Expects no non-manifold edges.
+
+    Returns
+    -------
+    vertices, normals, faces, n_new_vertices
+    """
+    if len(faces) == 0:
+        return vertices, normals, faces, 0
+    fans = vertex_fans(faces).ravel()
+    corner_v = faces.ravel()
+    pair, corner_pair, size = np.unique(
+        np.stack([corner_v, fans], axis=1), axis=0, return_inverse=True, return_counts=True
+    )
+    corner_pair = corner_pair.reshape(-1)
+    # rank the fans of each vertex: largest first, then by label (deterministic)
+    order = np.lexsort((pair[:, 1], -size, pair[:, 0]))
+    first = np.searchsorted(pair[order, 0], pair[order, 0])
+    rank = np.empty(len(pair), dtype=np.int64)
+    rank[order] = np.arange(len(pair)) - first
+    extra = np.flatnonzero(rank > 0)
+    if len(extra) == 0:
+        return vertices, normals, faces, 0
+    new_id = np.full(len(pair), -1, dtype=np.int64)
+    new_id[extra] = len(vertices) + np.arange(len(extra))
+    # centroid of each extra fan: mean of its faces' centroids
+    face_centre = vertices[faces].mean(axis=1)
+    corner_face = np.repeat(np.arange(len(faces)), 3)
+    sel = new_id[corner_pair] >= 0
+    slot = np.searchsorted(extra, corner_pair[sel])
+    acc = np.zeros((len(extra), 3))
+    np.add.at(acc, slot, face_centre[corner_face[sel]])
+    cnt = np.bincount(slot, minlength=len(extra))[:, None]
+    base = vertices[pair[extra, 0]]
+    new_v = base + SPLIT_SHIFT * (acc / cnt - base)
+    faces = faces.copy().reshape(-1)
+    faces[sel] = new_id[corner_pair[sel]]
+    vertices = np.vstack([vertices, new_v])
+    normals = np.vstack([normals, normals[pair[extra, 0]]])
+    return vertices, normals, faces.reshape(-1, 3), len(extra)
+
+
+def extra_fan_faces(faces: np.ndarray) -> np.ndarray:
+    """Faces of every fan but the largest at each bow-tie vertex: a boolean mask over faces.
+
+    Fans come from :func:`recon.mesh.vertex_fans`, so a vertex where two closed fans touch (a
+    pinch between two sheets) is found as well as one where open fans meet.
+    """
+    drop = np.zeros(len(faces), dtype=bool)
+    if len(faces) == 0:
+        return drop
+    fans = vertex_fans(faces).ravel()
+    pair, corner_pair, size = np.unique(
+        np.stack([faces.ravel(), fans], axis=1), axis=0, return_inverse=True, return_counts=True
+    )
+    corner_pair = corner_pair.reshape(-1)
+    order = np.lexsort((pair[:, 1], -size, pair[:, 0]))
+    first = np.searchsorted(pair[order, 0], pair[order, 0])
+    rank = np.empty(len(pair), dtype=np.int64)
+    rank[order] = np.arange(len(pair)) - first
+    drop[np.flatnonzero(rank[corner_pair] > 0) // 3] = True
+    return drop
+
+
+def repair_non_manifold(
+    vertices: np.ndarray, normals: np.ndarray, faces: np.ndarray, split: bool = True
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A manifold mesh: faces on over-shared edges dropped, then bow-tie vertices repaired.
+
+    With ``split`` every extra fan of a bow-tie vertex gets its own vertex
+    (:func:`split_non_manifold_vertices`: nothing is dropped); without it the extra fans' faces
+    are dropped (:func:`extra_fan_faces`), leaving a hole that hole filling re-triangulates
+    without the shared vertex. Either way every edge ends up in one or two faces and every
+    vertex with one fan.
+    """
+    faces = remove_non_manifold_faces(faces, len(vertices))
+    if not split:
+        for _ in range(NON_MANIFOLD_VERTEX_ROUNDS):
+            bad = extra_fan_faces(faces)
+            if not bad.any():
+                break
+            faces = remove_non_manifold_faces(faces[~bad], len(vertices))
+    vertices, normals, faces, _ = split_non_manifold_vertices(vertices, normals, faces)
+    return vertices, normals, faces
 
 
 def _find(parent: dict[int, int], x: int) -> int:
@@ -274,77 +482,144 @@ def fill_small_holes(
     normals: np.ndarray,
     faces: np.ndarray,
     max_perimeter: float,
-    is_covered: Callable[[np.ndarray], np.ndarray] | None = None,
+    is_covered: Callable[..., np.ndarray] | None = None,
     covered_max_perimeter: float | None = None,
+    scale: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
-    """Close boundary loops whose perimeter is at most ``max_perimeter``.
+    """Close the boundary loops that are gaps of the triangulation rather than real boundaries.
 
-    With ``is_covered`` (centroids (m, 3) -> bool (m,)), loops up to ``covered_max_perimeter``
-    whose interior holds data are closed too: they are gaps of the triangulation, not holes of
-    the surface. Triangles and quads are closed directly (a quad by its shorter diagonal);
-    longer loops by a fan around a new vertex at the loop's centroid. The new faces are wound
-    opposite to the boundary half-edges, so orientation stays consistent.
+    A simple loop (:func:`recon.mesh.boundary_loops`) is closed when
+
+    * its perimeter is at most ``max_perimeter`` (a small hole), or
+    * with ``is_covered`` (points (m, 3) -> bool (m,): does data lie there?): its perimeter is
+      at most ``covered_max_perimeter`` and data lies at its centroid, or
+    * it is a *seam*: narrower than ``max_perimeter / pi`` (:func:`loop_width`, however long)
+      and data lies at ``SEAM_SUPPORT`` of the points across it (:func:`across_points`): the
+      rim is supported by data all round.
+
+    A loop whose rim faces point against the patch that would close it is the outer rim of an
+    open sheet and stays open. Loops are closed by :func:`zip_loop` (no new vertex), wound
+    opposite to the boundary half-edges so that orientation stays consistent.
+
+    ``scale`` (per vertex, default 1) is the local rest spacing: every length limit above is
+    multiplied by the mean scale of the loop's rim, and ``is_covered`` is then called as
+    ``is_covered(points, scale_per_point)``.
+
+    Returns
+    -------
+    vertices, normals, faces, n_filled
+        Vertices and normals are returned unchanged (kept for the callers' symmetry).
     """
     loops = boundary_loops(faces)
-    new_faces = []
-    new_vertices = []
-    new_normals = []
-    n_v = len(vertices)
-    filled = 0
-    perims = np.array(
-        [np.linalg.norm(vertices[lp] - vertices[np.roll(lp, -1)], axis=1).sum() for lp in loops]
+    if not loops:
+        return vertices, normals, faces, 0
+    he = faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
+    rim_face = {(int(a), int(b)): i // 3 for i, (a, b) in enumerate(he)}
+    edge_set = {(min(a, b), max(a, b)) for a, b in rim_face}
+    _, comp = face_components(faces, len(vertices))
+    comp_area = np.bincount(
+        comp, weights=0.5 * np.linalg.norm(face_area_vectors(vertices, faces), axis=1)
     )
-    fill = perims <= max_perimeter
-    if is_covered is not None and covered_max_perimeter is not None and len(loops):
-        cand = np.flatnonzero(~fill & (perims <= covered_max_perimeter))
-        if len(cand):
-            centers = np.array([vertices[loops[i]].mean(axis=0) for i in cand])
-            fill[cand[is_covered(centers)]] = True
-    for loop, do_fill in zip(loops, fill, strict=True):
+
+    def covered(points: np.ndarray, s: float) -> np.ndarray:
+        if scale is None:
+            return np.asarray(is_covered(points))  # type: ignore[misc]
+        return np.asarray(is_covered(points, np.full(len(points), s)))  # type: ignore[misc]
+
+    new_faces = []
+    for loop in loops:
+        if len(loop) < 3:
+            continue
         ring = vertices[loop]
-        if not do_fill or len(loop) < 3:
+        s = float(scale[loop].mean()) if scale is not None else 1.0
+        perim = float(np.linalg.norm(ring - np.roll(ring, -1, axis=0), axis=1).sum())
+        fill = perim <= max_perimeter * s
+        if not fill and is_covered is not None and covered_max_perimeter is not None:
+            if perim <= covered_max_perimeter * s:
+                fill = bool(covered(ring.mean(axis=0)[None], s)[0])
+            if not fill and len(loop) >= 5 and loop_width(ring) <= max_perimeter / np.pi * s:
+                fill = bool(np.mean(covered(across_points(ring), s)) >= SEAM_SUPPORT)
+        if not fill:
             continue
         rev = loop[::-1]
-        # A patch wound this way must face the side the loop's vertex normals face; if it faces
-        # away, the loop is the outer rim of an open sheet (e.g. a small flat patch), and
-        # "filling" it would cap the sheet's back side into a closed double layer.
-        # Only loops whose normals agree (a flat-ish rim) are judged; on a rim whose normals
-        # cancel (a cylinder's open end) the test says nothing and the loop is filled.
+        # A patch wound this way must face the side the rim faces face; if it faces away and
+        # the sheet is not much larger than the patch, the loop is the outer rim of an open
+        # sheet (e.g. a small flat patch), and "filling" it would cap the sheet's back side
+        # into a closed double layer. Only rims whose faces agree (a flat-ish rim) are judged;
+        # on a rim whose normals cancel (a cylinder's open end) the test says nothing.
         centre = ring.mean(axis=0)
         patch_normal = np.cross(vertices[rev] - centre, vertices[np.roll(rev, -1)] - centre).sum(0)
-        rim_normal = normals[loop].sum(axis=0)
+        rim = [rim_face[(int(a), int(b))] for a, b in zip(loop, np.roll(loop, -1), strict=True)]
+        rim_normal = face_normals(vertices, faces[rim]).sum(axis=0)
         agree = float(patch_normal @ rim_normal)
         coherent = np.linalg.norm(rim_normal) > 0.5 * len(loop)
-        if coherent and agree < -0.5 * np.linalg.norm(patch_normal) * np.linalg.norm(rim_normal):
+        against = agree < -0.5 * np.linalg.norm(patch_normal) * np.linalg.norm(rim_normal)
+        # ... unless the sheet is much larger than the patch: then the loop is a fold in it
+        small_sheet = comp_area[comp[rim[0]]] < SHEET_AREA_FACTOR * 0.5 * np.linalg.norm(
+            patch_normal
+        )
+        if coherent and against and small_sheet:
             continue
-        filled += 1
-        if len(loop) == 3:
-            new_faces.append(rev[None, :])
-        elif len(loop) == 4:
-            a, b, c, d = rev
-            if np.linalg.norm(vertices[a] - vertices[c]) <= np.linalg.norm(
-                vertices[b] - vertices[d]
-            ):
-                new_faces.append(np.array([[a, b, c], [a, c, d]]))
-            else:
-                new_faces.append(np.array([[b, c, d], [b, d, a]]))
-        else:
-            center = ring.mean(axis=0)
-            nrm = normals[loop].sum(axis=0)
-            nrm /= max(np.linalg.norm(nrm), 1e-12)
-            idx = n_v + len(new_vertices)
-            new_vertices.append(center)
-            new_normals.append(nrm)
-            k = len(rev)
-            fan = np.stack([rev, np.roll(rev, -1), np.full(k, idx)], axis=1)
-            new_faces.append(fan)
+        new_faces.append(zip_loop(vertices, rev, edge_set))
     if not new_faces:
         return vertices, normals, faces, 0
-    if new_vertices:
-        vertices = np.vstack([vertices, np.asarray(new_vertices)])
-        normals = np.vstack([normals, np.asarray(new_normals)])
-    faces = np.vstack([faces] + [f.astype(np.int64) for f in new_faces])
-    return vertices, normals, faces, filled
+    return vertices, normals, np.vstack([faces, *new_faces]), len(new_faces)
+
+
+def loop_width(ring: np.ndarray) -> float:
+    """Width of a hole: its hydraulic diameter ``4 A / P`` [units of ``ring``].
+
+    ``A`` is the norm of the loop's vector area, ``P`` its perimeter. A round hole's width is
+    its diameter; a slit of width ``w`` (a seam between two growth fronts) has width ``~2 w``
+    however long it is.
+    """
+    nxt = np.roll(ring, -1, axis=0)
+    perimeter = float(np.linalg.norm(nxt - ring, axis=1).sum())
+    area = 0.5 * float(np.linalg.norm(np.cross(ring - ring[0], nxt - ring[0]).sum(axis=0)))
+    return 4.0 * area / perimeter if perimeter > 0 else 0.0
+
+
+def across_points(ring: np.ndarray, min_steps: int = 3) -> np.ndarray:
+    """Points inside a hole: the midpoint from every rim vertex to the nearest rim vertex at
+    least ``min_steps`` along the loop away, and the loop's centroid. If data lies at all of
+    them, the rim is supported by data all round and the hole is a gap of the triangulation.
+    """
+    k = len(ring)
+    d = np.linalg.norm(ring[:, None, :] - ring[None, :, :], axis=2)
+    idx = np.arange(k)
+    steps = np.abs(idx[:, None] - idx[None, :])
+    steps = np.minimum(steps, k - steps)
+    d[steps < min_steps] = np.inf
+    j = np.argmin(d, axis=1)
+    mids = 0.5 * (ring + ring[j])
+    return np.vstack([mids, ring.mean(axis=0)[None]])
+
+
+def zip_loop(
+    vertices: np.ndarray, loop: np.ndarray, edges: set[tuple[int, int]] | None = None
+) -> np.ndarray:
+    """Close a loop (in the winding of the new faces) by repeatedly cutting off the corner
+    with the shortest diagonal: a zipper along a narrow seam, no new vertices. Diagonals that
+    are already ``edges`` (``(lo, hi)`` pairs) of the mesh are avoided. Returns faces.
+    """
+    ring = [int(x) for x in loop]
+    edges = edges if edges is not None else set()
+    out = []
+    while len(ring) > 3:
+        p = vertices[ring]
+        diag = np.linalg.norm(np.roll(p, 1, axis=0) - np.roll(p, -1, axis=0), axis=1)
+        k = len(ring)
+        for i in range(k):
+            a, b = ring[(i - 1) % k], ring[(i + 1) % k]
+            if (min(a, b), max(a, b)) in edges:
+                diag[i] = np.inf
+        i = int(np.argmin(diag))
+        a, b = ring[(i - 1) % k], ring[(i + 1) % k]
+        edges.add((min(a, b), max(a, b)))
+        out.append([ring[(i - 1) % k], ring[i], ring[(i + 1) % k]])
+        del ring[i]
+    out.append(ring)
+    return np.asarray(out, dtype=np.int64)
 
 
 def remove_small_components(

@@ -63,6 +63,8 @@ def test_fit_writes_mesh_report_particles_and_preview(tmp_path):
     assert len(read_points(tmp_path / "p.ply").points) == report["particles"]
     assert (tmp_path / "m.png").stat().st_size > 10_000
     assert "spacing r0" in res.stderr and "min angle" in res.stderr
+    assert "largest hole" in res.stderr and "none (closed)" in res.stderr
+    assert report["topology"]["largest_hole_r0"] == 0.0
 
 
 def test_fit_obj_output_and_json_on_stdout(tmp_path):

@@ -57,6 +57,21 @@ def test_non_manifold_edge_is_magenta(tmp_path):
     assert magenta.sum() > 20
 
 
+def test_bow_tie_vertex_is_circled_in_magenta(tmp_path):
+    from recon.render import non_manifold_vertex_ids
+
+    # two triangles meeting only at vertex 0: no non-manifold edge, one bow-tie vertex
+    v = np.array([[0, 0, 0], [1, 1, 0.1], [1, -1, 0.1], [-1, 1, 0.1], [-1, -1, 0.1]], float)
+    f = np.array([[0, 2, 1], [0, 3, 4]])
+    assert non_manifold_vertex_ids(f).tolist() == [0]
+    assert non_manifold_vertex_ids(f[:1]).tolist() == []
+    out = tmp_path / "bowtie.png"
+    render_mesh_png(out, v, f, size=(600, 300))
+    image = read_png(out)
+    magenta = (image[..., 0] > 0.8) & (image[..., 1] < 0.3) & (image[..., 2] > 0.8)
+    assert magenta.sum() > 20
+
+
 def test_empty_mesh_still_renders(tmp_path):
     out = tmp_path / "empty.png"
     render_mesh_png(out, np.zeros((0, 3)), np.zeros((0, 3), int), size=(300, 200))

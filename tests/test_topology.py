@@ -178,3 +178,18 @@ def test_random_flips_keep_orientability(seed):
         t = mesh_topology(v, f[rng.permutation(len(f))])
         assert t["orientable"] is orientable
         assert t["consistently_oriented"] is False
+
+
+def test_pinched_closed_surfaces_are_not_watertight():
+    # two tetrahedra sharing one vertex: every edge has two faces, but the shared vertex has
+    # two fans, so the standard definition (and Open3D's is_vertex_manifold) says no
+    v = np.array(
+        [[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1], [-1, 0, 0], [0, -1, 0], [0, 0, -1]], float
+    )
+    f = np.array(
+        [[0, 2, 1], [0, 1, 3], [1, 2, 3], [0, 3, 2], [0, 4, 5], [0, 6, 4], [4, 6, 5], [0, 5, 6]]
+    )
+    t = mesh_topology(v, f)
+    assert t["boundary_edges"] == 0 and t["non_manifold_edges"] == 0
+    assert t["non_manifold_vertices"] == 1
+    assert t["watertight"] is False and t["genus"] is None

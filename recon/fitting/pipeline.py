@@ -75,6 +75,11 @@ TRIM_GAP_FRACTION = 0.5
 #: A hole candidate counts as covered by data (and is filled) when the data point nearest to
 #: its projection onto the data lies within this distance [r0].
 HOLE_COVER_DISTANCE = 1.0
+#: The local data spacing is the distance to this many-th nearest data point.
+DENSITY_NEIGHBOURS = 6
+#: ... and only a spacing more than this many times the median counts as sparse: the ball
+#: radii (0.7-2 r0) and the hole tests at r0 already absorb a twofold density variation.
+DENSITY_TOLERANCE = 1.5
 
 
 @dataclass
@@ -130,19 +135,42 @@ def _trim(state: ParticleState, surface: DataSurface, cfg: ReconConfig) -> int:
     return n_trimmed
 
 
+def density_spacing(surface: DataSurface, positions: np.ndarray, max_scale: float) -> np.ndarray:
+    """Per-particle spacing [r0] from the local data density: 1 where the data is less than
+    ``DENSITY_TOLERANCE`` times sparser than its median, up to ``max_scale`` where it is sparser.
+
+    The local point spacing is each data point's distance to its ``DENSITY_NEIGHBOURS``-th
+    neighbour; a particle takes that of its nearest data point, divided by the median and by
+    ``DENSITY_TOLERANCE``.
+    """
+    if max_scale <= 1.0 or surface.n_points <= DENSITY_NEIGHBOURS:
+        return np.ones(len(positions))
+    dk, _ = surface.tree.query(surface.points, DENSITY_NEIGHBOURS + 1)
+    local = dk[:, -1]
+    _, nearest = surface.tree.query(positions)
+    ratio = local[nearest] / max(float(np.median(local)), 1e-12)
+    return np.clip(ratio / DENSITY_TOLERANCE, 1.0, max_scale)
+
+
 def _triangulate(
     state: ParticleState, surface: DataSurface, cfg: ReconConfig
 ) -> TriangulationResult:
-    """Triangulate the particles; holes up to ``max_hole`` (default ``max_gap``) are filled."""
+    """Triangulate the particles; gaps up to ``max_hole`` (default ``max_gap``) are closed,
+    scaled by the local data spacing (``triangulation.max_density_scale``)."""
     tri_cfg = cfg.triangulation
     max_hole = tri_cfg.max_hole if tri_cfg.max_hole is not None else cfg.growth.max_gap
+    spacing = None
+    if tri_cfg.max_density_scale > 1.0:
+        spacing = density_spacing(surface, state.position, tri_cfg.max_density_scale)
     return triangulate_particles(
         state.position,
         state.normal,
         tri_cfg,
         max_hole,
-        is_covered=lambda c: surface.nearest(surface.project(c)[0])[0] < HOLE_COVER_DISTANCE,
-        project=lambda c: surface.project(c)[0],
+        is_covered=lambda c, spacing=1.0: (
+            surface.nearest(surface.project(c)[0])[0] < HOLE_COVER_DISTANCE * spacing
+        ),
+        local_spacing=spacing,
     )
 
 

@@ -218,11 +218,18 @@ class TriangulationStats(_Section):
     faces_manifold: int
     holes_filled: int
     small_components_removed: int
+    vertices_split: int = 0
 
 
 @dataclass(frozen=True)
 class Topology(_Section):
-    """Topology of the mesh: the counts of :func:`recon.topology.mesh_topology`."""
+    """Topology of the mesh: the counts of :func:`recon.topology.mesh_topology`.
+
+    ``watertight`` is the standard definition: every edge in exactly two faces and every
+    vertex's faces forming one fan. ``largest_hole_perimeter`` is in input units (0 when the
+    mesh is closed); ``largest_hole_r0`` is that loop's diameter ``perimeter / pi`` in r0, the
+    unit of ``triangulation.max_hole`` (filled holes have ``perimeter <= pi * max_hole``).
+    """
 
     n_vertices: int
     n_faces: int
@@ -240,6 +247,8 @@ class Topology(_Section):
     degenerate_faces: int
     duplicate_faces: int
     unreferenced_vertices: int
+    largest_hole_perimeter: float = 0.0
+    largest_hole_r0: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -514,7 +523,12 @@ def measure_mesh(
         "within_reach": float(np.mean(d_mesh <= reach)),
     }
     return MeshMeasures(
-        topology=Topology.from_dict(quality["topology"]),
+        topology=Topology.from_dict(
+            {
+                **quality["topology"],
+                "largest_hole_r0": quality["topology"]["largest_hole_perimeter"] / (np.pi * r0),
+            }
+        ),
         triangle_quality=TriangleQuality.from_dict(quality["triangle_quality"]),
         mesh_bbox_diag=quality["mesh_bbox_diag"],
         fidelity=Fidelity.from_dict(fid),
