@@ -189,6 +189,12 @@ class PotentialsConfig(Schema):
         1.0,
         20.0,
     )
+    separate_opposed: bool = option(
+        True,
+        "Particles with opposed normals (n_i . n_j < 0, the two sides of a thin part) feel "
+        "only the repulsive branch of the spacing potential and no orientation terms: "
+        "opposite sheets never attract, align or merge.",
+    )
 
 
 @dataclass(frozen=True)

@@ -25,6 +25,7 @@ References
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
@@ -32,7 +33,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from .kernels import pair_loop as _pl
-from .kernels.lennard_jones import lj_cutoff_values
+from .kernels.lennard_jones import lj_cutoff_values, lj_repulsive_range
 from .kernels.options import thread_limit
 from .kernels.weights import WEIGHT_ANISOTROPIC
 from .neighbors import PARALLEL_MIN_PARTICLES, build_neighbor_list
@@ -86,6 +87,11 @@ class Anchors:
         return cls(p, m, float(stiffness), float(normal_stiffness))
 
 
+@functools.lru_cache(maxsize=64)
+def _repulsive_range(sigma: float, cutoff: float) -> tuple[float, float]:
+    return lj_repulsive_range(sigma, cutoff)
+
+
 def pack_coefficients(
     params: PhysicsParams,
     *,
@@ -109,6 +115,7 @@ def pack_coefficients(
     """
     sigma = lj_minimum(params)
     phi_c, dphi_c = lj_cutoff_values(sigma, params.cutoff)
+    d_m, phi_m = _repulsive_range(float(sigma), float(params.cutoff))
     anchored = anchors is not None
     return Coefficients(
         spacing=float(params.spacing),
@@ -136,6 +143,9 @@ def pack_coefficients(
         anchor_normal_stiffness=float(anchors.normal_stiffness) if anchored else 0.0,
         has_anchors=1.0 if anchored else 0.0,
         has_external_force=1.0 if has_external_force else 0.0,
+        separate_opposed=1.0 if params.separate_opposed else 0.0,
+        lj_repulsive2=float(d_m * d_m),
+        lj_phi_repulsive=float(phi_m),
     )
 
 

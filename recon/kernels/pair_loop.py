@@ -11,7 +11,8 @@ Total energy (DESIGN §1), summed over unordered pairs within the cutoff r_c plu
       + \sum_i E^A_i
 
 (S&T92 eqs. 3–5 and 7, T-thesis eqs. 4.11–4.17; the orientation terms are skipped for pairs with
-an unoriented particle.) Neighbour lists are *full*: each pair appears in both rows, and row i
+an unoriented particle, and pairs with opposed normals keep only the repulsive branch of φ_sf:
+:func:`pair_interaction`.) Neighbour lists are *full*: each pair appears in both rows, and row i
 accumulates only the force and torque on i. Each ``prange`` iteration therefore writes only its
 own row (no races) and sums in a fixed order, so results are bit-identical from run to run.
 
@@ -179,7 +180,9 @@ def pair_interaction(rx, ry, rz, nix, niy, niz, njx, njy, njz, oriented, coef, m
     nix, niy, niz, njx, njy, njz : float64
         Unit normals n_i, n_j (ignored unless ``oriented``).
     oriented : bool
-        Both particles are oriented; otherwise only the spacing term acts (creases).
+        Both particles are oriented; otherwise only the spacing term acts (creases). When both
+        are oriented, their normals are opposed (n_i · n_j < 0) and ``coef.separate_opposed`` is
+        set, only the repulsive branch of the spacing term acts (see Notes).
     coef : recon.params.Coefficients
         Packed parameters, a named tuple of floats (:func:`recon.forces.pack_coefficients`).
     mode : int
@@ -203,12 +206,45 @@ def pair_interaction(rx, ry, rz, nix, niy, niz, njx, njy, njz, oriented, coef, m
     :mod:`~recon.kernels.circularity` (eq. 5), weighted by :mod:`~recon.kernels.weights`
     (eq. 7 for the anisotropic form). For the isotropic weights the three orientation terms are
     evaluated together by :func:`isotropic_orientation_terms` (same values, fewer operations).
+
+    Opposed sheets (n_i · n_j < 0, both oriented, ``separate_opposed``; DESIGN §8): the two
+    sides of a thin part must neither attract nor align, so the pair keeps only the repulsive
+    (Weeks-Chandler-Andersen) branch of the spacing potential,
+
+    .. math::
+
+        E_{ij} = \alpha_{LJ}\,[\phi_\mathrm{sf}(d) - \phi_\mathrm{sf}(d_m)]\ (d < d_m),
+        \qquad E_{ij} = 0\ (d \ge d_m)
+
+    with d_m the minimum of φ_sf (:func:`~recon.kernels.lennard_jones.lj_repulsive_range`).
+    The switch depends on the normals only through the sign of n_i · n_j: forces and torques
+    are the exact gradient of this energy on either side of the switch (torques vanish).
     """
     acc = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     d2 = rx * rx + ry * ry + rz * rz
     if d2 >= coef.cutoff2:
         return acc
     w_lj = coef.w_lj
+    if oriented and coef.separate_opposed != 0.0 and nix * njx + niy * njy + niz * njz < 0.0:
+        # opposed sheets: the repulsive branch only, no orientation terms
+        if w_lj == 0.0 or d2 >= coef.lj_repulsive2:
+            return acc
+        phi, dphi_over_d = lj_pair(
+            d2, coef.lj_sigma2, coef.cutoff, coef.lj_phi_cutoff, coef.lj_dphi_cutoff
+        )
+        c = w_lj * dphi_over_d
+        return (
+            w_lj * (phi - coef.lj_phi_repulsive),
+            c * rx,
+            c * ry,
+            c * rz,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+        )
     if w_lj != 0.0:
         phi, dphi_over_d = lj_pair(
             d2, coef.lj_sigma2, coef.cutoff, coef.lj_phi_cutoff, coef.lj_dphi_cutoff
@@ -437,7 +473,7 @@ def step_particles(
                 sv0 += v0 - velocity[j, 0]
                 sv1 += v1 - velocity[j, 1]
                 sv2 += v2 - velocity[j, 2]
-            if beta3 != 0.0 and oriented:
+            if beta3 != 0.0 and oriented and nix * njx + niy * njy + niz * njz >= 0.0:
                 sw0 += w0 - angular_velocity[j, 0]
                 sw1 += w1 - angular_velocity[j, 1]
                 sw2 += w2 - angular_velocity[j, 2]
