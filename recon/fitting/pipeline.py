@@ -115,7 +115,7 @@ class FitResult:
 def _trim(state: ParticleState, surface: DataSurface, cfg: ReconConfig) -> int:
     """Drop particles off the data (optionally projecting the rest onto it); returns how many."""
     tri_cfg = cfg.triangulation
-    projected, _, offset = surface.project(state.position)
+    projected, _, offset = surface.project(state.position, state.normal)
     dist, _ = surface.nearest(state.position)
     keep = (np.abs(offset) <= tri_cfg.trim_distance) & (
         dist <= TRIM_GAP_FRACTION * cfg.growth.max_gap

@@ -254,7 +254,7 @@ class _Schedule:
             if self.total_steps() >= dyn.max_steps:
                 break
             chunk = min(ANCHOR_REFRESH, n_steps - done, dyn.max_steps - self.total_steps())
-            pts, nrm, _ = self.surface.anchors(state.position)
+            pts, nrm, _ = self.surface.anchors(state.position, state.normal)
             sim.set_anchors(pts, nrm, dyn.fidelity, dyn.fidelity_normal)
             stats = sim.run(chunk)
             if not (
@@ -339,7 +339,7 @@ class _Schedule:
     def make_seeds(self) -> tuple[ParticleState, np.ndarray]:
         s = self.surface
         idx = select_seeds(s.points, self.cfg.seeds.thinning, self.rng)
-        pos, pn, _ = s.project(s.points[idx])
+        pos, pn, _ = s.project(s.points[idx], s.normals[idx])
         cap = self.cfg.dynamics.max_particles
         if len(idx) > cap:
             raise LimitExceeded(
@@ -357,13 +357,17 @@ class _Schedule:
         tree = cKDTree(pos)
         offsets, indices = build_neighbor_list(pos, g.grow_radius)
         frontier = np.diff(offsets) <= g.max_neighbors
-        cands = np.vstack(
-            [
-                grow_candidates(pos, nrm, offsets, indices, g),
-                stretch_candidates(pos, nrm, tree, frontier, g),
-            ]
+        grown, grown_n = grow_candidates(pos, nrm, offsets, indices, g, with_normals=True)
+        mid, mid_n = stretch_candidates(pos, nrm, tree, frontier, g, with_normals=True)
+        acc = accept_candidates(
+            np.vstack([grown, mid]),
+            tree,
+            self.surface,
+            self.seed_tree,
+            self.seed_points,
+            g,
+            normals=np.vstack([grown_n, mid_n]),
         )
-        acc = accept_candidates(cands, tree, self.surface, self.seed_tree, self.seed_points, g)
         added = len(acc.positions)
         room = dyn.max_particles - state.n
         if added > room:
