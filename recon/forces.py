@@ -199,7 +199,8 @@ def accumulate_forces(
     state : ParticleState
     params : PhysicsParams
     neighbors : (offsets, indices), optional
-        A full CSR list with radius ≥ ``params.cutoff``; built here when omitted.
+        A full CSR list with radius ≥ ``params.cutoff · max(state.rest)``; built here when
+        omitted.
     anchors : Anchors, optional
         Anchor term (:mod:`recon.kernels.anchor`).
     external_force : (n, 3) float64, optional
@@ -214,7 +215,8 @@ def accumulate_forces(
     n = state.n
     position = np.ascontiguousarray(state.position)
     if neighbors is None:
-        neighbors = build_neighbor_list(position, params.cutoff)
+        largest = float(np.max(state.rest)) if n else 1.0
+        neighbors = build_neighbor_list(position, params.cutoff * max(largest, 1.0))
     offsets, indices = neighbors
     if offsets.shape != (n + 1,):
         raise ValueError(f"neighbors: expected {n + 1} offsets, got {offsets.shape[0]}")
@@ -243,7 +245,11 @@ def accumulate_forces(
             state_in,
             state_in,
             (np.ascontiguousarray(state.is_pinned), np.ascontiguousarray(state.is_oriented)),
-            (np.ascontiguousarray(state.mass), np.ascontiguousarray(state.inertia)),
+            (
+                np.ascontiguousarray(state.mass),
+                np.ascontiguousarray(state.inertia),
+                np.ascontiguousarray(state.rest),
+            ),
             (offsets, indices),
             position,
             kernel_extras(anchors, ext),
@@ -284,6 +290,7 @@ def evaluate_pair(
     params: PhysicsParams,
     *,
     oriented: bool = True,
+    scale: float = 1.0,
 ) -> PairInteraction:
     """The pair kernel :func:`recon.kernels.pair_loop.pair_interaction` for one pair.
 
@@ -297,6 +304,9 @@ def evaluate_pair(
         Weights select the terms (set the others to 0 to isolate one potential).
     oriented : bool
         Both particles oriented (False: spacing only).
+    scale : float
+        The pair's rest spacing relative to ``params.spacing``, (r_i + r_j)/2 (adaptive
+        spacing: every length of the pair terms is multiplied by it).
 
     Returns
     -------
@@ -319,6 +329,7 @@ def evaluate_pair(
         bool(oriented),
         coef,
         int(params.weighting),
+        float(scale),
     )
     f = np.array(t[1:4])
     return PairInteraction(float(t[0]), f, -f, np.array(t[4:7]), np.array(t[7:10]))

@@ -162,7 +162,7 @@ def integrate_step(
                 state_in,
                 state_out,
                 (state.is_pinned, state.is_oriented),
-                (state.mass, state.inertia),
+                (state.mass, state.inertia, state.rest),
                 neighbors,
                 reference_position,
                 extras,

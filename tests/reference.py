@@ -113,17 +113,25 @@ def anchor_energy(x, n, a, m, k_d, k_n, spacing, oriented=True) -> float:
     return e
 
 
-def system_energy(position, normal, params, sigma, oriented=None, anchors=None) -> float:
-    """Total energy by brute force over all pairs (O(n²))."""
+def system_energy(position, normal, params, sigma, oriented=None, anchors=None, rest=None) -> float:
+    """Total energy by brute force over all pairs (O(n²)).
+
+    ``rest`` (optional, (n,)): rest spacings relative to r0. A pair with s = (rest_i + rest_j)/2
+    has the energy of the pair scaled down by s (every length of the pair terms is s times
+    longer): E_ij(x_i, x_j; s) = E_ij(x_i / s, x_j / s; 1).
+    """
     n = position.shape[0]
     if oriented is None:
         oriented = np.ones(n, dtype=bool)
+    if rest is None:
+        rest = np.ones(n)
     total = 0.0
     for i in range(n):
         for j in range(i + 1, n):
+            s = 0.5 * (rest[i] + rest[j])
             total += pair_energy(
-                position[i],
-                position[j],
+                position[i] / s,
+                position[j] / s,
                 normal[i],
                 normal[j],
                 params,

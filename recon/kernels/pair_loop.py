@@ -170,7 +170,7 @@ def isotropic_orientation_terms(
 
 
 @njit(inline="always", **_JIT)
-def pair_interaction(rx, ry, rz, nix, niy, niz, njx, njy, njz, oriented, coef, mode):
+def pair_interaction(rx, ry, rz, nix, niy, niz, njx, njy, njz, oriented, coef, mode, scale):
     r"""Energy, force on i and torques on i and j of one pair (DESIGN §1 pair energy).
 
     Parameters
@@ -187,6 +187,11 @@ def pair_interaction(rx, ry, rz, nix, niy, niz, njx, njy, njz, oriented, coef, m
         Packed parameters, a named tuple of floats (:func:`recon.forces.pack_coefficients`).
     mode : int
         Weighting mode (:mod:`recon.kernels.weights`).
+    scale : float64
+        s_ij = (r_i + r_j) / 2, the pair's rest spacing relative to r0 (1 for uniform
+        spacing): every length of the pair terms (LJ σ and r_c, the weight widths, the r0 of
+        the orientation terms) is multiplied by s_ij, so that E_ij(r; s) = E_ij(r / s; 1).
+        It is held fixed during a step (not differentiated).
 
     Returns
     -------
@@ -222,15 +227,20 @@ def pair_interaction(rx, ry, rz, nix, niy, niz, njx, njy, njz, oriented, coef, m
     """
     acc = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     d2 = rx * rx + ry * ry + rz * rz
-    if d2 >= coef.cutoff2:
+    s2 = scale * scale
+    if d2 >= coef.cutoff2 * s2:
         return acc
     w_lj = coef.w_lj
     if oriented and coef.separate_opposed != 0.0 and nix * njx + niy * njy + niz * njz < 0.0:
         # opposed sheets: the repulsive branch only, no orientation terms
-        if w_lj == 0.0 or d2 >= coef.lj_repulsive2:
+        if w_lj == 0.0 or d2 >= coef.lj_repulsive2 * s2:
             return acc
         phi, dphi_over_d = lj_pair(
-            d2, coef.lj_sigma2, coef.cutoff, coef.lj_phi_cutoff, coef.lj_dphi_cutoff
+            d2,
+            coef.lj_sigma2 * s2,
+            coef.cutoff * scale,
+            coef.lj_phi_cutoff,
+            coef.lj_dphi_cutoff / scale,
         )
         c = w_lj * dphi_over_d
         return (
@@ -247,7 +257,11 @@ def pair_interaction(rx, ry, rz, nix, niy, niz, njx, njy, njz, oriented, coef, m
         )
     if w_lj != 0.0:
         phi, dphi_over_d = lj_pair(
-            d2, coef.lj_sigma2, coef.cutoff, coef.lj_phi_cutoff, coef.lj_dphi_cutoff
+            d2,
+            coef.lj_sigma2 * s2,
+            coef.cutoff * scale,
+            coef.lj_phi_cutoff,
+            coef.lj_dphi_cutoff / scale,
         )
         c = w_lj * dphi_over_d
         acc = (w_lj * phi, c * rx, c * ry, c * rz, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
@@ -259,12 +273,13 @@ def pair_interaction(rx, ry, rz, nix, niy, niz, njx, njy, njz, oriented, coef, m
     if w_p == 0.0 and w_n == 0.0 and w_c == 0.0:
         return acc
     kappa = coef.kappa
-    s2 = coef.inv_spacing2
+    inv_s2 = 1.0 / s2
     ri = nix * rx + niy * ry + niz * rz
     rj = njx * rx + njy * ry + njz * rz
     psi_i, dpsi_i, psi_j, dpsi_j = pair_weights(
-        d2, ri, rj, mode, coef.inv_cutoff2, coef.inv_2sigma2, kappa
+        d2, ri, rj, mode, coef.inv_cutoff2 * inv_s2, coef.inv_2sigma2 * inv_s2, kappa
     )
+    s2 = coef.inv_spacing2 * inv_s2
     if mode != WEIGHT_ANISOTROPIC:
         t = isotropic_orientation_terms(
             rx, ry, rz, nix, niy, niz, njx, njy, njz, ri, rj, psi_i, dpsi_i, w_p, w_n, w_c, s2
@@ -355,10 +370,11 @@ def step_particles(
         ``integrate``.
     flags : tuple of two (n,) bool
         (is_pinned, is_oriented).
-    inertial : tuple of two (n,) float64
-        (mass, inertia).
+    inertial : tuple of three (n,) float64
+        (mass, inertia, rest): rest spacings relative to r0; a pair uses (rest_i + rest_j)/2
+        (:func:`pair_interaction`).
     neighbors : (offsets (n + 1,) int64, indices (nnz,) int32)
-        Full CSR neighbour list, radius ≥ r_c.
+        Full CSR neighbour list, radius ≥ r_c · max(rest).
     reference_position : (n, 3) float64
         Positions at the last list build (for the skin test) [length].
     extras : tuple of three (m, 3) float64
@@ -390,7 +406,7 @@ def step_particles(
     position, orientation, velocity, angular_velocity = state_in
     position_out, orientation_out, velocity_out, angular_velocity_out = state_out
     is_pinned, is_oriented = flags
-    mass, inertia = inertial
+    mass, inertia, rest = inertial
     offsets, indices = neighbors
     anchor_point, anchor_normal, external = extras
     n = position.shape[0]
@@ -430,6 +446,7 @@ def step_particles(
             status |= STATUS_BAD_INPUT
         nix, niy, niz = quaternion_normal(qw, qx, qy, qz)
         oriented_i = is_oriented[i]
+        rest_i = rest[i]
 
         # ---- pair forces and torques (S&T92 eqs. 3-7) and relative velocity sums
         energy = 0.0
@@ -450,7 +467,8 @@ def step_particles(
             rx = position[j, 0] - x0
             ry = position[j, 1] - x1
             rz = position[j, 2] - x2
-            if rx * rx + ry * ry + rz * rz >= cutoff2:
+            scale = 0.5 * (rest_i + rest[j])
+            if rx * rx + ry * ry + rz * rz >= cutoff2 * scale * scale:
                 continue
             oriented = oriented_i and is_oriented[j]
             if oriented:
@@ -461,7 +479,9 @@ def step_particles(
                 njx = 0.0
                 njy = 0.0
                 njz = 1.0
-            t = pair_interaction(rx, ry, rz, nix, niy, niz, njx, njy, njz, oriented, coef, mode)
+            t = pair_interaction(
+                rx, ry, rz, nix, niy, niz, njx, njy, njz, oriented, coef, mode, scale
+            )
             energy += 0.5 * t[0]
             fx += t[1]
             fy += t[2]
