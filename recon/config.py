@@ -121,6 +121,17 @@ class SeedsConfig(Schema):
         None,
     )
     thinning: float = option(1.0, "Seeds are Poisson-disk thinned to this distance [r0].", 0.3, 5.0)
+    adaptive: bool = option(
+        False,
+        "Adaptive spacing (experimental): each particle's rest spacing follows the local "
+        "feature size of the data (radius of curvature, half the thickness to the opposite "
+        "sheet), not below the local data spacing, clamped to [spacing_min, spacing_max].",
+    )
+    spacing_min: float = option(0.5, "Adaptive spacing: smallest rest spacing [r0].", 0.1, 1.0)
+    spacing_max: float = option(1.5, "Adaptive spacing: largest rest spacing [r0].", 1.0, 4.0)
+    spacing_step: float = option(
+        0.15, "Adaptive spacing: largest relative change of a spacing per round.", 0.01, 1.0
+    )
 
     def check(self, prefix: str) -> None:
         if self.spacing is not None and self.spacing_relative is not None:

@@ -51,8 +51,9 @@ def grow_candidates(
     indices: np.ndarray,
     cfg: GrowthConfig,
     with_normals: bool = False,
+    rest: np.ndarray | None = None,
 ) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
-    """Candidate positions from the growing rule.
+    """Candidate positions from the growing rule (one rest spacing ``rest[i]`` out when given).
 
     Parameters
     ----------
@@ -82,9 +83,13 @@ def grow_candidates(
         count,
     )
     mask = np.arange(MAX_PER_PARTICLE)[None, :] < count[:, None]
+    cands = out[mask]
+    if rest is not None:  # one rest spacing out (adaptive spacing), not one r0
+        parent = np.repeat(np.arange(n), count)
+        cands = position[parent] + (cands - position[parent]) * rest[parent, None]
     if with_normals:
-        return out[mask], np.repeat(normal, count, axis=0)
-    return out[mask]
+        return cands, np.repeat(normal, count, axis=0)
+    return cands
 
 
 def stretch_candidates(
@@ -149,6 +154,7 @@ def accept_candidates(
     cfg: GrowthConfig,
     near_data: float = NEAR_DATA,
     normals: np.ndarray | None = None,
+    rest: np.ndarray | None = None,
 ) -> Acceptance:
     """Filter candidates: spacing from particles and each other, data support, tangent plane.
 
@@ -179,15 +185,17 @@ def accept_candidates(
     empty = Acceptance(np.zeros((0, 3)), np.zeros((0, 3)), m, 0, 0, 0)
     if m == 0:
         return empty
+    radius = cfg.reject_radius * (np.ones(m) if rest is None else rest)
     d_part, _ = particle_tree.query(candidates, k=1, workers=-1)
-    ok = d_part >= cfg.reject_radius
+    ok = d_part >= radius
     n_close = int((~ok).sum())
     c = candidates[ok]
+    radius = radius[ok]
     cn = None if normals is None else normals[ok]
     d_data, nearest = surface.nearest(c)
     supported = d_data <= 0.5 * cfg.max_gap
     n_unsup = int((~supported).sum())
-    c, d_data = c[supported], d_data[supported]
+    c, d_data, radius = c[supported], d_data[supported], radius[supported]
     cn = None if cn is None else cn[supported]
     _, pn, off = surface.project(c, cn)
     on_plane = np.abs(off) < cfg.tangent_tolerance
@@ -195,6 +203,7 @@ def accept_candidates(
         on_plane &= np.einsum("ij,ij->i", pn, cn) > 0.0
     n_off = int((~on_plane).sum())
     c, pn, off, d_data = c[on_plane], pn[on_plane], off[on_plane], d_data[on_plane]
+    radius = radius[on_plane]
     c = c - off[:, None] * pn
     far = d_data > near_data
     if far.any():
@@ -203,15 +212,15 @@ def accept_candidates(
         keep = np.ones(len(c), dtype=bool)
         keep[np.flatnonzero(far)[~inside]] = False
         n_unsup += int((~inside).sum())
-        c, pn = c[keep], pn[keep]
+        c, pn, radius = c[keep], pn[keep], radius[keep]
     if len(c) == 0:
         return Acceptance(c, pn, m, n_close, n_unsup, n_off)
     d_part, _ = particle_tree.query(c, k=1, workers=-1)
-    keep = d_part >= cfg.reject_radius
+    keep = d_part >= radius
     n_close += int((~keep).sum())
-    c, pn = c[keep], pn[keep]
+    c, pn, radius = c[keep], pn[keep], radius[keep]
     if len(c) > 1:
-        mutual = poisson_disk_thin(c, cfg.reject_radius)
+        mutual = poisson_disk_thin(c, float(np.min(radius)))
         n_close += int((~mutual).sum())
         c, pn = c[mutual], pn[mutual]
     return Acceptance(np.ascontiguousarray(c), np.ascontiguousarray(pn), m, n_close, n_unsup, n_off)

@@ -75,3 +75,17 @@ def test_anchors_follow_the_sheet_the_particle_belongs_to():
     # without normals: the nearest data point decides
     foot, _, _ = s.anchors(q)
     assert np.allclose(foot[:, 2], 0.5)
+
+
+def test_feature_spacing_small_on_thin_parts_large_on_flat_ones():
+    from recon.surface import feature_spacing
+
+    pts, nrm = _thin_slab(thickness=1.2, half=8.0)
+    thin = feature_spacing(DataSurface.build(pts, nrm, k=12), 0.5, 1.5)
+    p, n = _noisy_plane(sigma=0.0)
+    flat = feature_spacing(DataSurface.build(p * 0.6, n, k=12), 0.5, 1.5)
+    inner = np.all(np.abs(pts[:, :2]) < 5.0, axis=1)
+    # epsilon x half the thickness = 0.3 r0, floored at the data spacing 0.5
+    assert np.allclose(thin[inner], 0.5)
+    assert np.all((flat >= 0.5) & (flat <= 1.5))
+    assert np.median(flat) == pytest.approx(1.5)

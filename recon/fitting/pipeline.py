@@ -241,6 +241,11 @@ def reconstruct(
         mesh_bbox_diag=measures.mesh_bbox_diag,
         fidelity=measures.fidelity,
         mesh_to_input=measures.mesh_to_input,
+        spacing_range=(
+            (float(state.rest.min() * r0), float(state.rest.max() * r0))
+            if cfg.seeds.adaptive and state.n
+            else None
+        ),
     )
     return FitResult(mesh, particles, report, origin)
 
