@@ -32,6 +32,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from .integrate import kernel_rest
 from .kernels import pair_loop as _pl
 from .kernels.lennard_jones import lj_cutoff_values, lj_repulsive_range
 from .kernels.options import thread_limit
@@ -248,7 +249,7 @@ def accumulate_forces(
             (
                 np.ascontiguousarray(state.mass),
                 np.ascontiguousarray(state.inertia),
-                np.ascontiguousarray(state.rest),
+                kernel_rest(state.rest),
             ),
             (offsets, indices),
             position,

@@ -227,21 +227,34 @@ def pair_interaction(rx, ry, rz, nix, niy, niz, njx, njy, njz, oriented, coef, m
     """
     acc = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     d2 = rx * rx + ry * ry + rz * rz
-    s2 = scale * scale
-    if d2 >= coef.cutoff2 * s2:
+    if scale == 1.0:  # uniform spacing: the packed lengths as they are
+        cut2 = coef.cutoff2
+        cut = coef.cutoff
+        sigma2 = coef.lj_sigma2
+        dphi_c = coef.lj_dphi_cutoff
+        rep2 = coef.lj_repulsive2
+        inv_cut2 = coef.inv_cutoff2
+        inv_2sigma2 = coef.inv_2sigma2
+        s2 = coef.inv_spacing2
+    else:  # every length times s_ij (energies are dimensionless: unchanged)
+        sc2 = scale * scale
+        inv_sc2 = 1.0 / sc2
+        cut2 = coef.cutoff2 * sc2
+        cut = coef.cutoff * scale
+        sigma2 = coef.lj_sigma2 * sc2
+        dphi_c = coef.lj_dphi_cutoff / scale
+        rep2 = coef.lj_repulsive2 * sc2
+        inv_cut2 = coef.inv_cutoff2 * inv_sc2
+        inv_2sigma2 = coef.inv_2sigma2 * inv_sc2
+        s2 = coef.inv_spacing2 * inv_sc2
+    if d2 >= cut2:
         return acc
     w_lj = coef.w_lj
     if oriented and coef.separate_opposed != 0.0 and nix * njx + niy * njy + niz * njz < 0.0:
         # opposed sheets: the repulsive branch only, no orientation terms
-        if w_lj == 0.0 or d2 >= coef.lj_repulsive2 * s2:
+        if w_lj == 0.0 or d2 >= rep2:
             return acc
-        phi, dphi_over_d = lj_pair(
-            d2,
-            coef.lj_sigma2 * s2,
-            coef.cutoff * scale,
-            coef.lj_phi_cutoff,
-            coef.lj_dphi_cutoff / scale,
-        )
+        phi, dphi_over_d = lj_pair(d2, sigma2, cut, coef.lj_phi_cutoff, dphi_c)
         c = w_lj * dphi_over_d
         return (
             w_lj * (phi - coef.lj_phi_repulsive),
@@ -256,13 +269,7 @@ def pair_interaction(rx, ry, rz, nix, niy, niz, njx, njy, njz, oriented, coef, m
             0.0,
         )
     if w_lj != 0.0:
-        phi, dphi_over_d = lj_pair(
-            d2,
-            coef.lj_sigma2 * s2,
-            coef.cutoff * scale,
-            coef.lj_phi_cutoff,
-            coef.lj_dphi_cutoff / scale,
-        )
+        phi, dphi_over_d = lj_pair(d2, sigma2, cut, coef.lj_phi_cutoff, dphi_c)
         c = w_lj * dphi_over_d
         acc = (w_lj * phi, c * rx, c * ry, c * rz, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     if not oriented:
@@ -273,13 +280,9 @@ def pair_interaction(rx, ry, rz, nix, niy, niz, njx, njy, njz, oriented, coef, m
     if w_p == 0.0 and w_n == 0.0 and w_c == 0.0:
         return acc
     kappa = coef.kappa
-    inv_s2 = 1.0 / s2
     ri = nix * rx + niy * ry + niz * rz
     rj = njx * rx + njy * ry + njz * rz
-    psi_i, dpsi_i, psi_j, dpsi_j = pair_weights(
-        d2, ri, rj, mode, coef.inv_cutoff2 * inv_s2, coef.inv_2sigma2 * inv_s2, kappa
-    )
-    s2 = coef.inv_spacing2 * inv_s2
+    psi_i, dpsi_i, psi_j, dpsi_j = pair_weights(d2, ri, rj, mode, inv_cut2, inv_2sigma2, kappa)
     if mode != WEIGHT_ANISOTROPIC:
         t = isotropic_orientation_terms(
             rx, ry, rz, nix, niy, niz, njx, njy, njz, ri, rj, psi_i, dpsi_i, w_p, w_n, w_c, s2
@@ -370,9 +373,9 @@ def step_particles(
         ``integrate``.
     flags : tuple of two (n,) bool
         (is_pinned, is_oriented).
-    inertial : tuple of three (n,) float64
-        (mass, inertia, rest): rest spacings relative to r0; a pair uses (rest_i + rest_j)/2
-        (:func:`pair_interaction`).
+    inertial : tuple of three float64 arrays
+        (mass (n,), inertia (n,), rest): rest spacings relative to r0, (n,) or empty for all
+        ones (the uniform fast path); a pair uses (rest_i + rest_j)/2 (:func:`pair_interaction`).
     neighbors : (offsets (n + 1,) int64, indices (nnz,) int32)
         Full CSR neighbour list, radius ≥ r_c · max(rest).
     reference_position : (n, 3) float64
@@ -407,6 +410,7 @@ def step_particles(
     position_out, orientation_out, velocity_out, angular_velocity_out = state_out
     is_pinned, is_oriented = flags
     mass, inertia, rest = inertial
+    variable_rest = rest.shape[0] > 0
     offsets, indices = neighbors
     anchor_point, anchor_normal, external = extras
     n = position.shape[0]
@@ -446,7 +450,7 @@ def step_particles(
             status |= STATUS_BAD_INPUT
         nix, niy, niz = quaternion_normal(qw, qx, qy, qz)
         oriented_i = is_oriented[i]
-        rest_i = rest[i]
+        rest_i = rest[i] if variable_rest else 1.0
 
         # ---- pair forces and torques (S&T92 eqs. 3-7) and relative velocity sums
         energy = 0.0
@@ -467,8 +471,8 @@ def step_particles(
             rx = position[j, 0] - x0
             ry = position[j, 1] - x1
             rz = position[j, 2] - x2
-            scale = 0.5 * (rest_i + rest[j])
-            if rx * rx + ry * ry + rz * rz >= cutoff2 * scale * scale:
+            scale = 0.5 * (rest_i + rest[j]) if variable_rest else 1.0
+            if rx * rx + ry * ry + rz * rz >= cutoff2 * (scale * scale):
                 continue
             oriented = oriented_i and is_oriented[j]
             if oriented:
