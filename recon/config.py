@@ -107,6 +107,14 @@ class NormalsConfig(Schema):
     orient_k: int = option(
         10, "Neighbours in the orientation graph (Hoppe et al. 1992 MST).", 3, 100
     )
+    thin_parts: float = option(
+        0.0,
+        "Orientation: extra MST cost of neighbour edges that cross the surface (0 = off; 0.3 "
+        "keeps the two faces of thin noisy parts opposed; it costs a few "
+        "% of correctly signed normals on very noisy data).",
+        0.0,
+        5.0,
+    )
     orientation: str = option(
         "auto",
         "Global sign: auto (outward if the surface looks closed, else "
@@ -160,6 +168,17 @@ class SeedsConfig(Schema):
         None,
     )
     thinning: float = option(1.0, "Seeds are Poisson-disk thinned to this distance [r0].", 0.3, 5.0)
+    adaptive: bool = option(
+        False,
+        "Adaptive spacing (experimental): each particle's rest spacing follows the local "
+        "feature size of the data (radius of curvature, half the thickness to the opposite "
+        "sheet), not below the local data spacing, clamped to [spacing_min, spacing_max].",
+    )
+    spacing_min: float = option(0.5, "Adaptive spacing: smallest rest spacing [r0].", 0.1, 1.0)
+    spacing_max: float = option(1.5, "Adaptive spacing: largest rest spacing [r0].", 1.0, 4.0)
+    spacing_step: float = option(
+        0.15, "Adaptive spacing: largest relative change of a spacing per round.", 0.01, 1.0
+    )
 
     def check(self, prefix: str) -> None:
         if self.spacing is not None and self.spacing_relative is not None:
@@ -235,6 +254,12 @@ class PotentialsConfig(Schema):
         "(sigma_n = influence_radius / anisotropy).",
         1.0,
         20.0,
+    )
+    separate_opposed: bool = option(
+        True,
+        "Particles with opposed normals (n_i . n_j < 0, the two sides of a thin part) feel "
+        "only the repulsive branch of the spacing potential and no orientation terms: "
+        "opposite sheets never attract, align or merge.",
     )
 
 

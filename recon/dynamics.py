@@ -179,6 +179,9 @@ class Simulation:
         return self.state.n >= PARALLEL_MIN_PARTICLES
 
     def _rebuild(self) -> None:
+        # the cell grid and list radius follow the largest pair cutoff in use (adaptive spacing)
+        largest = float(np.max(self.state.rest)) if self.state.n else 1.0
+        self._neighbors.cutoff = self.params.cutoff * max(largest, 1.0)
         self._neighbors.build(self.state.position, parallel=self.uses_parallel())
         self.n_rebuilds += 1
         self._needs_rebuild = False

@@ -25,14 +25,16 @@ References
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
 
+from .integrate import kernel_rest
 from .kernels import pair_loop as _pl
-from .kernels.lennard_jones import lj_cutoff_values
+from .kernels.lennard_jones import lj_cutoff_values, lj_repulsive_range
 from .kernels.options import thread_limit
 from .kernels.weights import WEIGHT_ANISOTROPIC
 from .neighbors import PARALLEL_MIN_PARTICLES, build_neighbor_list
@@ -86,6 +88,11 @@ class Anchors:
         return cls(p, m, float(stiffness), float(normal_stiffness))
 
 
+@functools.lru_cache(maxsize=64)
+def _repulsive_range(sigma: float, cutoff: float) -> tuple[float, float]:
+    return lj_repulsive_range(sigma, cutoff)
+
+
 def pack_coefficients(
     params: PhysicsParams,
     *,
@@ -109,6 +116,7 @@ def pack_coefficients(
     """
     sigma = lj_minimum(params)
     phi_c, dphi_c = lj_cutoff_values(sigma, params.cutoff)
+    d_m, phi_m = _repulsive_range(float(sigma), float(params.cutoff))
     anchored = anchors is not None
     return Coefficients(
         spacing=float(params.spacing),
@@ -136,6 +144,9 @@ def pack_coefficients(
         anchor_normal_stiffness=float(anchors.normal_stiffness) if anchored else 0.0,
         has_anchors=1.0 if anchored else 0.0,
         has_external_force=1.0 if has_external_force else 0.0,
+        separate_opposed=1.0 if params.separate_opposed else 0.0,
+        lj_repulsive2=float(d_m * d_m),
+        lj_phi_repulsive=float(phi_m),
     )
 
 
@@ -189,7 +200,8 @@ def accumulate_forces(
     state : ParticleState
     params : PhysicsParams
     neighbors : (offsets, indices), optional
-        A full CSR list with radius ≥ ``params.cutoff``; built here when omitted.
+        A full CSR list with radius ≥ ``params.cutoff · max(state.rest)``; built here when
+        omitted.
     anchors : Anchors, optional
         Anchor term (:mod:`recon.kernels.anchor`).
     external_force : (n, 3) float64, optional
@@ -204,7 +216,8 @@ def accumulate_forces(
     n = state.n
     position = np.ascontiguousarray(state.position)
     if neighbors is None:
-        neighbors = build_neighbor_list(position, params.cutoff)
+        largest = float(np.max(state.rest)) if n else 1.0
+        neighbors = build_neighbor_list(position, params.cutoff * max(largest, 1.0))
     offsets, indices = neighbors
     if offsets.shape != (n + 1,):
         raise ValueError(f"neighbors: expected {n + 1} offsets, got {offsets.shape[0]}")
@@ -233,7 +246,11 @@ def accumulate_forces(
             state_in,
             state_in,
             (np.ascontiguousarray(state.is_pinned), np.ascontiguousarray(state.is_oriented)),
-            (np.ascontiguousarray(state.mass), np.ascontiguousarray(state.inertia)),
+            (
+                np.ascontiguousarray(state.mass),
+                np.ascontiguousarray(state.inertia),
+                kernel_rest(state.rest),
+            ),
             (offsets, indices),
             position,
             kernel_extras(anchors, ext),
@@ -274,6 +291,7 @@ def evaluate_pair(
     params: PhysicsParams,
     *,
     oriented: bool = True,
+    scale: float = 1.0,
 ) -> PairInteraction:
     """The pair kernel :func:`recon.kernels.pair_loop.pair_interaction` for one pair.
 
@@ -287,6 +305,9 @@ def evaluate_pair(
         Weights select the terms (set the others to 0 to isolate one potential).
     oriented : bool
         Both particles oriented (False: spacing only).
+    scale : float
+        The pair's rest spacing relative to ``params.spacing``, (r_i + r_j)/2 (adaptive
+        spacing: every length of the pair terms is multiplied by it).
 
     Returns
     -------
@@ -309,6 +330,7 @@ def evaluate_pair(
         bool(oriented),
         coef,
         int(params.weighting),
+        float(scale),
     )
     f = np.array(t[1:4])
     return PairInteraction(float(t[0]), f, -f, np.array(t[4:7]), np.array(t[7:10]))

@@ -50,17 +50,22 @@ def grow_candidates(
     offsets: np.ndarray,
     indices: np.ndarray,
     cfg: GrowthConfig,
-) -> np.ndarray:
-    """Candidate positions from the growing rule.
+    with_normals: bool = False,
+    rest: np.ndarray | None = None,
+) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
+    """Candidate positions from the growing rule (one rest spacing ``rest[i]`` out when given).
 
     Parameters
     ----------
     position, normal : (n, 3) float64 [r0]
     offsets, indices : CSR neighbour lists within ``cfg.grow_radius``.
+    with_normals : bool
+        Also return each candidate's parent normal (the sheet it grows on).
 
     Returns
     -------
     candidates : (m, 3) float64 [r0]
+    normals : (m, 3) float64, only with ``with_normals``
     """
     n = len(position)
     out = np.zeros((n, MAX_PER_PARTICLE, 3))
@@ -78,38 +83,54 @@ def grow_candidates(
         count,
     )
     mask = np.arange(MAX_PER_PARTICLE)[None, :] < count[:, None]
-    return out[mask]
+    cands = out[mask]
+    if rest is not None:  # one rest spacing out (adaptive spacing), not one r0
+        parent = np.repeat(np.arange(n), count)
+        cands = position[parent] + (cands - position[parent]) * rest[parent, None]
+    if with_normals:
+        return cands, np.repeat(normal, count, axis=0)
+    return cands
 
 
 def stretch_candidates(
-    position: np.ndarray, normal: np.ndarray, tree: cKDTree, frontier: np.ndarray, cfg: GrowthConfig
-) -> np.ndarray:
+    position: np.ndarray,
+    normal: np.ndarray,
+    tree: cKDTree,
+    frontier: np.ndarray,
+    cfg: GrowthConfig,
+    with_normals: bool = False,
+) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
     """Candidate midpoints from the stretching rule, for pairs that involve a frontier particle.
 
-    A pair (i, j) with ``stretch_min <= |x_i - x_j| <= stretch_max`` whose midpoint has no
-    particle within ``stretch_min / 2`` yields the midpoint (S&T92 §6).
+    A pair (i, j) with ``stretch_min <= |x_i - x_j| <= stretch_max`` whose normals agree
+    (``STRETCH_NORMAL_AGREEMENT``) and whose midpoint has no particle within
+    ``stretch_min / 2`` yields the midpoint (S&T92 §6). With ``with_normals`` the pair's mean
+    normal (normalised) is returned too.
     """
+    empty = np.zeros((0, 3))
     idx = np.flatnonzero(frontier)
-    if len(idx) == 0:
-        return np.zeros((0, 3))
-    sub_tree = cKDTree(position[idx])
-    pairs = sub_tree.query_pairs(cfg.stretch_max, output_type="ndarray")
-    if len(pairs) == 0:
-        return np.zeros((0, 3))
-    a, b = idx[pairs[:, 0]], idx[pairs[:, 1]]
+    a = b = np.zeros(0, dtype=np.int64)
+    if len(idx) > 0:
+        sub_tree = cKDTree(position[idx])
+        pairs = sub_tree.query_pairs(cfg.stretch_max, output_type="ndarray")
+        if len(pairs) > 0:
+            a, b = idx[pairs[:, 0]], idx[pairs[:, 1]]
     d = np.linalg.norm(position[a] - position[b], axis=1)
     sel = d >= cfg.stretch_min
     a, b = a[sel], b[sel]
-    if len(a) == 0:
-        return np.zeros((0, 3))
     # the two normals must agree (not two sides of a thin part)
     agree = np.einsum("ij,ij->i", normal[a], normal[b]) > STRETCH_NORMAL_AGREEMENT
     a, b = a[agree], b[agree]
     mid = 0.5 * (position[a] + position[b])
-    if len(mid) == 0:
-        return mid
-    dist, _ = tree.query(mid, k=1, workers=-1)
-    return mid[dist >= 0.5 * cfg.stretch_min]
+    if len(mid) > 0:
+        dist, _ = tree.query(mid, k=1, workers=-1)
+        keep = dist >= 0.5 * cfg.stretch_min
+        mid, a, b = mid[keep], a[keep], b[keep]
+    if not with_normals:
+        return mid if len(mid) else empty
+    m = normal[a] + normal[b]
+    m /= np.maximum(np.linalg.norm(m, axis=1, keepdims=True), 1e-300)
+    return (mid, m) if len(mid) else (empty, empty.copy())
 
 
 @dataclass
@@ -132,8 +153,15 @@ def accept_candidates(
     seed_points: np.ndarray,
     cfg: GrowthConfig,
     near_data: float = NEAR_DATA,
+    normals: np.ndarray | None = None,
+    rest: np.ndarray | None = None,
 ) -> Acceptance:
     """Filter candidates: spacing from particles and each other, data support, tangent plane.
+
+    ``normals`` (optional, (m, 3)): the normal of the sheet each candidate grows on (its
+    parent's). The candidate is then projected onto the data of that sheet (data normals
+    agreeing) and rejected when the data normal there is opposed to it: growth never adds a
+    particle that joins two opposed sheets (the two sides of a thin part).
 
     A candidate is rejected when
 
@@ -157,18 +185,25 @@ def accept_candidates(
     empty = Acceptance(np.zeros((0, 3)), np.zeros((0, 3)), m, 0, 0, 0)
     if m == 0:
         return empty
+    radius = cfg.reject_radius * (np.ones(m) if rest is None else rest)
     d_part, _ = particle_tree.query(candidates, k=1, workers=-1)
-    ok = d_part >= cfg.reject_radius
+    ok = d_part >= radius
     n_close = int((~ok).sum())
     c = candidates[ok]
+    radius = radius[ok]
+    cn = None if normals is None else normals[ok]
     d_data, nearest = surface.nearest(c)
     supported = d_data <= 0.5 * cfg.max_gap
     n_unsup = int((~supported).sum())
-    c, d_data = c[supported], d_data[supported]
-    _, pn, off = surface.project(c)
+    c, d_data, radius = c[supported], d_data[supported], radius[supported]
+    cn = None if cn is None else cn[supported]
+    _, pn, off = surface.project(c, cn)
     on_plane = np.abs(off) < cfg.tangent_tolerance
+    if cn is not None:
+        on_plane &= np.einsum("ij,ij->i", pn, cn) > 0.0
     n_off = int((~on_plane).sum())
     c, pn, off, d_data = c[on_plane], pn[on_plane], off[on_plane], d_data[on_plane]
+    radius = radius[on_plane]
     c = c - off[:, None] * pn
     far = d_data > near_data
     if far.any():
@@ -177,15 +212,15 @@ def accept_candidates(
         keep = np.ones(len(c), dtype=bool)
         keep[np.flatnonzero(far)[~inside]] = False
         n_unsup += int((~inside).sum())
-        c, pn = c[keep], pn[keep]
+        c, pn, radius = c[keep], pn[keep], radius[keep]
     if len(c) == 0:
         return Acceptance(c, pn, m, n_close, n_unsup, n_off)
     d_part, _ = particle_tree.query(c, k=1, workers=-1)
-    keep = d_part >= cfg.reject_radius
+    keep = d_part >= radius
     n_close += int((~keep).sum())
-    c, pn = c[keep], pn[keep]
+    c, pn, radius = c[keep], pn[keep], radius[keep]
     if len(c) > 1:
-        mutual = poisson_disk_thin(c, cfg.reject_radius)
+        mutual = poisson_disk_thin(c, float(np.min(radius)))
         n_close += int((~mutual).sum())
         c, pn = c[mutual], pn[mutual]
     return Acceptance(np.ascontiguousarray(c), np.ascontiguousarray(pn), m, n_close, n_unsup, n_off)

@@ -39,6 +39,9 @@ from .kernels.options import thread_limit
 from .params import Coefficients
 from .state import ParticleState
 
+#: The kernels' ``rest`` for uniform spacing (see :func:`kernel_rest`).
+_NO_REST = np.zeros(0)
+
 
 @dataclass(frozen=True)
 class StepResult:
@@ -98,6 +101,14 @@ def _describe_status(status: int) -> str:
     if status & _pl.STATUS_BAD_OUTPUT:
         parts.append("its new state would be non-finite")
     return "; ".join(parts) or "unknown"
+
+
+def kernel_rest(rest: np.ndarray) -> np.ndarray:
+    """The ``rest`` array of the kernels: the spacings, or an empty array when all are 1 (the
+    kernels then skip the per-pair scale: uniform spacing costs nothing extra)."""
+    if rest.size and np.all(rest == 1.0):
+        return _NO_REST
+    return np.ascontiguousarray(rest)
 
 
 def integrate_step(
@@ -162,7 +173,7 @@ def integrate_step(
                 state_in,
                 state_out,
                 (state.is_pinned, state.is_oriented),
-                (state.mass, state.inertia),
+                (state.mass, state.inertia, kernel_rest(state.rest)),
                 neighbors,
                 reference_position,
                 extras,

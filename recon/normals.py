@@ -229,8 +229,15 @@ def _fibonacci_directions(m: int = 25) -> np.ndarray:
 _DIRECTIONS = _fibonacci_directions()
 
 
-def _knn_graph(points: np.ndarray, normals: np.ndarray, k: int) -> sparse.csr_matrix:
-    """Symmetric k-NN graph with Hoppe's cost ``1 - |n_i . n_j| + eps``."""
+def _knn_graph(
+    points: np.ndarray, normals: np.ndarray, k: int, across_cost: float = 0.0
+) -> sparse.csr_matrix:
+    """Symmetric k-NN graph with Hoppe's cost ``1 - |n_i . n_j| + eps``.
+
+    ``across_cost`` > 0 adds ``across_cost * a^2`` for edges that cross the surface, with a the
+    mean of ``|u . n_i|`` and ``|u . n_j|`` (u the unit edge direction): the two faces of a thin
+    part, whose PCA normals agree when a neighbourhood spans both, are then not joined across
+    the gap (which orients one face inward). It also perturbs the tree on very noisy data."""
     n = points.shape[0]
     k_eff = int(min(k, n - 1))
     _, idx = cKDTree(points).query(points, k=k_eff + 1, workers=-1)
@@ -240,6 +247,14 @@ def _knn_graph(points: np.ndarray, normals: np.ndarray, k: int) -> sparse.csr_ma
     rows, cols = rows[keep], cols[keep]
     dots = np.einsum("ij,ij->i", normals[rows], normals[cols])
     cost = np.clip(1.0 - np.abs(dots), 0.0, None) + _EDGE_EPSILON
+    if across_cost > 0.0:
+        u = points[cols] - points[rows]
+        u /= np.maximum(np.linalg.norm(u, axis=1, keepdims=True), 1e-300)
+        a = 0.5 * (
+            np.abs(np.einsum("ij,ij->i", u, normals[rows]))
+            + np.abs(np.einsum("ij,ij->i", u, normals[cols]))
+        )
+        cost = cost + across_cost * a * a
     g = sparse.coo_matrix((cost, (rows, cols)), shape=(n, n)).tocsr()
     return g.maximum(g.T).tocsr()
 
@@ -371,8 +386,12 @@ def orient_normals(
     k: int = 10,
     orientation: str = "auto",
     viewpoint: np.ndarray | None = None,
+    across_cost: float = 0.0,
 ) -> tuple[np.ndarray, OrientationInfo]:
     """Consistently orient normals (Hoppe et al. 1992 MST propagation, then a global sign).
+
+    ``across_cost`` (``normals.thin_parts``): extra MST cost of edges that cross the surface
+    (see ``_knn_graph``), so thin parts keep their two faces opposed.
 
     Parameters
     ----------
@@ -419,7 +438,7 @@ def orient_normals(
     if n < 2:
         return nrm.copy(), OrientationInfo(orientation, n, n, {"none": n}, 0.0)
 
-    graph = _knn_graph(pts, nrm, k)
+    graph = _knn_graph(pts, nrm, k, across_cost)
     sign, labels, n_comp = _propagate_signs(nrm, graph, _REGION_TAU)
     oriented = nrm * sign[:, None]
     sizes = np.bincount(labels, minlength=n_comp)
@@ -569,7 +588,12 @@ def compute_normals(cloud: PointCloud, cfg: NormalsConfig) -> tuple[np.ndarray, 
         if cfg.viewpoint is not None:
             viewpoint = np.asarray(cfg.viewpoint, dtype=np.float64) - cloud.origin
         normals, oinfo = orient_normals(
-            pts, normals, k=cfg.orient_k, orientation=cfg.orientation, viewpoint=viewpoint
+            pts,
+            normals,
+            k=cfg.orient_k,
+            orientation=cfg.orientation,
+            viewpoint=viewpoint,
+            across_cost=cfg.thin_parts,
         )
         info = {"source": "estimated", "n_filled": 0, "k": k, "radius": cfg.radius}
         odict = oinfo.as_dict()

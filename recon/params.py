@@ -88,6 +88,12 @@ class Coefficients(NamedTuple):
     """1.0 when the anchor term is on."""
     has_external_force: float
     """1.0 when an external force is added."""
+    separate_opposed: float
+    """1.0: pairs with n_i · n_j < 0 keep only the repulsive LJ branch (opposed sheets)."""
+    lj_repulsive2: float
+    """d_m², the squared minimum of φ_sf: the repulsive branch is d < d_m."""
+    lj_phi_repulsive: float
+    """φ_sf(d_m), subtracted from the repulsive branch so that it vanishes at d_m."""
 
 
 @functools.lru_cache(maxsize=64)
@@ -154,6 +160,10 @@ class PhysicsParams(Schema):
     lj_minimum : float or None
         σ of the 4-2 potential [length]; None (default) calibrates it so that the flat
         hexagonal lattice rests at ``spacing`` (:func:`recon.kernels.calibrate_lj_minimum`).
+    separate_opposed : bool
+        Pairs of oriented particles with opposed normals (n_i · n_j < 0: two sides of a thin
+        part) feel only the repulsive branch of the spacing potential and no orientation
+        terms, so opposite sheets never attract or align.
     """
 
     spacing: float = option(doc="Rest spacing r0 [length].", **_POSITIVE)
@@ -174,6 +184,7 @@ class PhysicsParams(Schema):
     max_rotation: float = option(doc="Per-step rotation cap [rad].", hi=math.pi, **_POSITIVE)
     skin: float = option(doc="Neighbour-list skin [length].", **_POSITIVE)
     lj_minimum: float | None = option(None, "sigma of the 4-2 potential [length].", **_POSITIVE)
+    separate_opposed: bool = option(True, "Opposed pairs: repulsion only.")
 
     def __post_init__(self) -> None:
         if isinstance(self.weighting, str):
@@ -232,6 +243,7 @@ class PhysicsParams(Schema):
             max_displacement=d.max_displacement * spacing,
             max_rotation=math.radians(d.max_rotation_deg),
             skin=d.skin * spacing,
+            separate_opposed=p.separate_opposed,
         )
 
     @property

@@ -3,8 +3,10 @@
 :class:`ParticleState` holds, for n particles, ``position (n, 3)``, ``orientation (n, 4)``
 (unit quaternion w, x, y, z whose rotation R has the particle normal as third column),
 ``velocity (n, 3)``, ``angular_velocity (n, 3)`` (world frame), ``is_pinned (n,)``,
-``is_oriented (n,)``, ``mass (n,)`` and ``inertia (n,)`` (scalar moment of inertia). The normal
-is derived from the orientation, never stored.
+``is_oriented (n,)``, ``mass (n,)``, ``inertia (n,)`` (scalar moment of inertia) and
+``rest (n,)``, each particle's rest spacing relative to r0 (1 by default; adaptive spacing,
+DESIGN §8: a pair rests at (rest_i + rest_j)/2 · r0). The normal is derived from the
+orientation, never stored.
 
 Every array lives in a buffer of some capacity ≥ n; the properties return views of the first n
 rows. Adding particles grows the capacity geometrically, so appending k particles at a time
@@ -80,6 +82,7 @@ class ParticleState:
         self._is_oriented = np.ones(capacity, dtype=np.bool_)
         self._mass = np.ones(capacity)
         self._inertia = np.ones(capacity)
+        self._rest = np.ones(capacity)
 
     _BUFFERS = (
         "_position",
@@ -90,6 +93,7 @@ class ParticleState:
         "_is_oriented",
         "_mass",
         "_inertia",
+        "_rest",
     )
 
     def reserve(self, capacity: int) -> None:
@@ -199,6 +203,18 @@ class ParticleState:
         self._assign("_inertia", values)
 
     @property
+    def rest(self) -> np.ndarray:
+        """(n,) float64 rest spacings relative to r0 (a view; held fixed during a step)."""
+        return self._view("_rest")
+
+    @rest.setter
+    def rest(self, values) -> None:
+        arr = np.asarray(values, dtype=np.float64)
+        if np.any(~(arr > 0)) or not np.all(np.isfinite(arr)):
+            raise ValueError("rest: spacings must be positive and finite")
+        self._assign("_rest", arr)
+
+    @property
     def normal(self) -> np.ndarray:
         """(n, 3) float64 unit normals, the third column of R(orientation) (a new array)."""
         return normals_from_quaternions(self.orientation)
@@ -251,6 +267,7 @@ class ParticleState:
         oriented: bool | np.ndarray | None = None,
         mass: float | np.ndarray = 1.0,
         inertia: float | np.ndarray = 1.0,
+        rest: float | np.ndarray = 1.0,
     ) -> np.ndarray:
         """Append particles at rest; return their indices.
 
@@ -267,6 +284,8 @@ class ParticleState:
             Default: True when normals are given, else False.
         mass, inertia : float or (k,) float64
             Default 1 (DESIGN §3: m = I = 1).
+        rest : float or (k,) float64
+            Rest spacing relative to r0 (default 1).
 
         Returns
         -------
@@ -293,8 +312,9 @@ class ParticleState:
         is_pinned = _per_particle("pinned", pinned, k, bool)
         masses = _per_particle("mass", mass, k, np.float64)
         inertias = _per_particle("inertia", inertia, k, np.float64)
-        if np.any(~(masses > 0)) or np.any(~(inertias > 0)):
-            raise ValueError("mass and inertia must be positive and finite")
+        rests = _per_particle("rest", rest, k, np.float64)
+        if np.any(~(masses > 0)) or np.any(~(inertias > 0)) or np.any(~(rests > 0)):
+            raise ValueError("mass, inertia and rest must be positive and finite")
         start = self._n
         stop = start + k
         if stop > self.capacity:
@@ -307,6 +327,7 @@ class ParticleState:
         self._is_oriented[start:stop] = is_oriented
         self._mass[start:stop] = masses
         self._inertia[start:stop] = inertias
+        self._rest[start:stop] = rests
         self._n = stop
         return np.arange(start, stop, dtype=np.int64)
 

@@ -31,7 +31,11 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .kernels.local_surface import fit_quadrics_kernel, max_angular_gap_kernel
+from .kernels.local_surface import fit_quadrics_kernel, max_angular_gap_kernel, select_agreeing
+
+#: Nearest data points searched for one whose normal agrees with a particle's
+#: (:meth:`DataSurface.nearest_agreeing`).
+AGREE_K = 8
 
 
 @dataclass
@@ -71,7 +75,10 @@ class DataSurface:
         normals = np.ascontiguousarray(normals, dtype=np.float64)
         tree = cKDTree(points)
         k = int(min(max(k, 3), len(points)))
-        _, idx = tree.query(points, k=k, workers=-1)
+        # twice the neighbours, of which the first k on the same sheet (normals agreeing) fit
+        k_query = int(min(2 * k, len(points)))
+        _, idx = tree.query(points, k=k_query, workers=-1)
+        idx = select_agreeing(normals, np.ascontiguousarray(idx.reshape(len(points), -1)), k)
         pp, pn, tangents, quadrics, residual = fit_local_quadrics(points, normals, idx)
         return cls(points, normals, pp, pn, tangents, quadrics, float(np.median(residual)), tree)
 
@@ -84,15 +91,36 @@ class DataSurface:
         dist, idx = self.tree.query(query, k=1, workers=-1)
         return dist, idx
 
-    def anchors(self, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def nearest_agreeing(
+        self, query: np.ndarray, normals: np.ndarray | None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Distance [r0] and index of the nearest data point whose normal agrees with
+        ``normals`` (n_q . n > 0: the same sheet of a thin part); the nearest point when none of
+        the ``AGREE_K`` nearest agrees or ``normals`` is None."""
+        if normals is None or len(query) == 0:
+            return self.nearest(query)
+        k = int(min(AGREE_K, self.n_points))
+        dist, idx = self.tree.query(query, k=k, workers=-1)
+        dist = dist.reshape(len(query), k)
+        idx = idx.reshape(len(query), k)
+        agree = np.einsum("ijk,ik->ij", self.normals[idx], normals) > 0.0
+        first = np.where(agree.any(axis=1), np.argmax(agree, axis=1), 0)
+        rows = np.arange(len(query))
+        return dist[rows, first], idx[rows, first]
+
+    def anchors(
+        self, positions: np.ndarray, normals: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Foot point and normal on the local surface nearest to each position, and the
         distance to the nearest data point [r0].
 
-        The local surface is the quadric height field of the nearest data point; the foot point
-        is the vertical projection in its frame, and the normal is the quadric's normal there
-        (so a point-to-plane pull toward (foot, normal) pulls onto the curved surface).
+        The local surface is the quadric height field of the nearest data point (with
+        ``normals``: the nearest whose normal agrees, so that a particle on one side of a thin
+        part is never pulled onto the other side); the foot point is the vertical projection in
+        its frame, and the normal is the quadric's normal there (so a point-to-plane pull
+        toward (foot, normal) pulls onto the curved surface).
         """
-        dist, idx = self.nearest(positions)
+        dist, idx = self.nearest_agreeing(positions, normals)
         foot, nrm = _quadric_foot(
             positions,
             self.plane_points[idx],
@@ -102,13 +130,15 @@ class DataSurface:
         )
         return foot, nrm, dist
 
-    def project(self, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Project positions onto the local data surface.
+    def project(
+        self, positions: np.ndarray, normals: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Project positions onto the local data surface (of the sheet ``normals`` agree with).
 
         Returns the projected positions, the surface normals, and the signed offset along the
         normal before projection [r0].
         """
-        p, n, _ = self.anchors(positions)
+        p, n, _ = self.anchors(positions, normals)
         offset = np.einsum("ij,ij->i", positions - p, n)
         return positions - offset[:, None] * n, n, offset
 
@@ -207,3 +237,47 @@ def max_angular_gap(
         np.ascontiguousarray(nbr),
         count,
     )
+
+
+def feature_spacing(
+    surface: DataSurface,
+    spacing_min: float,
+    spacing_max: float,
+    epsilon: float = 0.5,
+    k: int = 16,
+) -> np.ndarray:
+    """Target rest spacing [r0] at each data point from the local feature size (DESIGN §8).
+
+    LFS = min(1/kappa_max of the local quadric, t/2) with t the thickness to the opposite sheet
+    (data behind the point with opposed normals, n_q . n < -0.5); the spacing is epsilon x LFS
+    (Amenta & Bern's epsilon-sampling), not below the local data spacing (a sheet cannot be
+    finer than the samples that support it: sparse regions get larger particles), clamped
+    to [spacing_min, spacing_max] and smoothed by the median over the k nearest points.
+    """
+    pts, nrm = surface.points, surface.normals
+    k = int(min(k, len(pts)))
+    dist, idx = surface.tree.query(pts, k=k, workers=-1)
+    dist = dist.reshape(len(pts), k)
+    idx = idx.reshape(len(pts), k)
+    # the local data spacing [r0]: the median nearest-neighbour distance scaled by the local
+    # reach of the k nearest points relative to its median (robust to single close pairs)
+    reach = dist[:, -1]
+    density = reach / max(float(np.median(reach)), 1e-300) * float(np.median(dist[:, 1]))
+    a = surface.quadrics
+    # principal curvatures of h(x, y) at the frame origin: eigenvalues of [[2a3, a4], [a4, 2a5]]
+    half_trace = a[:, 3] + a[:, 5]
+    root = np.sqrt((a[:, 3] - a[:, 5]) ** 2 + a[:, 4] ** 2)
+    kappa = np.abs(half_trace) + root
+    lfs = 1.0 / np.maximum(kappa, 1e-12)
+    # thickness: nearest opposed data behind the point, within 4 spacing_max
+    k_far = int(min(3 * k, len(pts)))
+    far, fidx = surface.tree.query(pts, k=k_far, distance_upper_bound=4.0 * spacing_max, workers=-1)
+    far = far.reshape(len(pts), k_far)
+    fidx = np.where(np.isfinite(far), fidx.reshape(len(pts), k_far), 0)
+    offset = np.einsum("ijk,ik->ij", pts[fidx] - pts[:, None, :], nrm)
+    opposed = (np.einsum("ijk,ik->ij", nrm[fidx], nrm) < -0.5) & (offset < 0) & np.isfinite(far)
+    thick = np.where(opposed, -offset, np.inf).min(axis=1)
+    lfs = np.minimum(lfs, 0.5 * thick)
+    target = np.clip(epsilon * lfs, np.maximum(spacing_min, density), spacing_max)
+    target = np.clip(target, spacing_min, spacing_max)
+    return np.median(target[idx], axis=1)

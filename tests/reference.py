@@ -35,6 +35,22 @@ def lj_energy(d: float, sigma: float, cutoff: float) -> float:
     return phi(d) - phi(cutoff) - (d - cutoff) * dphi(cutoff)
 
 
+def lj_repulsive_energy(d: float, sigma: float, cutoff: float) -> float:
+    """Repulsive (WCA) branch of the shifted-force potential: φ_sf(d) − min φ_sf, 0 past it."""
+    from scipy.optimize import minimize_scalar
+
+    res = minimize_scalar(
+        lambda x: lj_energy(x, sigma, cutoff),
+        bounds=(0.5 * sigma, cutoff),
+        method="bounded",
+        options={"xatol": 1e-13},
+    )
+    d_m, e_m = float(res.x), float(res.fun)
+    if d >= d_m:
+        return 0.0
+    return lj_energy(d, sigma, cutoff) - e_m
+
+
 def weight(q: float, mode: int, cutoff: float, sigma: float) -> float:
     """ψ as a function of the squared (possibly anisotropic) distance q."""
     t = 1.0 - q / cutoff**2
@@ -63,11 +79,18 @@ def directed_weight(r, n, params) -> float:
 
 
 def pair_energy(x_i, x_j, n_i, n_j, params, sigma: float, oriented: bool = True) -> float:
-    """E_ij of DESIGN §1 with the directed (anisotropic) weights."""
+    """E_ij of DESIGN §1 with the directed (anisotropic) weights.
+
+    With ``params.separate_opposed`` a pair of opposed normals (n_i · n_j < 0) keeps only the
+    repulsive branch of the spacing term (DESIGN §8).
+    """
     r = np.asarray(x_j, dtype=float) - np.asarray(x_i, dtype=float)
     d = float(np.linalg.norm(r))
     if d >= params.cutoff:
         return 0.0
+    if oriented and getattr(params, "separate_opposed", False) and float(n_i @ n_j) < 0.0:
+        # opposed sheets: the repulsive branch of the spacing term only
+        return params.w_lj * lj_repulsive_energy(d, sigma, params.cutoff)
     e = params.w_lj * lj_energy(d, sigma, params.cutoff)
     if not oriented:
         return e
@@ -90,17 +113,25 @@ def anchor_energy(x, n, a, m, k_d, k_n, spacing, oriented=True) -> float:
     return e
 
 
-def system_energy(position, normal, params, sigma, oriented=None, anchors=None) -> float:
-    """Total energy by brute force over all pairs (O(n²))."""
+def system_energy(position, normal, params, sigma, oriented=None, anchors=None, rest=None) -> float:
+    """Total energy by brute force over all pairs (O(n²)).
+
+    ``rest`` (optional, (n,)): rest spacings relative to r0. A pair with s = (rest_i + rest_j)/2
+    has the energy of the pair scaled down by s (every length of the pair terms is s times
+    longer): E_ij(x_i, x_j; s) = E_ij(x_i / s, x_j / s; 1).
+    """
     n = position.shape[0]
     if oriented is None:
         oriented = np.ones(n, dtype=bool)
+    if rest is None:
+        rest = np.ones(n)
     total = 0.0
     for i in range(n):
         for j in range(i + 1, n):
+            s = 0.5 * (rest[i] + rest[j])
             total += pair_energy(
-                position[i],
-                position[j],
+                position[i] / s,
+                position[j] / s,
                 normal[i],
                 normal[j],
                 params,

@@ -1,4 +1,5 @@
 import numpy as np
+import pytest
 from scipy.spatial import cKDTree
 
 from recon.config import GrowthConfig
@@ -113,3 +114,53 @@ def test_candidates_too_close_to_particles_or_each_other_are_thinned():
     cands = np.array([[0.0, 0.0, 0.0], [0.3, 0.0, 0.0], [1.99, 0.0, 0.0]])
     acc = _accept(s, cands, particles)
     assert len(acc.positions) == 1  # second is too close to the first, third to a particle
+
+
+def test_growth_never_joins_two_opposed_sheets():
+    """A candidate grown from the top sheet of a thin slab, nearest to the bottom sheet's data,
+    lands on the top sheet (data of its own sheet) or nowhere, never on the bottom sheet."""
+    g = np.arange(-6.0, 6.0 + 1e-9, 0.5)
+    xy = np.stack(np.meshgrid(g, g), -1).reshape(-1, 2)
+    top = np.column_stack([xy, np.full(len(xy), 0.6)])
+    bottom = np.column_stack([xy, np.full(len(xy), -0.6)])
+    pts = np.vstack([top, bottom])
+    nrm = np.vstack([np.tile([0.0, 0, 1], (len(xy), 1)), np.tile([0.0, 0, -1], (len(xy), 1))])
+    s = DataSurface.build(pts, nrm, k=12)
+    cand = np.array([[0.1, 0.1, -0.1]])
+    particles = np.array([[3.0, 3.0, 0.6], [3.0, 3.0, -0.6]])
+    cfg = GrowthConfig(max_gap=4.0, tangent_tolerance=1.0)
+    tree = cKDTree(s.points)
+    acc = accept_candidates(
+        cand, cKDTree(particles), s, tree, s.points, cfg, normals=np.array([[0.0, 0, 1]])
+    )
+    assert len(acc.positions) == 1
+    assert acc.positions[0, 2] == pytest.approx(0.6) and acc.normals[0, 2] > 0.99
+    # without the parent normal the nearest (opposed) sheet takes it
+    acc = accept_candidates(cand, cKDTree(particles), s, tree, s.points, cfg)
+    assert acc.positions[0, 2] == pytest.approx(-0.6)
+    # deep in the other sheet's data (no agreeing data nearby): rejected, not joined
+    deep = np.array([[0.1, 0.1, -0.5]])
+    acc = accept_candidates(
+        deep, cKDTree(particles), s, tree, s.points, cfg, normals=np.array([[0.0, 0, 1]])
+    )
+    assert len(acc.positions) == 0 and acc.n_off_plane == 1
+
+
+def test_candidates_carry_their_parent_normals():
+    pos = np.array([[0.0, 0.0, 0.0], [10.0, 0.0, 0.0]])
+    nrm = np.array([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0]])
+    offsets = np.zeros(3, dtype=np.int64)
+    cands, normals = grow_candidates(
+        pos, nrm, offsets, np.zeros(0, dtype=np.int32), GrowthConfig(), with_normals=True
+    )
+    assert (
+        len(cands) == 12 and np.allclose(normals[:6], nrm[0]) and np.allclose(normals[6:], nrm[1])
+    )
+    pair = np.array([[0.0, 0.0, 0.0], [2.2, 0.0, 0.0]])
+    both = np.array([[0.0, 0.0, 1.0], [0.0, 0.6, 0.8]])
+    mid, mid_n = stretch_candidates(
+        pair, both, cKDTree(pair), np.array([True, True]), GrowthConfig(), with_normals=True
+    )
+    assert len(mid) == 1 and np.allclose(
+        mid_n[0], (both[0] + both[1]) / np.linalg.norm(both[0] + both[1])
+    )

@@ -196,3 +196,17 @@ def test_in_memory_report_has_no_paths():
     assert d["fidelity"] == rep.fidelity.to_dict() and "within_r0" in d["fidelity"]
     assert list(d["time_s"]) == ["normals", "setup", "grow", "release", "triangulate", "report"]
     assert d["history"]["step"] == list(rep.history.step)
+
+
+def test_adaptive_spacing_uses_larger_particles_on_flat_data_and_reports_the_range():
+    pts = _square_with_hole(n=3000, hole=0.0)
+    uniform = fit(pts, load_config(overrides=FAST))
+    adaptive = fit(pts, load_config(overrides=[*FAST, "seeds.adaptive=true"]))
+    assert uniform.report.spacing_range is None
+    lo, hi = adaptive.report.spacing_range
+    r0 = adaptive.report.spacing
+    assert r0 * 0.5 - 1e-12 <= lo <= hi <= r0 * 1.5 + 1e-12
+    assert hi > 1.2 * r0  # flat, well-sampled: larger particles ...
+    assert adaptive.report.particles < 0.9 * uniform.report.particles  # ... fewer of them
+    back = FitReport.from_dict(json.loads(dumps(adaptive.report.to_dict())))
+    assert back.spacing_range == adaptive.report.spacing_range

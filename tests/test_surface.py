@@ -1,4 +1,5 @@
 import numpy as np
+import pytest
 from scipy.spatial import cKDTree
 
 from recon.surface import DataSurface, max_angular_gap
@@ -40,3 +41,51 @@ def test_angular_gap_inside_vs_past_the_boundary():
     gap = max_angular_gap(centers, up, tree, pts, radius=5.0)
     assert gap[0] < np.deg2rad(90)
     assert gap[1] >= np.pi
+
+
+def _thin_slab(thickness=1.0, spacing=0.5, half=6.0):
+    """Two parallel sheets at z = +-thickness/2 (normalised units), normals pointing out."""
+    g = np.arange(-half, half + 1e-9, spacing)
+    xy = np.stack(np.meshgrid(g, g), -1).reshape(-1, 2)
+    top = np.column_stack([xy, np.full(len(xy), 0.5 * thickness)])
+    bottom = np.column_stack([xy + 0.5 * spacing, np.full(len(xy), -0.5 * thickness)])
+    pts = np.vstack([top, bottom])
+    nrm = np.vstack([np.tile([0.0, 0, 1], (len(xy), 1)), np.tile([0.0, 0, -1], (len(xy), 1))])
+    return pts, nrm
+
+
+def test_local_fits_of_a_thin_slab_stay_on_their_own_sheet():
+    """Regression: a neighbourhood spanning both sides of a thin part put the local surface in
+    the middle of the part, pulling both sheets onto one (plate-noise025)."""
+    pts, nrm = _thin_slab()
+    s = DataSurface.build(pts, nrm, k=30)  # 30 neighbours reach across the 1 r0 gap
+    inner = np.all(np.abs(pts[:, :2]) < 4.0, axis=1)
+    assert np.allclose(s.plane_points[inner, 2], pts[inner, 2], atol=1e-9)
+    assert np.all(np.einsum("ij,ij->i", s.plane_normals, nrm) > 0.99)
+    assert s.noise < 1e-6
+
+
+def test_anchors_follow_the_sheet_the_particle_belongs_to():
+    pts, nrm = _thin_slab()
+    s = DataSurface.build(pts, nrm, k=30)
+    q = np.array([[0.1, 0.2, 0.3], [0.1, 0.2, 0.3]])  # nearer the top sheet
+    foot, n, _ = s.anchors(q, np.array([[0.0, 0.0, 1.0], [0.0, 0.0, -1.0]]))
+    assert foot[0, 2] == pytest.approx(0.5) and n[0, 2] > 0.99
+    assert foot[1, 2] == pytest.approx(-0.5) and n[1, 2] < -0.99
+    # without normals: the nearest data point decides
+    foot, _, _ = s.anchors(q)
+    assert np.allclose(foot[:, 2], 0.5)
+
+
+def test_feature_spacing_small_on_thin_parts_large_on_flat_ones():
+    from recon.surface import feature_spacing
+
+    pts, nrm = _thin_slab(thickness=1.2, half=8.0)
+    thin = feature_spacing(DataSurface.build(pts, nrm, k=12), 0.5, 1.5)
+    p, n = _noisy_plane(sigma=0.0)
+    flat = feature_spacing(DataSurface.build(p * 0.6, n, k=12), 0.5, 1.5)
+    inner = np.all(np.abs(pts[:, :2]) < 5.0, axis=1)
+    # epsilon x half the thickness = 0.3 r0, floored at the data spacing 0.5
+    assert np.allclose(thin[inner], 0.5)
+    assert np.all((flat >= 0.5) & (flat <= 1.5))
+    assert np.median(flat) == pytest.approx(1.5)

@@ -122,7 +122,7 @@ class FitResult:
 def _trim(state: ParticleState, surface: DataSurface, cfg: ReconConfig) -> int:
     """Drop particles off the data (optionally projecting the rest onto it); returns how many."""
     tri_cfg = cfg.triangulation
-    projected, _, offset = surface.project(state.position)
+    projected, _, offset = surface.project(state.position, state.normal)
     dist, _ = surface.nearest(state.position)
     keep = (np.abs(offset) <= tri_cfg.trim_distance) & (
         dist <= TRIM_GAP_FRACTION * cfg.growth.max_gap
@@ -271,6 +271,11 @@ def reconstruct(
         mesh_bbox_diag=measures.mesh_bbox_diag,
         fidelity=measures.fidelity,
         mesh_to_input=measures.mesh_to_input,
+        spacing_range=(
+            (float(state.rest.min() * r0), float(state.rest.max() * r0))
+            if cfg.seeds.adaptive and state.n
+            else None
+        ),
     )
     return FitResult(mesh, particles, report, origin)
 

@@ -362,6 +362,8 @@ class FitReport:
     mesh_to_input : MeshToInput
     output : OutputPaths or None
         Set by :func:`recon.fitting.fit_file`.
+    spacing_range : (float, float) or None [length]
+        Smallest and largest particle rest spacing used (adaptive spacing); None when uniform.
     """
 
     oprecon_version: str
@@ -385,6 +387,7 @@ class FitReport:
     fidelity: Fidelity
     mesh_to_input: MeshToInput
     output: OutputPaths | None = None
+    spacing_range: tuple[float, float] | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """The report as written to ``<mesh>.report.json`` (this key order is the format)."""
@@ -413,6 +416,8 @@ class FitReport:
         }
         if self.output is not None:
             out["output"] = self.output.to_dict()
+        if self.spacing_range is not None:
+            out["spacing_range"] = list(self.spacing_range)
         return out
 
     @classmethod
@@ -428,8 +433,11 @@ class FitReport:
         """
         if not isinstance(data, Mapping):
             raise ValueError(f"fit report: expected a mapping, got {type(data).__name__}")
-        keys = [f.name for f in fields(cls) if f.name not in ("timings", "output")]
-        _check_keys("fit report", data, [*keys, "time_s", "time_total_s"], ["output"])
+        optional = ("timings", "output", "spacing_range")
+        keys = [f.name for f in fields(cls) if f.name not in optional]
+        _check_keys(
+            "fit report", data, [*keys, "time_s", "time_total_s"], ["output", "spacing_range"]
+        )
         times = data["time_s"]
         if not isinstance(times, Mapping):
             raise ValueError("fit report: time_s must be a mapping")
@@ -460,6 +468,9 @@ class FitReport:
             fidelity=Fidelity.from_dict(data["fidelity"]),
             mesh_to_input=MeshToInput.from_dict(data["mesh_to_input"]),
             output=None if output is None else OutputPaths.from_dict(output),
+            spacing_range=(
+                None if data.get("spacing_range") is None else tuple(data["spacing_range"])
+            ),
         )
 
 

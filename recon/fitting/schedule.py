@@ -38,7 +38,7 @@ from ..neighbors import build_neighbor_list
 from ..params import PhysicsParams
 from ..seeds import select_seeds
 from ..state import ParticleState
-from ..surface import DataSurface
+from ..surface import DataSurface, feature_spacing
 
 __all__ = [
     "ANCHOR_REFRESH",
@@ -139,6 +139,9 @@ class ScheduleResult:
     warnings : list of str
     stop_reason : str
         Why growth stopped (empty when growth is disabled and nothing capped it).
+
+    The per-particle rest spacings [r0] are ``state.rest`` (all 1 unless ``seeds.adaptive``):
+    the local spacing for the triangulation.
     """
 
     state: ParticleState
@@ -237,6 +240,28 @@ class _Schedule:
             else np.arange(n)
         )
         self.cover_sample = surface.points[np.sort(take)]
+        sd = cfg.seeds
+        self.target = (
+            feature_spacing(surface, sd.spacing_min, sd.spacing_max) if sd.adaptive else None
+        )
+
+    def target_at(self, positions: np.ndarray) -> np.ndarray | None:
+        """Target rest spacings [r0] at the data nearest to ``positions`` (None: uniform)."""
+        if self.target is None:
+            return None
+        _, idx = self.surface.nearest(positions)
+        return self.target[idx]
+
+    def update_rest(self, sim: Simulation, state: ParticleState) -> None:
+        """Move each rest spacing toward its target by at most ``seeds.spacing_step`` (held
+        fixed during the steps that follow, so the update injects little energy)."""
+        target = self.target_at(state.position)
+        if target is None or state.n == 0:
+            return
+        step = self.cfg.seeds.spacing_step
+        old = state.rest.copy()
+        state.rest = np.clip(target, old * (1.0 - step), old * (1.0 + step))
+        sim.notify_changed()
 
     # -- helpers -------------------------------------------------------------------------
     def total_steps(self) -> int:
@@ -254,7 +279,7 @@ class _Schedule:
             if self.total_steps() >= dyn.max_steps:
                 break
             chunk = min(ANCHOR_REFRESH, n_steps - done, dyn.max_steps - self.total_steps())
-            pts, nrm, _ = self.surface.anchors(state.position)
+            pts, nrm, _ = self.surface.anchors(state.position, state.normal)
             sim.set_anchors(pts, nrm, dyn.fidelity, dyn.fidelity_normal)
             stats = sim.run(chunk)
             if not (
@@ -339,7 +364,7 @@ class _Schedule:
     def make_seeds(self) -> tuple[ParticleState, np.ndarray]:
         s = self.surface
         idx = select_seeds(s.points, self.cfg.seeds.thinning, self.rng)
-        pos, pn, _ = s.project(s.points[idx])
+        pos, pn, _ = s.project(s.points[idx], s.normals[idx])
         cap = self.cfg.dynamics.max_particles
         if len(idx) > cap:
             raise LimitExceeded(
@@ -347,6 +372,8 @@ class _Schedule:
                 "raise the cap or the spacing"
             )
         state = ParticleState.from_points(pos, pn, pinned=True)
+        if self.target is not None:
+            state.rest = self.target[idx]
         return state, pos
 
     def grow_round(self, sim: Simulation, state: ParticleState) -> int:
@@ -355,15 +382,27 @@ class _Schedule:
         dyn = self.cfg.dynamics
         pos, nrm = state.position, state.normal
         tree = cKDTree(pos)
-        offsets, indices = build_neighbor_list(pos, g.grow_radius)
+        rest = state.rest if self.target is not None else None
+        if rest is None:
+            offsets, indices = build_neighbor_list(pos, g.grow_radius)
+        else:
+            offsets, indices = _scaled_neighbors(pos, rest, g.grow_radius)
         frontier = np.diff(offsets) <= g.max_neighbors
-        cands = np.vstack(
-            [
-                grow_candidates(pos, nrm, offsets, indices, g),
-                stretch_candidates(pos, nrm, tree, frontier, g),
-            ]
+        grown, grown_n = grow_candidates(
+            pos, nrm, offsets, indices, g, with_normals=True, rest=rest
         )
-        acc = accept_candidates(cands, tree, self.surface, self.seed_tree, self.seed_points, g)
+        mid, mid_n = stretch_candidates(pos, nrm, tree, frontier, g, with_normals=True)
+        cands = np.vstack([grown, mid])
+        acc = accept_candidates(
+            cands,
+            tree,
+            self.surface,
+            self.seed_tree,
+            self.seed_points,
+            g,
+            normals=np.vstack([grown_n, mid_n]),
+            rest=self.target_at(cands),
+        )
         added = len(acc.positions)
         room = dyn.max_particles - state.n
         if added > room:
@@ -372,7 +411,13 @@ class _Schedule:
             self.stop_reason = f"particle cap dynamics.max_particles={dyn.max_particles} reached"
             self.warnings.append(self.stop_reason)
         if added:
-            state.add(acc.positions, acc.normals, pinned=False)
+            new_rest = self.target_at(acc.positions)
+            state.add(
+                acc.positions,
+                acc.normals,
+                pinned=False,
+                rest=1.0 if new_rest is None else new_rest,
+            )
             sim.notify_changed()
         log.debug(
             "growth: %d candidates, %d added (%d close, %d unsupported, %d off-plane), "
@@ -393,6 +438,7 @@ class _Schedule:
         self.seed_tree = cKDTree(seed_points)
         previous_added = None
         for rnd in range(g.max_rounds if g.enabled else 0):
+            self.update_rest(sim, state)
             kinetic = self.relax(sim, state, dyn.relax_steps, "grow")
             if self.total_steps() >= dyn.max_steps:
                 self.stop_reason = f"step cap dynamics.max_steps={dyn.max_steps} reached"
@@ -437,3 +483,17 @@ class _Schedule:
             self.record("release", state, kinetic, self.coverage(state.position))
             if self.total_steps() >= dyn.max_steps:
                 break
+
+
+def _scaled_neighbors(
+    position: np.ndarray, rest: np.ndarray, radius: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """CSR neighbours within ``radius`` x (rest_i + rest_j)/2 (adaptive spacing)."""
+    offsets, indices = build_neighbor_list(position, radius * float(np.max(rest)))
+    row = np.repeat(np.arange(len(position)), np.diff(offsets))
+    d = np.linalg.norm(position[indices] - position[row], axis=1)
+    keep = d < radius * 0.5 * (rest[row] + rest[indices])
+    counts = np.bincount(row[keep], minlength=len(position))
+    new_offsets = np.zeros(len(position) + 1, dtype=offsets.dtype)
+    np.cumsum(counts, out=new_offsets[1:])
+    return new_offsets, np.ascontiguousarray(indices[keep])

@@ -108,6 +108,52 @@ def lj_cutoff_values(sigma: float, cutoff: float) -> tuple[float, float]:
     return u * u - 2.0 * u, (4.0 * u - 4.0 * u * u) / cutoff
 
 
+def lj_repulsive_range(sigma: float, cutoff: float) -> tuple[float, float]:
+    r"""Minimum d_m of the shifted-force 4-2 potential and φ_sf(d_m): the repulsive branch.
+
+    The repulsive part used between opposed sheets
+    (:func:`recon.kernels.pair_loop.pair_interaction`) is φ_sf(d) − φ_sf(d_m) for d < d_m and
+    0 beyond (the Weeks-Chandler-Andersen split): continuous with its derivative at d_m, never
+    attractive.
+
+    Parameters
+    ----------
+    sigma, cutoff : float
+        σ and r_c [length], σ < r_c.
+
+    Returns
+    -------
+    d_m : float
+        Where φ′_sf(d_m) = 0 [length] (σ ≤ d_m < r_c).
+    phi_m : float
+        φ_sf(d_m) [dimensionless], ≤ 0.
+    """
+    phi_c, dphi_c = lj_cutoff_values(sigma, cutoff)
+
+    def dphi_sf(d: float) -> float:
+        u = (sigma / d) ** 2
+        return (4.0 * u - 4.0 * u * u) / d - dphi_c
+
+    # φ'(d) - φ'(r_c) < 0 at d = σ (φ'(σ) = 0 and φ'(r_c) > 0) and = 0 at r_c with the sign
+    # change at d_m in between: bisection on [σ, r_c)
+    lo, hi = sigma, cutoff
+    if dphi_sf(lo) >= 0.0:
+        d_m = lo
+    else:
+        for _ in range(200):
+            mid = 0.5 * (lo + hi)
+            if dphi_sf(mid) < 0.0:
+                lo = mid
+            else:
+                hi = mid
+            if hi - lo < 1e-15 * cutoff:
+                break
+        d_m = 0.5 * (lo + hi)
+    u = (sigma / d_m) ** 2
+    phi_m = u * u - 2.0 * u - phi_c - (d_m - cutoff) * dphi_c
+    return float(d_m), float(phi_m)
+
+
 def _hex_shells(radius: float) -> np.ndarray:
     """Distances (in lattice constants) of all hexagonal-lattice sites closer than ``radius``."""
     m = int(math.ceil(radius)) + 2

@@ -21,12 +21,48 @@ from .options import EXACT_JIT_OPTIONS
 
 
 @njit(**EXACT_JIT_OPTIONS)
+def select_agreeing(normals, idx, k):  # pragma: no cover - numba
+    """The first ``k`` neighbours of each row of ``idx`` whose normals agree with the row's.
+
+    Row i keeps, in order, the entries q of ``idx[i]`` with ``normals[q] . normals[i] > 0``
+    (the data of the same sheet: the other side of a thin part has opposed normals), up to
+    ``k``; when fewer than ``k`` agree, the row is padded by repeating its agreeing entries
+    (which leaves the centroid and the least-squares fits unchanged up to weights). Rows with
+    fewer than 3 agreeing entries keep their first ``k`` entries unfiltered.
+    """
+    n, m = idx.shape
+    out = np.empty((n, k), dtype=np.int64)
+    for i in range(n):
+        c = 0
+        for a in range(m):
+            q = idx[i, a]
+            dot = (
+                normals[q, 0] * normals[i, 0]
+                + normals[q, 1] * normals[i, 1]
+                + normals[q, 2] * normals[i, 2]
+            )
+            if dot > 0.0:
+                out[i, c] = q
+                c += 1
+                if c == k:
+                    break
+        if c < 3:
+            for a in range(k):
+                out[i, a] = idx[i, a]
+            continue
+        for a in range(c, k):
+            out[i, a] = out[i, a - c]
+    return out
+
+
+@njit(**EXACT_JIT_OPTIONS)
 def fit_quadrics_kernel(
     points, normals, idx, out_p, out_n, out_u, out_a, out_r
 ):  # pragma: no cover - numba
     r"""PCA frame and least-squares quadric height field of each neighbourhood [H92, L98].
 
-    For point i with neighbours N_i (``idx[i]``, itself included): centroid c, frame normal the
+    For point i with neighbours N_i (``idx[i]``, itself included; :func:`select_agreeing`
+    keeps the points of the same sheet): centroid c, frame normal the
     least-variance axis (flipped to agree with ``normals[i]``), tangent u the largest-variance
     axis and v = n x u; then, with x, y, z the coordinates of p - c in (u, v, n),
 

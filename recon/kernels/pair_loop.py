@@ -11,7 +11,8 @@ Total energy (DESIGN §1), summed over unordered pairs within the cutoff r_c plu
       + \sum_i E^A_i
 
 (S&T92 eqs. 3–5 and 7, T-thesis eqs. 4.11–4.17; the orientation terms are skipped for pairs with
-an unoriented particle.) Neighbour lists are *full*: each pair appears in both rows, and row i
+an unoriented particle, and pairs with opposed normals keep only the repulsive branch of φ_sf:
+:func:`pair_interaction`.) Neighbour lists are *full*: each pair appears in both rows, and row i
 accumulates only the force and torque on i. Each ``prange`` iteration therefore writes only its
 own row (no races) and sums in a fixed order, so results are bit-identical from run to run.
 
@@ -169,7 +170,7 @@ def isotropic_orientation_terms(
 
 
 @njit(inline="always", **_JIT)
-def pair_interaction(rx, ry, rz, nix, niy, niz, njx, njy, njz, oriented, coef, mode):
+def pair_interaction(rx, ry, rz, nix, niy, niz, njx, njy, njz, oriented, coef, mode, scale):
     r"""Energy, force on i and torques on i and j of one pair (DESIGN §1 pair energy).
 
     Parameters
@@ -179,11 +180,18 @@ def pair_interaction(rx, ry, rz, nix, niy, niz, njx, njy, njz, oriented, coef, m
     nix, niy, niz, njx, njy, njz : float64
         Unit normals n_i, n_j (ignored unless ``oriented``).
     oriented : bool
-        Both particles are oriented; otherwise only the spacing term acts (creases).
+        Both particles are oriented; otherwise only the spacing term acts (creases). When both
+        are oriented, their normals are opposed (n_i · n_j < 0) and ``coef.separate_opposed`` is
+        set, only the repulsive branch of the spacing term acts (see Notes).
     coef : recon.params.Coefficients
         Packed parameters, a named tuple of floats (:func:`recon.forces.pack_coefficients`).
     mode : int
         Weighting mode (:mod:`recon.kernels.weights`).
+    scale : float64
+        s_ij = (r_i + r_j) / 2, the pair's rest spacing relative to r0 (1 for uniform
+        spacing): every length of the pair terms (LJ σ and r_c, the weight widths, the r0 of
+        the orientation terms) is multiplied by s_ij, so that E_ij(r; s) = E_ij(r / s; 1).
+        It is held fixed during a step (not differentiated).
 
     Returns
     -------
@@ -203,16 +211,65 @@ def pair_interaction(rx, ry, rz, nix, niy, niz, njx, njy, njz, oriented, coef, m
     :mod:`~recon.kernels.circularity` (eq. 5), weighted by :mod:`~recon.kernels.weights`
     (eq. 7 for the anisotropic form). For the isotropic weights the three orientation terms are
     evaluated together by :func:`isotropic_orientation_terms` (same values, fewer operations).
+
+    Opposed sheets (n_i · n_j < 0, both oriented, ``separate_opposed``; DESIGN §8): the two
+    sides of a thin part must neither attract nor align, so the pair keeps only the repulsive
+    (Weeks-Chandler-Andersen) branch of the spacing potential,
+
+    .. math::
+
+        E_{ij} = \alpha_{LJ}\,[\phi_\mathrm{sf}(d) - \phi_\mathrm{sf}(d_m)]\ (d < d_m),
+        \qquad E_{ij} = 0\ (d \ge d_m)
+
+    with d_m the minimum of φ_sf (:func:`~recon.kernels.lennard_jones.lj_repulsive_range`).
+    The switch depends on the normals only through the sign of n_i · n_j: forces and torques
+    are the exact gradient of this energy on either side of the switch (torques vanish).
     """
     acc = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     d2 = rx * rx + ry * ry + rz * rz
-    if d2 >= coef.cutoff2:
+    if scale == 1.0:  # uniform spacing: the packed lengths as they are
+        cut2 = coef.cutoff2
+        cut = coef.cutoff
+        sigma2 = coef.lj_sigma2
+        dphi_c = coef.lj_dphi_cutoff
+        rep2 = coef.lj_repulsive2
+        inv_cut2 = coef.inv_cutoff2
+        inv_2sigma2 = coef.inv_2sigma2
+        s2 = coef.inv_spacing2
+    else:  # every length times s_ij (energies are dimensionless: unchanged)
+        sc2 = scale * scale
+        inv_sc2 = 1.0 / sc2
+        cut2 = coef.cutoff2 * sc2
+        cut = coef.cutoff * scale
+        sigma2 = coef.lj_sigma2 * sc2
+        dphi_c = coef.lj_dphi_cutoff / scale
+        rep2 = coef.lj_repulsive2 * sc2
+        inv_cut2 = coef.inv_cutoff2 * inv_sc2
+        inv_2sigma2 = coef.inv_2sigma2 * inv_sc2
+        s2 = coef.inv_spacing2 * inv_sc2
+    if d2 >= cut2:
         return acc
     w_lj = coef.w_lj
-    if w_lj != 0.0:
-        phi, dphi_over_d = lj_pair(
-            d2, coef.lj_sigma2, coef.cutoff, coef.lj_phi_cutoff, coef.lj_dphi_cutoff
+    if oriented and coef.separate_opposed != 0.0 and nix * njx + niy * njy + niz * njz < 0.0:
+        # opposed sheets: the repulsive branch only, no orientation terms
+        if w_lj == 0.0 or d2 >= rep2:
+            return acc
+        phi, dphi_over_d = lj_pair(d2, sigma2, cut, coef.lj_phi_cutoff, dphi_c)
+        c = w_lj * dphi_over_d
+        return (
+            w_lj * (phi - coef.lj_phi_repulsive),
+            c * rx,
+            c * ry,
+            c * rz,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
         )
+    if w_lj != 0.0:
+        phi, dphi_over_d = lj_pair(d2, sigma2, cut, coef.lj_phi_cutoff, dphi_c)
         c = w_lj * dphi_over_d
         acc = (w_lj * phi, c * rx, c * ry, c * rz, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     if not oriented:
@@ -223,12 +280,9 @@ def pair_interaction(rx, ry, rz, nix, niy, niz, njx, njy, njz, oriented, coef, m
     if w_p == 0.0 and w_n == 0.0 and w_c == 0.0:
         return acc
     kappa = coef.kappa
-    s2 = coef.inv_spacing2
     ri = nix * rx + niy * ry + niz * rz
     rj = njx * rx + njy * ry + njz * rz
-    psi_i, dpsi_i, psi_j, dpsi_j = pair_weights(
-        d2, ri, rj, mode, coef.inv_cutoff2, coef.inv_2sigma2, kappa
-    )
+    psi_i, dpsi_i, psi_j, dpsi_j = pair_weights(d2, ri, rj, mode, inv_cut2, inv_2sigma2, kappa)
     if mode != WEIGHT_ANISOTROPIC:
         t = isotropic_orientation_terms(
             rx, ry, rz, nix, niy, niz, njx, njy, njz, ri, rj, psi_i, dpsi_i, w_p, w_n, w_c, s2
@@ -319,10 +373,11 @@ def step_particles(
         ``integrate``.
     flags : tuple of two (n,) bool
         (is_pinned, is_oriented).
-    inertial : tuple of two (n,) float64
-        (mass, inertia).
+    inertial : tuple of three float64 arrays
+        (mass (n,), inertia (n,), rest): rest spacings relative to r0, (n,) or empty for all
+        ones (the uniform fast path); a pair uses (rest_i + rest_j)/2 (:func:`pair_interaction`).
     neighbors : (offsets (n + 1,) int64, indices (nnz,) int32)
-        Full CSR neighbour list, radius ≥ r_c.
+        Full CSR neighbour list, radius ≥ r_c · max(rest).
     reference_position : (n, 3) float64
         Positions at the last list build (for the skin test) [length].
     extras : tuple of three (m, 3) float64
@@ -354,7 +409,8 @@ def step_particles(
     position, orientation, velocity, angular_velocity = state_in
     position_out, orientation_out, velocity_out, angular_velocity_out = state_out
     is_pinned, is_oriented = flags
-    mass, inertia = inertial
+    mass, inertia, rest = inertial
+    variable_rest = rest.shape[0] > 0
     offsets, indices = neighbors
     anchor_point, anchor_normal, external = extras
     n = position.shape[0]
@@ -394,6 +450,7 @@ def step_particles(
             status |= STATUS_BAD_INPUT
         nix, niy, niz = quaternion_normal(qw, qx, qy, qz)
         oriented_i = is_oriented[i]
+        rest_i = rest[i] if variable_rest else 1.0
 
         # ---- pair forces and torques (S&T92 eqs. 3-7) and relative velocity sums
         energy = 0.0
@@ -414,7 +471,8 @@ def step_particles(
             rx = position[j, 0] - x0
             ry = position[j, 1] - x1
             rz = position[j, 2] - x2
-            if rx * rx + ry * ry + rz * rz >= cutoff2:
+            scale = 0.5 * (rest_i + rest[j]) if variable_rest else 1.0
+            if rx * rx + ry * ry + rz * rz >= cutoff2 * (scale * scale):
                 continue
             oriented = oriented_i and is_oriented[j]
             if oriented:
@@ -425,7 +483,9 @@ def step_particles(
                 njx = 0.0
                 njy = 0.0
                 njz = 1.0
-            t = pair_interaction(rx, ry, rz, nix, niy, niz, njx, njy, njz, oriented, coef, mode)
+            t = pair_interaction(
+                rx, ry, rz, nix, niy, niz, njx, njy, njz, oriented, coef, mode, scale
+            )
             energy += 0.5 * t[0]
             fx += t[1]
             fy += t[2]
@@ -437,7 +497,7 @@ def step_particles(
                 sv0 += v0 - velocity[j, 0]
                 sv1 += v1 - velocity[j, 1]
                 sv2 += v2 - velocity[j, 2]
-            if beta3 != 0.0 and oriented:
+            if beta3 != 0.0 and oriented and nix * njx + niy * njy + niz * njz >= 0.0:
                 sw0 += w0 - angular_velocity[j, 0]
                 sw1 += w1 - angular_velocity[j, 1]
                 sw2 += w2 - angular_velocity[j, 2]
