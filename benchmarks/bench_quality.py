@@ -22,6 +22,7 @@ Examples::
     python benchmarks/bench_quality.py --cases bunny-clean sphere-clean --methods oprecon poisson8
     python benchmarks/bench_quality.py --out bench_output/quality.md --json-out bench_output/q.json
     python benchmarks/bench_quality.py --methods oprecon --preset closed_scan --cases torus-missing
+    python benchmarks/bench_quality.py --methods oprecon --set normals.thin_parts=0.3 --cases plate-clean
 """
 
 from __future__ import annotations
@@ -50,7 +51,11 @@ def _peer_normals(o3d: Any, pcd: Any) -> None:
 
 
 def run_method(
-    method: str, input_path: str, preset: str | None = None, seed: int = 0
+    method: str,
+    input_path: str,
+    preset: str | None = None,
+    seed: int = 0,
+    overrides: tuple[str, ...] = (),
 ) -> dict[str, Any]:
     """Reconstruct one input with one method (runs in a worker process)."""
     import open3d as o3d
@@ -63,11 +68,12 @@ def run_method(
     pts = cloud.points
     t0 = time.perf_counter()
     if method == "oprecon":
-        from recon.config import apply_overrides, load_config
+        from recon.config import apply_overrides, load_config, parse_override
         from recon.fitting import reconstruct
 
         cfg = load_config(ROOT / "configs" / f"{preset}.yaml") if preset else ReconConfig()
-        res = reconstruct(cloud, apply_overrides(cfg, {"seed": seed}))
+        cfg = apply_overrides(cfg, {"seed": seed, **dict(map(parse_override, overrides))})
+        res = reconstruct(cloud, cfg)
         v, f = res.mesh.vertices - cloud.origin, res.mesh.faces
     else:
         o3d.utility.set_verbosity_level(o3d.utility.VerbosityLevel.Error)
@@ -103,7 +109,12 @@ def run_method(
 
 
 def evaluate(
-    case_dir: Path, gt_path: Path, method: str, n_samples: int, preset: str | None = None
+    case_dir: Path,
+    gt_path: Path,
+    method: str,
+    n_samples: int,
+    preset: str | None = None,
+    overrides: tuple[str, ...] = (),
 ) -> dict[str, Any]:
     from recon.io import read_mesh
     from recon.metrics import compare_meshes
@@ -111,7 +122,8 @@ def evaluate(
 
     with ProcessPoolExecutor(max_workers=1) as pool:
         try:
-            out = pool.submit(run_method, method, str(case_dir / "input.ply"), preset).result()
+            inp = str(case_dir / "input.ply")
+            out = pool.submit(run_method, method, inp, preset, 0, overrides).result()
         except Exception as exc:  # a peer crashing is a result too
             return {"method": method, "error": f"{type(exc).__name__}: {exc}"[:200]}
     v, f = out["v"], out["f"]
@@ -193,6 +205,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--methods", nargs="*", default=list(METHODS), choices=METHODS)
     ap.add_argument("--samples", type=int, default=100_000)
     ap.add_argument("--preset", help="run oprecon with configs/PRESET.yaml instead of defaults")
+    ap.add_argument(
+        "--set",
+        dest="overrides",
+        action="append",
+        default=[],
+        metavar="SECTION.KEY=VALUE",
+        help="override one oprecon config key (repeatable), as `oprecon fit --set`",
+    )
     ap.add_argument("--out", type=Path, help="write the Markdown table here too")
     ap.add_argument("--json-out", type=Path)
     args = ap.parse_args(argv)
@@ -211,6 +231,7 @@ def main(argv: list[str] | None = None) -> int:
                 method,
                 args.samples,
                 args.preset,
+                tuple(args.overrides),
             )
             rows.append(row)
             print(

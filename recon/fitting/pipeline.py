@@ -155,13 +155,20 @@ def density_spacing(surface: DataSurface, positions: np.ndarray, max_scale: floa
 def _triangulate(
     state: ParticleState, surface: DataSurface, cfg: ReconConfig
 ) -> TriangulationResult:
-    """Triangulate the particles; gaps up to ``max_hole`` (default ``max_gap``) are closed,
-    scaled by the local data spacing (``triangulation.max_density_scale``)."""
+    """Triangulate the particles; gaps up to ``max_hole`` (default ``max_gap``) are closed.
+
+    Ball radii and hole sizes follow each particle's spacing [r0]: the larger of its rest
+    spacing (``seeds.adaptive``; 1 otherwise) and the local data spacing
+    (``triangulation.max_density_scale``).
+    """
     tri_cfg = cfg.triangulation
     max_hole = tri_cfg.max_hole if tri_cfg.max_hole is not None else cfg.growth.max_gap
     spacing = None
     if tri_cfg.max_density_scale > 1.0:
         spacing = density_spacing(surface, state.position, tri_cfg.max_density_scale)
+    if cfg.seeds.adaptive and state.n:
+        rest = np.array(state.rest, dtype=float)
+        spacing = rest if spacing is None else np.maximum(spacing, rest)
     return triangulate_particles(
         state.position,
         state.normal,
