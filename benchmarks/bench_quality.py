@@ -22,7 +22,7 @@ Examples::
     python benchmarks/bench_quality.py --cases bunny-clean sphere-clean --methods oprecon poisson8
     python benchmarks/bench_quality.py --out bench_output/quality.md --json-out bench_output/q.json
     python benchmarks/bench_quality.py --methods oprecon --preset closed_scan --cases torus-missing
-    python benchmarks/bench_quality.py --methods oprecon --set normals.thin_parts=0.3 --cases plate-clean
+    python benchmarks/bench_quality.py --methods oprecon --cases plate-clean --set seeds.adaptive=1
 """
 
 from __future__ import annotations
