@@ -22,7 +22,7 @@ Examples::
     python benchmarks/bench_quality.py --cases bunny-clean sphere-clean --methods oprecon poisson8
     python benchmarks/bench_quality.py --out bench_output/quality.md --json-out bench_output/q.json
     python benchmarks/bench_quality.py --methods oprecon --preset closed_scan --cases torus-missing
-    python benchmarks/bench_quality.py --methods oprecon --cases plate-clean --set seeds.adaptive=1
+    python benchmarks/bench_quality.py --methods oprecon --cases bone-clean --set seeds.adaptive=yes
 """
 
 from __future__ import annotations
