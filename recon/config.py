@@ -108,10 +108,10 @@ class NormalsConfig(Schema):
         10, "Neighbours in the orientation graph (Hoppe et al. 1992 MST).", 3, 100
     )
     thin_parts: float = option(
-        0.0,
-        "Orientation: extra MST cost of neighbour edges that cross the surface (0 = off; 0.3 "
-        "keeps the two faces of thin noisy parts opposed; it costs a few "
-        "% of correctly signed normals on very noisy data).",
+        0.3,
+        "Orientation: extra MST cost of neighbour edges that cross the surface, so the two "
+        "faces of a thin part are not oriented alike (0 = off, Hoppe's plain MST; on very "
+        "noisy data with wide neighbourhoods it costs a few % of correctly signed normals).",
         0.0,
         5.0,
     )

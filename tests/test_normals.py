@@ -175,8 +175,8 @@ def _gt(name: str) -> np.ndarray:
     return q / np.linalg.norm(q, axis=1, keepdims=True)
 
 
-def _estimate(cloud, k: int = 20) -> np.ndarray:
-    n, info = compute_normals(cloud, NormalsConfig(k=k))
+def _estimate(cloud, k: int = 20, **cfg) -> np.ndarray:
+    n, info = compute_normals(cloud, NormalsConfig(k=k, **cfg))
     assert info["source"] == "estimated"
     return n
 
@@ -197,8 +197,13 @@ def test_accuracy_bunny_clean():
 def test_accuracy_bunny_noise1():
     # sigma = 1 % of the diagonal is ~2.6 point spacings: PCA needs a wider neighbourhood.
     c = read_points(SAMPLES / "bunny-noise1.ply")
-    consistent, _ = accuracy(_estimate(c, k=80), _gt("bunny-noise1"))
+    consistent, _ = accuracy(_estimate(c, k=80, thin_parts=0.0), _gt("bunny-noise1"))
     assert consistent >= 0.97, consistent
+    # the price of keeping thin parts' faces opposed (normals.thin_parts, on by default): the
+    # noise makes some edges look like they cross the surface (measured 0.947; the fit of this
+    # case is as good either way: F@1% 0.996)
+    consistent, _ = accuracy(_estimate(c, k=80), _gt("bunny-noise1"))
+    assert consistent >= 0.94, consistent
 
 
 def test_accuracy_square_hole_planar():
