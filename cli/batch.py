@@ -189,6 +189,15 @@ class BatchProgress:
     help="Wall-clock limit per item; an item past it is stopped, then killed "
     f"(default: item_time_limit in the file, else {DEFAULT_ITEM_TIME_LIMIT:g}).",
 )
+@click.option(
+    "--threads",
+    type=click.IntRange(min=1),
+    metavar="N",
+    help="Threads per item (numba, OpenMP, BLAS in each worker process). Default: cores // "
+    "items at a time, at least 1, so parallel items do not oversubscribe the machine "
+    "(unless NUMBA_NUM_THREADS / OMP_NUM_THREADS are set). The meshes are the same for any "
+    "count.",
+)
 @click.option("--force", is_flag=True, help="Run every item, even those that are up to date.")
 @click.option(
     "--dry-run",
@@ -211,6 +220,7 @@ def command(
     executor: str,
     scheduler: str | None,
     item_time_limit: float | None,
+    threads: int | None,
     force: bool,
     dry_run: bool,
     overrides: tuple[str, ...],
@@ -228,6 +238,7 @@ def command(
       oprecon batch scans.yaml
       oprecon batch scans.yaml --dry-run
       oprecon batch scans.yaml --jobs 4 --item-time-limit 600 --set seed=1
+      oprecon batch scans.yaml --jobs 2 --threads 4
       oprecon batch scans.yaml --executor dask --scheduler tcp://10.0.0.5:8786
 
     Exit codes: 0 every item ok or up to date, 1 some item failed or timed out, 2 invalid
@@ -244,7 +255,12 @@ def command(
     progress = BatchProgress(total=len(plan.with_action("run")), enabled=not quiet)
     try:
         report = run_batch(
-            plan, jobs=jobs, executor=executor, scheduler=scheduler, on_event=progress
+            plan,
+            jobs=jobs,
+            executor=executor,
+            scheduler=scheduler,
+            on_event=progress,
+            threads=threads,
         )
     finally:
         progress.close()

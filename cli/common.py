@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import functools
 import logging
+import os
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -89,6 +90,47 @@ def common_run_options(func: Callable[..., Any]) -> Callable[..., Any]:
     def wrapper(*args: Any, quiet: bool = False, verbose: bool = False, **kwargs: Any) -> Any:
         setup_logging(quiet=quiet, verbose=verbose)
         return func(*args, quiet=quiet, **kwargs)
+
+    return wrapper
+
+
+#: Thread-count variables of the native libraries loaded by a fit, set by ``--threads``.
+#: numba's own pool is sized by ``NUMBA_NUM_THREADS`` when it starts; within it the count is
+#: set per fit (the ``threads`` config key, :func:`recon.kernels.options.thread_count`).
+THREAD_ENV = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+
+THREADS_HELP = (
+    "Threads for the numba kernels, OpenMP and BLAS [threads]. Default: all usable cores "
+    "(batch: cores / jobs). The mesh is the same for any count."
+)
+
+
+def set_thread_env(threads: int | None) -> None:
+    """Prepare the native thread pools; call before the pipeline (numpy, numba) is imported.
+
+    ``threads`` sets :data:`THREAD_ENV` (OpenBLAS and GNU OpenMP read them when they load).
+    Unless the user chose a wait policy (``OMP_WAIT_POLICY`` or ``GOMP_SPINCOUNT``), idle
+    OpenMP threads sleep instead of spinning (``OMP_WAIT_POLICY=PASSIVE``): numba's threaded
+    kernels run on GNU OpenMP, whose spinning workers take the CPU from other processes and
+    from our own serial work on a busy machine (README, Performance).
+    """
+    if "OMP_WAIT_POLICY" not in os.environ and "GOMP_SPINCOUNT" not in os.environ:
+        os.environ["OMP_WAIT_POLICY"] = "PASSIVE"
+    if threads is not None:
+        for var in THREAD_ENV:
+            os.environ[var] = str(threads)
+
+
+def threads_option(func: Callable[..., Any]) -> Callable[..., Any]:
+    """``--threads N``: passed on as ``threads``, after :func:`set_thread_env`."""
+
+    @click.option(
+        "--threads", type=click.IntRange(min=1), metavar="N", default=None, help=THREADS_HELP
+    )
+    @functools.wraps(func)
+    def wrapper(*args: Any, threads: int | None = None, **kwargs: Any) -> Any:
+        set_thread_env(threads)
+        return func(*args, threads=threads, **kwargs)
 
     return wrapper
 

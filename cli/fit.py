@@ -17,6 +17,7 @@ from .common import (
     common_run_options,
     config_options,
     parse_viewpoint,
+    threads_option,
 )
 
 if TYPE_CHECKING:
@@ -250,6 +251,7 @@ def format_summary(report: FitReport) -> str:
 @click.option("--mkdir", is_flag=True, help="Create the output folder if it is missing.")
 @click.option("--json", "as_json", is_flag=True, help="Print the report as JSON on stdout.")
 @config_options
+@threads_option
 @common_run_options
 @catch_errors
 def command(
@@ -280,6 +282,7 @@ def command(
     config_path: Path | None,
     preset: str | None,
     overrides: tuple[str, ...],
+    threads: int | None,
     quiet: bool,
 ) -> None:
     """Reconstruct a triangle mesh from the point cloud INPUT.
@@ -329,6 +332,8 @@ def command(
     )
     if seed is not None:
         cfg = apply_overrides(cfg, {"seed": seed})
+    if threads is not None:
+        cfg = apply_overrides(cfg, {"threads": threads})
     progress = Progress(enabled=not quiet)
     named = [
         str(p)

@@ -14,6 +14,7 @@ from .common import (
     common_run_options,
     config_options,
     parse_viewpoint,
+    threads_option,
 )
 
 #: The orientation rules, from the config (importing recon.normals here would load scipy at
@@ -72,6 +73,7 @@ ORIENTATIONS = NormalsConfig.__dataclass_fields__["orientation"].metadata["choic
 @click.option("--ascii", "ascii_", is_flag=True, default=None, help="ASCII PLY [io.ascii].")
 @click.option("--mkdir", is_flag=True, help="Create the output folder if missing.")
 @config_options
+@threads_option
 @common_run_options
 @catch_errors
 def command(
@@ -88,6 +90,7 @@ def command(
     config_path: Path | None,
     preset: str | None,
     overrides: tuple[str, ...],
+    threads: int | None,
     quiet: bool,
 ) -> None:
     """Estimate (or check) normals of IN, orient them consistently, write an oriented PLY.
@@ -105,8 +108,9 @@ def command(
       oprecon normals noisy.ply -o n.ply --k 60 --orientation outward
       oprecon normals scan.ply -o n.ply --preset open_scan --set normals.orient_k=15
     """
-    from recon.config import with_values
+    from recon.config import apply_overrides, with_values
     from recon.io import check_output_path, read_points, write_points
+    from recon.kernels.options import thread_count
     from recon.normals import compute_normals
 
     cfg = build_config(config_path, preset, overrides)
@@ -122,11 +126,14 @@ def command(
         },
         io={"ascii": True if ascii_ else None},
     )
+    if threads is not None:
+        cfg = apply_overrides(cfg, {"threads": threads})
     output_path = check_output_path(output_path, inputs=[input_path], mkdir=mkdir)
     cloud = read_points(
         input_path, max_points=cfg.io.max_points, merge_duplicates=cfg.io.merge_duplicates
     )
-    normals, info = compute_normals(cloud, cfg.normals)
+    with thread_count(cfg.threads):
+        normals, info = compute_normals(cloud, cfg.normals)
     write_points(output_path, cloud.points, normals, origin=cloud.origin, ascii=cfg.io.ascii)
     if not quiet:
         if info["source"] == "input":

@@ -396,6 +396,13 @@ class OutputConfig(Schema):
 class ReconConfig(Schema):
     version: int = option(CONFIG_VERSION, "Configuration format version.", 1, 1)
     seed: int = option(0, "Random seed: same input, config and seed give the same mesh.", 0, None)
+    threads: int | None = option(
+        None,
+        "Threads for the numba kernels (capped by NUMBA_NUM_THREADS); null = all usable cores "
+        "(oprecon batch: cores / jobs). The mesh does not depend on it.",
+        1,
+        None,
+    )
     io: IOConfig = field(default_factory=IOConfig, metadata={"doc": "Reading and writing."})
     normals: NormalsConfig = field(
         default_factory=NormalsConfig, metadata={"doc": "Normal estimation and orientation."}

@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 from scipy.spatial import cKDTree
 
+from .kernels.options import query_workers
 from .kernels.poisson_disk import poisson_disk_kernel
 
 #: Seed of the subsample the median point spacing is measured on (inputs of more than 20,000
@@ -151,7 +152,7 @@ def median_nearest_neighbor_distance(
         query = pts[np.sort(rng.choice(n, size=sample, replace=False))]
     else:
         query = pts
-    dist, _ = tree.query(query, k=2, workers=-1)
+    dist, _ = tree.query(query, k=2, workers=query_workers())
     return float(np.median(dist[:, 1]))
 
 

@@ -63,6 +63,7 @@ from scipy.spatial import cKDTree
 
 from .errors import ConfigError, InputError
 from .geometry import as_points
+from .kernels.options import query_workers
 
 if TYPE_CHECKING:
     from .cloud import PointCloud
@@ -181,7 +182,7 @@ def estimate_normals(points: np.ndarray, k: int = 20, radius: float | None = Non
     normals = np.zeros((n, 3))
     for start in range(0, n, _CHUNK):
         query = pts[start : start + _CHUNK]
-        dist, idx = tree.query(query, k=k_eff, workers=-1)
+        dist, idx = tree.query(query, k=k_eff, workers=query_workers())
         idx = idx.reshape(len(query), k_eff)
         if radius is not None:
             dist = dist.reshape(len(query), k_eff)
@@ -240,7 +241,7 @@ def _knn_graph(
     the gap (which orients one face inward). It also perturbs the tree on very noisy data."""
     n = points.shape[0]
     k_eff = int(min(k, n - 1))
-    _, idx = cKDTree(points).query(points, k=k_eff + 1, workers=-1)
+    _, idx = cKDTree(points).query(points, k=k_eff + 1, workers=query_workers())
     rows = np.repeat(np.arange(n), k_eff)
     cols = idx[:, 1:].reshape(-1)
     keep = rows != cols  # defensive: duplicate points can reorder self
@@ -520,7 +521,7 @@ def choose_neighborhood_size(points: np.ndarray, k: int, sample: int = 4000) -> 
     for factor in (1, 2, 4):
         kk = min(k * factor, n)
         chosen = kk
-        _, nb = tree.query(points[idx], k=kk, workers=-1)
+        _, nb = tree.query(points[idx], k=kk, workers=query_workers())
         q = points[nb] - points[nb].mean(axis=1, keepdims=True)
         ev = np.linalg.eigvalsh(np.einsum("mki,mkj->mij", q, q))
         variation = ev[:, 0] / np.maximum(ev.sum(axis=1), 1e-300)
@@ -609,7 +610,7 @@ def _fill_normals(points: np.ndarray, normals: np.ndarray, bad: np.ndarray, k: i
     bad_idx = np.flatnonzero(bad)
     k_eff = int(min(k, points.shape[0]))
     tree = cKDTree(points)
-    _, idx = tree.query(points[bad_idx], k=k_eff, workers=-1)
+    _, idx = tree.query(points[bad_idx], k=k_eff, workers=query_workers())
     idx = idx.reshape(bad_idx.size, k_eff)
     est = _pca_normals(points, points[bad_idx], idx, None)
     if good_idx.size:

@@ -1,9 +1,9 @@
 """Resume: fingerprints of items, and the ``<name>.batch.json`` record that proves one is done.
 
 An item is skipped when its outputs and ``<name>.batch.json`` exist and the record matches the
-item's fingerprint: a hash of the resolved configuration (without ``dynamics.time_limit``), the
-input file's path, size and modification time, and the oprecon version. The supervisor writes
-the record after a successful run (:func:`write_record`); planning reads it
+item's fingerprint: a hash of the resolved configuration (without ``dynamics.time_limit`` and
+``threads``), the input file's path, size and modification time, and the oprecon version. The
+supervisor writes the record after a successful run (:func:`write_record`); planning reads it
 (:func:`check_up_to_date`).
 """
 
@@ -30,9 +30,9 @@ def _sha256(obj: Any) -> str:
 
 
 def config_hash(cfg: ReconConfig) -> str:
-    """SHA-256 of the resolved configuration, without ``dynamics.time_limit``.
+    """SHA-256 of the resolved configuration, without ``dynamics.time_limit`` and ``threads``.
 
-    The time limit does not change a finished result, so changing it re-runs nothing.
+    Neither changes a finished result, so changing them re-runs nothing.
 
     Parameters
     ----------
@@ -45,6 +45,7 @@ def config_hash(cfg: ReconConfig) -> str:
     """
     data = config_to_dict(cfg)
     data["dynamics"]["time_limit"] = None
+    data.pop("threads", None)  # the mesh does not depend on it
     return _sha256(data)
 
 

@@ -35,7 +35,11 @@ __all__ = ["run_batch"]
 
 
 def _item_spec(
-    item: BatchItem, job: JobRef, kill_grace: float | None, threads: int | None
+    item: BatchItem,
+    job: JobRef,
+    kill_grace: float | None,
+    threads: int | None,
+    threads_given: bool = False,
 ) -> dict[str, Any]:
     """The item spec sent to the child (and passed to the job)."""
     assert item.outputs is not None and item.config is not None
@@ -60,6 +64,7 @@ def _item_spec(
         else (kill_grace_for(limit) if limit else None),
         **job.to_spec(),
         "threads": threads,
+        "threads_given": threads_given,
     }
 
 
@@ -73,6 +78,7 @@ def run_batch(
     on_event: EventFn | None = None,
     kill_grace: float | None = None,
     write_summary_files: bool = True,
+    threads: int | None = None,
 ) -> BatchReport:
     """Run the items of a plan and write the summary.
 
@@ -99,6 +105,11 @@ def run_batch(
         :func:`~recon.batch.supervise.kill_grace_for`.
     write_summary_files : bool
         Write ``batch_summary.json`` and ``.csv`` into the output folder.
+    threads : int, optional
+        Threads per item (numba, OpenMP, BLAS: the child's ``NUMBA_NUM_THREADS``,
+        ``OMP_NUM_THREADS``, ...). Default, on this machine: cores // items at a time (at
+        least 1), so parallel items do not oversubscribe the cores, unless those variables are
+        set in this environment; on a remote Dask cluster: the workers' own.
 
     Returns
     -------
@@ -143,8 +154,12 @@ def run_batch(
     if to_run:
         plan.spec.output_dir.mkdir(parents=True, exist_ok=True)
         local = executor == "local" or not scheduler
-        threads = max(1, default_jobs() // min(n_jobs, len(to_run))) if local else None
-        specs = [_item_spec(it, job_ref, kill_grace, threads) for it in to_run]
+        per_item = threads or (
+            max(1, default_jobs() // min(n_jobs, len(to_run))) if local else None
+        )
+        specs = [
+            _item_spec(it, job_ref, kill_grace, per_item, threads is not None) for it in to_run
+        ]
         for s in specs:  # leftovers of an earlier run that was killed
             remove_temp_files(plan.spec.output_dir, s["temp_names"])
         try:

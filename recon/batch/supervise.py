@@ -101,17 +101,26 @@ def child_command() -> list[str]:
     return [sys.executable, "-c", code]
 
 
-def _child_env(threads: int | None) -> dict[str, str]:
-    """This environment, with ``threads`` threads for numba and BLAS unless already set."""
+#: The variables that set a child's threads (numba's pool, GNU OpenMP, OpenBLAS, MKL).
+THREAD_ENV = ("NUMBA_NUM_THREADS", "OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+
+
+def _child_env(threads: int | None, force: bool = False) -> dict[str, str]:
+    """This environment, with ``threads`` threads for numba, OpenMP and BLAS.
+
+    Variables already set here are kept unless ``force`` (the user asked for ``threads``).
+    Idle OpenMP threads sleep (``OMP_WAIT_POLICY=PASSIVE``) unless a wait policy is set: with
+    several items at a time, spinning workers take the cores from the other items.
+    """
     env = dict(os.environ)
     if threads:
-        for var in (
-            "NUMBA_NUM_THREADS",
-            "OMP_NUM_THREADS",
-            "OPENBLAS_NUM_THREADS",
-            "MKL_NUM_THREADS",
-        ):
-            env.setdefault(var, str(threads))
+        for var in THREAD_ENV:
+            if force:
+                env[var] = str(threads)
+            else:
+                env.setdefault(var, str(threads))
+    if "OMP_WAIT_POLICY" not in env and "GOMP_SPINCOUNT" not in env:
+        env["OMP_WAIT_POLICY"] = "PASSIVE"
     env.setdefault("PYTHONUNBUFFERED", "1")
     return env
 
@@ -136,7 +145,8 @@ def supervise_item(
         Built by :func:`~recon.batch.run.run_batch`: ``name``, ``input``, ``output_dir``,
         ``config``, ``meshes``, ``products``, ``state``, ``temp_names``, ``fingerprint``,
         ``time_limit`` [s] or None, ``kill_grace`` [s], ``job``, ``job_path`` and
-        ``job_prepare`` (a :class:`~recon.batch.protocol.JobRef`), ``threads``.
+        ``job_prepare`` (a :class:`~recon.batch.protocol.JobRef`), ``threads`` and
+        ``threads_given`` (see :func:`_child_env`).
     on_event : callable(BatchEvent), optional
         Receives "start" and "progress" events (from this thread).
     should_stop : callable() -> bool, optional
@@ -162,7 +172,7 @@ def supervise_item(
             stdin=subprocess.PIPE,
             stdout=subprocess.PIPE,
             stderr=stderr_file,
-            env=_child_env(spec.get("threads")),
+            env=_child_env(spec.get("threads"), bool(spec.get("threads_given"))),
             close_fds=True,
         )
     except OSError as exc:

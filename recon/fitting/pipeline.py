@@ -36,6 +36,7 @@ from ..cloud import PointCloud
 from ..config import ReconConfig, config_to_dict, with_values
 from ..errors import InputError
 from ..geometry import bbox_diagonal
+from ..kernels.options import thread_count
 from ..normals import compute_normals
 from ..serialize import dumps
 from ..state import ParticleState
@@ -203,6 +204,11 @@ def reconstruct(
         Mesh and particles in absolute coordinates, and the report.
     """
     cfg = config if config is not None else ReconConfig()
+    with thread_count(cfg.threads):  # the mesh does not depend on it
+        return _reconstruct(cloud, cfg, on_progress)
+
+
+def _reconstruct(cloud: PointCloud, cfg: ReconConfig, on_progress: ProgressFn | None) -> FitResult:
     clock = Clock(cfg.dynamics.time_limit)
     rng = np.random.default_rng(cfg.seed)
     points = np.asarray(cloud.points, dtype=np.float64)

@@ -74,3 +74,48 @@ def thread_limit(parallel: bool) -> Iterator[None]:
         yield
     finally:
         numba.set_num_threads(previous)
+
+
+def usable_threads(threads: int | None) -> int:
+    """The thread count numba will use for ``threads`` (None: numba's own, i.e. all cores).
+
+    Bounded by ``numba.config.NUMBA_NUM_THREADS``, the size of numba's thread pool, which is
+    fixed when numba starts (from the environment variable of that name, else the cores).
+    """
+    limit = int(numba.config.NUMBA_NUM_THREADS)
+    if threads is None:
+        return limit
+    return max(1, min(int(threads), limit))
+
+
+@contextlib.contextmanager
+def thread_count(threads: int | None) -> Iterator[int]:
+    """Run numba's threaded kernels on at most ``threads`` threads inside the block.
+
+    ``None`` leaves numba's setting alone. The count is capped by
+    ``numba.config.NUMBA_NUM_THREADS`` (see :func:`usable_threads`); the previous count is
+    restored afterwards, also on errors. numba's setting is per calling thread, so concurrent
+    fits in different Python threads do not interfere. The results do not depend on it: every
+    ``prange`` iteration writes only its own rows (see :mod:`recon.kernels.pair_loop`).
+
+    Yields the count in effect.
+    """
+    previous = numba.get_num_threads()
+    if threads is None:
+        yield previous
+        return
+    numba.set_num_threads(usable_threads(threads))
+    try:
+        yield numba.get_num_threads()
+    finally:
+        numba.set_num_threads(previous)
+
+
+def query_workers() -> int:
+    """Threads for scipy's k-d tree queries (``workers=``): numba's count in this thread.
+
+    So ``threads`` (:func:`thread_count`) limits the k-d tree queries of a fit too; outside a
+    :func:`thread_count` block it is numba's default (all cores, or ``NUMBA_NUM_THREADS``).
+    A query's result does not depend on its workers.
+    """
+    return int(numba.get_num_threads())

@@ -1,0 +1,253 @@
+"""Threads under control: ``--threads`` / the ``threads`` key, the OpenMP wait policy, threads
+per batch item, and meshes that do not depend on the thread count."""
+
+from __future__ import annotations
+
+import contextlib
+import importlib
+import json
+import os
+from pathlib import Path
+
+import numba
+import numpy as np
+import pytest
+import recon.cli.batch as cli_batch
+from click.testing import CliRunner
+from recon.batch.resume import config_hash
+from recon.batch.supervise import THREAD_ENV, _child_env
+from recon.cli.common import set_thread_env
+from recon.cli.main import app
+from recon.config import ReconConfig, apply_overrides, load_config
+from recon.errors import ConfigError
+from recon.kernels import options
+from recon.kernels.options import query_workers, thread_count, usable_threads
+
+from recon import batch
+
+ROOT = Path(__file__).resolve().parents[1]
+SPHERE = ROOT / "sample_data" / "sphere-sparse.ply"
+POOL = int(numba.config.NUMBA_NUM_THREADS)
+WAIT_VARS = ("OMP_WAIT_POLICY", "GOMP_SPINCOUNT")
+batch_run = importlib.import_module("recon.batch.run")
+needs_two = pytest.mark.skipif(POOL < 2, reason="numba has fewer than 2 threads here")
+
+
+@pytest.fixture
+def clean_env(monkeypatch):
+    """The thread variables unset (and restored after the test: the CLI sets them)."""
+    for var in (*THREAD_ENV, *WAIT_VARS):
+        monkeypatch.delenv(var, raising=False)
+    return monkeypatch
+
+
+@pytest.fixture
+def set_calls(monkeypatch):
+    """The ``threads`` of every fit (or normals run): thread_count's argument, then the count
+    numba had inside."""
+    import recon.fitting.pipeline
+
+    calls: list[tuple[int | None, int]] = []
+    real = options.thread_count
+
+    @contextlib.contextmanager
+    def spy(threads):
+        with real(threads) as n:
+            calls.append((threads, numba.get_num_threads()))
+            yield n
+
+    monkeypatch.setattr(recon.fitting.pipeline, "thread_count", spy)
+    monkeypatch.setattr(options, "thread_count", spy)
+    return calls
+
+
+# --------------------------------------------------------------------------------------------
+# the library
+
+
+def test_thread_count_sets_caps_and_restores():
+    before = numba.get_num_threads()
+    with thread_count(1) as n:
+        assert n == 1 and numba.get_num_threads() == 1 and query_workers() == 1
+    assert numba.get_num_threads() == before
+    with thread_count(POOL + 5) as n:
+        assert n == POOL == numba.get_num_threads()  # capped by numba's pool
+    with thread_count(None) as n:
+        assert n == before == numba.get_num_threads()
+    with pytest.raises(RuntimeError), thread_count(1):
+        raise RuntimeError("a failing fit")
+    assert numba.get_num_threads() == before
+    assert usable_threads(None) == POOL and usable_threads(1) == 1
+
+
+def test_threads_key_is_validated_and_does_not_change_the_batch_fingerprint():
+    assert ReconConfig().threads is None
+    assert load_config(None, ["threads=2"]).threads == 2
+    with pytest.raises(ConfigError, match="threads"):
+        load_config(None, ["threads=0"])
+    cfg = ReconConfig()
+    assert config_hash(apply_overrides(cfg, {"threads": 1})) == config_hash(cfg)
+    assert config_hash(apply_overrides(cfg, {"seed": 1})) != config_hash(cfg)
+
+
+def _force_threaded_kernels(monkeypatch) -> None:
+    """Use the threaded kernels even on a small sample (normally from 30,000 particles)."""
+    import recon.dynamics
+    import recon.forces
+    import recon.neighbors
+
+    for mod in (recon.neighbors, recon.dynamics, recon.forces):
+        monkeypatch.setattr(mod, "PARALLEL_MIN_PARTICLES", 0)
+
+
+@needs_two
+def test_fit_is_byte_identical_with_one_and_two_threads(tmp_path, monkeypatch):
+    from recon.fitting import fit_file
+
+    _force_threaded_kernels(monkeypatch)
+    meshes, seen = {}, {}
+    for n in (1, 2):
+        counts: set[int] = set()
+        cfg = load_config(None, [f"threads={n}", "seed=3"])
+        out = tmp_path / f"t{n}.ply"
+        fit_file(
+            SPHERE,
+            out,
+            cfg,
+            particles_path=tmp_path / f"p{n}.ply",
+            on_progress=lambda phase, info, c=counts: c.add(numba.get_num_threads()),
+        )
+        meshes[n] = (out.read_bytes(), (tmp_path / f"p{n}.ply").read_bytes())
+        seen[n] = counts
+    assert seen == {1: {1}, 2: {2}}  # the fit really ran with that many threads
+    assert meshes[1] == meshes[2]
+
+
+# --------------------------------------------------------------------------------------------
+# the commands
+
+
+def invoke(*args: str):
+    return CliRunner().invoke(app, list(args))
+
+
+@needs_two
+def test_cli_fit_threads_same_mesh_and_environment(tmp_path, clean_env, set_calls):
+    out = {}
+    for n in (1, 2):
+        out[n] = tmp_path / f"m{n}.ply"
+        result = invoke("fit", str(SPHERE), "-o", str(out[n]), "--quiet", "--threads", str(n))
+        assert result.exit_code == 0, result.output
+        assert os.environ["OMP_NUM_THREADS"] == os.environ["OPENBLAS_NUM_THREADS"] == str(n)
+        report = json.loads(out[n].with_suffix(".report.json").read_text())
+        assert report["config"]["threads"] == n
+    assert set_calls == [(1, 1), (2, 2)]
+    assert out[1].read_bytes() == out[2].read_bytes()
+    assert os.environ["OMP_WAIT_POLICY"] == "PASSIVE"
+
+
+def test_cli_fit_without_threads_leaves_numba_alone(tmp_path, clean_env, set_calls):
+    result = invoke("fit", str(SPHERE), "-o", str(tmp_path / "m.ply"), "--quiet")
+    assert result.exit_code == 0, result.output
+    assert set_calls == [(None, POOL)] and "OMP_NUM_THREADS" not in os.environ
+
+
+def test_cli_threads_from_the_config_key(tmp_path, clean_env, set_calls):
+    args = ["-o", str(tmp_path / "m.ply"), "--quiet", "--set", "threads=1"]
+    assert invoke("fit", str(SPHERE), *args).exit_code == 0
+    assert set_calls == [(1, 1)]
+
+
+def test_cli_normals_threads(tmp_path, clean_env, set_calls):
+    result = invoke("normals", str(SPHERE), "-o", str(tmp_path / "n.ply"), "--threads", "1")
+    assert result.exit_code == 0, result.output
+    assert set_calls == [(1, 1)]
+    assert os.environ["OMP_NUM_THREADS"] == "1"
+
+
+@pytest.mark.parametrize("command", ["fit", "normals", "batch"])
+def test_cli_bad_threads_exit_2_and_help_gives_the_default(tmp_path, command):
+    args = [command, str(SPHERE), "--threads", "0"]
+    if command != "batch":
+        args += ["-o", str(tmp_path / "x.ply")]
+    result = invoke(*args)
+    assert result.exit_code == 2 and "--threads" in result.output
+    text = " ".join(invoke(command, "--help").output.split())
+    assert "--threads N" in text
+    assert ("cores // items at a time" if command == "batch" else "Default: all usable cores") in (
+        text
+    )
+
+
+def test_wait_policy_is_passive_unless_the_user_chose_one(clean_env):
+    set_thread_env(None)
+    assert os.environ["OMP_WAIT_POLICY"] == "PASSIVE" and "OMP_NUM_THREADS" not in os.environ
+    clean_env.setenv("OMP_WAIT_POLICY", "ACTIVE")
+    set_thread_env(3)
+    assert os.environ["OMP_WAIT_POLICY"] == "ACTIVE" and os.environ["MKL_NUM_THREADS"] == "3"
+    clean_env.delenv("OMP_WAIT_POLICY")
+    clean_env.setenv("GOMP_SPINCOUNT", "1000")
+    set_thread_env(None)
+    assert "OMP_WAIT_POLICY" not in os.environ
+
+
+# --------------------------------------------------------------------------------------------
+# batch: threads per item
+
+
+def test_child_env_default_keeps_the_users_values_and_threads_overrides(clean_env):
+    env = _child_env(1)
+    assert all(env[v] == "1" for v in THREAD_ENV) and env["OMP_WAIT_POLICY"] == "PASSIVE"
+    clean_env.setenv("NUMBA_NUM_THREADS", "7")
+    clean_env.setenv("OMP_WAIT_POLICY", "ACTIVE")
+    env = _child_env(1)
+    assert env["NUMBA_NUM_THREADS"] == "7" and env["OMP_NUM_THREADS"] == "1"
+    assert env["OMP_WAIT_POLICY"] == "ACTIVE"
+    assert _child_env(3, force=True)["NUMBA_NUM_THREADS"] == "3"
+
+
+def env_job(spec: dict, on_progress) -> dict:
+    """A fake job (run in the child) that writes its thread settings as its mesh."""
+    seen = {v: os.environ.get(v) for v in (*THREAD_ENV, "OMP_WAIT_POLICY")}
+    seen["numba"] = numba.get_num_threads()
+    for mesh in spec["meshes"]:
+        Path(mesh).write_text(json.dumps(seen))
+    report = {"particles": 1, "topology": {"n_faces": 1}, "coverage": 1.0}
+    Path(spec["report"]).write_text(json.dumps(report))
+    return batch.metrics_from_report(report)
+
+
+def _batch_env(tmp_path: Path, monkeypatch, *args: str) -> dict[str, dict]:
+    for name in ("a", "b"):
+        np.savetxt(tmp_path / f"{name}.xyz", np.eye(3) + (name == "b"))
+    path = tmp_path / "batch.yaml"
+    path.write_text("inputs: ['*.xyz']\noutput_dir: out\n")
+
+    def run_env_job(plan, **kw):
+        return batch.run_batch(plan, job=env_job, **kw)
+
+    monkeypatch.setattr(cli_batch, "run_batch", run_env_job)
+    result = invoke("batch", str(path), "--quiet", "--force", *args)
+    assert result.exit_code == 0, result.output
+    return {n: json.loads((tmp_path / "out" / f"{n}.ply").read_text()) for n in ("a", "b")}
+
+
+def test_batch_threads_per_item_default_is_cores_over_jobs(tmp_path, clean_env, monkeypatch):
+    monkeypatch.setattr(batch_run, "default_jobs", lambda: 4)
+    seen = _batch_env(tmp_path, monkeypatch, "--jobs", "2")
+    for env in seen.values():
+        assert env["NUMBA_NUM_THREADS"] == env["OMP_NUM_THREADS"] == "2"  # 4 cores / 2 jobs
+        assert env["numba"] == 2
+        assert env["OMP_WAIT_POLICY"] == "PASSIVE"
+    seen = _batch_env(tmp_path, monkeypatch, "--jobs", "8")
+    assert {env["NUMBA_NUM_THREADS"] for env in seen.values()} == {"2"}  # 2 items at a time
+    monkeypatch.setattr(batch_run, "default_jobs", lambda: 1)
+    seen = _batch_env(tmp_path, monkeypatch, "--jobs", "2")
+    assert {env["NUMBA_NUM_THREADS"] for env in seen.values()} == {"1"}  # at least 1
+
+
+def test_batch_threads_option_sets_every_item(tmp_path, clean_env, monkeypatch):
+    clean_env.setenv("NUMBA_NUM_THREADS", "5")  # the user's environment; --threads wins
+    seen = _batch_env(tmp_path, monkeypatch, "--jobs", "2", "--threads", "1")
+    for env in seen.values():
+        assert all(env[v] == "1" for v in THREAD_ENV) and env["numba"] == 1
