@@ -14,16 +14,16 @@ import numpy as np
 import pytest
 import recon.cli.batch as cli_batch
 from click.testing import CliRunner
-from recon.batch.resume import config_hash
-from recon.batch.supervise import THREAD_ENV, _child_env
 from recon.cli.common import set_thread_env
 from recon.cli.main import app
+
+from recon import batch
+from recon.batch.resume import config_hash
+from recon.batch.supervise import THREAD_ENV, _child_env
 from recon.config import ReconConfig, apply_overrides, load_config
 from recon.errors import ConfigError
 from recon.kernels import options
 from recon.kernels.options import query_workers, thread_count, usable_threads
-
-from recon import batch
 
 ROOT = Path(__file__).resolve().parents[1]
 SPHERE = ROOT / "sample_data" / "sphere-sparse.ply"
