@@ -14,7 +14,6 @@ import numpy as np
 import pytest
 import recon.cli.batch as cli_batch
 from click.testing import CliRunner
-from recon.cli.common import set_thread_env
 from recon.cli.main import app
 
 from recon import batch
@@ -143,13 +142,13 @@ def test_cli_fit_threads_same_mesh_and_environment(tmp_path, clean_env, set_call
         assert report["config"]["threads"] == n
     assert set_calls == [(1, 1), (2, 2)]
     assert out[1].read_bytes() == out[2].read_bytes()
-    assert os.environ["OMP_WAIT_POLICY"] == "PASSIVE"
 
 
 def test_cli_fit_without_threads_leaves_numba_alone(tmp_path, clean_env, set_calls):
     result = invoke("fit", str(SPHERE), "-o", str(tmp_path / "m.ply"), "--quiet")
     assert result.exit_code == 0, result.output
-    assert set_calls == [(None, POOL)] and "OMP_NUM_THREADS" not in os.environ
+    assert set_calls == [(None, POOL)]
+    assert "OMP_NUM_THREADS" not in os.environ and "OMP_WAIT_POLICY" not in os.environ
 
 
 def test_cli_threads_from_the_config_key(tmp_path, clean_env, set_calls):
@@ -179,36 +178,22 @@ def test_cli_bad_threads_exit_2_and_help_gives_the_default(tmp_path, command):
     )
 
 
-def test_wait_policy_is_passive_unless_the_user_chose_one(clean_env):
-    set_thread_env(None)
-    assert os.environ["OMP_WAIT_POLICY"] == "PASSIVE" and "OMP_NUM_THREADS" not in os.environ
-    clean_env.setenv("OMP_WAIT_POLICY", "ACTIVE")
-    set_thread_env(3)
-    assert os.environ["OMP_WAIT_POLICY"] == "ACTIVE" and os.environ["MKL_NUM_THREADS"] == "3"
-    clean_env.delenv("OMP_WAIT_POLICY")
-    clean_env.setenv("GOMP_SPINCOUNT", "1000")
-    set_thread_env(None)
-    assert "OMP_WAIT_POLICY" not in os.environ
-
-
 # --------------------------------------------------------------------------------------------
 # batch: threads per item
 
 
 def test_child_env_default_keeps_the_users_values_and_threads_overrides(clean_env):
     env = _child_env(1)
-    assert all(env[v] == "1" for v in THREAD_ENV) and env["OMP_WAIT_POLICY"] == "PASSIVE"
+    assert all(env[v] == "1" for v in THREAD_ENV) and "OMP_WAIT_POLICY" not in env
     clean_env.setenv("NUMBA_NUM_THREADS", "7")
-    clean_env.setenv("OMP_WAIT_POLICY", "ACTIVE")
     env = _child_env(1)
     assert env["NUMBA_NUM_THREADS"] == "7" and env["OMP_NUM_THREADS"] == "1"
-    assert env["OMP_WAIT_POLICY"] == "ACTIVE"
     assert _child_env(3, force=True)["NUMBA_NUM_THREADS"] == "3"
 
 
 def env_job(spec: dict, on_progress) -> dict:
     """A fake job (run in the child) that writes its thread settings as its mesh."""
-    seen = {v: os.environ.get(v) for v in (*THREAD_ENV, "OMP_WAIT_POLICY")}
+    seen = {v: os.environ.get(v) for v in THREAD_ENV}
     seen["numba"] = numba.get_num_threads()
     for mesh in spec["meshes"]:
         Path(mesh).write_text(json.dumps(seen))
@@ -238,7 +223,6 @@ def test_batch_threads_per_item_default_is_cores_over_jobs(tmp_path, clean_env, 
     for env in seen.values():
         assert env["NUMBA_NUM_THREADS"] == env["OMP_NUM_THREADS"] == "2"  # 4 cores / 2 jobs
         assert env["numba"] == 2
-        assert env["OMP_WAIT_POLICY"] == "PASSIVE"
     seen = _batch_env(tmp_path, monkeypatch, "--jobs", "8")
     assert {env["NUMBA_NUM_THREADS"] for env in seen.values()} == {"2"}  # 2 items at a time
     monkeypatch.setattr(batch_run, "default_jobs", lambda: 1)

@@ -109,8 +109,6 @@ def _child_env(threads: int | None, force: bool = False) -> dict[str, str]:
     """This environment, with ``threads`` threads for numba, OpenMP and BLAS.
 
     Variables already set here are kept unless ``force`` (the user asked for ``threads``).
-    Idle OpenMP threads sleep (``OMP_WAIT_POLICY=PASSIVE``) unless a wait policy is set: with
-    several items at a time, spinning workers take the cores from the other items.
     """
     env = dict(os.environ)
     if threads:
@@ -119,8 +117,6 @@ def _child_env(threads: int | None, force: bool = False) -> dict[str, str]:
                 env[var] = str(threads)
             else:
                 env.setdefault(var, str(threads))
-    if "OMP_WAIT_POLICY" not in env and "GOMP_SPINCOUNT" not in env:
-        env["OMP_WAIT_POLICY"] = "PASSIVE"
     env.setdefault("PYTHONUNBUFFERED", "1")
     return env
 
