@@ -115,6 +115,27 @@ def test_wedge_is_a_crease_exactly_when_it_turns_past_the_threshold(turn):
     )
 
 
+def _filleted(radius, n=8000, seed=0):
+    """The 90 deg wedge with its edge rounded by a quarter cylinder of ``radius``."""
+    rng = np.random.default_rng(seed)
+    arc = np.pi / 2 * radius
+    lengths = np.array([1.0, arc, 1.0])
+    part = rng.choice(3, size=n, p=lengths / lengths.sum())
+    s = rng.uniform(0, 1, n)
+    y = rng.uniform(-0.5, 0.5, n)
+    a = s * np.pi / 2
+    x = np.select([part == 0, part == 1], [-s, radius * np.sin(a)], radius)
+    z = np.select([part == 0, part == 1], [0.0, radius * (1 - np.cos(a))], radius + s)
+    return np.c_[x, y, z]
+
+
+def test_rounded_edge_is_not_a_crease():
+    # spacing h ~ 0.016; a fillet of 3 h keeps the data 1.2 h off the planes' intersection
+    assert not (detect_creases(_filleted(0.05)).labels == CREASE).any()
+    # the same sampling with a negligible fillet is a crease
+    assert (detect_creases(_filleted(0.002)).labels == CREASE).sum() > 50
+
+
 def test_threshold_above_the_turn_finds_nothing():
     found = detect_creases(_wedge(90), angle_deg=100.0)
     assert not (found.labels != SMOOTH).any()
