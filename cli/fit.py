@@ -150,6 +150,15 @@ def format_summary(report: FitReport) -> str:
                 f"{format_bytes(mem['peak_bytes'])} peak for ~{mem['particles']:,} particles",
             ),
         )
+    if report.creases is not None:
+        cr = report.creases
+        rows.append(
+            (
+                "sharp features",
+                f"creases {cr.length:.4g} long ({cr.length_relative:.3g} x bbox diagonal), "
+                f"{cr.corners} corner(s) at {cr.angle_deg:g} deg (detected; mesh unchanged)",
+            )
+        )
     if report.stop_reason:
         rows.append(("growth stopped", report.stop_reason))
     width = max(len(k) for k, _ in rows)
@@ -242,6 +251,16 @@ def format_summary(report: FitReport) -> str:
     default=None,
     help="Do not carry the input's colours onto the mesh (output.colors: false).",
 )
+@click.option(
+    "--crease-angle",
+    type=float,
+    help="Sharp-crease threshold: smallest angle between the two face normals [deg] "
+    "(creases.angle_deg, default 50; 90 = box edge). Detection only, reported in the "
+    "summary: the mesh is unchanged.",
+)
+@click.option(
+    "--no-creases", is_flag=True, default=None, help="Skip crease detection (creases.enabled)."
+)
 @click.option("--seed", type=int, help="Random seed (same seed, same mesh).")
 @click.option("--max-particles", type=int, help="Cap on particles (dynamics.max_particles).")
 @click.option("--max-steps", type=int, help="Cap on dynamics steps (dynamics.max_steps).")
@@ -271,6 +290,8 @@ def command(
     quality: bool | None,
     obj_colors: bool | None,
     no_colors: bool | None,
+    crease_angle: float | None,
+    no_creases: bool | None,
     seed: int | None,
     max_particles: int | None,
     max_steps: int | None,
@@ -329,6 +350,7 @@ def command(
             "obj_colors": obj_colors,
             "colors": False if no_colors else None,
         },
+        creases={"angle_deg": crease_angle, "enabled": False if no_creases else None},
     )
     if seed is not None:
         cfg = apply_overrides(cfg, {"seed": seed})

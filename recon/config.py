@@ -357,6 +357,25 @@ class TriangulationConfig(Schema):
 
 
 @dataclass(frozen=True)
+class CreasesConfig(Schema):
+    PREFIX: ClassVar[str] = "creases."
+
+    enabled: bool = option(
+        True,
+        "Detect sharp creases and corners in the data (Gauss-map clustering, recon.creases) "
+        "and report their length and count. Detection only: the mesh does not change.",
+    )
+    angle_deg: float = option(
+        50.0,
+        "Smallest angle between the two face normals that counts as a crease [deg] "
+        "(0 = flat, 90 = box edge, 180 = knife edge).",
+        5.0,
+        175.0,
+    )
+    k: int = option(48, "Neighbourhood size of the normal clustering.", 16, 500)
+
+
+@dataclass(frozen=True)
 class OutputConfig(Schema):
     PREFIX: ClassVar[str] = "output."
 
@@ -425,6 +444,10 @@ class ReconConfig(Schema):
     )
     output: OutputConfig = field(
         default_factory=OutputConfig, metadata={"doc": "What is written beside the mesh."}
+    )
+    creases: CreasesConfig = field(
+        default_factory=CreasesConfig,
+        metadata={"doc": "Sharp-feature detection (reported; the mesh is unchanged)."},
     )
 
 

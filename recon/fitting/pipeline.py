@@ -34,6 +34,7 @@ import numpy as np
 from ..attributes import check_attribute_output, check_transfer, transfer_for_output
 from ..cloud import PointCloud
 from ..config import ReconConfig, config_to_dict, with_values
+from ..creases import detect_creases
 from ..errors import InputError
 from ..geometry import bbox_diagonal
 from ..kernels.options import thread_count
@@ -45,6 +46,7 @@ from ..triangulate import TriangulationResult, triangulate_particles
 from ..version import __version__
 from .memory import estimate_fit_memory
 from .report import (
+    CreaseStats,
     FitReport,
     History,
     InputSummary,
@@ -182,6 +184,23 @@ def _triangulate(
     )
 
 
+def _detect_creases(
+    points: np.ndarray, normals: np.ndarray, cfg: ReconConfig, diag: float
+) -> CreaseStats | None:
+    """Sharp creases and corners of the data, for the report only (the mesh ignores them)."""
+    if not cfg.creases.enabled:
+        return None
+    found = detect_creases(points, normals, angle_deg=cfg.creases.angle_deg, k=cfg.creases.k)
+    return CreaseStats(
+        angle_deg=cfg.creases.angle_deg,
+        length=found.length,
+        length_relative=found.length / diag if diag > 0 else 0.0,
+        corners=len(found.corners),
+        crease_points=found.n_crease_points,
+        corner_points=found.n_corner_points,
+    )
+
+
 def reconstruct(
     cloud: PointCloud, config: ReconConfig | None = None, on_progress: ProgressFn | None = None
 ) -> FitResult:
@@ -217,6 +236,7 @@ def _reconstruct(cloud: PointCloud, cfg: ReconConfig, on_progress: ProgressFn | 
     normals, normals_info = compute_normals(cloud, cfg.normals)
     clock.lap("normals")
     clock.check()
+    creases = _detect_creases(points, normals, cfg, bbox_diagonal(points))
 
     r0, d_nn = choose_spacing(points, cfg)
     check_grid_size(points, r0)
@@ -289,6 +309,7 @@ def _reconstruct(cloud: PointCloud, cfg: ReconConfig, on_progress: ProgressFn | 
             if cfg.seeds.adaptive and state.n
             else None
         ),
+        creases=creases,
     )
     return FitResult(mesh, particles, report, origin)
 

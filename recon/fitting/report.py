@@ -30,6 +30,7 @@ __all__ = [
     "MESH_SAMPLES_PER_FACE",
     "SAMPLING_REACH",
     "Fidelity",
+    "CreaseStats",
     "FitReport",
     "History",
     "InputSummary",
@@ -312,6 +313,23 @@ class MeshToInput(_Section):
 
 
 @dataclass(frozen=True)
+class CreaseStats(_Section):
+    """Sharp features detected in the data (:mod:`recon.creases`); the mesh does not use them yet.
+
+    ``length`` [length] is the crease length measured along the crease lines (each crease
+    point's foot on the intersection of its two side planes counts ``2 h / m``, ``m`` feet being
+    within the local spacing ``h``); ``corners`` the number of corner groups.
+    """
+
+    angle_deg: float
+    length: float
+    length_relative: float
+    corners: int
+    crease_points: int
+    corner_points: int
+
+
+@dataclass(frozen=True)
 class OutputPaths(_Section):
     """The files :func:`recon.fitting.fit_file` wrote (optional ones absent when not asked for)."""
 
@@ -364,6 +382,8 @@ class FitReport:
         Set by :func:`recon.fitting.fit_file`.
     spacing_range : (float, float) or None [length]
         Smallest and largest particle rest spacing used (adaptive spacing); None when uniform.
+    creases : CreaseStats or None
+        Detected sharp creases and corners; None when ``creases.enabled`` is false.
     """
 
     oprecon_version: str
@@ -388,6 +408,7 @@ class FitReport:
     mesh_to_input: MeshToInput
     output: OutputPaths | None = None
     spacing_range: tuple[float, float] | None = None
+    creases: CreaseStats | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """The report as written to ``<mesh>.report.json`` (this key order is the format)."""
@@ -418,6 +439,8 @@ class FitReport:
             out["output"] = self.output.to_dict()
         if self.spacing_range is not None:
             out["spacing_range"] = list(self.spacing_range)
+        if self.creases is not None:
+            out["creases"] = self.creases.to_dict()
         return out
 
     @classmethod
@@ -433,10 +456,13 @@ class FitReport:
         """
         if not isinstance(data, Mapping):
             raise ValueError(f"fit report: expected a mapping, got {type(data).__name__}")
-        optional = ("timings", "output", "spacing_range")
+        optional = ("timings", "output", "spacing_range", "creases")
         keys = [f.name for f in fields(cls) if f.name not in optional]
         _check_keys(
-            "fit report", data, [*keys, "time_s", "time_total_s"], ["output", "spacing_range"]
+            "fit report",
+            data,
+            [*keys, "time_s", "time_total_s"],
+            ["output", "spacing_range", "creases"],
         )
         times = data["time_s"]
         if not isinstance(times, Mapping):
@@ -471,6 +497,7 @@ class FitReport:
             spacing_range=(
                 None if data.get("spacing_range") is None else tuple(data["spacing_range"])
             ),
+            creases=None if data.get("creases") is None else CreaseStats.from_dict(data["creases"]),
         )
 
 

@@ -1,0 +1,264 @@
+"""Sharp creases and corners in the data, by Gauss-map clustering (issue 12, step 1).
+
+Each point looks at the unoriented normals of its ``k`` nearest data points (a wide
+neighbourhood, 48 by default, about twice the normal-estimation one) and clusters them as axes
+(:mod:`recon.kernels.gauss_map`):
+
+- **crease**: two tight clusters, each holding at least 25 % of the neighbourhood, whose
+  planes turn by more than ``angle_deg`` (the angle between the two face normals: 0 on a
+  plane, 90 deg on a box edge, 180 deg on a knife edge; measured from the point positions, so
+  the normals' signs do not matter and a 270 deg concave edge counts as a 90 deg turn);
+- **corner**: three such clusters, pairwise turning by more than ``angle_deg``, the smallest
+  holding at least 10 %.
+
+Two filters follow. The data must *reach the line*: some neighbour lies within ``0.3 h`` of the
+crease line, which a sharp crease satisfies (median 0.08 h on the clean L-block, 0.15 h with
+0.25 % noise) and a rounded edge does not (a fillet of radius rho stays about 0.4 rho off the
+planes' intersection at 90 deg). And the crease must be *coherent*: feature points near its line
+must span at least 1.2 neighbourhood radii along it.
+
+"Tight" is the noise floor: the angle between the two cluster axes must exceed three times the
+sum of their spreads (median angle of members to their axis). A smooth surface splits its
+continuous spread of normals into halves only about two spreads apart, and noise widens the
+spreads with the separation, so neither a curved nor a noisy smooth surface passes.
+
+Crease *length* is measured along the crease lines: each crease point has a foot, the point
+of its crease line (the intersection of its two side planes) closest to it. The feet of a
+crease band fall on the line, so each stands for ``2 h / m`` of it, ``m`` being the number of
+feet within the local sample spacing ``h = sqrt(pi r_k**2 / k)`` (``r_k``: distance to the
+k-th neighbour). This does not depend on how wide the detected band is. Corner zones (about
+half a neighbourhood radius around each corner) are not counted: on the exact L-block the
+measured length is about 9 % short of the true edge length. Corners are groups of at least
+three corner points whose three-plane intersections lie within ``3 h`` of each other (corner
+points in smaller groups become smooth); each is placed at the median of its group.
+
+Step 1 only: detection feeds the fit report; the mesh does not change yet.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import sparse
+from scipy.sparse import csgraph
+from scipy.spatial import cKDTree
+
+from .geometry import as_points
+from .kernels.gauss_map import gauss_map_kernel
+
+__all__ = ["SMOOTH", "CREASE", "CORNER", "Creases", "detect_creases"]
+
+SMOOTH, CREASE, CORNER = 0, 1, 2
+CREASE_SHARE = 0.25
+CORNER_SHARE = 0.15
+CORNER_MIN_DET = 0.5
+SEPARATION_RATIO = 3.0
+KEEP_FRACTION = 0.5
+COHERENCE = 1.2
+GAP = 0.3
+MIN_CORNER_POINTS = 3
+GROUP_RADIUS = 3.0
+
+
+@dataclass(frozen=True)
+class Creases:
+    """Sharp features of a point set.
+
+    Attributes
+    ----------
+    labels : (n,) int8
+        ``SMOOTH`` (0), ``CREASE`` (1) or ``CORNER`` (2) per point.
+    side_normals : (n, 3, 3) float64
+        Unit side normals: rows 0 and 1 for a crease, 0-2 for a corner, zero otherwise. Signed
+        by the majority of the input normals, so oriented input gives oriented sides.
+    direction : (n, 3) float64
+        Unit crease direction ``n1 x n2`` at crease points; zero elsewhere.
+    turn_deg : (n,) float64 [deg]
+        Angle between the side normals (the smallest pair at a corner); 0 when smooth.
+    corners : (m, 3) float64 [length]
+        One point per detected corner.
+    length : float [length]
+        Detected crease length (band integral, see the module docstring).
+    """
+
+    labels: np.ndarray
+    side_normals: np.ndarray
+    direction: np.ndarray
+    turn_deg: np.ndarray
+    corners: np.ndarray
+    length: float
+
+    @property
+    def n_crease_points(self) -> int:
+        return int(np.count_nonzero(self.labels == CREASE))
+
+    @property
+    def n_corner_points(self) -> int:
+        return int(np.count_nonzero(self.labels == CORNER))
+
+
+def detect_creases(
+    points: np.ndarray,
+    normals: np.ndarray | None = None,
+    *,
+    angle_deg: float = 40.0,
+    k: int = 48,
+    normals_k: int = 20,
+) -> Creases:
+    """Label every point smooth, crease or corner (see the module docstring).
+
+    Parameters
+    ----------
+    points : (n, 3) float64 [length]
+    normals : (n, 3) float64, optional
+        Unit normals, oriented or not; estimated by PCA of ``normals_k`` neighbours if None.
+    angle_deg : float [deg]
+        Smallest angle between the two side normals that counts as a crease.
+    k : int
+        Neighbourhood size of the clustering (capped at n).
+    """
+    pts = as_points(points)
+    n = len(pts)
+    kk = int(min(k, n))
+    if kk < 8:
+        return _empty(n)
+    tree = cKDTree(pts)
+    dist, idx = tree.query(pts, k=kk)
+    idx = np.ascontiguousarray(idx, dtype=np.int64)
+    own, variation = _pca(pts, tree, min(normals_k, n))
+    if normals is None:
+        normals = own
+    nrm = np.ascontiguousarray(normals, dtype=np.float64)
+    label, side, direction, turn, _, corner, _, foot = gauss_map_kernel(
+        pts,
+        nrm,
+        variation,
+        idx,
+        max(8, int(round(KEEP_FRACTION * kk))),
+        np.radians(angle_deg),
+        SEPARATION_RATIO,
+        CREASE_SHARE,
+        CORNER_SHARE,
+        CORNER_MIN_DET,
+    )
+    h = np.sqrt(np.pi * dist[:, -1] ** 2 / kk)
+    label = _reach_line(pts, tree, label, direction, foot, h, kk)
+    label = _coherent(pts, label, direction, idx, dist[:, -1])
+    corners, lone = _group_corners(label, corner, float(np.median(h)))
+    label[lone] = SMOOTH
+    length = _line_length(foot[label == CREASE], h[label == CREASE])
+    return Creases(
+        labels=label,
+        side_normals=side,
+        direction=direction,
+        turn_deg=np.degrees(turn),
+        corners=corners,
+        length=length,
+    )
+
+
+def _line_length(foot: np.ndarray, h: np.ndarray) -> float:
+    """Length of the 1-D set of crease feet: each stands for ``2 h / m`` of line, ``m`` being
+    the number of feet within ``h`` of it (itself included)."""
+    if len(foot) == 0:
+        return 0.0
+    tree = cKDTree(foot)
+    counts = np.array([len(x) for x in tree.query_ball_point(foot, h)], dtype=np.float64)
+    return float(np.sum(2.0 * h / counts))
+
+
+def _reach_line(
+    pts: np.ndarray,
+    tree: cKDTree,
+    label: np.ndarray,
+    direction: np.ndarray,
+    foot: np.ndarray,
+    h: np.ndarray,
+    k: int,
+) -> np.ndarray:
+    """Keep crease points whose line the data reach: one of the ``k`` data points nearest to
+    the point's foot on the line lies within ``GAP * h`` of the line (the foot, not the point:
+    near a knife edge the wide neighbourhood of a crease point may not reach the edge).
+    A rounded edge (fillet of radius rho) keeps its data ``(1/cos(turn/2) - 1) rho`` off the
+    planes' intersection, about 0.4 rho at 90 deg; a sharp crease has data on the line."""
+    sel = np.flatnonzero(label == CREASE)
+    if len(sel) == 0:
+        return label
+    _, near = tree.query(foot[sel], k=k)
+    rel = pts[near] - foot[sel][:, None, :]
+    d = direction[sel][:, None, :]
+    t = np.einsum("nkj,nkj->nk", rel, d)
+    gap = np.linalg.norm(rel - t[..., None] * d, axis=2).min(axis=1)
+    out = label.copy()
+    out[sel[gap > GAP * h[sel]]] = SMOOTH
+    return out
+
+
+def _coherent(
+    pts: np.ndarray, label: np.ndarray, direction: np.ndarray, idx: np.ndarray, radius: np.ndarray
+) -> np.ndarray:
+    """Keep crease points whose line continues: feature neighbours near the line through the
+    point along its direction ``d`` (crease neighbours also parallel to it) must span at least
+    ``COHERENCE`` neighbourhood radii along ``d``. Facets of a coarse mesh and kinks of a
+    scan give short, scattered fragments; a crease runs through the whole neighbourhood."""
+    sel = np.flatnonzero(label == CREASE)
+    if len(sel) == 0:
+        return label
+    nb = idx[sel]
+    d = direction[sel][:, None, :]
+    rel = pts[nb] - pts[sel][:, None, :]
+    t = np.einsum("nkj,nkj->nk", rel, d)
+    off = np.linalg.norm(rel - t[..., None] * d, axis=2)
+    lab = label[nb]
+    par = np.abs(np.einsum("nkj,nkj->nk", direction[nb], d)) > np.cos(np.radians(20.0))
+    ok = ((lab == CORNER) | ((lab == CREASE) & par)) & (off < 0.5 * radius[sel][:, None])
+    t_max = np.where(ok, t, -np.inf).max(axis=1)
+    t_min = np.where(ok, t, np.inf).min(axis=1)
+    out = label.copy()
+    out[sel[t_max - t_min < COHERENCE * radius[sel]]] = SMOOTH
+    return out
+
+
+def _pca(pts: np.ndarray, tree: cKDTree, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """PCA normals and surface variation ``l3 / (l1 + l2 + l3)`` of ``k`` neighbours."""
+    _, idx = tree.query(pts, k=k)
+    nb = pts[idx]
+    nb = nb - nb.mean(axis=1, keepdims=True)
+    cov = np.einsum("nki,nkj->nij", nb, nb)
+    w, v = np.linalg.eigh(cov)
+    total = w.sum(axis=1)
+    variation = np.where(total > 0, w[:, 0] / np.where(total > 0, total, 1.0), 0.0)
+    return np.ascontiguousarray(v[:, :, 0]), np.ascontiguousarray(variation)
+
+
+def _group_corners(
+    label: np.ndarray, corner: np.ndarray, h: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Corners: groups of corner estimates within ``GROUP_RADIUS * h`` of each other, at least
+    ``MIN_CORNER_POINTS`` strong, each placed at the median; and the indices of the corner
+    points left alone (returned so that the caller can unlabel them)."""
+    sel = np.flatnonzero(label == CORNER)
+    if len(sel) == 0:
+        return np.zeros((0, 3)), sel
+    est = corner[sel]
+    pairs = cKDTree(est).query_pairs(GROUP_RADIUS * h, output_type="ndarray")
+    graph = sparse.coo_matrix(
+        (np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(sel), len(sel))
+    )
+    n_comp, comp = csgraph.connected_components(graph, directed=False)
+    sizes = np.bincount(comp, minlength=n_comp)
+    big = np.flatnonzero(sizes >= MIN_CORNER_POINTS)
+    out = np.array([np.median(est[comp == c], axis=0) for c in big]).reshape(-1, 3)
+    return out, sel[sizes[comp] < MIN_CORNER_POINTS]
+
+
+def _empty(n: int) -> Creases:
+    return Creases(
+        labels=np.zeros(n, np.int8),
+        side_normals=np.zeros((n, 3, 3)),
+        direction=np.zeros((n, 3)),
+        turn_deg=np.zeros(n),
+        corners=np.zeros((0, 3)),
+        length=0.0,
+    )

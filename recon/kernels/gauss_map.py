@@ -1,0 +1,358 @@
+"""Gauss-map clustering of neighbourhood normals: the per-point kernel of crease detection.
+
+For each point the normals of its ``K`` nearest data points are clustered as *axes* (a normal
+and its negative are the same axis, so the result does not depend on orientation): Lloyd
+iterations of 2-means and then 3-means with the cost ``1 - |n . c|`` [WHH10]. A cluster's
+centre is the normalised sum of its members' normals after flipping each to agree with the
+centre; its *spread* is the median angle between its members and the centre.
+
+For each pair of clusters ``(a, b)`` the kernel fits one plane per cluster (by PCA of the
+member points) and intersects them: the crease line runs along
+
+.. math::  d = n_a \\times n_b / |n_a \\times n_b|
+
+through the point ``x_0`` of the line closest to the query point ``p``. The *turning angle*
+(the angle between the two face normals: 0 on a plane, 90 deg on a box edge, near 180 deg on a
+knife edge) is measured from the geometry, so that unoriented normals suffice: with ``u_a``
+the unit direction from the line to the centroid of cluster ``a`` (perpendicular to ``d``),
+the wedge angle is ``acos(u_a . u_b)`` and the turning angle is 180 deg minus it.
+
+A pair *separates* when the axial angle between the two centres exceeds
+``ratio * (spread_a + spread_b)``: two tight, distinct clusters. A smooth surface gives a
+continuum of normals, whose halves lie about two spreads apart (a uniform arc: separation
+Phi/2, spreads Phi/8 each), and noise widens the spreads with the separation, so this ratio is
+the noise floor.
+
+Labels: 2 (corner) when all three pairs of the 3-means separate, turn by more than the
+threshold, the smallest cluster holds ``corner_share`` of the points and the third axis leaves
+the plane of the other two by more than ``asin(min_det)`` (a blend of two faces' normals lies in
+that plane); else 1 (crease) when
+the 2-means pair does so with ``crease_share``; else 0.
+
+References
+----------
+[WHH10] C. Weber, S. Hahmann, H. Hagen. "Sharp feature detection in point clouds".
+        Shape Modeling International 2010, 175-186.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit, prange
+
+from .options import EXACT_JIT_OPTIONS
+
+_PARALLEL = dict(EXACT_JIT_OPTIONS, parallel=True)
+_ITERATIONS = 10
+
+
+@njit(**EXACT_JIT_OPTIONS)
+def _lloyd(nb, centres, m, assign):  # pragma: no cover - numba
+    """Axial Lloyd iterations on the unit normals ``nb`` with ``m`` initial ``centres``."""
+    kk = nb.shape[0]
+    for _ in range(_ITERATIONS):
+        for j in range(kk):
+            best = -1.0
+            arg = 0
+            for c in range(m):
+                dot = abs(
+                    nb[j, 0] * centres[c, 0] + nb[j, 1] * centres[c, 1] + nb[j, 2] * centres[c, 2]
+                )
+                if dot > best:
+                    best = dot
+                    arg = c
+            assign[j] = arg
+        for c in range(m):
+            sx = 0.0
+            sy = 0.0
+            sz = 0.0
+            for j in range(kk):
+                if assign[j] == c:
+                    dot = (
+                        nb[j, 0] * centres[c, 0]
+                        + nb[j, 1] * centres[c, 1]
+                        + nb[j, 2] * centres[c, 2]
+                    )
+                    s = 1.0 if dot >= 0.0 else -1.0
+                    sx += s * nb[j, 0]
+                    sy += s * nb[j, 1]
+                    sz += s * nb[j, 2]
+            norm = np.sqrt(sx * sx + sy * sy + sz * sz)
+            if norm > 0.0:
+                centres[c, 0] = sx / norm
+                centres[c, 1] = sy / norm
+                centres[c, 2] = sz / norm
+
+
+@njit(**EXACT_JIT_OPTIONS)
+def _clusters(nb, pts, centres, m, assign, share, spread, centroid, plane):  # pragma: no cover
+    """Share, spread (median angle to the centre), centroid and plane normal (PCA of the member
+    points, signed like the centre; the centre itself with fewer than 3 members) per cluster."""
+    kk = nb.shape[0]
+    angles = np.empty(kk)
+    for c in range(m):
+        cnt = 0
+        cx = 0.0
+        cy = 0.0
+        cz = 0.0
+        for j in range(kk):
+            if assign[j] == c:
+                dot = abs(
+                    nb[j, 0] * centres[c, 0] + nb[j, 1] * centres[c, 1] + nb[j, 2] * centres[c, 2]
+                )
+                angles[cnt] = np.arccos(min(dot, 1.0))
+                cnt += 1
+                cx += pts[j, 0]
+                cy += pts[j, 1]
+                cz += pts[j, 2]
+        share[c] = cnt / kk
+        if cnt > 0:
+            spread[c] = np.median(angles[:cnt])
+            centroid[c, 0] = cx / cnt
+            centroid[c, 1] = cy / cnt
+            centroid[c, 2] = cz / cnt
+            plane[c] = centres[c]
+            if cnt >= 3:
+                cov = np.zeros((3, 3))
+                for j in range(kk):
+                    if assign[j] == c:
+                        r = pts[j] - centroid[c]
+                        for a in range(3):
+                            for b in range(3):
+                                cov[a, b] += r[a] * r[b]
+                _, vec = np.linalg.eigh(cov)
+                nrm = vec[:, 0].copy()
+                if nrm @ centres[c] < 0.0:
+                    nrm = -nrm
+                plane[c] = nrm
+        else:
+            plane[c] = centres[c]
+            spread[c] = np.pi
+            centroid[c, :] = pts[0]
+
+
+@njit(**EXACT_JIT_OPTIONS)
+def _pair(p, na, nb_, ca, cb, out_d, out_x0):  # pragma: no cover - numba
+    """Intersect the planes (na, ca) and (nb_, cb); return (turning angle, distance, in-face
+    distance) of ``p`` and write the unit direction and the closest line point."""
+    c = na[0] * nb_[0] + na[1] * nb_[1] + na[2] * nb_[2]
+    dx = na[1] * nb_[2] - na[2] * nb_[1]
+    dy = na[2] * nb_[0] - na[0] * nb_[2]
+    dz = na[0] * nb_[1] - na[1] * nb_[0]
+    dn = np.sqrt(dx * dx + dy * dy + dz * dz)
+    det = 1.0 - c * c
+    if dn < 1e-9 or det < 1e-12:
+        return 0.0, np.inf, np.inf
+    dx /= dn
+    dy /= dn
+    dz /= dn
+    ra = na[0] * (ca[0] - p[0]) + na[1] * (ca[1] - p[1]) + na[2] * (ca[2] - p[2])
+    rb = nb_[0] * (cb[0] - p[0]) + nb_[1] * (cb[1] - p[1]) + nb_[2] * (cb[2] - p[2])
+    a = (ra - c * rb) / det
+    b = (rb - c * ra) / det
+    x0 = np.empty(3)
+    for t in range(3):
+        x0[t] = p[t] + a * na[t] + b * nb_[t]
+    d = np.array([dx, dy, dz])
+    ua = ca - x0
+    ub = cb - x0
+    ua -= (ua[0] * dx + ua[1] * dy + ua[2] * dz) * d
+    ub -= (ub[0] * dx + ub[1] * dy + ub[2] * dz) * d
+    la = np.sqrt(ua[0] ** 2 + ua[1] ** 2 + ua[2] ** 2)
+    lb = np.sqrt(ub[0] ** 2 + ub[1] ** 2 + ub[2] ** 2)
+    if la == 0.0 or lb == 0.0:
+        return 0.0, np.inf, np.inf
+    ua /= la
+    ub /= lb
+    cw = min(1.0, max(-1.0, ua[0] * ub[0] + ua[1] * ub[1] + ua[2] * ub[2]))
+    turn = np.pi - np.arccos(cw)
+    r = p - x0
+    dist = np.sqrt(a * a + b * b + 2.0 * a * b * c)
+    inface = max(
+        abs(r[0] * ua[0] + r[1] * ua[1] + r[2] * ua[2]),
+        abs(r[0] * ub[0] + r[1] * ub[1] + r[2] * ub[2]),
+    )
+    out_d[:] = d
+    out_x0[:] = x0
+    return turn, dist, inface
+
+
+@njit(**_PARALLEL)
+def gauss_map_kernel(
+    points, normals, variation, idx, keep, min_turn, ratio, crease_share, corner_share, min_det
+):  # pragma: no cover - numba
+    """Classify every point from the normals of its neighbours ``idx`` (n, K).
+
+    Only the ``keep`` neighbours of least surface ``variation`` (the PCA ratio
+    ``l3 / (l1 + l2 + l3)``) are clustered: the normals of points within a normal-estimation
+    radius of an edge are blends of both sides and would fill the gap between the clusters.
+
+    Returns
+    -------
+    label : (n,) int8
+        0 smooth, 1 crease, 2 corner.
+    side : (n, 3, 3) float64
+        The cluster centre normals (two for a crease, three for a corner), each signed to
+        agree with the majority of its members' input normals.
+    direction : (n, 3) float64
+        For a crease the unit crease direction ``n1 x n2``; zero otherwise.
+    turn : (n,) float64 [rad]
+        Turning angle of the crease (the smallest pair's for a corner); 0 when smooth.
+    inface : (n,) float64 [length]
+        In-face distance from the point to its crease line (the nearest of the three pair
+        lines for a corner); inf when smooth.
+    corner : (n, 3) float64
+        For a corner the least-squares intersection of the three planes; NaN otherwise.
+    spread : (n, 2) float64 [rad]
+        The spreads of the two 2-means clusters.
+    foot : (n, 3) float64
+        For a crease the point of its line closest to the point; NaN otherwise.
+    """
+    n = idx.shape[0]
+    kk = keep
+    label = np.zeros(n, np.int8)
+    side = np.zeros((n, 3, 3))
+    direction = np.zeros((n, 3))
+    turn_out = np.zeros(n)
+    inface_out = np.full(n, np.inf)
+    corner = np.full((n, 3), np.nan)
+    spread_out = np.zeros((n, 2))
+    foot = np.full((n, 3), np.nan)
+    for i in prange(n):
+        # the ``keep`` most planar neighbours: drops the normals blended across an edge
+        order = np.argsort(variation[idx[i]], kind="mergesort")[:kk]
+        nb = np.empty((kk, 3))
+        pts = np.empty((kk, 3))
+        for j in range(kk):
+            nb[j] = normals[idx[i, order[j]]]
+            pts[j] = points[idx[i, order[j]]]
+        # medoid axis, then the member farthest from it
+        best = -1.0
+        m0 = 0
+        for j in range(kk):
+            s = 0.0
+            for q in range(kk):
+                s += abs(nb[j, 0] * nb[q, 0] + nb[j, 1] * nb[q, 1] + nb[j, 2] * nb[q, 2])
+            if s > best:
+                best = s
+                m0 = j
+        centres = np.zeros((3, 3))
+        centres[0] = nb[m0]
+        worst = 2.0
+        m1 = 0
+        for j in range(kk):
+            dot = abs(nb[j, 0] * nb[m0, 0] + nb[j, 1] * nb[m0, 1] + nb[j, 2] * nb[m0, 2])
+            if dot < worst:
+                worst = dot
+                m1 = j
+        centres[1] = nb[m1]
+        assign = np.zeros(kk, np.int64)
+        _lloyd(nb, centres, 2, assign)
+        share = np.zeros(3)
+        spread = np.zeros(3)
+        centroid = np.zeros((3, 3))
+        plane = np.zeros((3, 3))
+        _clusters(nb, pts, centres, 2, assign, share, spread, centroid, plane)
+        spread_out[i, 0] = spread[0]
+        spread_out[i, 1] = spread[1]
+        d = np.zeros(3)
+        x0 = np.zeros(3)
+        sep2 = np.arccos(min(1.0, abs(centres[0] @ centres[1])))
+        crease_ok = False
+        t2 = 0.0
+        dist2 = np.inf
+        d2 = np.zeros(3)
+        x2 = np.zeros(3)
+        if min(share[0], share[1]) >= crease_share and sep2 > ratio * (spread[0] + spread[1]):
+            t2, _, dist2 = _pair(
+                points[i], centres[0], centres[1], centroid[0], centroid[1], d2, x2
+            )
+            crease_ok = t2 > min_turn
+        # three clusters: the 2-means centres plus the worst-explained member
+        c3 = centres.copy()
+        c3[2] = nb[_worst(nb, c3, 2)]
+        assign3 = np.zeros(kk, np.int64)
+        _lloyd(nb, c3, 3, assign3)
+        share3 = np.zeros(3)
+        spread3 = np.zeros(3)
+        centroid3 = np.zeros((3, 3))
+        plane3 = np.zeros((3, 3))
+        _clusters(nb, pts, c3, 3, assign3, share3, spread3, centroid3, plane3)
+        corner_ok = min(share3[0], min(share3[1], share3[2])) >= corner_share
+        tmin = np.inf
+        dmin = np.inf
+        for a in range(3):
+            if not corner_ok:
+                break
+            for b in range(a + 1, 3):
+                sep = np.arccos(min(1.0, abs(c3[a] @ c3[b])))
+                if sep <= ratio * (spread3[a] + spread3[b]):
+                    corner_ok = False
+                    break
+                t, _, dd = _pair(points[i], plane3[a], plane3[b], centroid3[a], centroid3[b], d, x0)
+                if t <= min_turn:
+                    corner_ok = False
+                    break
+                tmin = min(tmin, t)
+                dmin = min(dmin, dd)
+        if corner_ok:
+            # least-squares intersection of the three planes
+            mat = np.zeros((3, 3))
+            rhs = np.zeros(3)
+            for a in range(3):
+                mat[a] = plane3[a]
+                rhs[a] = plane3[a] @ centroid3[a]
+            # a third axis in the plane of the other two is a blend, not a third face
+            cr = np.cross(mat[0], mat[1])
+            cn = np.sqrt(cr @ cr)
+            if cn > 0.0 and abs(cr @ mat[2]) > min_det * cn:
+                corner[i] = np.linalg.solve(mat, rhs)
+                label[i] = 2
+                turn_out[i] = tmin
+                inface_out[i] = dmin
+                _sign(nb, plane3, assign3, 3)
+                side[i] = plane3
+                continue
+        if crease_ok:
+            foot[i] = x2
+            label[i] = 1
+            turn_out[i] = t2
+            inface_out[i] = dist2
+            _sign(nb, plane, assign, 2)
+            side[i, :2] = plane[:2]
+            dx = plane[0, 1] * plane[1, 2] - plane[0, 2] * plane[1, 1]
+            dy = plane[0, 2] * plane[1, 0] - plane[0, 0] * plane[1, 2]
+            dz = plane[0, 0] * plane[1, 1] - plane[0, 1] * plane[1, 0]
+            dn = np.sqrt(dx * dx + dy * dy + dz * dz)
+            direction[i, 0] = dx / dn
+            direction[i, 1] = dy / dn
+            direction[i, 2] = dz / dn
+    return label, side, direction, turn_out, inface_out, corner, spread_out, foot
+
+
+@njit(**EXACT_JIT_OPTIONS)
+def _sign(nb, centres, assign, m):  # pragma: no cover - numba
+    """Sign each centre to agree with the majority of its members' input normals."""
+    for c in range(m):
+        s = 0.0
+        for j in range(nb.shape[0]):
+            if assign[j] == c:
+                dot = nb[j] @ centres[c]
+                s += 1.0 if dot >= 0.0 else -1.0
+        if s < 0.0:
+            centres[c] = -centres[c]
+
+
+@njit(**EXACT_JIT_OPTIONS)
+def _worst(nb, centres, m):  # pragma: no cover - numba
+    """Index of the member least explained by the first ``m`` centres."""
+    worst = 2.0
+    arg = 0
+    for j in range(nb.shape[0]):
+        best = 0.0
+        for c in range(m):
+            best = max(best, abs(nb[j] @ centres[c]))
+        if best < worst:
+            worst = best
+            arg = j
+    return arg
