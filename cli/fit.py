@@ -254,12 +254,15 @@ def format_summary(report: FitReport) -> str:
 @click.option(
     "--crease-angle",
     type=float,
-    help="Sharp-crease threshold: smallest angle between the two face normals [deg] "
-    "(creases.angle_deg, default 50; 90 = box edge). Detection only, reported in the "
-    "summary: the mesh is unchanged.",
+    help="Detect sharp creases at this threshold and report them: smallest angle between the "
+    "two face normals [deg] (creases.angle_deg, 50 when creases.enabled is set; 90 = box "
+    "edge). Detection only, reported in the summary: the mesh is unchanged.",
 )
 @click.option(
-    "--no-creases", is_flag=True, default=None, help="Skip crease detection (creases.enabled)."
+    "--no-creases",
+    is_flag=True,
+    default=None,
+    help="Skip crease detection even when a config enables it (creases.enabled).",
 )
 @click.option("--seed", type=int, help="Random seed (same seed, same mesh).")
 @click.option("--max-particles", type=int, help="Cap on particles (dynamics.max_particles).")
@@ -350,7 +353,10 @@ def command(
             "obj_colors": obj_colors,
             "colors": False if no_colors else None,
         },
-        creases={"angle_deg": crease_angle, "enabled": False if no_creases else None},
+        creases={
+            "angle_deg": crease_angle,
+            "enabled": False if no_creases else (True if crease_angle is not None else None),
+        },
     )
     if seed is not None:
         cfg = apply_overrides(cfg, {"seed": seed})

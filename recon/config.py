@@ -361,9 +361,11 @@ class CreasesConfig(Schema):
     PREFIX: ClassVar[str] = "creases."
 
     enabled: bool = option(
-        True,
+        False,
         "Detect sharp creases and corners in the data (Gauss-map clustering, recon.creases) "
-        "and report their length and count. Detection only: the mesh does not change.",
+        "and report their length and count. Detection only, so far: the mesh does not change. "
+        "Off by default until crease particles use it (it also reports some rounded edges of "
+        "smooth scans); --crease-angle turns it on.",
     )
     angle_deg: float = option(
         50.0,

@@ -193,7 +193,8 @@ def test_detection_is_deterministic_and_orientation_free():
 
 
 def test_config_and_cli(tmp_path):
-    assert CreasesConfig().enabled and 0 < ReconConfig().creases.angle_deg < 90
+    # off by default (report-only so far); --crease-angle turns it on, --no-creases off
+    assert not CreasesConfig().enabled and 0 < ReconConfig().creases.angle_deg < 90
     src = tmp_path / "lblock.ply"
     write_points(src, _lblock(n=3000))
     runner = CliRunner()
@@ -211,6 +212,9 @@ def test_config_and_cli(tmp_path):
     )
     assert res.exit_code == 0, res.output
     assert "creases" not in json.loads((tmp_path / "b.report.json").read_text())
+    res = runner.invoke(app, ["fit", str(src), "-o", str(tmp_path / "d.ply"), *fast])
+    assert res.exit_code == 0, res.output
+    assert "creases" not in json.loads((tmp_path / "d.report.json").read_text())
     # detection does not change the mesh
     assert (tmp_path / "a.ply").read_bytes() == (tmp_path / "b.ply").read_bytes()
     res = runner.invoke(
