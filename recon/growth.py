@@ -30,6 +30,7 @@ from scipy.spatial import cKDTree
 from .config import GrowthConfig
 from .geometry import poisson_disk_thin
 from .kernels.growth_rules import MAX_PER_PARTICLE, grow_kernel
+from .kernels.options import query_workers
 from .surface import DataSurface, max_angular_gap
 
 #: Candidates closer than this to a data point [r0] count as supported without the
@@ -123,7 +124,7 @@ def stretch_candidates(
     a, b = a[agree], b[agree]
     mid = 0.5 * (position[a] + position[b])
     if len(mid) > 0:
-        dist, _ = tree.query(mid, k=1, workers=-1)
+        dist, _ = tree.query(mid, k=1, workers=query_workers())
         keep = dist >= 0.5 * cfg.stretch_min
         mid, a, b = mid[keep], a[keep], b[keep]
     if not with_normals:
@@ -186,7 +187,7 @@ def accept_candidates(
     if m == 0:
         return empty
     radius = cfg.reject_radius * (np.ones(m) if rest is None else rest)
-    d_part, _ = particle_tree.query(candidates, k=1, workers=-1)
+    d_part, _ = particle_tree.query(candidates, k=1, workers=query_workers())
     ok = d_part >= radius
     n_close = int((~ok).sum())
     c = candidates[ok]
@@ -215,7 +216,7 @@ def accept_candidates(
         c, pn, radius = c[keep], pn[keep], radius[keep]
     if len(c) == 0:
         return Acceptance(c, pn, m, n_close, n_unsup, n_off)
-    d_part, _ = particle_tree.query(c, k=1, workers=-1)
+    d_part, _ = particle_tree.query(c, k=1, workers=query_workers())
     keep = d_part >= radius
     n_close += int((~keep).sum())
     c, pn, radius = c[keep], pn[keep], radius[keep]

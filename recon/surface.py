@@ -32,6 +32,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from .kernels.local_surface import fit_quadrics_kernel, max_angular_gap_kernel, select_agreeing
+from .kernels.options import query_workers
 
 #: Nearest data points searched for one whose normal agrees with a particle's
 #: (:meth:`DataSurface.nearest_agreeing`).
@@ -77,7 +78,7 @@ class DataSurface:
         k = int(min(max(k, 3), len(points)))
         # twice the neighbours, of which the first k on the same sheet (normals agreeing) fit
         k_query = int(min(2 * k, len(points)))
-        _, idx = tree.query(points, k=k_query, workers=-1)
+        _, idx = tree.query(points, k=k_query, workers=query_workers())
         idx = select_agreeing(normals, np.ascontiguousarray(idx.reshape(len(points), -1)), k)
         pp, pn, tangents, quadrics, residual = fit_local_quadrics(points, normals, idx)
         return cls(points, normals, pp, pn, tangents, quadrics, float(np.median(residual)), tree)
@@ -88,7 +89,7 @@ class DataSurface:
 
     def nearest(self, query: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Distance [r0] and index of the nearest data point for each query point."""
-        dist, idx = self.tree.query(query, k=1, workers=-1)
+        dist, idx = self.tree.query(query, k=1, workers=query_workers())
         return dist, idx
 
     def nearest_agreeing(
@@ -100,7 +101,7 @@ class DataSurface:
         if normals is None or len(query) == 0:
             return self.nearest(query)
         k = int(min(AGREE_K, self.n_points))
-        dist, idx = self.tree.query(query, k=k, workers=-1)
+        dist, idx = self.tree.query(query, k=k, workers=query_workers())
         dist = dist.reshape(len(query), k)
         idx = idx.reshape(len(query), k)
         agree = np.einsum("ijk,ik->ij", self.normals[idx], normals) > 0.0
@@ -223,7 +224,7 @@ def max_angular_gap(
         ]
         return np.concatenate(parts)
     k = int(min(k, len(tree_points)))
-    dist, idx = tree.query(centers, k=k, distance_upper_bound=radius, workers=-1)
+    dist, idx = tree.query(centers, k=k, distance_upper_bound=radius, workers=query_workers())
     dist = dist.reshape(len(centers), k)
     idx = idx.reshape(len(centers), k)
     valid = np.isfinite(dist)
@@ -256,7 +257,7 @@ def feature_spacing(
     """
     pts, nrm = surface.points, surface.normals
     k = int(min(k, len(pts)))
-    dist, idx = surface.tree.query(pts, k=k, workers=-1)
+    dist, idx = surface.tree.query(pts, k=k, workers=query_workers())
     dist = dist.reshape(len(pts), k)
     idx = idx.reshape(len(pts), k)
     # the local data spacing [r0]: the median nearest-neighbour distance scaled by the local
@@ -271,7 +272,9 @@ def feature_spacing(
     lfs = 1.0 / np.maximum(kappa, 1e-12)
     # thickness: nearest opposed data behind the point, within 4 spacing_max
     k_far = int(min(3 * k, len(pts)))
-    far, fidx = surface.tree.query(pts, k=k_far, distance_upper_bound=4.0 * spacing_max, workers=-1)
+    far, fidx = surface.tree.query(
+        pts, k=k_far, distance_upper_bound=4.0 * spacing_max, workers=query_workers()
+    )
     far = far.reshape(len(pts), k_far)
     fidx = np.where(np.isfinite(far), fidx.reshape(len(pts), k_far), 0)
     offset = np.einsum("ijk,ik->ij", pts[fidx] - pts[:, None, :], nrm)

@@ -235,3 +235,36 @@ def test_batch_threads_option_sets_every_item(tmp_path, clean_env, monkeypatch):
     seen = _batch_env(tmp_path, monkeypatch, "--jobs", "2", "--threads", "1")
     for env in seen.values():
         assert all(env[v] == "1" for v in THREAD_ENV) and env["numba"] == 1
+
+
+def test_threads_limit_every_kd_tree_query_of_a_fit(monkeypatch):
+    """Regression: coverage, growth and the data-surface queries used ``workers=-1`` (every
+    core) whatever ``threads`` said, so parallel batch items oversubscribed the machine."""
+    import scipy.spatial
+
+    import recon.fitting.schedule
+    import recon.geometry
+    import recon.growth
+    import recon.normals
+    import recon.surface
+    from recon.fitting import reconstruct
+    from recon.io import read_points
+
+    seen: list[int] = []
+
+    class RecordingTree(scipy.spatial.cKDTree):
+        def query(self, *args, **kwargs):
+            seen.append(kwargs.get("workers", 1))
+            return super().query(*args, **kwargs)
+
+    for module in (
+        recon.fitting.schedule,
+        recon.geometry,
+        recon.growth,
+        recon.normals,
+        recon.surface,
+    ):
+        monkeypatch.setattr(module, "cKDTree", RecordingTree)
+    cloud = read_points(SPHERE)
+    reconstruct(cloud, apply_overrides(ReconConfig(), {"threads": 1}))
+    assert seen and set(seen) == {1}, sorted(set(seen))

@@ -34,6 +34,7 @@ from ..config import ReconConfig
 from ..dynamics import Simulation
 from ..errors import DivergenceError, LimitExceeded
 from ..growth import accept_candidates, grow_candidates, stretch_candidates
+from ..kernels.options import query_workers
 from ..neighbors import build_neighbor_list
 from ..params import PhysicsParams
 from ..seeds import select_seeds
@@ -268,7 +269,7 @@ class _Schedule:
         return self.steps["grow"] + self.steps["release"]
 
     def coverage(self, positions: np.ndarray) -> float:
-        d, _ = cKDTree(positions).query(self.cover_sample, k=1, workers=-1)
+        d, _ = cKDTree(positions).query(self.cover_sample, k=1, workers=query_workers())
         return float(np.mean(d <= COVER_RADIUS))
 
     def relax(self, sim: Simulation, state: ParticleState, n_steps: int, phase: str) -> float:
