@@ -292,3 +292,24 @@ def test_report_carries_the_memory_estimate(tmp_path):
     mem = rep["input"]["memory_estimate"]
     assert mem["points"] == rep["input"]["points"]
     assert mem["peak_bytes"] > 0 and mem["particles"] > 0
+
+
+def test_every_mesh_file_of_a_fit_carries_the_attributes(tmp_path):
+    """Regression: batch wrote its second mesh format after the fit with a plain
+    ``write_mesh``, dropping the colours and vertex properties (and outside the all-or-nothing
+    set of outputs)."""
+    from recon.batch.worker import run_item
+    from recon.config import config_to_dict
+
+    src = two_coloured_sphere(tmp_path)
+    cfg = config_from_dict(
+        {"seeds": {"min_particles": 0}, "dynamics": {"max_steps": 150}, "output": {"quality": True}}
+    )
+    meshes = [tmp_path / "a.ply", tmp_path / "b.ply"]
+    spec = {"input": str(src), "meshes": [str(m) for m in meshes], "config": config_to_dict(cfg)}
+    run_item(spec)
+    first, second = (PlyData.read(str(m))["vertex"] for m in meshes)
+    for element in (first, second):
+        names = {p.name for p in element.properties}
+        assert {"red", "green", "blue", "quality"} <= names, names
+    assert np.array_equal(first["red"], second["red"])

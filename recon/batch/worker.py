@@ -54,7 +54,6 @@ def run_item(
         Summary columns, see :func:`metrics_from_report`.
     """
     from ..fitting import fit_file
-    from ..io import write_mesh
 
     cfg = config_from_dict(spec["config"])
     meshes = [Path(m) for m in spec["meshes"]]
@@ -67,10 +66,8 @@ def run_item(
         write_report=True,
         mkdir=True,
         on_progress=on_progress,
+        extra_meshes=meshes[1:],
     )
-    normals = result.mesh.normals if cfg.output.vertex_normals else None
-    for extra in meshes[1:]:
-        write_mesh(extra, result.mesh.vertices, result.mesh.faces, normals, ascii=cfg.io.ascii)
     return metrics_from_report(result.report.to_dict())
 
 

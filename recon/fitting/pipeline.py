@@ -26,6 +26,7 @@ References
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -341,11 +342,14 @@ def fit_file(
     write_report: bool | None = None,
     mkdir: bool = False,
     on_progress: ProgressFn | None = None,
+    extra_meshes: Sequence[str | Path] = (),
 ) -> FitResult:
     """Read ``input_path``, reconstruct, and write the mesh (+ report, particles, preview).
 
-    Every output is written to a temporary file beside its target and renamed into place only
-    after all of them were written, so a failure or an interrupt leaves no partial file.
+    ``extra_meshes`` are more files of the same mesh (e.g. an OBJ beside the PLY), each with the
+    colours and vertex properties its format holds. Every output is written to a temporary file
+    beside its target and renamed into place only after all of them were written, so a failure
+    or an interrupt leaves no partial file.
     Writing onto the input is refused. The report (``report_path_for(output_path)``) is written
     when ``write_report`` is true, or when it is None and ``output.write_report`` is.
     """
@@ -363,10 +367,14 @@ def fit_file(
     output_path = check_output_path(Path(output_path), inputs=[input_path], mkdir=mkdir)
     want_report = cfg.output.write_report if write_report is None else write_report
     report_path = report_path_for(output_path) if want_report else None
+    meshes = [output_path] + [
+        check_output_path(Path(p), inputs=[input_path], mkdir=mkdir) for p in extra_meshes
+    ]
     for p in (particles_path, preview_path, report_path):
         if p is not None:
             check_output_path(Path(p), inputs=[input_path, output_path], mkdir=mkdir)
-    check_attribute_output(output_path, cfg.output)
+    for mesh_path in meshes:
+        check_attribute_output(mesh_path, cfg.output)
     cloud = read_points(
         input_path,
         max_points=cfg.io.max_points,
@@ -377,7 +385,6 @@ def fit_file(
     memory = estimate_fit_memory(cloud.points, cfg)  # refuses early past io.max_memory
     result = reconstruct(cloud, cfg, on_progress)
     report = result.report
-    attributes = transfer_for_output(cloud, result.mesh.vertices, report.spacing, output_path, cfg)
     result.report = replace(
         report,
         input=replace(report.input, path=str(input_path), memory_estimate=memory.to_dict()),
@@ -390,16 +397,20 @@ def fit_file(
     )
     normals = result.mesh.normals if cfg.output.vertex_normals else None
     with atomic_outputs() as outputs:  # all files appear together, or none
-        write_mesh(
-            output_path,
-            result.mesh.vertices,
-            result.mesh.faces,
-            normals,
-            ascii=cfg.io.ascii,
-            outputs=outputs,
-            colors=attributes.colors,
-            vertex_properties=attributes.properties,
-        )
+        for mesh_path in meshes:
+            attributes = transfer_for_output(
+                cloud, result.mesh.vertices, report.spacing, mesh_path, cfg
+            )
+            write_mesh(
+                mesh_path,
+                result.mesh.vertices,
+                result.mesh.faces,
+                normals,
+                ascii=cfg.io.ascii,
+                outputs=outputs,
+                colors=attributes.colors,
+                vertex_properties=attributes.properties,
+            )
         if particles_path is not None:
             write_points(
                 Path(particles_path),
