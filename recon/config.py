@@ -74,8 +74,8 @@ class IOConfig(Schema):
     )
     max_memory: str | None = option(
         None,
-        "Refuse fits whose estimated peak memory exceeds this, e.g. '8G' or '512M' (bytes, or "
-        "K/M/G/T, powers of 1024); null = no limit.",
+        "Refuse fits whose estimated peak memory exceeds this: a string such as '8G', '512M' "
+        "or '1000000000' (a number of bytes, or K/M/G/T, powers of 1024); null = no limit.",
     )
 
     def check(self, prefix: str) -> None:
