@@ -335,6 +335,9 @@ def command(
     from recon.serialize import dumps
 
     cfg = build_config(config_path, preset, overrides)
+    if (spacing is None) != (spacing_relative is None):
+        # one form of r0 on the command line replaces either form from a file or --set
+        cfg = apply_overrides(cfg, {"seeds.spacing": None, "seeds.spacing_relative": None})
     cfg = with_values(
         cfg,
         seeds={"spacing": spacing, "spacing_relative": spacing_relative},

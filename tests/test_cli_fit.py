@@ -99,6 +99,26 @@ def test_cli_options_override_config_file(tmp_path):
     assert rep["config"]["seeds"]["spacing"] == 0.2
 
 
+def test_cli_spacing_wins_over_the_other_spacing_form_of_a_config(tmp_path):
+    """Regression: a config's seeds.spacing_relative plus --spacing on the command line was
+    refused as "exclusive" instead of the command line winning (and the other way round)."""
+    src = _sphere_file(tmp_path)
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text("seeds:\n  spacing_relative: 0.05\n")
+    out = tmp_path / "m.ply"
+    args = ["fit", str(src), "-o", str(out), "-q", "--config", str(cfg), *FAST]
+    res = _run([*args, "--spacing", "0.2"])
+    assert res.exit_code == 0, res.output
+    rep = json.loads((tmp_path / "m.report.json").read_text())
+    assert rep["spacing"] == 0.2 and rep["config"]["seeds"]["spacing_relative"] is None
+    cfg.write_text("seeds:\n  spacing: 0.5\n")
+    res = _run([*args, "--spacing-relative", "0.05", "--no-report"])
+    assert res.exit_code == 0, res.output
+    # both forms on the command line are still a usage error
+    res = _run([*args, "--spacing", "0.2", "--spacing-relative", "0.05"])
+    assert res.exit_code == 2
+
+
 def test_missing_input_exits_2_without_output(tmp_path):
     out = tmp_path / "m.ply"
     res = CliRunner().invoke(app, ["fit", str(tmp_path / "nope.ply"), "-o", str(out)])
