@@ -40,7 +40,7 @@ from ..cloud import PointCloud
 from ..errors import InputError
 from . import e57, las, obj, pcd, ply, xyz
 from .clean import choose_origin, make_cloud
-from .common import as_input_points, check_readable, input_error
+from .common import as_input_points, check_readable, input_error, reading
 from .files import AtomicOutputs, atomic_output, atomic_outputs, check_output_path
 
 __all__ = [
@@ -167,27 +167,19 @@ def read_points(
             "the file has no point classification (only LAS/LAZ files have classes); "
             "drop --classes (io.classes)",
         )
-    try:
-        # hostile values (signalling NaNs, 1e39 in a float field) are data, not warnings
-        with np.errstate(invalid="ignore", over="ignore"):
-            if kind == "las":
-                fmt, pts, nrm, col, attributes = las.read_points(p, max_points, info, classes)
-            elif kind == "e57":
-                fmt, pts, nrm, col, attributes = e57.read_points(p, max_points, info)
-            elif kind == "ply":
-                fmt, pts, nrm, col = ply.read_points(p, size, max_points, info)
-            elif kind == "pcd":
-                fmt, pts, nrm, col = pcd.read_points(p, size, max_points, info)
-            elif kind == "obj":
-                fmt, pts, nrm, col = obj.read_points(p, max_points, info)
-            else:
-                fmt, pts, nrm, col = xyz.read_points(p, max_points, info)
-    except InputError:
-        raise
-    except MemoryError:
-        raise input_error(p, "out of memory while reading (file too large?)") from None
-    except OSError as exc:
-        raise input_error(p, f"cannot read: {exc.strerror or exc}") from None
+    with reading(p):
+        if kind == "las":
+            fmt, pts, nrm, col, attributes = las.read_points(p, max_points, info, classes)
+        elif kind == "e57":
+            fmt, pts, nrm, col, attributes = e57.read_points(p, max_points, info)
+        elif kind == "ply":
+            fmt, pts, nrm, col = ply.read_points(p, size, max_points, info)
+        elif kind == "pcd":
+            fmt, pts, nrm, col = pcd.read_points(p, size, max_points, info)
+        elif kind == "obj":
+            fmt, pts, nrm, col = obj.read_points(p, max_points, info)
+        else:
+            fmt, pts, nrm, col = xyz.read_points(p, max_points, info)
     return make_cloud(p, fmt, pts, nrm, col, merge_duplicates, info, attributes)
 
 
@@ -262,20 +254,13 @@ def read_mesh(path: str | os.PathLike[str]) -> tuple[np.ndarray, np.ndarray]:
     p = Path(path)
     size = check_readable(p)
     kind = _sniff(p)
-    try:
-        with np.errstate(invalid="ignore", over="ignore"):
-            if kind == "ply":
-                vertices, faces = ply.read_mesh(p, size)
-            elif kind == "obj":
-                vertices, faces = obj.read_mesh(p)
-            else:
-                raise input_error(p, "meshes can be read from .ply and .obj files only")
-    except InputError:
-        raise
-    except MemoryError:
-        raise input_error(p, "out of memory while reading (file too large?)") from None
-    except OSError as exc:
-        raise input_error(p, f"cannot read: {exc.strerror or exc}") from None
+    with reading(p):
+        if kind == "ply":
+            vertices, faces = ply.read_mesh(p, size)
+        elif kind == "obj":
+            vertices, faces = obj.read_mesh(p)
+        else:
+            raise input_error(p, "meshes can be read from .ply and .obj files only")
     vertices = np.ascontiguousarray(vertices, dtype=np.float64)
     faces = np.ascontiguousarray(faces, dtype=np.int64).reshape(-1, 3)
     if faces.size and (faces.min() < 0 or faces.max() >= vertices.shape[0]):

@@ -6,9 +6,10 @@ with the file name (:func:`input_error`).
 
 from __future__ import annotations
 
+import contextlib
 import os
 import warnings
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -53,6 +54,23 @@ COLOR_NAMES = (
 def input_error(path: Path | str | None, message: str) -> InputError:
     """An :class:`~recon.errors.InputError` ``"<path>: <message>"`` (None: ``input array``)."""
     return InputError(f"{path if path is not None else 'input array'}: {message}")
+
+
+@contextlib.contextmanager
+def reading(path: Path) -> Iterator[None]:
+    """Read ``path`` inside: out-of-memory and OS errors become an :class:`InputError` naming it.
+
+    Hostile values (signalling NaNs, 1e39 in a float field) are data, not warnings.
+    """
+    try:
+        with np.errstate(invalid="ignore", over="ignore"):
+            yield
+    except InputError:
+        raise
+    except MemoryError:
+        raise input_error(path, "out of memory while reading (file too large?)") from None
+    except OSError as exc:
+        raise input_error(path, f"cannot read: {exc.strerror or exc}") from None
 
 
 def as_input_points(arr: Any, name: str, *, where: str | None = None) -> np.ndarray:
