@@ -135,6 +135,11 @@ def format_summary(report: FitReport) -> str:
             f"perimeter {topo.largest_hole_perimeter:.4g})",
         ),
         (
+            "self-intersections",
+            f"{report.triangulation.self_intersections_left} crossing face pairs"
+            f" ({report.triangulation.self_intersections_found} before untangling)",
+        ),
+        (
             "min angle",
             f"mean {qual.min_angle_mean_deg:.1f} deg, 5th pct {qual.min_angle_p5_deg:.1f} deg",
         ),

@@ -14,6 +14,7 @@ from scipy.spatial import cKDTree
 
 import recon
 from recon.config import ReconConfig, apply_overrides
+from recon.intersections import self_intersections
 from recon.topology import mesh_topology
 
 PLATE = np.array([1.0, 0.6, 0.024])  # the dev case's plate, with sharp instead of rounded edges
@@ -53,6 +54,9 @@ def assert_closed_manifold(vertices: np.ndarray, faces: np.ndarray, genus: int) 
     )
     assert mesh.is_edge_manifold() and mesh.is_vertex_manifold()
     assert mesh.is_orientable()
+    # Open3D's is_watertight() also asks for no self-intersection (its test is quadratic in
+    # time; ours finds the same pairs, see test_intersections)
+    assert len(self_intersections(vertices, faces)) == 0
 
 
 @pytest.fixture(scope="module")

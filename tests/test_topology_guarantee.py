@@ -14,6 +14,7 @@ import pytest
 
 from recon.config import ReconConfig
 from recon.fitting import reconstruct
+from recon.intersections import self_intersections
 from recon.io import read_points
 from recon.mesh import face_area_vectors
 
@@ -47,9 +48,11 @@ def test_report_agrees_with_open3d(fits, name):
     )
     if m.is_watertight():
         assert topo.watertight
-    # the guarantee: never a non-manifold edge or vertex, always one winding
+    # the guarantee: never a non-manifold edge or vertex, always one winding, no crossing
     assert topo.non_manifold_edges == 0 and topo.non_manifold_vertices == 0
     assert topo.consistently_oriented
+    assert res.report.triangulation.self_intersections_left == 0
+    assert len(self_intersections(res.mesh.vertices, res.mesh.faces)) == 0
 
 
 def test_closed_sparse_sphere_is_watertight_for_open3d_and_outward(fits):

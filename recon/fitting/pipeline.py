@@ -38,7 +38,8 @@ from ..config import ReconConfig, config_to_dict, with_values
 from ..creases import detect_creases
 from ..errors import InputError
 from ..geometry import bbox_diagonal
-from ..kernels.options import thread_count
+from ..intersections import untangle
+from ..kernels.options import query_workers, thread_count
 from ..normals import compute_normals
 from ..serialize import dumps
 from ..state import ParticleState
@@ -77,7 +78,10 @@ __all__ = [
 #: ``triangulation.trim_distance``): they bridge a gap the mesh should keep open.
 TRIM_GAP_FRACTION = 0.5
 #: A hole candidate counts as covered by data (and is filled) when the data point nearest to
-#: its projection onto the data lies within this distance [r0].
+#: its projection onto the data lies within this distance [r0] times the local spacing, or
+#: times that data point's sampling spacing (:func:`data_spacing`) over the median one,
+#: whichever is larger: where the data is k times sparser than usual, a sample covers k times
+#: farther (uniformly sparse data keeps the test at r0, so small true holes stay open).
 HOLE_COVER_DISTANCE = 1.0
 #: The local data spacing is the distance to this many-th nearest data point.
 DENSITY_NEIGHBOURS = 6
@@ -139,6 +143,15 @@ def _trim(state: ParticleState, surface: DataSurface, cfg: ReconConfig) -> int:
     return n_trimmed
 
 
+def data_spacing(surface: DataSurface) -> np.ndarray:
+    """Each data point's sampling spacing [r0]: the distance to its ``DENSITY_NEIGHBOURS``-th
+    nearest neighbour (0 when the data holds too few points)."""
+    if surface.n_points <= DENSITY_NEIGHBOURS:
+        return np.zeros(surface.n_points)
+    dk, _ = surface.tree.query(surface.points, DENSITY_NEIGHBOURS + 1, workers=query_workers())
+    return dk[:, -1]
+
+
 def density_spacing(surface: DataSurface, positions: np.ndarray, max_scale: float) -> np.ndarray:
     """Per-particle spacing [r0] from the local data density: 1 where the data is less than
     ``DENSITY_TOLERANCE`` times sparser than its median, up to ``max_scale`` where it is sparser.
@@ -149,9 +162,8 @@ def density_spacing(surface: DataSurface, positions: np.ndarray, max_scale: floa
     """
     if max_scale <= 1.0 or surface.n_points <= DENSITY_NEIGHBOURS:
         return np.ones(len(positions))
-    dk, _ = surface.tree.query(surface.points, DENSITY_NEIGHBOURS + 1)
-    local = dk[:, -1]
-    _, nearest = surface.tree.query(positions)
+    local = data_spacing(surface)
+    _, nearest = surface.tree.query(positions, workers=query_workers())
     ratio = local[nearest] / max(float(np.median(local)), 1e-12)
     return np.clip(ratio / DENSITY_TOLERANCE, 1.0, max_scale)
 
@@ -173,16 +185,19 @@ def _triangulate(
     if cfg.seeds.adaptive and state.n:
         rest = np.array(state.rest, dtype=float)
         spacing = rest if spacing is None else np.maximum(spacing, rest)
-    return triangulate_particles(
-        state.position,
-        state.normal,
-        tri_cfg,
-        max_hole,
-        is_covered=lambda c, spacing=1.0: (
-            surface.nearest(surface.project(c)[0])[0] < HOLE_COVER_DISTANCE * spacing
-        ),
-        local_spacing=spacing,
+    sampling = data_spacing(surface)
+    sparser = sampling / max(float(np.median(sampling)), 1e-12) if len(sampling) else sampling
+
+    def is_covered(c: np.ndarray, spacing: float | np.ndarray = 1.0) -> np.ndarray:
+        dist, idx = surface.nearest(surface.project(c)[0])
+        return dist < HOLE_COVER_DISTANCE * np.maximum(spacing, sparser[idx])
+
+    result = triangulate_particles(
+        state.position, state.normal, tri_cfg, max_hole, is_covered, local_spacing=spacing
     )
+    vertices, found, left = untangle(result.vertices, result.faces)
+    stats = {**result.stats, "self_intersections_found": found, "self_intersections_left": left}
+    return replace(result, vertices=vertices, stats=stats)
 
 
 def _detect_creases(

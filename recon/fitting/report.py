@@ -220,6 +220,9 @@ class TriangulationStats(_Section):
     holes_filled: int
     small_components_removed: int
     vertices_split: int = 0
+    #: crossing face pairs found after the repair, and left after untangling
+    self_intersections_found: int = 0
+    self_intersections_left: int = 0
 
 
 @dataclass(frozen=True)

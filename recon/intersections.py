@@ -1,0 +1,163 @@
+"""Self-intersections of a triangle mesh: find them, and untangle the ones a fit leaves.
+
+A mesh that is watertight by its edges can still cross itself: where the two sheets of a thin
+part (an ear, a blade) come closer than a particle spacing, or where a zipped seam folds over
+its neighbours. Open3D's ``is_watertight()`` and mesh booleans, slicers and CGAL reject such a
+mesh, so the fit removes them: :func:`untangle` moves only the vertices around crossing faces,
+pass by pass, until none is left or the pass budget is spent.
+
+Each pass smooths the vertices of the crossing faces and their one-ring halfway toward the
+mean of their neighbours (a damped step of the umbrella operator; Taubin 1995, "A signal
+processing approach to fair surface design", with lambda = 1/2): a flap
+folded over its neighbour unfolds, and where two sheets cross, the dent that crosses flattens
+back to its side. Only those vertices move; the rest of the mesh is untouched.
+
+Candidate pairs come from a k-d tree over face centroids (bounding spheres that overlap); the
+exact test is :func:`recon.kernels.tri_intersect.pairs_intersect`. Pairs sharing a vertex are
+not tested, as in Open3D's ``get_self_intersecting_triangles``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy import sparse
+from scipy.spatial import cKDTree
+
+from .kernels.options import query_workers
+from .kernels.tri_intersect import pairs_intersect
+
+__all__ = ["UNTANGLE_PASSES", "UNTANGLE_STEP", "self_intersections", "untangle"]
+
+#: Passes of :func:`untangle` (each smooths around the crossing faces once).
+UNTANGLE_PASSES = 30
+#: Weight of the neighbours' mean in one umbrella step (1/2: halfway).
+UNTANGLE_STEP = 0.5
+#: Faces larger than this many times the median bounding radius are paired one by one rather
+#: than through the common search radius (which would then hold too many pairs).
+LARGE_FACE = 3.0
+
+
+def candidate_pairs(
+    vertices: np.ndarray, faces: np.ndarray, subset: np.ndarray | None = None
+) -> np.ndarray:
+    """Face pairs ``(m, 2)``, ``i < j``, whose bounding spheres (centroid, farthest corner)
+    overlap: a superset of the intersecting pairs (with ``subset``: of those pairs, the ones
+    with a face in ``subset``)."""
+    if len(faces) < 2:
+        return np.zeros((0, 2), dtype=np.int64)
+    corners = vertices[faces]
+    centroid = corners.mean(axis=1)
+    radius = np.linalg.norm(corners - centroid[:, None, :], axis=2).max(axis=1)
+    tree = cKDTree(centroid)
+    if subset is not None:
+        found = [np.zeros((0, 2), dtype=np.int64)]
+        near = tree.query_ball_point(
+            centroid[subset], radius[subset] + radius.max(), workers=query_workers()
+        )
+        for i, js in zip(subset.tolist(), near, strict=True):
+            js = np.asarray(js, dtype=np.int64)
+            js = js[js != i]
+            found.append(np.stack([np.minimum(js, i), np.maximum(js, i)], axis=1))
+        pairs = np.vstack(found)
+        gap = np.linalg.norm(centroid[pairs[:, 0]] - centroid[pairs[:, 1]], axis=1)
+        pairs = pairs[gap <= radius[pairs[:, 0]] + radius[pairs[:, 1]]]
+        key = np.unique(pairs[:, 0] * len(faces) + pairs[:, 1])
+        return np.stack([key // len(faces), key % len(faces)], axis=1)
+    large = radius > LARGE_FACE * max(float(np.median(radius)), 1e-300)
+    r_small = float(radius[~large].max()) if np.any(~large) else 0.0
+    found = [tree.query_pairs(2.0 * r_small, output_type="ndarray").astype(np.int64)]
+    for i in np.flatnonzero(large):
+        near = np.asarray(tree.query_ball_point(centroid[i], radius[i] + radius.max()), np.int64)
+        near = near[near != i]
+        found.append(np.stack([np.minimum(near, i), np.maximum(near, i)], axis=1))
+    pairs = np.vstack(found)
+    gap = np.linalg.norm(centroid[pairs[:, 0]] - centroid[pairs[:, 1]], axis=1)
+    pairs = pairs[gap <= radius[pairs[:, 0]] + radius[pairs[:, 1]]]
+    if len(found) > 1:  # a large face may have been paired twice
+        key = np.unique(pairs[:, 0] * len(faces) + pairs[:, 1])
+        pairs = np.stack([key // len(faces), key % len(faces)], axis=1)
+    return pairs
+
+
+def self_intersections(
+    vertices: np.ndarray, faces: np.ndarray, subset: np.ndarray | None = None
+) -> np.ndarray:
+    """Pairs of faces ``(m, 2)`` that cross each other (sharing no vertex); with ``subset``
+    (face indices), only the pairs with a face in it.
+
+    Examples
+    --------
+    >>> v = np.array([[0, 0, 0], [2, 0, 0], [0, 2, 0], [.5, .5, -1], [.5, .5, 1], [1.5, 1.5, 0]])
+    >>> self_intersections(v.astype(float), np.array([[0, 1, 2], [3, 4, 5]])).tolist()
+    [[0, 1]]
+    """
+    vertices = np.ascontiguousarray(vertices, dtype=np.float64)
+    faces = np.ascontiguousarray(faces, dtype=np.int64)
+    pairs = candidate_pairs(vertices, faces, subset)
+    hit = np.zeros(len(pairs), dtype=np.bool_)
+    if len(pairs):
+        pairs_intersect(vertices, faces, pairs, hit)
+    return pairs[hit]
+
+
+def _umbrella(faces: np.ndarray, n_vertices: int) -> sparse.csr_matrix:
+    """Row-normalised vertex adjacency: ``A @ x`` is the mean of each vertex's neighbours."""
+    e = faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
+    a = sparse.coo_matrix(
+        (np.ones(2 * len(e)), (np.r_[e[:, 0], e[:, 1]], np.r_[e[:, 1], e[:, 0]])),
+        shape=(n_vertices, n_vertices),
+    ).tocsr()
+    a.data[:] = 1.0
+    deg = np.asarray(a.sum(axis=1)).ravel()
+    return sparse.diags(1.0 / np.maximum(deg, 1.0)) @ a
+
+
+def untangle(
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    passes: int = UNTANGLE_PASSES,
+    step: float = UNTANGLE_STEP,
+) -> tuple[np.ndarray, int, int]:
+    """Smooth around crossing faces until the mesh no longer crosses itself.
+
+    Parameters
+    ----------
+    vertices : (V, 3) float64
+    faces : (F, 3) int64
+    passes, step
+        Pass budget, and the weight of the neighbours' mean in each umbrella step.
+
+    Returns
+    -------
+    vertices, found, left
+        The new vertices (a copy), the number of crossing face pairs found at the start and
+        the number left (0 when the mesh is free of self-intersections). When the passes do
+        not clear them, the state with the fewest crossings is returned.
+    """
+    vertices = np.array(vertices, dtype=np.float64)
+    faces = np.ascontiguousarray(faces, dtype=np.int64)
+    pairs = self_intersections(vertices, faces)
+    found = len(pairs)
+    if found == 0:
+        return vertices, 0, 0
+    mean_of_neighbours = _umbrella(faces, len(vertices))
+    vertex_faces = sparse.csr_matrix(
+        (np.ones(faces.size), (faces.ravel(), np.repeat(np.arange(len(faces)), 3))),
+        shape=(len(vertices), len(faces)),
+    )
+    moved = np.zeros(len(vertices), dtype=bool)
+    best, best_left = vertices.copy(), found
+    for _ in range(passes):
+        crossing = np.unique(faces[pairs].ravel())
+        ring = np.unique(faces[vertex_faces[crossing].indices].ravel())
+        target = mean_of_neighbours[ring] @ vertices
+        vertices[ring] += step * (target - vertices[ring])
+        # only faces with a vertex that has moved can have started or stopped crossing
+        moved[ring] = True
+        touched = np.unique(vertex_faces[np.flatnonzero(moved)].indices)
+        pairs = self_intersections(vertices, faces, touched)
+        if len(pairs) < best_left:
+            best, best_left = vertices.copy(), len(pairs)
+        if len(pairs) == 0:
+            break
+    return best, found, best_left

@@ -1,0 +1,77 @@
+"""Self-intersections: the finder agrees with Open3D, and untangling separates crossing sheets."""
+
+from __future__ import annotations
+
+import numpy as np
+import open3d as o3d
+from mesh_shapes import icosphere
+
+from recon.intersections import candidate_pairs, self_intersections, untangle
+from recon.topology import mesh_topology
+
+
+def open3d_pairs(vertices: np.ndarray, faces: np.ndarray) -> set[tuple[int, int]]:
+    mesh = o3d.geometry.TriangleMesh(
+        o3d.utility.Vector3dVector(vertices), o3d.utility.Vector3iVector(faces)
+    )
+    return {tuple(sorted(p)) for p in np.asarray(mesh.get_self_intersecting_triangles()).tolist()}
+
+
+def test_finder_agrees_with_open3d_on_random_triangles():
+    rng = np.random.default_rng(3)
+    n = 300
+    centres = rng.uniform(0, 4, (n, 1, 3))
+    vertices = (centres + rng.normal(scale=0.3, size=(n, 3, 3))).reshape(-1, 3)
+    faces = np.arange(3 * n).reshape(n, 3)
+    ours = {tuple(p) for p in self_intersections(vertices, faces).tolist()}
+    assert len(ours) > 20  # the test means something
+    assert ours == open3d_pairs(vertices, faces)
+
+
+def test_subset_gives_the_pairs_touching_it():
+    rng = np.random.default_rng(4)
+    n = 200
+    vertices = (rng.uniform(0, 3, (n, 1, 3)) + rng.normal(scale=0.3, size=(n, 3, 3))).reshape(-1, 3)
+    faces = np.arange(3 * n).reshape(n, 3)
+    every = candidate_pairs(vertices, faces)
+    subset = np.arange(0, n, 7)
+    some = candidate_pairs(vertices, faces, subset)
+    expected = every[np.isin(every, subset).any(axis=1)]
+    assert sorted(map(tuple, some.tolist())) == sorted(map(tuple, expected.tolist()))
+
+
+def pinched_lens(depth: float) -> tuple[np.ndarray, np.ndarray]:
+    """A flat closed lens (an icosphere squashed to 5 % thickness) whose upper sheet is pressed
+    ``depth`` below the lower one inside a disc: two opposed sheets crossing each other."""
+    v, f = icosphere(4)
+    v = v * np.array([1.0, 1.0, 0.05])
+    # upper and lower vertices share their (x, y) exactly: jitter, so that the sheets cross
+    # transversally rather than edge on edge (where tests of touching faces may differ)
+    v[:, :2] += np.random.default_rng(0).normal(scale=1e-3, size=(len(v), 2))
+    r = np.linalg.norm(v[:, :2], axis=1)
+    top = (v[:, 2] > 0) & (r < 0.4)
+    bump = np.cos(r[top] / 0.4 * np.pi / 2) ** 2  # 1 at the centre, 0 on the disc's rim
+    v[top, 2] -= (2 * v[top, 2] + depth) * bump  # the centre ends ``depth`` under the lower sheet
+    return v, f
+
+
+def test_untangle_separates_crossing_sheets():
+    v, f = pinched_lens(depth=0.02)
+    assert mesh_topology(v, f)["watertight"]
+    before = self_intersections(v, f)
+    assert len(before) > 10
+    assert {tuple(p) for p in before.tolist()} == open3d_pairs(v, f)
+    out, found, left = untangle(v, f)
+    assert found == len(before) and left == 0
+    assert len(self_intersections(out, f)) == 0
+    assert not open3d_pairs(out, f)
+    moved = np.linalg.norm(out - v, axis=1) > 0
+    # only the pinched region moves, and the upper sheet ends above the lower one
+    assert np.all(np.linalg.norm(v[moved, :2], axis=1) < 0.55)
+    assert 0 < moved.sum() < 0.3 * len(v)
+
+
+def test_untangle_leaves_a_clean_mesh_alone():
+    v, f = icosphere(2)
+    out, found, left = untangle(v, f)
+    assert (found, left) == (0, 0) and np.array_equal(out, v)
