@@ -8,7 +8,9 @@ table (and JSON with ``--json-out``):
     Chamfer-L1 and Hausdorff95 (÷ GT bbox diagonal), F-score at 1 %, normal consistency,
     boundary loops, components, non-manifold vertices, genus, watertight (the standard
     definition: every edge in two faces, every vertex one fan; ``recon.topology``) and Open3D's
-    ``is_watertight()`` (which also rejects self-intersections), mean minimum triangle angle,
+    ``is_watertight()`` (which also rejects self-intersections, and wrongly counts disjoint
+    coplanar faces as such: Open3D issues #5117, #6462), the crossing face pairs by
+    ``recon.intersections`` (exact, coplanar overlaps included), mean minimum triangle angle,
     wall time, peak memory.
 
 Methods: ``oprecon`` (defaults), Open3D screened Poisson depth 8 and 9 (normals estimated by
@@ -116,6 +118,7 @@ def evaluate(
     preset: str | None = None,
     overrides: tuple[str, ...] = (),
 ) -> dict[str, Any]:
+    from recon.intersections import self_intersections
     from recon.io import read_mesh
     from recon.metrics import compare_meshes
     from recon.topology import mesh_topology, triangle_quality
@@ -147,6 +150,7 @@ def evaluate(
             "watertight": topo["watertight"],
             "o3d_watertight": bool(o3d_mesh.is_watertight()),
             "o3d_vertex_manifold": bool(o3d_mesh.is_vertex_manifold()),
+            "self_intersections": int(len(self_intersections(v, f))),
             "non_manifold_edges": topo["non_manifold_edges"],
             "non_manifold_vertices": topo["non_manifold_vertices"],
             "genus": topo["genus"],
@@ -178,13 +182,13 @@ def _fmt(v: Any, spec: str) -> str:
 def markdown(results: dict[str, list[dict[str, Any]]]) -> str:
     head = (
         "| case | method | CD-L1 | F@1% | NC | H95 | loops | comps | nm verts | genus | "
-        "watertight | O3D watertight | min angle | time s | peak MB |"
+        "watertight | O3D watertight | crossings | min angle | time s | peak MB |"
     )
-    lines = [head, "|" + "---|" * 15]
+    lines = [head, "|" + "---|" * 16]
     for case, rows in results.items():
         for r in rows:
             if "error" in r and "chamfer_l1" not in r:
-                lines.append(f"| {case} | {r['method']} | failed: {r['error']} |" + " |" * 12)
+                lines.append(f"| {case} | {r['method']} | failed: {r['error']} |" + " |" * 13)
                 continue
             lines.append(
                 f"| {case} | {r['method']} | {_fmt(r['chamfer_l1'], '.5f')} | "
@@ -192,7 +196,7 @@ def markdown(results: dict[str, list[dict[str, Any]]]) -> str:
                 f"{_fmt(r['hausdorff95'], '.4f')} | {r['boundary_loops']} | {r['components']} | "
                 f"{r['non_manifold_vertices']} | {_fmt(r['genus'], 'd')} | "
                 f"{_fmt(r['watertight'], '')} | {_fmt(r['o3d_watertight'], '')} | "
-                f"{_fmt(r['min_angle_mean'], '.1f')} | "
+                f"{r.get('self_intersections', '–')} | {_fmt(r['min_angle_mean'], '.1f')} | "
                 f"{_fmt(r['seconds'], '.2f')} | {_fmt(r['peak_mb'], '.0f')} |"
             )
     return "\n".join(lines) + "\n"

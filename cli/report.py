@@ -97,7 +97,10 @@ def format_quality(report: dict[str, Any], mesh_name: str, input_name: str | Non
         f"{mesh_name}: {topo['n_vertices']:,} vertices, {topo['n_faces']:,} faces, "
         f"bounding-box diagonal {fmt(report['mesh_bbox_diag'])}",
         "topology",
-        table([(label, fmt(topo[key])) for label, key in TOPOLOGY_ROWS[2:]]),
+        table(
+            [(label, fmt(topo[key])) for label, key in TOPOLOGY_ROWS[2:]]
+            + [("self-intersections", fmt(report.get("self_intersections")))]
+        ),
         f"triangles ({tq['n_measured']:,} non-degenerate)",
     ]
     if tq["n_measured"]:
@@ -200,7 +203,7 @@ def command(mesh_path: Path, input_path: Path | None, as_json: bool, png_path: P
     points = None
     if input_path is not None:
         points = read_points(input_path).absolute_points()
-    report = quality_report(points, vertices, faces)
+    report = quality_report(points, vertices, faces, intersections=True)
     fit_path, history = load_fit_history(mesh_path)
 
     if png_path is not None:

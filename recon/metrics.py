@@ -535,7 +535,12 @@ def check_comparison(
 
 
 def quality_report(
-    points: Any | None, vertices: Any, faces: Any, *, diag: float | None = None
+    points: Any | None,
+    vertices: Any,
+    faces: Any,
+    *,
+    diag: float | None = None,
+    intersections: bool = False,
 ) -> dict[str, Any]:
     """Topology, triangle quality and (with points) fidelity of a mesh, in one JSON-ready dict.
 
@@ -551,13 +556,17 @@ def quality_report(
     diag : float or None [length]
         Normalising length of the relative distances; default: the bounding-box diagonal of
         ``points``.
+    intersections : bool
+        Also count the crossing face pairs (``self_intersections``,
+        :func:`recon.intersections.self_intersections`).
 
     Returns
     -------
     dict
         ``topology`` (:func:`~recon.topology.mesh_topology`), ``triangle_quality``
-        (:func:`~recon.topology.triangle_quality`), ``mesh_bbox_diag`` [length] and
-        ``fidelity`` (:func:`fidelity`; ``None`` without points or without faces).
+        (:func:`~recon.topology.triangle_quality`), ``mesh_bbox_diag`` [length],
+        ``fidelity`` (:func:`fidelity`; ``None`` without points or without faces) and, with
+        ``intersections``, ``self_intersections``.
     """
     v, f = validate_mesh(vertices, faces)
     report: dict[str, Any] = {
@@ -566,6 +575,10 @@ def quality_report(
         "mesh_bbox_diag": _bbox_diag(v[np.unique(f)]) if len(f) else _bbox_diag(v),
         "fidelity": None,
     }
+    if intersections:
+        from .intersections import self_intersections
+
+        report["self_intersections"] = int(len(self_intersections(v, f)))
     if points is not None and len(f):
         p = as_points(points, finite=True, error=InputError)
         report["fidelity"] = fidelity(p, v, f, _bbox_diag(p) if diag is None else diag)

@@ -209,6 +209,20 @@ def test_report_json_with_input(files):
     assert data["fit_report"] is None and data["png"] is None
 
 
+def test_report_counts_self_intersections(files, tmp_path):
+    r = run("report", files["sphere"], "--json")
+    assert json.loads(r.stdout)["self_intersections"] == 0
+    # a second sphere through the first: every face pair crossing on their common circle
+    v, f = icosphere(2)
+    crossing = tmp_path / "crossing.ply"
+    write_mesh(crossing, np.vstack([v, v + [1.0, 0, 0]]), np.vstack([f, f + len(v)]))
+    r = run("report", crossing, "--json")
+    assert r.exit_code == 0, r.output
+    assert json.loads(r.stdout)["self_intersections"] > 10
+    r = run("report", crossing)
+    assert "self-intersections" in r.stdout
+
+
 def test_report_png_with_fit_history(files, tmp_path):
     mesh = tmp_path / "fitted.ply"
     write_mesh(mesh, *icosphere(2))

@@ -3,7 +3,13 @@
 Two triangles that share no vertex intersect when an edge of one crosses the other: the
 segment ``p + t (q - p)``, ``0 <= t <= 1``, meets the triangle ``(a, b, c)`` at barycentric
 ``(u, v)`` with ``u, v >= 0`` and ``u + v <= 1`` (Möller & Trumbore 1997, eq. 4-5, solved by
-Cramer's rule). Coplanar overlaps are not reported (the crossing is then not transversal).
+Cramer's rule). Coplanar triangles intersect when they overlap in their plane (2-D edge
+crossings and point-in-triangle tests on the projection that drops the normal's largest
+component).
+
+Open3D's ``get_self_intersecting_triangles`` also reports coplanar triangles that do not
+overlap (Open3D issues #5117 and #6462), which happens on exactly planar scans: there the two
+finders differ, and this one is right.
 
 References
 ----------
@@ -13,6 +19,7 @@ References
 
 from __future__ import annotations
 
+import numpy as np
 from numba import njit, prange
 
 from .options import EXACT_JIT_OPTIONS
@@ -59,11 +66,75 @@ def segment_crosses_triangle(p, q, a, b, c):  # pragma: no cover - numba
 
 
 @njit(**EXACT_JIT_OPTIONS)
+def _orient2d(ax, ay, bx, by, cx, cy):  # pragma: no cover - numba
+    """Twice the signed area of the 2-D triangle ``(a, b, c)``."""
+    return (bx - ax) * (cy - ay) - (by - ay) * (cx - ax)
+
+
+@njit(**EXACT_JIT_OPTIONS)
+def _inside2d(px, py, t):  # pragma: no cover - numba
+    """Is the 2-D point inside (or on) the 2-D triangle ``t`` (3 x 2)?"""
+    d0 = _orient2d(t[0, 0], t[0, 1], t[1, 0], t[1, 1], px, py)
+    d1 = _orient2d(t[1, 0], t[1, 1], t[2, 0], t[2, 1], px, py)
+    d2 = _orient2d(t[2, 0], t[2, 1], t[0, 0], t[0, 1], px, py)
+    has_neg = d0 < 0 or d1 < 0 or d2 < 0
+    has_pos = d0 > 0 or d1 > 0 or d2 > 0
+    return not (has_neg and has_pos)
+
+
+@njit(**EXACT_JIT_OPTIONS)
+def coplanar_overlap(a, b, axis):  # pragma: no cover - numba
+    """Do two coplanar triangles ``a``, ``b`` (3 x 3) overlap? They are projected onto the
+    coordinate plane that drops ``axis`` (the plane normal's largest component); they overlap
+    when two edges cross or a corner of one lies in the other."""
+    u = (axis + 1) % 3
+    v = (axis + 2) % 3
+    ta = np.empty((3, 2))
+    tb = np.empty((3, 2))
+    for k in range(3):
+        ta[k, 0], ta[k, 1] = a[k, u], a[k, v]
+        tb[k, 0], tb[k, 1] = b[k, u], b[k, v]
+    for i in range(3):
+        p0x, p0y, p1x, p1y = ta[i, 0], ta[i, 1], ta[(i + 1) % 3, 0], ta[(i + 1) % 3, 1]
+        for j in range(3):
+            q0x, q0y, q1x, q1y = tb[j, 0], tb[j, 1], tb[(j + 1) % 3, 0], tb[(j + 1) % 3, 1]
+            d1 = _orient2d(p0x, p0y, p1x, p1y, q0x, q0y)
+            d2 = _orient2d(p0x, p0y, p1x, p1y, q1x, q1y)
+            d3 = _orient2d(q0x, q0y, q1x, q1y, p0x, p0y)
+            d4 = _orient2d(q0x, q0y, q1x, q1y, p1x, p1y)
+            if d1 * d2 < 0 and d3 * d4 < 0:
+                return True
+    return _inside2d(ta[0, 0], ta[0, 1], tb) or _inside2d(tb[0, 0], tb[0, 1], ta)
+
+
+@njit(**EXACT_JIT_OPTIONS)
 def triangles_intersect(vertices, f, g):  # pragma: no cover - numba
     """Do faces ``f`` and ``g`` (vertex index triples, no shared vertex) intersect?
 
-    True when one of the six edges crosses the other face (:func:`segment_crosses_triangle`).
+    True when one of the six edges crosses the other face (:func:`segment_crosses_triangle`),
+    or, for coplanar faces (every corner of ``g`` within ``EPS`` of the size of ``f`` off its
+    plane), when they overlap in that plane (:func:`coplanar_overlap`).
     """
+    a = np.empty((3, 3))
+    b = np.empty((3, 3))
+    for k in range(3):
+        for c in range(3):
+            a[k, c] = vertices[f[k], c]
+            b[k, c] = vertices[g[k], c]
+    n = np.cross(a[1] - a[0], a[2] - a[0])
+    nn = np.sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2])
+    if nn > 0:
+        coplanar = True
+        for k in range(3):
+            if abs(np.dot(n, b[k] - a[0])) > 1e-9 * nn * np.sqrt(nn):
+                coplanar = False
+        if coplanar:
+            axis = 0
+            if abs(n[1]) > abs(n[axis]):
+                axis = 1
+            if abs(n[2]) > abs(n[axis]):
+                axis = 2
+            return coplanar_overlap(a, b, axis)
     for side in range(2):
         s = f if side == 0 else g
         t = g if side == 0 else f

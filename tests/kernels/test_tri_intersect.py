@@ -46,3 +46,24 @@ def test_pairs_sharing_a_vertex_are_skipped():
     out = np.ones(1, dtype=np.bool_)
     pairs_intersect(v, faces, np.array([[0, 1]], dtype=np.int64), out)
     assert not out[0]
+
+
+def _pair(a, b) -> bool:
+    v = np.vstack([a, b]).astype(float)
+    return bool(triangles_intersect(v, np.array([0, 1, 2]), np.array([3, 4, 5])))
+
+
+def test_coplanar_triangles_intersect_only_when_they_overlap():
+    a = [[0, 0, 0], [2, 0, 0], [0, 2, 0]]
+    assert _pair(a, [[0.5, 0.5, 0], [3, 0.5, 0], [0.5, 3, 0]])  # corner inside, edges cross
+    assert _pair(a, [[0.2, 0.2, 0], [0.6, 0.2, 0], [0.2, 0.6, 0]])  # wholly inside
+    assert _pair([[0.2, 0.2, 0], [0.6, 0.2, 0], [0.2, 0.6, 0]], a)  # ... either way round
+    assert not _pair(a, [[1.5, 1.5, 0], [3, 1.5, 0], [1.5, 3, 0]])  # beside the hypotenuse
+
+
+def test_coplanar_neighbours_of_an_exact_plane_do_not_intersect():
+    # two faces of a fit of an exactly planar face (lblock-clean, y = 0): Open3D reports
+    # them as intersecting (its issues #5117, #6462); they are disjoint
+    a = [[0.32778, 0.0, 0.34773], [0.34193, 0.0, 0.35346], [0.33052, 0.0, 0.36205]]
+    b = [[0.31572, 0.0, 0.36016], [0.32996, 0.0, 0.37587], [0.31512, 0.0, 0.37731]]
+    assert not _pair(a, b)
