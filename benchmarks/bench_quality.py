@@ -35,6 +35,7 @@ import resource
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
+from multiprocessing import get_context
 from pathlib import Path
 from typing import Any
 
@@ -123,7 +124,9 @@ def evaluate(
     from recon.metrics import compare_meshes
     from recon.topology import mesh_topology, triangle_quality
 
-    with ProcessPoolExecutor(max_workers=1) as pool:
+    # spawn, not fork: this process has numba's thread pool running once a case is judged,
+    # and a forked child of a threaded process can die on its first parallel kernel
+    with ProcessPoolExecutor(max_workers=1, mp_context=get_context("spawn")) as pool:
         try:
             inp = str(case_dir / "input.ply")
             out = pool.submit(run_method, method, inp, preset, 0, overrides).result()
