@@ -94,6 +94,18 @@ _MIN_COMPONENT = 10
 _EXTREME_FRACTION = 0.01
 #: ... but at most this many.
 _EXTREME_MAX = 200
+#: A neighbourhood spans the two faces of a thin part when its offsets along the point's normal
+#: split into two groups whose means are this many pooled standard deviations apart (one
+#: Gaussian sheet splits at about 2.7; see ``_across_neighbours``) ...
+_SIDES_SEPARATION = 5.0
+#: ... and at least this fraction of the neighbourhood's radius apart (a curved sheet's
+#: offsets spread over ``radius^2 / 2R``: only curvature radii below the neighbourhood's
+#: size, an undersampled surface, reach it) ...
+_SIDES_GAP = 0.5
+#: ... each group holding at least this many points (the point itself included), among at
+#: least ``_SIDES_K`` neighbours (fewer split too easily by chance).
+_SIDES_MIN = 3
+_SIDES_K = 30
 #: Points per chunk in the PCA (bounds memory at about chunk * k * 100 bytes).
 _CHUNK = 16384
 
@@ -230,34 +242,114 @@ def _fibonacci_directions(m: int = 25) -> np.ndarray:
 _DIRECTIONS = _fibonacci_directions()
 
 
+def _across_neighbours(
+    points: np.ndarray, normals: np.ndarray, idx: np.ndarray, k: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """Which neighbours lie on the other face of a thin part.
+
+    The offsets along n_i of i and its neighbours ``idx[i]`` (a wide neighbourhood) are split
+    in two by 1-D two-means (the split of the sorted offsets with the least within-group sum
+    of squares). The neighbourhood spans two faces when the groups' means lie more than
+    ``_SIDES_SEPARATION`` pooled standard deviations and ``_SIDES_GAP`` neighbourhood radii
+    apart, each group holding ``_SIDES_MIN`` points. Noise around one sheet is one Gaussian
+    group (its best split is about 2.7 deviations apart); two faces a thickness t apart with
+    noise sigma split t / sigma apart.
+
+    Returns
+    -------
+    across : (n, k) bool
+        Neighbour ``idx[i, j]`` (``j < k``) is in the group without i.
+    two_sided : (n,) bool
+        i's neighbourhood spans two faces (so its first ``k`` neighbours are classified).
+    """
+    n, k_wide = idx.shape
+    rel = points[idx] - points[:, None, :]
+    offsets = np.einsum("ijk,ik->ij", rel, normals)
+    radius = np.linalg.norm(rel[:, -1], axis=1)
+    d = np.concatenate([np.zeros((n, 1)), offsets], axis=1)  # the point itself at 0
+    m = k_wide + 1
+    s = np.sort(d, axis=1)
+    c1 = np.cumsum(s, axis=1)
+    c2 = np.cumsum(s * s, axis=1)
+    t = np.arange(1, m)  # left group s[:, :t]
+    left_ss = c2[:, :-1] - c1[:, :-1] ** 2 / t
+    right_n = m - t
+    right_sum = c1[:, -1:] - c1[:, :-1]
+    right_ss = (c2[:, -1:] - c2[:, :-1]) - right_sum**2 / right_n
+    ss = left_ss + right_ss
+    ss[:, (t < _SIDES_MIN) | (right_n < _SIDES_MIN)] = np.inf
+    if not np.isfinite(ss).any():
+        return np.zeros((n, k), dtype=bool), np.zeros(n, dtype=bool)
+    best = np.argmin(ss, axis=1)
+    rows = np.arange(n)
+    gap = right_sum[rows, best] / right_n[best] - c1[rows, best] / t[best]
+    pooled = np.sqrt(np.maximum(ss[rows, best], 0.0) / max(m - 2, 1))
+    two_sided = (gap > _SIDES_SEPARATION * pooled) & (gap > _SIDES_GAP * radius)
+    threshold = 0.5 * (s[rows, best] + s[rows, best + 1])
+    own_left = 0.0 < threshold  # i (offset 0) is in the left group
+    left = offsets[:, :k] < threshold[:, None]
+    return two_sided[:, None] & (left != own_left[:, None]), two_sided
+
+
 def _knn_graph(
     points: np.ndarray, normals: np.ndarray, k: int, across_cost: float = 0.0
-) -> sparse.csr_matrix:
+) -> tuple[sparse.csr_matrix, sparse.csr_matrix | None, np.ndarray | None]:
     """Symmetric k-NN graph with Hoppe's cost ``1 - |n_i . n_j| + eps``.
 
     ``across_cost`` > 0 adds ``across_cost * a^2`` for edges that cross the surface, with a the
     mean of ``|u . n_i|`` and ``|u . n_j|`` (u the unit edge direction): the two faces of a thin
     part, whose PCA normals agree when a neighbourhood spans both, are then not joined across
-    the gap (which orients one face inward). It also perturbs the tree on very noisy data."""
+    the gap (which orients one face inward). It also perturbs the tree on very noisy data.
+
+    With ``across_cost`` > 0 it also returns which edges join the two faces of a thin part
+    (:func:`_across_neighbours`, seen so from both ends; else None), along which the
+    propagation asks for opposed normals (and which carry no ``across_cost``), and which
+    points have a two-sided neighbourhood."""
     n = points.shape[0]
     k_eff = int(min(k, n - 1))
-    _, idx = cKDTree(points).query(points, k=k_eff + 1, workers=query_workers())
+    k_wide = int(min(max(k, _SIDES_K), n - 1)) if across_cost > 0.0 else k_eff
+    _, wide = cKDTree(points).query(points, k=k_wide + 1, workers=query_workers())
+    wide = wide.reshape(n, k_wide + 1)
+    idx = wide[:, : k_eff + 1]
     rows = np.repeat(np.arange(n), k_eff)
     cols = idx[:, 1:].reshape(-1)
     keep = rows != cols  # defensive: duplicate points can reorder self
     rows, cols = rows[keep], cols[keep]
     dots = np.einsum("ij,ij->i", normals[rows], normals[cols])
-    cost = np.clip(1.0 - np.abs(dots), 0.0, None) + _EDGE_EPSILON
-    if across_cost > 0.0:
-        u = points[cols] - points[rows]
-        u /= np.maximum(np.linalg.norm(u, axis=1, keepdims=True), 1e-300)
-        a = 0.5 * (
-            np.abs(np.einsum("ij,ij->i", u, normals[rows]))
-            + np.abs(np.einsum("ij,ij->i", u, normals[cols]))
-        )
-        cost = cost + across_cost * a * a
-    g = sparse.coo_matrix((cost, (rows, cols)), shape=(n, n)).tocsr()
+    base = np.clip(1.0 - np.abs(dots), 0.0, None) + _EDGE_EPSILON
+    if across_cost <= 0.0:
+        return _symmetric(base, rows, cols, n), None, None
+    u = points[cols] - points[rows]
+    u /= np.maximum(np.linalg.norm(u, axis=1, keepdims=True), 1e-300)
+    a = 0.5 * (
+        np.abs(np.einsum("ij,ij->i", u, normals[rows]))
+        + np.abs(np.einsum("ij,ij->i", u, normals[cols]))
+    )
+    across, two_sided = _across_neighbours(points, normals, wide[:, 1:], k_eff)
+    # across when both ends see it so (where only one end's neighbourhood looks two-sided,
+    # that is more often noise than a thin part)
+    half = sparse.coo_matrix(
+        (across.reshape(-1)[keep].astype(np.float64), (rows, cols)), shape=(n, n)
+    ).tocsr()
+    flip = half.minimum(half.T).tocsr()
+    # an edge known to join the two faces propagates exactly (opposed signs): no penalty
+    penalised = _symmetric(base + across_cost * a * a, rows, cols, n)
+    plain = _symmetric(base, rows, cols, n)
+    graph = (penalised - penalised.multiply(flip) + plain.multiply(flip)).tocsr()
+    return graph, flip, two_sided
+
+
+def _symmetric(values: np.ndarray, rows: np.ndarray, cols: np.ndarray, n: int):
+    """The ``(n, n)`` CSR matrix of ``values`` at ``(rows, cols)``, symmetrised by maximum."""
+    g = sparse.coo_matrix((values, (rows, cols)), shape=(n, n)).tocsr()
     return g.maximum(g.T).tocsr()
+
+
+def _edge_values(matrix: sparse.csr_matrix | None, rows: np.ndarray, cols: np.ndarray):
+    """``matrix[rows, cols]`` as a flat array (zeros when ``matrix`` is None)."""
+    if matrix is None or len(rows) == 0:
+        return np.zeros(len(rows))
+    return np.asarray(matrix[rows, cols]).ravel()
 
 
 def _tree_parents(tree: sparse.spmatrix, labels: np.ndarray) -> np.ndarray:
@@ -291,9 +383,15 @@ def _path_products(parent: np.ndarray, edge_sign: np.ndarray) -> np.ndarray:
 
 
 def _propagate_signs(
-    normals: np.ndarray, graph: sparse.csr_matrix, tau: float
+    normals: np.ndarray,
+    graph: sparse.csr_matrix,
+    tau: float,
+    flip: sparse.csr_matrix | None = None,
 ) -> tuple[np.ndarray, np.ndarray, int]:
     """Hoppe's MST propagation, made robust by aggregating votes between reliable regions.
+
+    ``flip`` (1 on edges across a thin part): those edges ask for opposed normals instead of
+    agreeing ones, in the tree and in the votes.
 
     Returns signs (n,), component labels (n,), n_components.
     """
@@ -301,7 +399,9 @@ def _propagate_signs(
     n_comp, labels = csgraph.connected_components(graph, directed=False)
     tree = csgraph.minimum_spanning_tree(graph)
     parent = _tree_parents(tree, labels)
+    across = _edge_values(flip, np.arange(n), parent) > 0
     dots = np.einsum("ij,ij->i", normals, normals[parent])
+    dots = np.where(across, -dots, dots)
     sign = _path_products(parent, np.where(dots < 0.0, -1.0, 1.0))
     if tau <= 0:
         return sign, labels, int(n_comp)
@@ -317,6 +417,7 @@ def _propagate_signs(
     cross = region[g.row] != region[g.col]
     r, c = g.row[cross], g.col[cross]
     votes = np.einsum("ij,ij->i", oriented[r], oriented[c])
+    votes = np.where(_edge_values(flip, r, c) > 0, -votes, votes)
     vote = sparse.coo_matrix((votes, (region[r], region[c])), shape=(n_reg, n_reg)).tocsr()
     vote.sum_duplicates()
     strength = abs(vote)
@@ -392,7 +493,9 @@ def orient_normals(
     """Consistently orient normals (Hoppe et al. 1992 MST propagation, then a global sign).
 
     ``across_cost`` (``normals.thin_parts``): extra MST cost of edges that cross the surface
-    (see ``_knn_graph``), so thin parts keep their two faces opposed.
+    (see ``_knn_graph``); > 0 also detects neighbourhoods that span both faces of a thin part,
+    whose edges across then ask for opposed signs: thin parts keep their two faces opposed
+    even where no smooth path runs around their rim.
 
     Parameters
     ----------
@@ -439,8 +542,8 @@ def orient_normals(
     if n < 2:
         return nrm.copy(), OrientationInfo(orientation, n, n, {"none": n}, 0.0)
 
-    graph = _knn_graph(pts, nrm, k, across_cost)
-    sign, labels, n_comp = _propagate_signs(nrm, graph, _REGION_TAU)
+    graph, flip, _ = _knn_graph(pts, nrm, k, across_cost)
+    sign, labels, n_comp = _propagate_signs(nrm, graph, _REGION_TAU, flip)
     oriented = nrm * sign[:, None]
     sizes = np.bincount(labels, minlength=n_comp)
 

@@ -296,3 +296,49 @@ def test_orient_thin_plate_keeps_the_two_faces_opposed():
     n, _ = orient_normals(points, scramble(est), k=10, orientation="outward", across_cost=0.3)
     frac, _ = accuracy(n[on_face], gt[on_face])
     assert frac > 0.99
+
+
+def test_orient_plate_thinner_than_the_neighbourhood_keeps_the_two_faces_opposed():
+    """A plate 1.5 sample spacings thick: every orientation neighbourhood spans both faces and
+    no smooth path runs around the rim, so the across cost alone joins the faces alike; the
+    edges found to join the two faces (two groups of offsets along the normal) propagate
+    opposed signs instead (regression: the thin-blade shape of bench_thin_parts came out
+    one-sided)."""
+    points, gt = _thin_plate(seed=5, thickness=0.03, noise=0.001)
+    on_face = np.abs(gt[:, 2]) > 0.999
+    # unsigned normals as PCA gives them: right on the faces, and no use on a rim narrower
+    # than the neighbourhood (random here), so no path of agreeing normals runs around it
+    rng = np.random.default_rng(0)
+    junk = rng.normal(size=gt.shape)
+    junk /= np.linalg.norm(junk, axis=1, keepdims=True)
+    est = np.where(on_face[:, None], np.array([0.0, 0.0, 1.0]), junk)
+    n, _ = orient_normals(points, scramble(est), k=10, orientation="outward", across_cost=0.3)
+    frac, _ = accuracy(n[on_face], gt[on_face])
+    assert frac > 0.98
+
+
+def test_two_sided_neighbourhoods_are_found_on_thin_parts_only():
+    from scipy.spatial import cKDTree
+
+    from recon.normals import _SIDES_K, _across_neighbours
+
+    def flags(points, normals):
+        _, idx = cKDTree(points).query(points, _SIDES_K + 1)
+        return _across_neighbours(points, normals, idx[:, 1:], 10)
+
+    # two faces 1.5 spacings apart: nearly every neighbourhood spans both, and the
+    # neighbours flagged across are those on the other face
+    points, gt = _thin_plate(seed=5, thickness=0.03, noise=0.001)
+    inner = (np.abs(points[:, 0]) < 0.9) & (np.abs(points[:, 1]) < 0.5)
+    normals = np.where(np.abs(gt[:, 2:3]) > 0.999, [[0.0, 0.0, 1.0]], gt)
+    across, two_sided = flags(points, normals)
+    assert two_sided[inner].mean() > 0.9
+    _, idx = cKDTree(points).query(points, 11)
+    other = np.sign(points[idx[:, 1:], 2]) != np.sign(points[:, None, 2])
+    assert np.array_equal(across[inner], (other & two_sided[:, None])[inner])
+    # one noisy sphere (1 % noise, as bunny-noise1) and one clean: no two-sided neighbourhood
+    for noise in (0.0, 0.01):
+        p, n = sphere(20000, seed=2)
+        p = p + np.random.default_rng(3).normal(scale=noise, size=p.shape)
+        _, two_sided = flags(p, n)
+        assert two_sided.mean() < 0.002
