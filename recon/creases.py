@@ -80,6 +80,8 @@ class Creases:
         One point per detected corner.
     length : float [length]
         Detected crease length (band integral, see the module docstring).
+    foot : (n, 3) float64 [length], optional
+        At crease points the point of their crease line closest to them; NaN elsewhere.
     """
 
     labels: np.ndarray
@@ -88,6 +90,7 @@ class Creases:
     turn_deg: np.ndarray
     corners: np.ndarray
     length: float
+    foot: np.ndarray | None = None
 
     @property
     def n_crease_points(self) -> int:
@@ -155,6 +158,7 @@ def detect_creases(
         turn_deg=np.degrees(turn),
         corners=corners,
         length=length,
+        foot=foot,
     )
 
 
@@ -261,4 +265,5 @@ def _empty(n: int) -> Creases:
         turn_deg=np.zeros(n),
         corners=np.zeros((0, 3)),
         length=0.0,
+        foot=np.full((n, 3), np.nan),
     )

@@ -35,7 +35,8 @@ import numpy as np
 from ..attributes import check_attribute_output, check_transfer, transfer_for_output
 from ..cloud import PointCloud
 from ..config import ReconConfig, config_to_dict, with_values
-from ..creases import detect_creases
+from ..crease_surface import CreaseField
+from ..creases import Creases, detect_creases
 from ..errors import InputError
 from ..geometry import bbox_diagonal
 from ..kernels.options import thread_count
@@ -187,12 +188,12 @@ def _triangulate(
 
 def _detect_creases(
     points: np.ndarray, normals: np.ndarray, cfg: ReconConfig, diag: float
-) -> CreaseStats | None:
-    """Sharp creases and corners of the data, for the report only (the mesh ignores them)."""
+) -> tuple[Creases | None, CreaseStats | None]:
+    """Sharp creases and corners of the data: the detection and the report's section."""
     if not cfg.creases.enabled:
-        return None
+        return None, None
     found = detect_creases(points, normals, angle_deg=cfg.creases.angle_deg, k=cfg.creases.k)
-    return CreaseStats(
+    return found, CreaseStats(
         angle_deg=cfg.creases.angle_deg,
         length=found.length,
         length_relative=found.length / diag if diag > 0 else 0.0,
@@ -237,13 +238,15 @@ def _reconstruct(cloud: PointCloud, cfg: ReconConfig, on_progress: ProgressFn | 
     normals, normals_info = compute_normals(cloud, cfg.normals)
     clock.lap("normals")
     clock.check()
-    creases = _detect_creases(points, normals, cfg, bbox_diagonal(points))
+    found, creases = _detect_creases(points, normals, cfg, bbox_diagonal(points))
 
     r0, d_nn = choose_spacing(points, cfg)
     check_grid_size(points, r0)
     cfg = with_max_gap(cfg, r0, d_nn)
     diag = bbox_diagonal(points)
     surface = DataSurface.build(points / r0, normals, k=cfg.normals.k)
+    if found is not None and cfg.creases.fit:  # per-side planes and crease particles
+        surface.creases = CreaseField.build(found, surface.points, r0)
     clock.lap("setup")
     clock.check()
 

@@ -280,6 +280,7 @@ class _Schedule:
             if self.total_steps() >= dyn.max_steps:
                 break
             chunk = min(ANCHOR_REFRESH, n_steps - done, dyn.max_steps - self.total_steps())
+            self.constrain_creases(sim, state)
             pts, nrm, _ = self.surface.anchors(state.position, state.normal)
             sim.set_anchors(pts, nrm, dyn.fidelity, dyn.fidelity_normal)
             stats = sim.run(chunk)
@@ -360,6 +361,13 @@ class _Schedule:
                 "spacing, and check the input for clusters of near-duplicate points"
             ) from None
         return state, params
+
+    def constrain_creases(self, sim: Simulation, state: ParticleState) -> None:
+        """Crease hook (issue 12): snap particles near crease lines and corners onto them and
+        mark them unoriented (:meth:`recon.crease_surface.CreaseField.constrain`)."""
+        if self.surface.creases is not None and state.n:
+            self.surface.creases.constrain(state)
+            sim.notify_changed()
 
     # -- phases --------------------------------------------------------------------------
     def make_seeds(self) -> tuple[ParticleState, np.ndarray]:
@@ -484,6 +492,7 @@ class _Schedule:
             self.record("release", state, kinetic, self.coverage(state.position))
             if self.total_steps() >= dyn.max_steps:
                 break
+        self.constrain_creases(sim, state)  # crease particles end exactly on their lines
 
 
 def _scaled_neighbors(

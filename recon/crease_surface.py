@@ -1,0 +1,381 @@
+"""Creases in the fit: one plane per side near a crease, and crease particles (issue 12).
+
+Built from the detected creases (:mod:`recon.creases`) in the fit's normalised units (r0 = 1).
+Each crease data point gives a *crease sample*: a foot ``x0`` on its crease line, the line's
+direction ``d`` and the two side planes through the line, with unit normals ``n_a, n_b``
+(oriented like the data normals) fitted to the two Gauss-map clusters of its neighbourhood.
+A sample is *convex* when its neighbourhood lies behind both planes (the centroid ``c`` of the
+data around it has ``(c - x0) . (n_a + n_b) < 0``), *concave* otherwise.
+
+**Per-side data surface** (:meth:`CreaseField.adjust`). Near a crease the data is not one
+quadric: a particle within ``reach`` of a crease sample is anchored to the closest point of the
+*wedge* the two side planes form, with face a restricted to its side of plane b::
+
+    convex:   {x : (x - x0) . n_a = 0, (x - x0) . n_b <= 0}   (and a <-> b)
+    concave:  {x : (x - x0) . n_a = 0, (x - x0) . n_b >= 0}
+
+plus the line itself. The anchor normal is the face's normal, or on the line the direction
+from the line to the particle (the bisector ``n_a + n_b`` when it is on the line). A particle
+is thus pulled onto the face whose data it sits over, never onto a quadric bent across the
+edge, and growth candidates (projected with the same anchors) land on their face's plane.
+
+**Crease particles** (:meth:`CreaseField.constrain`). Particles within ``snap`` of a crease
+line are moved onto it, and particles within ``snap`` of a detected corner onto the corner
+(the nearest one per corner), and marked *unoriented*: they keep the spacing interaction and
+neither give nor take the smoothing terms (S&T92 §6, Fig. 7). A particle is snapped only when
+no other particle lies within ``SNAP_CLEARANCE`` x its spacing of its new place, so a
+crease line carries particles at the local spacing, never two on one spot. Their normal is the
+bisector of the side normals (it orients the triangulation; unoriented particles keep their
+frame in the dynamics).
+
+References
+----------
+[ST92] R. Szeliski, D. Tonnesen. "Surface Modeling with Oriented Particle Systems".
+       SIGGRAPH '92, §6 (creases: unoriented particles).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from .creases import CREASE, Creases
+from .state import ParticleState
+
+__all__ = ["CreaseField", "SNAP_CLEARANCE"]
+
+#: A particle is snapped onto a crease only when no other particle is closer than this
+#: many spacings to its new place.
+SNAP_CLEARANCE = 0.6
+#: Neighbours whose centroid decides whether a crease sample is convex; the same neighbourhood
+#: refits the two side planes.
+CONVEXITY_K = 24
+#: Rounds of the two-plane refit (assign to the nearer plane, refit by PCA).
+REFINE_ROUNDS = 4
+#: Neighbours farther than 3 median residuals + REFINE_FLOOR (at most REFINE_OUTLIER) from
+#: both planes are left out of a round of the refit [r0].
+REFINE_FLOOR = 0.02
+REFINE_OUTLIER = 0.5
+#: A corner is refined from the crease samples within this many ``reach`` of it ...
+CORNER_REACH = 1.5
+#: ... whose side planes are grouped into planes whose normals are this close [deg].
+CORNER_PLANE_DEG = 20.0
+
+
+@dataclass
+class CreaseField:
+    """Crease lines and corners of the data in normalised units (r0 = 1).
+
+    Attributes
+    ----------
+    feet : (m, 3) float64 [r0]
+        A point of each crease sample's line.
+    direction : (m, 3) float64
+        Unit line directions.
+    side : (m, 2, 3) float64
+        Unit side normals (outward when the data normals are).
+    convex : (m,) bool
+    corners : (c, 3) float64 [r0]
+    reach : float [r0]
+        Particles within this distance of a crease sample's foot use its side planes.
+    snap : float [r0]
+        Particles within this distance of a crease line (of a corner) become crease particles.
+    """
+
+    feet: np.ndarray
+    direction: np.ndarray
+    side: np.ndarray
+    convex: np.ndarray
+    corners: np.ndarray
+    reach: float
+    snap: float
+
+    def __post_init__(self) -> None:
+        self._tree = cKDTree(self.feet) if len(self.feet) else None
+        self._corner_tree = cKDTree(self.corners) if len(self.corners) else None
+
+    @classmethod
+    def build(
+        cls,
+        found: Creases,
+        points: np.ndarray,
+        scale: float,
+        reach: float = 2.5,
+        snap: float = 0.5,
+    ) -> CreaseField:
+        """Crease samples from a detection on the input points.
+
+        Parameters
+        ----------
+        found : Creases
+            Detection on the input points (input units).
+        points : (n, 3) float64 [r0]
+            The same points in normalised units (``input / scale``).
+        scale : float [length]
+            r0: converts ``found``'s feet and corners to normalised units.
+        """
+        sel = np.flatnonzero((found.labels == CREASE) & np.isfinite(found.foot).all(axis=1))
+        feet = np.ascontiguousarray(found.foot[sel] / scale)
+        side = np.ascontiguousarray(found.side_normals[sel, :2])
+        direction = np.ascontiguousarray(found.direction[sel])
+        convex = np.zeros(len(sel), dtype=bool)
+        if len(sel):
+            k = int(min(CONVEXITY_K, len(points)))
+            _, idx = cKDTree(points).query(points[sel], k=k)
+            idx = idx.reshape(len(sel), k)
+            centroid = points[idx].mean(axis=1)
+            convex = np.einsum("ij,ij->i", centroid - feet, side[:, 0] + side[:, 1]) < 0.0
+        if len(sel):
+            feet, side, direction = _refine_planes(points, sel, idx, feet, side)
+        corners = np.asarray(found.corners, dtype=np.float64).reshape(-1, 3) / scale
+        corners = _refine_corners(corners, feet, side, reach)
+        return cls(feet, direction, side, convex, corners, reach, snap)
+
+    @property
+    def n_samples(self) -> int:
+        return len(self.feet)
+
+    # -- the per-side data surface -------------------------------------------------------
+    def nearest_sample(self, positions: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
+        """Index of the nearest crease sample within ``radius`` of each position (-1: none)
+        and the distance to its foot."""
+        q = len(positions)
+        if self._tree is None or q == 0:
+            return np.full(q, -1, dtype=np.int64), np.full(q, np.inf)
+        dist, idx = self._tree.query(positions, k=1, distance_upper_bound=radius)
+        idx = np.where(np.isfinite(dist), idx, -1).astype(np.int64)
+        return idx, dist
+
+    def wedge(
+        self, positions: np.ndarray, sample: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Closest point of each position on its sample's wedge, the normal there, and
+        whether it lies on the line (the closest point is the line's)."""
+        x0, d = self.feet[sample], self.direction[sample]
+        na, nb = self.side[sample, 0], self.side[sample, 1]
+        sign = np.where(self.convex[sample], 1.0, -1.0)
+        r = positions - x0
+        t = np.einsum("ij,ij->i", r, d)
+        line = x0 + t[:, None] * d
+        da = np.einsum("ij,ij->i", r, na)
+        db = np.einsum("ij,ij->i", r, nb)
+        c = np.einsum("ij,ij->i", na, nb)
+        # a face foot is on the face when it is on the right side of the other plane
+        ok_a = sign * (db - da * c) <= 0.0
+        ok_b = sign * (da - db * c) <= 0.0
+        radial = positions - line
+        e = np.linalg.norm(radial, axis=1)
+        cost = np.stack([np.where(ok_a, np.abs(da), np.inf), np.where(ok_b, np.abs(db), np.inf), e])
+        pick = np.argmin(cost, axis=0)
+        foot = np.where(
+            (pick == 0)[:, None],
+            positions - da[:, None] * na,
+            np.where((pick == 1)[:, None], positions - db[:, None] * nb, line),
+        )
+        bis = na + nb
+        bis /= np.maximum(np.linalg.norm(bis, axis=1, keepdims=True), 1e-300)
+        out = np.where(e[:, None] > 1e-9, radial / np.maximum(e, 1e-300)[:, None], bis)
+        out *= np.where(np.einsum("ij,ij->i", out, bis) < 0.0, -1.0, 1.0)[:, None]
+        nrm = np.where((pick == 0)[:, None], na, np.where((pick == 1)[:, None], nb, out))
+        return foot, nrm, pick == 2
+
+    def adjust(
+        self,
+        positions: np.ndarray,
+        normals: np.ndarray | None,
+        foot: np.ndarray,
+        nrm: np.ndarray,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Replace the anchors (``foot``, ``nrm``) of positions near a crease by the closest
+        point of the crease's wedge (see the module docstring); others are returned as given.
+        With ``normals``, only particles on the sheet the sides face (``n . (n_a + n_b) > 0``)
+        are changed."""
+        sample, _ = self.nearest_sample(positions, self.reach)
+        use = sample >= 0
+        if normals is not None and use.any():
+            s = sample[use]
+            agree = np.einsum("ij,ij->i", normals[use], self.side[s, 0] + self.side[s, 1]) > 0.0
+            use[np.flatnonzero(use)[~agree]] = False
+        if not use.any():
+            return foot, nrm
+        foot, nrm = foot.copy(), nrm.copy()
+        f, n, _ = self.wedge(positions[use], sample[use])
+        foot[use] = f
+        nrm[use] = n
+        return foot, nrm
+
+    # -- crease particles ----------------------------------------------------------------
+    def constrain(self, state: ParticleState) -> np.ndarray:
+        """Snap particles near a crease line or corner onto it and mark them unoriented; every
+        other particle is marked oriented. Returns the mask of crease particles."""
+        n = state.n
+        crease = np.zeros(n, dtype=bool)
+        if n == 0 or (self._tree is None and self._corner_tree is None):
+            return crease
+        pos = state.position.copy()
+        nrm = state.normal
+        rest = np.asarray(state.rest, dtype=np.float64)
+        target = pos.copy()
+        new_normal = nrm.copy()
+        order_key = np.full(n, np.inf)
+        at_corner = np.zeros(n, dtype=bool)
+        # corners first: the nearest particle to each corner, within snap
+        if self._corner_tree is not None:
+            dist, idx = cKDTree(pos).query(self.corners, k=1, distance_upper_bound=self.snap)
+            for c, (dc, i) in enumerate(zip(dist, idx, strict=True)):
+                if np.isfinite(dc) and order_key[i] == np.inf:
+                    target[i] = self.corners[c]
+                    at_corner[i] = True
+                    order_key[i] = -1.0 + dc * 1e-3
+        # lines: particles within snap of their nearest sample's line
+        sample, _ = self.nearest_sample(pos, self.reach)
+        cand = np.flatnonzero((sample >= 0) & (order_key == np.inf))
+        if len(cand):
+            s = sample[cand]
+            bis = self.side[s, 0] + self.side[s, 1]
+            agree = np.einsum("ij,ij->i", nrm[cand], bis) > 0.0
+            r = pos[cand] - self.feet[s]
+            t = np.einsum("ij,ij->i", r, self.direction[s])
+            line = self.feet[s] + t[:, None] * self.direction[s]
+            e = np.linalg.norm(pos[cand] - line, axis=1)
+            ok = agree & (e < self.snap)
+            cand, line, e, bis = cand[ok], line[ok], e[ok], bis[ok]
+            target[cand] = line
+            order_key[cand] = e
+            new_normal[cand] = bis / np.linalg.norm(bis, axis=1, keepdims=True)
+        chosen = np.flatnonzero(np.isfinite(order_key))
+        if len(chosen) == 0:
+            state.set_oriented(True)
+            return crease
+        chosen = chosen[np.argsort(order_key[chosen], kind="stable")]
+        # greedy: keep a snap only if nothing else is within the clearance of its new place
+        tree = cKDTree(pos)
+        near = tree.query_ball_point(target[chosen], SNAP_CLEARANCE * rest[chosen])
+        placed: list[int] = []
+        for i, nb in zip(chosen, near, strict=True):
+            clear = True
+            for j in nb:
+                if j != i and not crease[j]:
+                    # an unsnapped particle (or a candidate not yet placed) sits there
+                    if np.isfinite(order_key[j]) and order_key[j] > order_key[i]:
+                        continue
+                    clear = False
+                    break
+            if clear and placed:
+                dd = np.linalg.norm(target[placed] - target[i], axis=1)
+                clear = bool(np.all(dd >= SNAP_CLEARANCE * rest[i]))
+            if clear:
+                crease[i] = True
+                placed.append(int(i))
+        idx = np.flatnonzero(crease)
+        moved = pos.copy()
+        moved[idx] = target[idx]
+        state.position = moved
+        if len(idx):
+            nn = state.normal
+            nn[idx] = new_normal[idx]
+            state.normal = nn
+            # keep only the velocity along the line (a snapped particle moves along it)
+            vel = state.velocity.copy()
+            s, _ = self.nearest_sample(moved[idx], self.reach)
+            on_line = (s >= 0) & ~at_corner[idx]
+            d = self.direction[np.maximum(s, 0)]
+            along = np.einsum("ij,ij->i", vel[idx], d)
+            vel[idx] = np.where(on_line[:, None], along[:, None] * d, 0.0)
+            state.velocity = vel
+        state.set_oriented(~crease)
+        return crease
+
+
+def _refine_planes(
+    points: np.ndarray, sel: np.ndarray, idx: np.ndarray, feet: np.ndarray, side: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Two-plane fit of each crease sample's neighbourhood ``idx``: starting from the detected
+    side planes through the foot, assign every neighbour to the nearer plane and refit each plane
+    by PCA of its members (``REFINE_ROUNDS`` times); the line is the planes' intersection, its
+    foot the line point closest to the data point. The detected planes pass through the
+    clusters' centroids with their mean normals, which a few blended normals tilt; the refit
+    uses positions only."""
+    nb = points[idx]  # (m, K, 3)
+    p = points[sel]
+    na, nb_ = side[:, 0].copy(), side[:, 1].copy()
+    ca, cb = feet.copy(), feet.copy()
+    for rnd in range(REFINE_ROUNDS):
+        da = np.abs(np.einsum("mkj,mj->mk", nb - ca[:, None], na))
+        db = np.abs(np.einsum("mkj,mj->mk", nb - cb[:, None], nb_))
+        res = np.minimum(da, db)
+        # inliers: a third face's points (near a corner) and outliers do not tilt the planes
+        tol = np.minimum(REFINE_OUTLIER, 3.0 * np.median(res, axis=1) + REFINE_FLOOR)
+        if rnd == 0:
+            tol[:] = REFINE_OUTLIER
+        inl = res <= tol[:, None]
+        for mask, n, c in ((inl & (da <= db), na, ca), (inl & (da > db), nb_, cb)):
+            w = mask.astype(np.float64)
+            cnt = w.sum(axis=1)
+            ok = cnt >= 3
+            cen = np.einsum("mk,mkj->mj", w, nb) / np.maximum(cnt, 1)[:, None]
+            rel = (nb - cen[:, None]) * w[..., None]
+            cov = np.einsum("mki,mkj->mij", rel, rel)
+            _, vec = np.linalg.eigh(cov)
+            new = vec[:, :, 0]
+            new *= np.where(np.einsum("ij,ij->i", new, n) < 0.0, -1.0, 1.0)[:, None]
+            n[ok] = new[ok]
+            c[ok] = cen[ok]
+    cos = np.einsum("ij,ij->i", na, nb_)
+    det = 1.0 - cos * cos
+    good = det > 1e-6
+    ra = np.einsum("ij,ij->i", na, ca - p)
+    rb = np.einsum("ij,ij->i", nb_, cb - p)
+    a = (ra - cos * rb) / np.where(good, det, 1.0)
+    b = (rb - cos * ra) / np.where(good, det, 1.0)
+    x0 = p + a[:, None] * na + b[:, None] * nb_
+    d = np.cross(na, nb_)
+    d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-300)
+    # a sample whose refit degenerated keeps its detected line
+    keep_old = ~good | (np.linalg.norm(x0 - feet, axis=1) > 1.0)
+    x0[keep_old] = feet[keep_old]
+    out_side = np.stack([na, nb_], axis=1)
+    out_side[keep_old] = side[keep_old]
+    old_d = np.cross(side[:, 0], side[:, 1])
+    old_d /= np.maximum(np.linalg.norm(old_d, axis=1, keepdims=True), 1e-300)
+    d[keep_old] = old_d[keep_old]
+    return np.ascontiguousarray(x0), np.ascontiguousarray(out_side), np.ascontiguousarray(d)
+
+
+def _refine_corners(
+    corners: np.ndarray, feet: np.ndarray, side: np.ndarray, radius: float
+) -> np.ndarray:
+    """Each corner at the least-squares intersection of the (refined) side planes of the crease
+    samples within ``CORNER_REACH`` x ``radius`` of it, grouped into distinct planes (normals
+    more than ``CORNER_PLANE_DEG`` apart); kept as detected when fewer than three remain."""
+    if len(corners) == 0 or len(feet) == 0:
+        return np.ascontiguousarray(corners)
+    tree = cKDTree(feet)
+    out = corners.copy()
+    cos_min = np.cos(np.radians(CORNER_PLANE_DEG))
+    for i, c in enumerate(corners):
+        near = tree.query_ball_point(c, CORNER_REACH * radius)
+        if not near:
+            continue
+        normals = side[near].reshape(-1, 3)
+        offsets = np.einsum("ij,ij->i", normals, np.repeat(feet[near], 2, axis=0))
+        groups: list[list[int]] = []
+        for j, n in enumerate(normals):
+            for g in groups:
+                if normals[g[0]] @ n > cos_min:
+                    g.append(j)
+                    break
+            else:
+                groups.append([j])
+        if len(groups) < 3:
+            continue
+        groups = sorted(groups, key=len, reverse=True)
+        mat = np.array([normals[g].mean(axis=0) for g in groups])
+        mat /= np.linalg.norm(mat, axis=1, keepdims=True)
+        rhs = np.array([np.median(offsets[g]) for g in groups])
+        sol, *_ = np.linalg.lstsq(mat, rhs, rcond=None)
+        if np.linalg.norm(sol - c) < CORNER_REACH * radius:
+            out[i] = sol
+    return np.ascontiguousarray(out)
