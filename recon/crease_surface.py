@@ -20,13 +20,13 @@ is thus pulled onto the face whose data it sits over, never onto a quadric bent 
 edge, and growth candidates (projected with the same anchors) land on their face's plane.
 
 **Crease particles** (:meth:`CreaseField.constrain`). Particles within ``snap`` of a crease
-line are moved onto it, and particles within ``snap`` of a detected corner onto the corner
-(the nearest one per corner), and marked *unoriented*: they keep the spacing interaction and
-neither give nor take the smoothing terms (S&T92 §6, Fig. 7). A particle is snapped only when
-no other particle lies within ``SNAP_CLEARANCE`` x its spacing of its new place, so a
-crease line carries particles at the local spacing, never two on one spot. Their normal is the
-bisector of the side normals (it orients the triangulation; unoriented particles keep their
-frame in the dynamics).
+line are moved onto it, and the particle nearest to a detected corner (within
+``CORNER_SNAP`` spacings) onto the corner, and marked *unoriented*: they keep the spacing
+interaction and neither give nor take the smoothing terms (S&T92 §6, Fig. 7). A particle is
+snapped only when no other particle lies within ``SNAP_CLEARANCE`` x its spacing of its new
+place, so a crease line carries particles at the local spacing, never two on one spot. Their
+normal is the bisector of the side normals (it orients the triangulation; unoriented particles
+keep their frame in the dynamics).
 
 References
 ----------
@@ -49,6 +49,9 @@ __all__ = ["CreaseField", "SNAP_CLEARANCE"]
 #: A particle is snapped onto a crease only when no other particle is closer than this
 #: many spacings to its new place.
 SNAP_CLEARANCE = 0.6
+#: The particle nearest to a corner is snapped onto it when within this many spacings (a
+#: corner is a point: its nearest particle may be up to one spacing away).
+CORNER_SNAP = 1.0
 #: Neighbours whose centroid decides whether a crease sample is convex; the same neighbourhood
 #: refits the two side planes.
 CONVEXITY_K = 24
@@ -58,10 +61,6 @@ REFINE_ROUNDS = 4
 #: both planes are left out of a round of the refit [r0].
 REFINE_FLOOR = 0.02
 REFINE_OUTLIER = 0.5
-#: A corner is refined from the crease samples within this many ``reach`` of it ...
-CORNER_REACH = 1.5
-#: ... whose side planes are grouped into planes whose normals are this close [deg].
-CORNER_PLANE_DEG = 20.0
 
 
 @dataclass
@@ -129,8 +128,8 @@ class CreaseField:
             convex = np.einsum("ij,ij->i", centroid - feet, side[:, 0] + side[:, 1]) < 0.0
         if len(sel):
             feet, side, direction = _refine_planes(points, sel, idx, feet, side)
-        corners = np.asarray(found.corners, dtype=np.float64).reshape(-1, 3) / scale
-        corners = _refine_corners(corners, feet, side, reach)
+        corners = np.ascontiguousarray(np.asarray(found.corners, dtype=np.float64).reshape(-1, 3))
+        corners = corners / scale
         return cls(feet, direction, side, convex, corners, reach, snap)
 
     @property
@@ -206,6 +205,20 @@ class CreaseField:
         nrm[use] = n
         return foot, nrm
 
+    def line_candidates(self) -> tuple[np.ndarray, np.ndarray]:
+        """Growth candidates on the crease lines: every sample's foot, with the bisector of its
+        side normals (growth keeps those at least ``reject_radius`` from every particle, so
+        a crease line fills at the local spacing), and the corners."""
+        bis = self.side[:, 0] + self.side[:, 1]
+        bis /= np.maximum(np.linalg.norm(bis, axis=1, keepdims=True), 1e-300)
+        pos, nrm = self.feet, bis
+        if len(self.corners) and len(self.feet):
+            # a corner takes the bisector of its nearest sample's sides
+            _, near = self._tree.query(self.corners, k=1)
+            pos = np.vstack([self.corners, pos])
+            nrm = np.vstack([bis[near], nrm])
+        return np.ascontiguousarray(pos), np.ascontiguousarray(nrm)
+
     # -- crease particles ----------------------------------------------------------------
     def constrain(self, state: ParticleState) -> np.ndarray:
         """Snap particles near a crease line or corner onto it and mark them unoriented; every
@@ -221,9 +234,11 @@ class CreaseField:
         new_normal = nrm.copy()
         order_key = np.full(n, np.inf)
         at_corner = np.zeros(n, dtype=bool)
-        # corners first: the nearest particle to each corner, within snap
+        # corners first: the nearest particle to each corner, within CORNER_SNAP spacings
         if self._corner_tree is not None:
-            dist, idx = cKDTree(pos).query(self.corners, k=1, distance_upper_bound=self.snap)
+            dist, idx = cKDTree(pos).query(
+                self.corners, k=1, distance_upper_bound=CORNER_SNAP * float(np.median(rest))
+            )
             for c, (dc, i) in enumerate(zip(dist, idx, strict=True)):
                 if np.isfinite(dc) and order_key[i] == np.inf:
                     target[i] = self.corners[c]
@@ -342,40 +357,3 @@ def _refine_planes(
     old_d /= np.maximum(np.linalg.norm(old_d, axis=1, keepdims=True), 1e-300)
     d[keep_old] = old_d[keep_old]
     return np.ascontiguousarray(x0), np.ascontiguousarray(out_side), np.ascontiguousarray(d)
-
-
-def _refine_corners(
-    corners: np.ndarray, feet: np.ndarray, side: np.ndarray, radius: float
-) -> np.ndarray:
-    """Each corner at the least-squares intersection of the (refined) side planes of the crease
-    samples within ``CORNER_REACH`` x ``radius`` of it, grouped into distinct planes (normals
-    more than ``CORNER_PLANE_DEG`` apart); kept as detected when fewer than three remain."""
-    if len(corners) == 0 or len(feet) == 0:
-        return np.ascontiguousarray(corners)
-    tree = cKDTree(feet)
-    out = corners.copy()
-    cos_min = np.cos(np.radians(CORNER_PLANE_DEG))
-    for i, c in enumerate(corners):
-        near = tree.query_ball_point(c, CORNER_REACH * radius)
-        if not near:
-            continue
-        normals = side[near].reshape(-1, 3)
-        offsets = np.einsum("ij,ij->i", normals, np.repeat(feet[near], 2, axis=0))
-        groups: list[list[int]] = []
-        for j, n in enumerate(normals):
-            for g in groups:
-                if normals[g[0]] @ n > cos_min:
-                    g.append(j)
-                    break
-            else:
-                groups.append([j])
-        if len(groups) < 3:
-            continue
-        groups = sorted(groups, key=len, reverse=True)
-        mat = np.array([normals[g].mean(axis=0) for g in groups])
-        mat /= np.linalg.norm(mat, axis=1, keepdims=True)
-        rhs = np.array([np.median(offsets[g]) for g in groups])
-        sol, *_ = np.linalg.lstsq(mat, rhs, rcond=None)
-        if np.linalg.norm(sol - c) < CORNER_REACH * radius:
-            out[i] = sol
-    return np.ascontiguousarray(out)

@@ -401,6 +401,9 @@ class _Schedule:
             pos, nrm, offsets, indices, g, with_normals=True, rest=rest
         )
         mid, mid_n = stretch_candidates(pos, nrm, tree, frontier, g, with_normals=True)
+        if self.surface.creases is not None:  # crease hook: particles along the crease lines
+            line, line_n = self.surface.creases.line_candidates()
+            grown, grown_n = np.vstack([line, grown]), np.vstack([line_n, grown_n])
         cands = np.vstack([grown, mid])
         acc = accept_candidates(
             cands,
