@@ -51,7 +51,7 @@ __all__ = ["CreaseField", "SNAP_CLEARANCE"]
 SNAP_CLEARANCE = 0.6
 #: The particle nearest to a corner is snapped onto it when within this many spacings (a
 #: corner is a point: its nearest particle may be up to one spacing away).
-CORNER_SNAP = 1.0
+CORNER_SNAP = 0.5
 #: Neighbours whose centroid decides whether a crease sample is convex; the same neighbourhood
 #: refits the two side planes.
 CONVEXITY_K = 24
@@ -220,10 +220,15 @@ class CreaseField:
         return np.ascontiguousarray(pos), np.ascontiguousarray(nrm)
 
     # -- crease particles ----------------------------------------------------------------
-    def constrain(self, state: ParticleState) -> np.ndarray:
+    def constrain(self, state: ParticleState, settle: bool = False) -> np.ndarray:
         """Snap particles near a crease line or corner onto it and mark them unoriented; every
-        other particle is marked oriented. Returns the mask of crease particles."""
+        other particle is marked oriented. Returns the mask of crease particles.
+
+        ``settle``: only the particles that are crease particles already (unoriented) are put
+        back onto their line or corner (a final touch with no dynamics after it: nothing jumps).
+        """
         n = state.n
+        current = ~np.asarray(state.is_oriented, dtype=bool)
         crease = np.zeros(n, dtype=bool)
         if n == 0 or (self._tree is None and self._corner_tree is None):
             return crease
@@ -240,7 +245,7 @@ class CreaseField:
                 self.corners, k=1, distance_upper_bound=CORNER_SNAP * float(np.median(rest))
             )
             for c, (dc, i) in enumerate(zip(dist, idx, strict=True)):
-                if np.isfinite(dc) and order_key[i] == np.inf:
+                if np.isfinite(dc) and order_key[i] == np.inf and (current[i] or not settle):
                     target[i] = self.corners[c]
                     at_corner[i] = True
                     order_key[i] = -1.0 + dc * 1e-3
@@ -255,7 +260,7 @@ class CreaseField:
             t = np.einsum("ij,ij->i", r, self.direction[s])
             line = self.feet[s] + t[:, None] * self.direction[s]
             e = np.linalg.norm(pos[cand] - line, axis=1)
-            ok = agree & (e < self.snap)
+            ok = agree & (e < self.snap) & (current[cand] | (not settle))
             cand, line, e, bis = cand[ok], line[ok], e[ok], bis[ok]
             target[cand] = line
             order_key[cand] = e

@@ -362,11 +362,13 @@ class _Schedule:
             ) from None
         return state, params
 
-    def constrain_creases(self, sim: Simulation, state: ParticleState) -> None:
+    def constrain_creases(
+        self, sim: Simulation, state: ParticleState, settle: bool = False
+    ) -> None:
         """Crease hook (issue 12): snap particles near crease lines and corners onto them and
         mark them unoriented (:meth:`recon.crease_surface.CreaseField.constrain`)."""
         if self.surface.creases is not None and state.n:
-            self.surface.creases.constrain(state)
+            self.surface.creases.constrain(state, settle=settle)
             sim.notify_changed()
 
     # -- phases --------------------------------------------------------------------------
@@ -495,7 +497,7 @@ class _Schedule:
             self.record("release", state, kinetic, self.coverage(state.position))
             if self.total_steps() >= dyn.max_steps:
                 break
-        self.constrain_creases(sim, state)  # crease particles end exactly on their lines
+        self.constrain_creases(sim, state, settle=True)  # crease particles end on their lines
 
 
 def _scaled_neighbors(
