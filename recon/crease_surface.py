@@ -49,6 +49,10 @@ __all__ = ["CreaseField", "SNAP_CLEARANCE"]
 #: A particle is snapped onto a crease only when no other particle is closer than this
 #: many spacings to its new place.
 SNAP_CLEARANCE = 0.6
+#: A particle within this many spacings of a crease line whose place on the line is taken (a
+#: crease particle closer than SNAP_CLEARANCE) is removed: it would sit on the crease beside
+#: it and make triangles that cut the edge.
+DROP_DISTANCE = 0.3
 #: The particle nearest to a corner is snapped onto it when within this many spacings (a
 #: corner is a point: its nearest particle may be up to one spacing away).
 CORNER_SNAP = 0.5
@@ -222,7 +226,9 @@ class CreaseField:
     # -- crease particles ----------------------------------------------------------------
     def constrain(self, state: ParticleState, settle: bool = False) -> np.ndarray:
         """Snap particles near a crease line or corner onto it and mark them unoriented; every
-        other particle is marked oriented. Returns the mask of crease particles.
+        other particle is marked oriented; particles within ``DROP_DISTANCE`` of a line where
+        a crease particle already sits are removed. Returns the mask of crease particles (over
+        the particles that remain).
 
         ``settle``: only the particles that are crease particles already (unoriented) are put
         back onto their line or corner (a final touch with no dynamics after it: nothing jumps).
@@ -274,6 +280,7 @@ class CreaseField:
         tree = cKDTree(pos)
         near = tree.query_ball_point(target[chosen], SNAP_CLEARANCE * rest[chosen])
         placed: list[int] = []
+        drop = np.zeros(n, dtype=bool)
         for i, nb in zip(chosen, near, strict=True):
             clear = True
             for j in nb:
@@ -286,6 +293,9 @@ class CreaseField:
             if clear and placed:
                 dd = np.linalg.norm(target[placed] - target[i], axis=1)
                 clear = bool(np.all(dd >= SNAP_CLEARANCE * rest[i]))
+                # a particle hugging the line beside a crease particle is redundant: drop it
+                if not clear and not settle and order_key[i] < DROP_DISTANCE * rest[i]:
+                    drop[i] = True
             if clear:
                 crease[i] = True
                 placed.append(int(i))
@@ -306,6 +316,9 @@ class CreaseField:
             vel[idx] = np.where(on_line[:, None], along[:, None] * d, 0.0)
             state.velocity = vel
         state.set_oriented(~crease)
+        if drop.any():
+            state.remove(~drop)
+            crease = crease[~drop]
         return crease
 
 

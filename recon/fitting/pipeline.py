@@ -94,6 +94,7 @@ class Mesh:
     vertices: np.ndarray  # (V, 3) float64 [length]
     faces: np.ndarray  # (F, 3) int64
     normals: np.ndarray  # (V, 3) float64 unit vertex normals
+    crease: np.ndarray | None = None  # (V,) bool: on a crease line or corner (creases.fit)
 
 
 @dataclass
@@ -183,6 +184,7 @@ def _triangulate(
             surface.nearest(surface.project(c)[0])[0] < HOLE_COVER_DISTANCE * spacing
         ),
         local_spacing=spacing,
+        crease=None if surface.creases is None else ~np.asarray(state.is_oriented, dtype=bool),
     )
 
 
@@ -262,7 +264,7 @@ def _reconstruct(cloud: PointCloud, cfg: ReconConfig, on_progress: ProgressFn | 
 
     origin = np.asarray(cloud.origin, dtype=np.float64)
     vertices = tri.vertices * r0 + origin
-    mesh = Mesh(vertices, tri.faces, tri.normals)
+    mesh = Mesh(vertices, tri.faces, tri.normals, tri.crease)
     particles = Particles(state.position * r0 + origin, state.normal.copy())
 
     if len(tri.faces) == 0:
@@ -432,6 +434,7 @@ def fit_file(
                 history=result.report.history.to_dict(),
                 title=input_path.name,
                 outputs=outputs,
+                crease_vertices=result.mesh.crease,
             )
         if report_path is not None:
             with atomic_output(report_path, outputs) as tmp:
