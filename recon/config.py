@@ -382,6 +382,13 @@ class CreasesConfig(Schema):
         "onto it and made unoriented (spacing only, no smoothing across the edge), and the "
         "mesh keeps the edge. False: detection feeds the report only.",
     )
+    split_ply: bool = option(
+        False,
+        "PLY output: duplicate the vertices on creases, one copy per side with its side's "
+        "normal (the surface is closed but its topology opens along the creases). False keeps "
+        "them welded with one averaged normal (watertight). OBJ output always splits the "
+        "normals per face corner (f v//vn) and keeps the vertices welded.",
+    )
 
 
 @dataclass(frozen=True)

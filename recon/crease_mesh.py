@@ -96,64 +96,73 @@ def flip_straddling_edges(
     return faces, flips
 
 
-def corner_normals(vertices: np.ndarray, faces: np.ndarray, angle_deg: float) -> np.ndarray:
-    """(F, 3, 3) unit normal at each face corner: the area-weighted mean of the normals of the
-    faces around the vertex that turn by at most ``angle_deg`` from this face."""
+def corner_normals(
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    vertex_normals: np.ndarray,
+    crease: np.ndarray,
+    angle_deg: float,
+) -> np.ndarray:
+    """(F, 3, 3) unit normal at each face corner: ``vertex_normals`` away from creases; at a
+    crease vertex the area-weighted mean of the normals of the faces around it that turn by at
+    most ``angle_deg`` from this face (each side of the crease its own normal)."""
+    out = np.asarray(vertex_normals, dtype=np.float64)[faces].copy()
+    if len(faces) == 0 or not np.any(crease):
+        return out
     area = face_area_vectors(vertices, faces)
-    norm = np.linalg.norm(area, axis=1, keepdims=True)
-    unit = area / np.maximum(norm, 1e-300)
+    unit = area / np.maximum(np.linalg.norm(area, axis=1, keepdims=True), 1e-300)
     cos = np.cos(np.radians(angle_deg))
-    # faces around each vertex (CSR)
     flat = faces.reshape(-1)
     order = np.argsort(flat, kind="stable")
     starts = np.searchsorted(flat[order], np.arange(len(vertices) + 1))
     owner = order // 3
-    out = np.repeat(unit[:, None, :], 3, axis=1).copy()
-    for t in range(len(faces)):
-        for c in range(3):
-            v = faces[t, c]
-            ring = owner[starts[v] : starts[v + 1]]
-            keep = ring[unit[ring] @ unit[t] >= cos]
-            s = area[keep].sum(axis=0)
-            ln = np.linalg.norm(s)
-            if ln > 0:
-                out[t, c] = s / ln
+    for k in np.flatnonzero(crease[flat]):
+        t, c = divmod(int(k), 3)
+        v = flat[k]
+        ring = owner[starts[v] : starts[v + 1]]
+        keep = ring[unit[ring] @ unit[t] >= cos]
+        total = area[keep].sum(axis=0)
+        norm = np.linalg.norm(total)
+        if norm > 0:
+            out[t, c] = total / norm
     return out
 
 
 def split_crease_vertices(
-    vertices: np.ndarray, faces: np.ndarray, angle_deg: float
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Duplicate vertices whose face-corner normals differ (one copy per distinct normal).
-
-    Returns ``(vertices, faces, normals, source)``: ``source[i]`` is the input vertex of output
-    vertex ``i`` (the first ``len(vertices)`` are the input vertices themselves). The mesh's
-    topology is then open along the creases (each side its own vertices at the same place);
-    weld by ``source`` to close it again.
-    """
-    cn = corner_normals(vertices, faces, angle_deg)
-    key = np.round(cn.reshape(-1, 3), 6)
-    flat = faces.reshape(-1)
-    normals = np.zeros((len(vertices), 3))
-    chosen = np.full(len(vertices), -1)
-    new_faces = flat.copy()
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    vertex_normals: np.ndarray,
+    crease: np.ndarray,
+    angle_deg: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One vertex per distinct face-corner normal (:func:`corner_normals`), for formats with one
+    normal per vertex (PLY): a crease vertex is duplicated, one copy per side, and faces are
+    re-pointed. Returns ``(faces, normals, source)``: output vertex ``i`` is input vertex
+    ``source[i]`` (the first ``len(vertices)`` are the input vertices, in order). The copies
+    sit at the same place, so the mesh is closed but its topology opens along the creases
+    (weld by ``source`` to close it)."""
+    cn = corner_normals(vertices, faces, vertex_normals, crease, angle_deg).reshape(-1, 3)
+    normals = np.asarray(vertex_normals, dtype=np.float64).copy()
+    flat = faces.reshape(-1).copy()
     extra_src: list[int] = []
     extra_n: list[np.ndarray] = []
-    seen: dict[tuple[int, tuple[float, float, float]], int] = {}
-    for i, (v, k) in enumerate(zip(flat.tolist(), map(tuple, key.tolist()), strict=True)):
-        if chosen[v] < 0:
-            chosen[v] = 1
-            normals[v] = cn.reshape(-1, 3)[i]
-            seen[(v, k)] = v
+    first: dict[int, np.ndarray] = {}
+    copies: dict[tuple[int, tuple[float, ...]], int] = {}
+    for k in np.flatnonzero(crease[flat]):
+        v = int(flat[k])
+        key = (v, tuple(np.round(cn[k], 5).tolist()))
+        if v not in first:
+            first[v] = cn[k]
+            normals[v] = cn[k]
+            copies[key] = v
             continue
-        idx = seen.get((v, k))
+        idx = copies.get(key)
         if idx is None:
             idx = len(vertices) + len(extra_src)
             extra_src.append(v)
-            extra_n.append(cn.reshape(-1, 3)[i])
-            seen[(v, k)] = idx
-        new_faces[i] = idx
+            extra_n.append(cn[k])
+            copies[key] = idx
+        flat[k] = idx
     source = np.r_[np.arange(len(vertices)), np.asarray(extra_src, dtype=np.int64)]
-    out_v = vertices[source]
-    out_n = np.vstack([normals, np.asarray(extra_n).reshape(-1, 3)])
-    return out_v, new_faces.reshape(-1, 3), out_n, source
+    normals = np.vstack([normals, np.asarray(extra_n, dtype=np.float64).reshape(-1, 3)])
+    return flat.reshape(-1, 3), normals, source

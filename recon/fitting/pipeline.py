@@ -35,6 +35,7 @@ import numpy as np
 from ..attributes import check_attribute_output, check_transfer, transfer_for_output
 from ..cloud import PointCloud
 from ..config import ReconConfig, config_to_dict, with_values
+from ..crease_mesh import corner_normals, split_crease_vertices
 from ..crease_surface import CreaseField
 from ..creases import Creases, detect_creases
 from ..errors import InputError
@@ -186,6 +187,30 @@ def _triangulate(
         local_spacing=spacing,
         crease=None if surface.creases is None else ~np.asarray(state.is_oriented, dtype=bool),
     )
+
+
+#: Vertex normals are split at a crease vertex between faces turning by more than this
+#: fraction of ``creases.angle_deg``.
+SPLIT_ANGLE_FRACTION = 0.75
+
+
+def _crease_normals(
+    mesh: Mesh, normals: np.ndarray | None, path: Path, cfg: ReconConfig
+) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """The mesh as written: normals split at crease vertices (issue 12). OBJ: one normal per
+    face corner, vertices welded. PLY: with ``creases.split_ply`` crease vertices duplicated,
+    one per side; else unchanged (one welded vertex, the averaged normal)."""
+    v, f = mesh.vertices, mesh.faces
+    crease = mesh.crease
+    if normals is None or crease is None or not crease.any():
+        return v, f, normals, None
+    angle = SPLIT_ANGLE_FRACTION * cfg.creases.angle_deg
+    if path.suffix.lower() == ".obj":
+        return v, f, normals, corner_normals(v, f, normals, crease, angle)
+    if cfg.creases.split_ply:
+        f, nrm, source = split_crease_vertices(v, f, normals, crease, angle)
+        return v[source], f, nrm, None
+    return v, f, normals, None
 
 
 def _detect_creases(
@@ -403,18 +428,18 @@ def fit_file(
     normals = result.mesh.normals if cfg.output.vertex_normals else None
     with atomic_outputs() as outputs:  # all files appear together, or none
         for mesh_path in meshes:
-            attributes = transfer_for_output(
-                cloud, result.mesh.vertices, report.spacing, mesh_path, cfg
-            )
+            v, f, nrm, corners = _crease_normals(result.mesh, normals, Path(mesh_path), cfg)
+            attributes = transfer_for_output(cloud, v, report.spacing, mesh_path, cfg)
             write_mesh(
                 mesh_path,
-                result.mesh.vertices,
-                result.mesh.faces,
-                normals,
+                v,
+                f,
+                nrm,
                 ascii=cfg.io.ascii,
                 outputs=outputs,
                 colors=attributes.colors,
                 vertex_properties=attributes.properties,
+                corner_normals=corners,
             )
         if particles_path is not None:
             write_points(
