@@ -56,11 +56,13 @@ DROP_DISTANCE = 0.3
 #: The particle nearest to a corner is snapped onto it when within this many spacings (a
 #: corner is a point: its nearest particle may be up to one spacing away).
 CORNER_SNAP = 0.5
-#: Neighbours whose centroid decides whether a crease sample is convex; the same neighbourhood
-#: refits the two side planes.
-CONVEXITY_K = 24
+#: Neighbours of a crease sample's foot: their centroid decides whether it is convex, and they
+#: refit its two side planes.
+REFINE_K = 32
+#: A refit side plane needs this many member points; samples with fewer are dropped.
+REFINE_MIN_MEMBERS = 6
 #: Rounds of the two-plane refit (assign to the nearer plane, refit by PCA).
-REFINE_ROUNDS = 4
+REFINE_ROUNDS = 8
 #: Neighbours farther than 3 median residuals + REFINE_FLOOR (at most REFINE_OUTLIER) from
 #: both planes are left out of a round of the refit [r0].
 REFINE_FLOOR = 0.02
@@ -125,13 +127,14 @@ class CreaseField:
         direction = np.ascontiguousarray(found.direction[sel])
         convex = np.zeros(len(sel), dtype=bool)
         if len(sel):
-            k = int(min(CONVEXITY_K, len(points)))
-            _, idx = cKDTree(points).query(points[sel], k=k)
+            # the neighbourhood of the foot (on the line: both sides in it) refits the planes
+            k = int(min(REFINE_K, len(points)))
+            _, idx = cKDTree(points).query(feet, k=k)
             idx = idx.reshape(len(sel), k)
             centroid = points[idx].mean(axis=1)
             convex = np.einsum("ij,ij->i", centroid - feet, side[:, 0] + side[:, 1]) < 0.0
-        if len(sel):
-            feet, side, direction = _refine_planes(points, sel, idx, feet, side)
+            feet, side, direction, good = _refine_planes(points, sel, idx, feet, side)
+            feet, side, direction, convex = feet[good], side[good], direction[good], convex[good]
         corners = np.ascontiguousarray(np.asarray(found.corners, dtype=np.float64).reshape(-1, 3))
         corners = corners / scale
         return cls(feet, direction, side, convex, corners, reach, snap)
@@ -170,8 +173,9 @@ class CreaseField:
         ok_b = sign * (da - db * c) <= 0.0
         radial = positions - line
         e = np.linalg.norm(radial, axis=1)
-        cost = np.stack([np.where(ok_a, np.abs(da), np.inf), np.where(ok_b, np.abs(db), np.inf), e])
-        pick = np.argmin(cost, axis=0)
+        # ties go to the line (a particle on it keeps the bisector as its normal)
+        cost = np.stack([e, np.where(ok_a, np.abs(da), np.inf), np.where(ok_b, np.abs(db), np.inf)])
+        pick = (np.argmin(cost, axis=0) + 2) % 3  # 0: face a, 1: face b, 2: the line
         foot = np.where(
             (pick == 0)[:, None],
             positions - da[:, None] * na,
@@ -324,7 +328,7 @@ class CreaseField:
 
 def _refine_planes(
     points: np.ndarray, sel: np.ndarray, idx: np.ndarray, feet: np.ndarray, side: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Two-plane fit of each crease sample's neighbourhood ``idx``: starting from the detected
     side planes through the foot, assign every neighbour to the nearer plane and refit each plane
     by PCA of its members (``REFINE_ROUNDS`` times); the line is the planes' intersection, its
@@ -344,10 +348,12 @@ def _refine_planes(
         if rnd == 0:
             tol[:] = REFINE_OUTLIER
         inl = res <= tol[:, None]
+        members = []
         for mask, n, c in ((inl & (da <= db), na, ca), (inl & (da > db), nb_, cb)):
             w = mask.astype(np.float64)
             cnt = w.sum(axis=1)
-            ok = cnt >= 3
+            members.append(cnt)
+            ok = cnt >= REFINE_MIN_MEMBERS
             cen = np.einsum("mk,mkj->mj", w, nb) / np.maximum(cnt, 1)[:, None]
             rel = (nb - cen[:, None]) * w[..., None]
             cov = np.einsum("mki,mkj->mij", rel, rel)
@@ -356,6 +362,7 @@ def _refine_planes(
             new *= np.where(np.einsum("ij,ij->i", new, n) < 0.0, -1.0, 1.0)[:, None]
             n[ok] = new[ok]
             c[ok] = cen[ok]
+    members_a, members_b = members
     cos = np.einsum("ij,ij->i", na, nb_)
     det = 1.0 - cos * cos
     good = det > 1e-6
@@ -366,12 +373,14 @@ def _refine_planes(
     x0 = p + a[:, None] * na + b[:, None] * nb_
     d = np.cross(na, nb_)
     d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-300)
-    # a sample whose refit degenerated keeps its detected line
-    keep_old = ~good | (np.linalg.norm(x0 - feet, axis=1) > 1.0)
-    x0[keep_old] = feet[keep_old]
+    # a sample whose refit is degenerate (a side with too few points, parallel planes, a line
+    # far from the detected one) is dropped: its neighbours along the line cover it
+    good &= np.linalg.norm(x0 - feet, axis=1) <= 1.0
+    good &= (members_a >= REFINE_MIN_MEMBERS) & (members_b >= REFINE_MIN_MEMBERS)
     out_side = np.stack([na, nb_], axis=1)
-    out_side[keep_old] = side[keep_old]
-    old_d = np.cross(side[:, 0], side[:, 1])
-    old_d /= np.maximum(np.linalg.norm(old_d, axis=1, keepdims=True), 1e-300)
-    d[keep_old] = old_d[keep_old]
-    return np.ascontiguousarray(x0), np.ascontiguousarray(out_side), np.ascontiguousarray(d)
+    return (
+        np.ascontiguousarray(x0),
+        np.ascontiguousarray(out_side),
+        np.ascontiguousarray(d),
+        good,
+    )

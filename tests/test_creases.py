@@ -218,9 +218,7 @@ def test_config_and_cli(tmp_path):
     # the creases change the mesh; with creases.fit=false detection only feeds the report
     assert (tmp_path / "a.ply").read_bytes() != (tmp_path / "b.ply").read_bytes()
     report_only = ["--crease-angle", "60", "--set", "creases.fit=false"]
-    res = runner.invoke(
-        app, ["fit", str(src), "-o", str(tmp_path / "e.ply"), *report_only, *fast]
-    )
+    res = runner.invoke(app, ["fit", str(src), "-o", str(tmp_path / "e.ply"), *report_only, *fast])
     assert res.exit_code == 0, res.output
     assert "creases" in json.loads((tmp_path / "e.report.json").read_text())
     assert (tmp_path / "e.ply").read_bytes() == (tmp_path / "b.ply").read_bytes()
