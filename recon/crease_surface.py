@@ -49,6 +49,12 @@ __all__ = ["CreaseField", "SNAP_CLEARANCE"]
 #: A particle is snapped onto a crease only when no other particle is closer than this
 #: many spacings to its new place.
 SNAP_CLEARANCE = 0.6
+#: ... and no particle left where it was ends closer than this many spacings to a snapped one.
+SNAP_MIN_GAP = 0.5
+#: The wedge replaces a particle's anchor only when its foot is within this distance [r0] of
+#: the data surface's foot (a quadric rounds a sharp edge by a fraction of r0; farther, the
+#: wedge belongs to another crease, e.g. one meeting it at a corner).
+WEDGE_TOLERANCE = 0.75
 #: A particle within this many spacings of a crease line whose place on the line is taken (a
 #: crease particle closer than SNAP_CLEARANCE) is removed: it would sit on the crease beside
 #: it and make triangles that cut the edge.
@@ -61,6 +67,13 @@ CORNER_SNAP = 0.5
 #: spacings: the fit averages sensor noise over a few spacings of line; 32 left the line
 #: jittering by a tenth of r0 at 0.25 % noise).
 REFINE_K = 128
+#: Crease lines are continued to a corner (:func:`_extend_to_corners`) from their samples
+#: within EXTEND_RADIUS [r0] of it that pass within EXTEND_OFFSET [r0] of it, every
+#: EXTEND_STEP [r0]; samples whose lines turn by less than EXTEND_SAME_LINE_DEG are one line.
+EXTEND_RADIUS = 6.0
+EXTEND_OFFSET = 0.5
+EXTEND_STEP = 0.5
+EXTEND_SAME_LINE_DEG = 10.0
 #: A refit side plane needs this many member points; samples with fewer are dropped.
 REFINE_MIN_MEMBERS = 6
 #: Rounds of the two-plane refit (assign to the nearer plane, refit by PCA).
@@ -139,6 +152,7 @@ class CreaseField:
             feet, side, direction, convex = feet[good], side[good], direction[good], convex[good]
         corners = np.ascontiguousarray(np.asarray(found.corners, dtype=np.float64).reshape(-1, 3))
         corners = corners / scale
+        feet, direction, side, convex = _extend_to_corners(feet, direction, side, convex, corners)
         return cls(feet, direction, side, convex, corners, reach, snap)
 
     @property
@@ -210,9 +224,12 @@ class CreaseField:
         if not use.any():
             return foot, nrm
         foot, nrm = foot.copy(), nrm.copy()
-        f, n, _ = self.wedge(positions[use], sample[use])
-        foot[use] = f
-        nrm[use] = n
+        sel = np.flatnonzero(use)
+        f, n, _ = self.wedge(positions[sel], sample[sel])
+        # a wedge far from the data's own surface is another crease's (near a corner): keep
+        ok = np.linalg.norm(f - foot[sel], axis=1) <= WEDGE_TOLERANCE
+        foot[sel[ok]] = f[ok]
+        nrm[sel[ok]] = n[ok]
         return foot, nrm
 
     def line_candidates(self) -> tuple[np.ndarray, np.ndarray]:
@@ -305,6 +322,21 @@ class CreaseField:
             if clear:
                 crease[i] = True
                 placed.append(int(i))
+        # a candidate passed over for a later one that then stayed put may sit on a new place:
+        # undo the snaps that came closer than SNAP_MIN_GAP to a particle left where it was
+        for _ in range(len(chosen)):
+            placed_idx = np.flatnonzero(crease)
+            others = np.flatnonzero(~crease)
+            if len(placed_idx) == 0 or len(others) == 0:
+                break
+            dist, k = cKDTree(target[placed_idx]).query(
+                pos[others], k=1, distance_upper_bound=SNAP_MIN_GAP * float(np.max(rest))
+            )
+            close = np.isfinite(dist)
+            close[close] &= dist[close] < SNAP_MIN_GAP * rest[others[close]]
+            if not close.any():
+                break
+            crease[placed_idx[k[close]]] = False
         idx = np.flatnonzero(crease)
         moved = pos.copy()
         moved[idx] = target[idx]
@@ -385,4 +417,51 @@ def _refine_planes(
         np.ascontiguousarray(out_side),
         np.ascontiguousarray(d),
         good,
+    )
+
+
+def _extend_to_corners(
+    feet: np.ndarray,
+    direction: np.ndarray,
+    side: np.ndarray,
+    convex: np.ndarray,
+    corners: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Continue each crease line that runs into a corner up to it: detection stops about half a
+    neighbourhood short of a corner (three faces in view). Every line whose samples within
+    ``EXTEND_RADIUS`` of a corner pass within ``EXTEND_OFFSET`` of it gets samples every
+    ``EXTEND_STEP`` from its sample nearest to the corner to the corner (same planes)."""
+    if len(corners) == 0 or len(feet) == 0:
+        return feet, direction, side, convex
+    tree = cKDTree(feet)
+    add: list[int] = []
+    pos: list[np.ndarray] = []
+    cos_same = np.cos(np.radians(EXTEND_SAME_LINE_DEG))
+    for c in corners:
+        near = np.asarray(tree.query_ball_point(c, EXTEND_RADIUS), dtype=np.int64)
+        if len(near) == 0:
+            continue
+        rel = c - feet[near]
+        t = np.einsum("ij,ij->i", rel, direction[near])
+        off = np.linalg.norm(rel - t[:, None] * direction[near], axis=1)
+        near, t = near[off < EXTEND_OFFSET], t[off < EXTEND_OFFSET]
+        order = np.argsort(np.abs(t), kind="stable")
+        taken: list[np.ndarray] = []
+        for j, tj in zip(near[order], t[order], strict=True):
+            d = direction[j]
+            if any(abs(d @ e) > cos_same for e in taken):
+                continue  # a line already extended to this corner
+            taken.append(d)
+            steps = np.arange(EXTEND_STEP, abs(tj) + 1e-9, EXTEND_STEP)
+            for st in steps:
+                add.append(int(j))
+                pos.append(feet[j] + np.sign(tj) * st * d)
+    if not add:
+        return feet, direction, side, convex
+    idx = np.asarray(add, dtype=np.int64)
+    return (
+        np.ascontiguousarray(np.vstack([feet, np.asarray(pos)])),
+        np.ascontiguousarray(np.vstack([direction, direction[idx]])),
+        np.ascontiguousarray(np.concatenate([side, side[idx]])),
+        np.concatenate([convex, convex[idx]]),
     )

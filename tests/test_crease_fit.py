@@ -78,8 +78,13 @@ def test_anchors_far_from_a_crease_or_on_the_other_sheet_are_kept():
     foot0, nrm0 = np.zeros((2, 3)), np.tile([0.0, 0.0, 1.0], (2, 1))
     foot, nrm = field.adjust(p, np.array([[0.0, 0.0, 1.0], [0.0, 0.0, -1.0]]), foot0, nrm0)
     np.testing.assert_array_equal(foot, foot0)  # beyond reach; an opposed normal
-    foot, _ = field.adjust(p, None, foot0, nrm0)
+    # near the data's own (rounded) surface: replaced by the wedge
+    rounded = p + [0.0, 0.0, 0.1]
+    foot, _ = field.adjust(p, None, rounded, nrm0)
     np.testing.assert_allclose(foot[1], [-1.0, 0.0, 0.0])
+    # far from it (another crease's wedge, e.g. near a corner): kept
+    foot, _ = field.adjust(p, None, foot0, nrm0)
+    np.testing.assert_array_equal(foot, foot0)
 
 
 def _wedge(turn_deg, n=4000, seed=0):
@@ -111,7 +116,7 @@ def test_crease_particles_are_snapped_apart_and_unoriented():
     field = _edge(convex=True)
     # a sheet on the top face z = 0, x < 0 at spacing ~1, jittered; and one far particle
     rng = np.random.default_rng(3)
-    grid = np.array([[-0.5 * i, 0.8 * j, 0.0] for i in range(4) for j in range(10)], float)
+    grid = np.array([[-0.9 * i + 0.2 * (j % 2), 0.9 * j, 0.0] for i in range(4) for j in range(10)])
     pos = grid + rng.normal(scale=0.05, size=grid.shape) * [1, 1, 0]
     state = ParticleState.from_points(pos, np.tile([0.0, 0.0, 1.0], (len(pos), 1)))
     crease = field.constrain(state)
