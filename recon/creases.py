@@ -32,7 +32,8 @@ measured length is about 9 % short of the true edge length. Corners are groups o
 three corner points whose three-plane intersections lie within ``3 h`` of each other (corner
 points in smaller groups become smooth); each is placed at the median of its group.
 
-Step 1 only: detection feeds the fit report; the mesh does not change yet.
+Detection feeds the fit report and, with ``creases.fit``, the fit itself
+(:mod:`recon.crease_surface`, :mod:`recon.crease_mesh`).
 """
 
 from __future__ import annotations
