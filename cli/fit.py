@@ -259,9 +259,10 @@ def format_summary(report: FitReport) -> str:
 @click.option(
     "--crease-angle",
     type=float,
-    help="Detect sharp creases at this threshold and report them: smallest angle between the "
-    "two face normals [deg] (creases.angle_deg, 50 when creases.enabled is set; 90 = box "
-    "edge). Detection only, reported in the summary: the mesh is unchanged.",
+    help="Keep sharp creases and corners turning by more than this angle between the two face "
+    "normals [deg] (creases.angle_deg, 50 when creases.enabled is set; 90 = box edge): they "
+    "are detected, reported, and kept sharp in the mesh (--set creases.fit=false: report "
+    "only).",
 )
 @click.option(
     "--no-creases",

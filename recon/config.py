@@ -362,10 +362,10 @@ class CreasesConfig(Schema):
 
     enabled: bool = option(
         False,
-        "Detect sharp creases and corners in the data (Gauss-map clustering, recon.creases) "
-        "and report their length and count. Detection only, so far: the mesh does not change. "
-        "Off by default until crease particles use it (it also reports some rounded edges of "
-        "smooth scans); --crease-angle turns it on.",
+        "Detect sharp creases and corners in the data (Gauss-map clustering, recon.creases), "
+        "report their length and count and keep them sharp in the mesh (creases.fit). Off by "
+        "default: it still finds some rounded edges of smooth scans; --crease-angle turns it "
+        "on.",
     )
     angle_deg: float = option(
         50.0,
@@ -375,6 +375,20 @@ class CreasesConfig(Schema):
         175.0,
     )
     k: int = option(48, "Neighbourhood size of the normal clustering.", 16, 500)
+    fit: bool = option(
+        True,
+        "Use the detected creases in the fit (when enabled): particles near a crease are "
+        "anchored to the plane of their side, particles on a crease line or corner are snapped "
+        "onto it and made unoriented (spacing only, no smoothing across the edge), and the "
+        "mesh keeps the edge. False: detection feeds the report only.",
+    )
+    split_ply: bool = option(
+        False,
+        "PLY output: duplicate the vertices on creases, one copy per side with its side's "
+        "normal (the surface is closed but its topology opens along the creases). False keeps "
+        "them welded with one averaged normal (watertight). OBJ output always splits the "
+        "normals per face corner (f v//vn) and keeps the vertices welded.",
+    )
 
 
 @dataclass(frozen=True)

@@ -32,7 +32,8 @@ measured length is about 9 % short of the true edge length. Corners are groups o
 three corner points whose three-plane intersections lie within ``3 h`` of each other (corner
 points in smaller groups become smooth); each is placed at the median of its group.
 
-Step 1 only: detection feeds the fit report; the mesh does not change yet.
+Detection feeds the fit report and, with ``creases.fit``, the fit itself
+(:mod:`recon.crease_surface`, :mod:`recon.crease_mesh`).
 """
 
 from __future__ import annotations
@@ -80,6 +81,8 @@ class Creases:
         One point per detected corner.
     length : float [length]
         Detected crease length (band integral, see the module docstring).
+    foot : (n, 3) float64 [length], optional
+        At crease points the point of their crease line closest to them; NaN elsewhere.
     """
 
     labels: np.ndarray
@@ -88,6 +91,7 @@ class Creases:
     turn_deg: np.ndarray
     corners: np.ndarray
     length: float
+    foot: np.ndarray | None = None
 
     @property
     def n_crease_points(self) -> int:
@@ -155,6 +159,7 @@ def detect_creases(
         turn_deg=np.degrees(turn),
         corners=corners,
         length=length,
+        foot=foot,
     )
 
 
@@ -261,4 +266,5 @@ def _empty(n: int) -> Creases:
         turn_deg=np.zeros(n),
         corners=np.zeros((0, 3)),
         length=0.0,
+        foot=np.full((n, 3), np.nan),
     )

@@ -117,6 +117,7 @@ def untangle(
     faces: np.ndarray,
     passes: int = UNTANGLE_PASSES,
     step: float = UNTANGLE_STEP,
+    fixed: np.ndarray | None = None,
 ) -> tuple[np.ndarray, int, int]:
     """Smooth around crossing faces until the mesh no longer crosses itself.
 
@@ -126,6 +127,8 @@ def untangle(
     faces : (F, 3) int64
     passes, step
         Pass budget, and the weight of the neighbours' mean in each umbrella step.
+    fixed : (V,) bool, optional
+        Vertices that never move (e.g. on a crease line: smoothing would round it).
 
     Returns
     -------
@@ -150,6 +153,8 @@ def untangle(
     for _ in range(passes):
         crossing = np.unique(faces[pairs].ravel())
         ring = np.unique(faces[vertex_faces[crossing].indices].ravel())
+        if fixed is not None:
+            ring = ring[~fixed[ring]]
         target = mean_of_neighbours[ring] @ vertices
         vertices[ring] += step * (target - vertices[ring])
         # only faces with a vertex that has moved can have started or stopped crossing

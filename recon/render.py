@@ -42,6 +42,8 @@ FRONT_COLOR = np.array([0.60, 0.70, 0.84])
 BACK_COLOR = np.array([0.86, 0.72, 0.52])
 BOUNDARY_COLOR = "red"
 NON_MANIFOLD_COLOR = "magenta"
+#: Mesh edges on a detected crease line (issue 12).
+CREASE_COLOR = "#0057d9"
 _DPI = 100
 _PHASE_COLORS = {"grow": "#dde8f5", "release": "#f5e6d0"}
 
@@ -228,6 +230,7 @@ def render_mesh_png(
     size: tuple[int, int] = (1500, 500),
     max_faces: int = 60_000,
     outputs: AtomicOutputs | None = None,
+    crease_vertices: Any = None,
 ) -> None:
     """Write a PNG of a mesh from three sides, defects marked, plus an optional convergence plot.
 
@@ -253,6 +256,9 @@ def render_mesh_png(
     outputs : AtomicOutputs, optional
         Write as part of this set of outputs (moved into place together when its
         :func:`recon.io.atomic_outputs` block ends) instead of on its own.
+    crease_vertices : (V,) array_like of bool, optional
+        Vertices on detected crease lines and corners: the mesh edges between two of them are
+        drawn in blue (``CREASE_COLOR``).
 
     Raises
     ------
@@ -283,7 +289,12 @@ def render_mesh_png(
         left=0.01, right=0.99 if hist is None else 0.95, bottom=0.09, top=0.86, wspace=0.1,
     )  # fmt: skip
     views = outer[0].subgridspec(1, 3, wspace=0.04)
-    edge_sets = [(boundary, BOUNDARY_COLOR, 1.0), (non_manifold, NON_MANIFOLD_COLOR, 1.6)]
+    creases = _crease_edges(f, crease_vertices, len(v))
+    edge_sets = [
+        (creases, CREASE_COLOR, 1.2),
+        (boundary, BOUNDARY_COLOR, 1.0),
+        (non_manifold, NON_MANIFOLD_COLOR, 1.6),
+    ]
     for col, (name, direction, up) in enumerate(VIEWS):
         ax = fig.add_subplot(views[0, col])
         _draw_view(ax, name, _view_basis(direction, up), draw_v, draw_f, edge_sets, used, bow_ties)
@@ -297,8 +308,20 @@ def render_mesh_png(
         + f"   boundary edges (red): {len(boundary):,}"
         + f"   non-manifold edges (magenta): {len(non_manifold):,}"
         + f"   non-manifold vertices (magenta circles): {len(bow_ties):,}"
+        + (f"   crease edges (blue): {len(creases):,}" if crease_vertices is not None else "")
         + "   back side of faces: tan"
     )
     fig.suptitle(f"{title}\n{summary}" if title else summary, fontsize=10)
     with atomic_output(path, outputs) as tmp:
         fig.savefig(tmp, format="png", dpi=_DPI, facecolor="white")
+
+
+def _crease_edges(faces: np.ndarray, crease_vertices: Any, n_vertices: int) -> np.ndarray:
+    """(E, 2) mesh edges whose two vertices are crease vertices."""
+    if crease_vertices is None or len(faces) == 0:
+        return np.zeros((0, 2), dtype=np.int64)
+    mask = np.asarray(crease_vertices, dtype=bool).reshape(-1)
+    if mask.shape != (n_vertices,):
+        raise InputError(f"crease_vertices: expected {n_vertices} flags, got {mask.shape[0]}")
+    edges, _ = count_edge_faces(faces)
+    return edges[mask[edges].all(axis=1)]

@@ -27,12 +27,16 @@ References
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 from scipy.spatial import cKDTree
 
 from .kernels.local_surface import fit_quadrics_kernel, max_angular_gap_kernel, select_agreeing
 from .kernels.options import query_workers
+
+if TYPE_CHECKING:
+    from .crease_surface import CreaseField
 
 #: Nearest data points searched for one whose normal agrees with a particle's
 #: (:meth:`DataSurface.nearest_agreeing`).
@@ -68,6 +72,9 @@ class DataSurface:
     quadrics: np.ndarray
     noise: float
     tree: cKDTree
+    #: Crease lines in the data (issue 12; set by the pipeline when creases are on): anchors
+    #: near a crease use its per-side planes (:meth:`recon.crease_surface.CreaseField.adjust`).
+    creases: CreaseField | None = None
 
     @classmethod
     def build(cls, points: np.ndarray, normals: np.ndarray, k: int = 20) -> DataSurface:
@@ -129,6 +136,8 @@ class DataSurface:
             self.tangents[idx],
             self.quadrics[idx],
         )
+        if self.creases is not None:  # crease hook: per-side planes near creases
+            foot, nrm = self.creases.adjust(positions, normals, foot, nrm)
         return foot, nrm, dist
 
     def project(

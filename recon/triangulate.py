@@ -30,6 +30,7 @@ import open3d as o3d
 from scipy.spatial import cKDTree
 
 from .config import TriangulationConfig
+from .crease_mesh import flip_straddling_edges
 from .kernels.circumsphere import circumsphere_kernel
 from .mesh import (
     boundary_loops,
@@ -51,6 +52,7 @@ class TriangulationResult:
     faces: np.ndarray  # (F, 3) int64
     normals: np.ndarray  # (V, 3) float64 unit vertex normals
     stats: dict = field(default_factory=dict)
+    crease: np.ndarray | None = None  # (V,) bool: vertices on a crease line or corner
 
 
 #: Loops whose interior holds data are triangulation gaps: closed up to this many times the
@@ -89,6 +91,7 @@ def triangulate_particles(
     max_hole: float,
     is_covered: Callable[..., np.ndarray] | None = None,
     local_spacing: np.ndarray | None = None,
+    crease: np.ndarray | None = None,
 ) -> TriangulationResult:
     """Mesh the particles (normalised units, r0 = 1) with a topology guarantee.
 
@@ -114,6 +117,10 @@ def triangulate_particles(
         (:func:`ball_radii`; a face is kept when its circumradius fits the largest radius times
         the largest spacing of its corners), hole perimeters, seam widths and the coverage
         test scale with it.
+    crease : (n,) bool, optional
+        Crease particles (issue 12): a quad whose diagonal joins the two faces of a crease beside
+        two crease particles takes the diagonal along the crease
+        (:func:`recon.crease_mesh.flip_straddling_edges`); the result's ``crease`` marks them.
     """
     positions = np.ascontiguousarray(positions, dtype=np.float64)
     normals = np.ascontiguousarray(normals, dtype=np.float64)
@@ -164,9 +171,18 @@ def triangulate_particles(
     )
     stats["small_components_removed"] = n_small
     stats["vertices_split"] = int(len(vertices) - len(positions))
+    on_crease = None
+    if crease is not None:  # crease hook: edges along the crease lines (split copies are not)
+        on_crease = np.zeros(len(vertices), dtype=bool)
+        on_crease[: len(crease)] = np.asarray(crease, dtype=bool)
+        faces, n_flips = flip_straddling_edges(faces, vnormals, on_crease)
+        log.debug("crease: %d edges flipped onto crease lines", n_flips)
+        used = np.zeros(len(vertices), dtype=bool)
+        used[faces.reshape(-1)] = True
+        on_crease = on_crease[used]
     vertices, vnormals, faces = drop_unreferenced(vertices, vnormals, faces)
     faces = orient_consistently(vertices, vnormals, faces)
-    return TriangulationResult(vertices, faces, vnormals, stats)
+    return TriangulationResult(vertices, faces, vnormals, stats, on_crease)
 
 
 def ball_radii(radii: list[float], scale: np.ndarray | None = None) -> list[float]:

@@ -193,7 +193,7 @@ def test_detection_is_deterministic_and_orientation_free():
 
 
 def test_config_and_cli(tmp_path):
-    # off by default (report-only so far); --crease-angle turns it on, --no-creases off
+    # off by default; --crease-angle turns it on, --no-creases off
     assert not CreasesConfig().enabled and 0 < ReconConfig().creases.angle_deg < 90
     src = tmp_path / "lblock.ply"
     write_points(src, _lblock(n=3000))
@@ -215,8 +215,13 @@ def test_config_and_cli(tmp_path):
     res = runner.invoke(app, ["fit", str(src), "-o", str(tmp_path / "d.ply"), *fast])
     assert res.exit_code == 0, res.output
     assert "creases" not in json.loads((tmp_path / "d.report.json").read_text())
-    # detection does not change the mesh
-    assert (tmp_path / "a.ply").read_bytes() == (tmp_path / "b.ply").read_bytes()
+    # the creases change the mesh; with creases.fit=false detection only feeds the report
+    assert (tmp_path / "a.ply").read_bytes() != (tmp_path / "b.ply").read_bytes()
+    report_only = ["--crease-angle", "60", "--set", "creases.fit=false"]
+    res = runner.invoke(app, ["fit", str(src), "-o", str(tmp_path / "e.ply"), *report_only, *fast])
+    assert res.exit_code == 0, res.output
+    assert "creases" in json.loads((tmp_path / "e.report.json").read_text())
+    assert (tmp_path / "e.ply").read_bytes() == (tmp_path / "b.ply").read_bytes()
     res = runner.invoke(
         app, ["fit", str(src), "-o", str(tmp_path / "c.ply"), "--crease-angle", "0"]
     )

@@ -75,3 +75,12 @@ def test_untangle_leaves_a_clean_mesh_alone():
     v, f = icosphere(2)
     out, found, left = untangle(v, f)
     assert (found, left) == (0, 0) and np.array_equal(out, v)
+
+
+def test_untangle_never_moves_fixed_vertices():
+    v, f = pinched_lens(depth=0.02)
+    fixed = np.zeros(len(v), dtype=bool)
+    fixed[np.argsort(np.linalg.norm(v[:, :2], axis=1))[:5]] = True  # the dent's bottom
+    out, found, _ = untangle(v, f, fixed=fixed)
+    assert found > 0 and np.array_equal(out[fixed], v[fixed])
+    assert not np.array_equal(out, v)

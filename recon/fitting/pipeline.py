@@ -35,7 +35,9 @@ import numpy as np
 from ..attributes import check_attribute_output, check_transfer, transfer_for_output
 from ..cloud import PointCloud
 from ..config import ReconConfig, config_to_dict, with_values
-from ..creases import detect_creases
+from ..crease_mesh import corner_normals, split_crease_vertices
+from ..crease_surface import CreaseField
+from ..creases import Creases, detect_creases
 from ..errors import InputError
 from ..geometry import bbox_diagonal
 from ..intersections import untangle
@@ -97,6 +99,7 @@ class Mesh:
     vertices: np.ndarray  # (V, 3) float64 [length]
     faces: np.ndarray  # (F, 3) int64
     normals: np.ndarray  # (V, 3) float64 unit vertex normals
+    crease: np.ndarray | None = None  # (V,) bool: on a crease line or corner (creases.fit)
 
 
 @dataclass
@@ -193,21 +196,51 @@ def _triangulate(
         return dist < HOLE_COVER_DISTANCE * np.maximum(spacing, sparser[idx])
 
     result = triangulate_particles(
-        state.position, state.normal, tri_cfg, max_hole, is_covered, local_spacing=spacing
+        state.position,
+        state.normal,
+        tri_cfg,
+        max_hole,
+        is_covered,
+        local_spacing=spacing,
+        crease=None if surface.creases is None else ~np.asarray(state.is_oriented, dtype=bool),
     )
-    vertices, found, left = untangle(result.vertices, result.faces)
+    vertices, found, left = untangle(result.vertices, result.faces, fixed=result.crease)
     stats = {**result.stats, "self_intersections_found": found, "self_intersections_left": left}
     return replace(result, vertices=vertices, stats=stats)
 
 
+#: Vertex normals are split at a crease vertex between faces turning by more than this
+#: fraction of ``creases.angle_deg``.
+SPLIT_ANGLE_FRACTION = 0.75
+
+
+def _crease_normals(
+    mesh: Mesh, normals: np.ndarray | None, path: Path, cfg: ReconConfig
+) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """The mesh as written: normals split at crease vertices (issue 12). OBJ: one normal per
+    face corner, vertices welded. PLY: with ``creases.split_ply`` crease vertices duplicated,
+    one per side; else unchanged (one welded vertex, the averaged normal)."""
+    v, f = mesh.vertices, mesh.faces
+    crease = mesh.crease
+    if normals is None or crease is None or not crease.any():
+        return v, f, normals, None
+    angle = SPLIT_ANGLE_FRACTION * cfg.creases.angle_deg
+    if path.suffix.lower() == ".obj":
+        return v, f, normals, corner_normals(v, f, normals, crease, angle)
+    if cfg.creases.split_ply:
+        f, nrm, source = split_crease_vertices(v, f, normals, crease, angle)
+        return v[source], f, nrm, None
+    return v, f, normals, None
+
+
 def _detect_creases(
     points: np.ndarray, normals: np.ndarray, cfg: ReconConfig, diag: float
-) -> CreaseStats | None:
-    """Sharp creases and corners of the data, for the report only (the mesh ignores them)."""
+) -> tuple[Creases | None, CreaseStats | None]:
+    """Sharp creases and corners of the data: the detection and the report's section."""
     if not cfg.creases.enabled:
-        return None
+        return None, None
     found = detect_creases(points, normals, angle_deg=cfg.creases.angle_deg, k=cfg.creases.k)
-    return CreaseStats(
+    return found, CreaseStats(
         angle_deg=cfg.creases.angle_deg,
         length=found.length,
         length_relative=found.length / diag if diag > 0 else 0.0,
@@ -252,13 +285,15 @@ def _reconstruct(cloud: PointCloud, cfg: ReconConfig, on_progress: ProgressFn | 
     normals, normals_info = compute_normals(cloud, cfg.normals)
     clock.lap("normals")
     clock.check()
-    creases = _detect_creases(points, normals, cfg, bbox_diagonal(points))
+    found, creases = _detect_creases(points, normals, cfg, bbox_diagonal(points))
 
     r0, d_nn = choose_spacing(points, cfg)
     check_grid_size(points, r0)
     cfg = with_max_gap(cfg, r0, d_nn)
     diag = bbox_diagonal(points)
     surface = DataSurface.build(points / r0, normals, k=cfg.normals.k)
+    if found is not None and cfg.creases.fit:  # per-side planes and crease particles
+        surface.creases = CreaseField.build(found, surface.points, r0)
     clock.lap("setup")
     clock.check()
 
@@ -274,7 +309,7 @@ def _reconstruct(cloud: PointCloud, cfg: ReconConfig, on_progress: ProgressFn | 
 
     origin = np.asarray(cloud.origin, dtype=np.float64)
     vertices = tri.vertices * r0 + origin
-    mesh = Mesh(vertices, tri.faces, tri.normals)
+    mesh = Mesh(vertices, tri.faces, tri.normals, tri.crease)
     particles = Particles(state.position * r0 + origin, state.normal.copy())
 
     if len(tri.faces) == 0:
@@ -413,18 +448,18 @@ def fit_file(
     normals = result.mesh.normals if cfg.output.vertex_normals else None
     with atomic_outputs() as outputs:  # all files appear together, or none
         for mesh_path in meshes:
-            attributes = transfer_for_output(
-                cloud, result.mesh.vertices, report.spacing, mesh_path, cfg
-            )
+            v, f, nrm, corners = _crease_normals(result.mesh, normals, Path(mesh_path), cfg)
+            attributes = transfer_for_output(cloud, v, report.spacing, mesh_path, cfg)
             write_mesh(
                 mesh_path,
-                result.mesh.vertices,
-                result.mesh.faces,
-                normals,
+                v,
+                f,
+                nrm,
                 ascii=cfg.io.ascii,
                 outputs=outputs,
                 colors=attributes.colors,
                 vertex_properties=attributes.properties,
+                corner_normals=corners,
             )
         if particles_path is not None:
             write_points(
@@ -444,6 +479,7 @@ def fit_file(
                 history=result.report.history.to_dict(),
                 title=input_path.name,
                 outputs=outputs,
+                crease_vertices=result.mesh.crease,
             )
         if report_path is not None:
             with atomic_output(report_path, outputs) as tmp:

@@ -317,7 +317,8 @@ class MeshToInput(_Section):
 
 @dataclass(frozen=True)
 class CreaseStats(_Section):
-    """Sharp features detected in the data (:mod:`recon.creases`); the mesh does not use them yet.
+    """Sharp features detected in the data (:mod:`recon.creases`); with ``creases.fit`` the mesh
+    keeps them (:mod:`recon.crease_surface`).
 
     ``length`` [length] is the crease length measured along the crease lines (each crease
     point's foot on the intersection of its two side planes counts ``2 h / m``, ``m`` feet being

@@ -280,6 +280,7 @@ class _Schedule:
             if self.total_steps() >= dyn.max_steps:
                 break
             chunk = min(ANCHOR_REFRESH, n_steps - done, dyn.max_steps - self.total_steps())
+            self.constrain_creases(sim, state)
             pts, nrm, _ = self.surface.anchors(state.position, state.normal)
             sim.set_anchors(pts, nrm, dyn.fidelity, dyn.fidelity_normal)
             stats = sim.run(chunk)
@@ -361,6 +362,15 @@ class _Schedule:
             ) from None
         return state, params
 
+    def constrain_creases(
+        self, sim: Simulation, state: ParticleState, settle: bool = False
+    ) -> None:
+        """Crease hook (issue 12): snap particles near crease lines and corners onto them and
+        mark them unoriented (:meth:`recon.crease_surface.CreaseField.constrain`)."""
+        if self.surface.creases is not None and state.n:
+            self.surface.creases.constrain(state, settle=settle)
+            sim.notify_changed()
+
     # -- phases --------------------------------------------------------------------------
     def make_seeds(self) -> tuple[ParticleState, np.ndarray]:
         s = self.surface
@@ -393,6 +403,9 @@ class _Schedule:
             pos, nrm, offsets, indices, g, with_normals=True, rest=rest
         )
         mid, mid_n = stretch_candidates(pos, nrm, tree, frontier, g, with_normals=True)
+        if self.surface.creases is not None:  # crease hook: particles along the crease lines
+            line, line_n = self.surface.creases.line_candidates()
+            grown, grown_n = np.vstack([line, grown]), np.vstack([line_n, grown_n])
         cands = np.vstack([grown, mid])
         acc = accept_candidates(
             cands,
@@ -484,6 +497,7 @@ class _Schedule:
             self.record("release", state, kinetic, self.coverage(state.position))
             if self.total_steps() >= dyn.max_steps:
                 break
+        self.constrain_creases(sim, state, settle=True)  # crease particles end on their lines
 
 
 def _scaled_neighbors(

@@ -324,6 +324,7 @@ def write_mesh(
     outputs: AtomicOutputs | None = None,
     colors: np.ndarray | None = None,
     vertex_properties: dict[str, np.ndarray] | None = None,
+    corner_normals: np.ndarray | None = None,
 ) -> None:
     """Write a triangle mesh as PLY or OBJ (chosen by the extension), atomically.
 
@@ -349,6 +350,10 @@ def write_mesh(
     vertex_properties : dict of name -> (V,) array, optional
         More PLY vertex properties, in this order: uint8 arrays as ``uchar``, uint16 as
         ``ushort``, other integers as ``int``, floats as ``float``. PLY only.
+    corner_normals : (F, 3, 3) float64, optional
+        OBJ only: one normal per face corner (``f v//vn``), split across creases; replaces
+        ``normals`` in the file. Ignored for PLY (one normal per vertex: split the vertices
+        with :func:`recon.crease_mesh.split_crease_vertices` instead).
 
     Raises
     ------
@@ -382,7 +387,14 @@ def write_mesh(
         if ext == ".ply":
             ply.write(fh, xyz, nrm, f.astype(np.int64), ascii, extra)
         else:
-            obj.write(fh, xyz, nrm, f.astype(np.int64), rgb)
+            cn = None
+            if corner_normals is not None and nrm is not None:
+                cn = np.asarray(corner_normals, dtype=np.float64)
+                if cn.shape != (len(f), 3, 3):
+                    raise InputError(
+                        f"corner_normals: expected shape ({len(f)}, 3, 3), got {cn.shape}"
+                    )
+            obj.write(fh, xyz, nrm, f.astype(np.int64), rgb, cn)
 
 
 def _absolute(points: Any, origin: Any) -> np.ndarray:

@@ -138,6 +138,7 @@ def write(
     normals: np.ndarray | None,
     faces: np.ndarray,
     colors: np.ndarray | None = None,
+    corner_normals: np.ndarray | None = None,
 ) -> None:
     """Write a triangle mesh as OBJ text to an open binary file.
 
@@ -152,6 +153,10 @@ def write(
     colors : (V, 3) uint8 or None
         Vertex colours, written as the common OBJ extension ``v x y z r g b`` with r, g, b
         floats in [0, 1] (read by MeshLab, Blender, Open3D, trimesh).
+    corner_normals : (F, 3, 3) float64 or None
+        A normal per face corner (split across creases): written as the distinct ``vn`` lines
+        and ``f v//vn`` per corner, instead of ``normals``. The faces keep their shared
+        vertices (the mesh stays welded).
     """
     # OBJ has no number type: a reader parses float64, so 17 digits are needed for the values
     # to come back exactly (9 would round-trip only through float32)
@@ -164,6 +169,14 @@ def write(
         else:
             rgb = np.asarray(colors, dtype=np.float64) / 255.0
             np.savetxt(text, np.hstack([xyz, rgb]), fmt=vfmt + " %.6g %.6g %.6g")
+        if corner_normals is not None and faces.shape[0]:
+            flat = np.asarray(corner_normals, dtype=np.float64).reshape(-1, 3)
+            uniq, inverse = np.unique(np.round(flat, 9), axis=0, return_inverse=True)
+            np.savetxt(text, uniq, fmt="vn %.9g %.9g %.9g")
+            pairs = np.stack([faces + 1, inverse.reshape(-1, 3) + 1], axis=2).reshape(-1, 6)
+            np.savetxt(text, pairs, fmt="f %d//%d %d//%d %d//%d")
+            text.flush()
+            return
         if normals is not None:
             np.savetxt(text, normals, fmt="vn %.9g %.9g %.9g")
         if faces.shape[0]:

@@ -1,0 +1,344 @@
+"""Creases in the fit and the mesh (issue 12 steps 1-3): per-side planes, crease particles,
+edges along the crease, split normals, and an end-to-end L-block."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from recon import fit
+from recon.config import ReconConfig, apply_overrides
+from recon.crease_mesh import (
+    corner_normals,
+    flip_straddling_edges,
+    split_crease_vertices,
+    straddling,
+)
+from recon.crease_surface import SNAP_CLEARANCE, CreaseField
+from recon.creases import CREASE, detect_creases
+from recon.forces import accumulate_forces
+from recon.io import read_points
+from recon.mesh import count_edge_faces, orientation_flips
+from recon.metrics import point_to_mesh_distance
+from recon.state import ParticleState
+from recon.topology import mesh_topology
+from tests.kernels.term_checks import term_params
+
+SAMPLE = Path(__file__).resolve().parent.parent / "sample_data" / "lblock-sparse.ply"
+
+
+def _edge(convex: bool) -> CreaseField:
+    """One crease sample on the y axis: faces z = 0 (normal +z) and x = 0 (normal +x). Convex:
+    the solid is x < 0, z < 0; concave: the air is x > 0, z > 0."""
+    side = np.array([[[0.0, 0.0, 1.0], [1.0, 0.0, 0.0]]])
+    return CreaseField(
+        feet=np.zeros((1, 3)),
+        direction=np.array([[0.0, -1.0, 0.0]]),
+        side=side,
+        convex=np.array([convex]),
+        corners=np.zeros((0, 3)),
+        reach=5.0,
+        snap=0.5,
+    )
+
+
+def test_wedge_anchor_of_a_convex_edge():
+    field = _edge(convex=True)
+    p = np.array([[-1.0, 0.3, 0.2], [0.3, 0.1, 0.3], [0.2, 0.0, -1.0], [0.0, 0.0, 0.0]])
+    foot, nrm, on_line = field.wedge(p, np.zeros(4, dtype=np.int64))
+    np.testing.assert_allclose(foot[0], [-1.0, 0.3, 0.0])  # over the top face: onto it
+    np.testing.assert_allclose(nrm[0], [0.0, 0.0, 1.0])
+    np.testing.assert_allclose(foot[1], [0.0, 0.1, 0.0])  # outside both faces: the edge
+    np.testing.assert_allclose(nrm[1], np.array([1.0, 0.0, 1.0]) / np.sqrt(2))
+    np.testing.assert_allclose(foot[2], [0.0, 0.0, -1.0])  # beside the side face
+    np.testing.assert_allclose(nrm[2], [1.0, 0.0, 0.0])
+    np.testing.assert_allclose(nrm[3], np.array([1.0, 0.0, 1.0]) / np.sqrt(2))  # on the line
+    assert on_line.tolist() == [False, True, False, True]
+
+
+def test_wedge_anchor_of_a_concave_edge():
+    field = _edge(convex=False)
+    p = np.array([[1.0, 0.0, 0.2], [0.2, 0.0, 1.0], [-0.5, 0.0, -0.4], [0.3, 0.0, 0.4]])
+    foot, nrm, _ = field.wedge(p, np.zeros(4, dtype=np.int64))
+    np.testing.assert_allclose(foot[0], [1.0, 0.0, 0.0])
+    np.testing.assert_allclose(foot[1], [0.0, 0.0, 1.0])
+    # inside the solid below the edge: neither face reaches there, the edge is closest
+    np.testing.assert_allclose(foot[2], [0.0, 0.0, 0.0])
+    # in the air, nearer the wall than the floor: onto the wall
+    np.testing.assert_allclose(foot[3], [0.0, 0.0, 0.4])
+    np.testing.assert_allclose(nrm[3], [1.0, 0.0, 0.0])
+
+
+def test_anchors_far_from_a_crease_or_on_the_other_sheet_are_kept():
+    field = _edge(convex=True)
+    p = np.array([[-9.0, 0.0, 0.2], [-1.0, 0.0, 0.2]])
+    foot0, nrm0 = np.zeros((2, 3)), np.tile([0.0, 0.0, 1.0], (2, 1))
+    foot, nrm = field.adjust(p, np.array([[0.0, 0.0, 1.0], [0.0, 0.0, -1.0]]), foot0, nrm0)
+    np.testing.assert_array_equal(foot, foot0)  # beyond reach; an opposed normal
+    # near the data's own (rounded) surface: replaced by the wedge
+    rounded = p + [0.0, 0.0, 0.1]
+    foot, _ = field.adjust(p, None, rounded, nrm0)
+    np.testing.assert_allclose(foot[1], [-1.0, 0.0, 0.0])
+    # far from it (another crease's wedge, e.g. near a corner): kept
+    foot, _ = field.adjust(p, None, foot0, nrm0)
+    np.testing.assert_array_equal(foot, foot0)
+
+
+def _wedge(turn_deg, n=4000, seed=0):
+    rng = np.random.default_rng(seed)
+    a = np.radians(turn_deg)
+    u = rng.uniform(0.0, 1.0, (n, 2)) - [0.0, 0.5]
+    v = rng.uniform(0.0, 1.0, (n, 2)) - [0.0, 0.5]
+    face_a = np.c_[-u[:, 0], u[:, 1], np.zeros(n)]
+    face_b = np.c_[v[:, 0] * np.cos(a), v[:, 1], v[:, 0] * np.sin(a)]
+    return np.r_[face_a, face_b]
+
+
+@pytest.mark.parametrize("turn", [60, 90, 120])
+def test_side_planes_are_refitted_onto_the_exact_edge(turn):
+    p = _wedge(turn)
+    found = detect_creases(p, angle_deg=45.0)
+    assert (found.labels == CREASE).sum() > 50
+    # the detection's own feet are off by blended normals; the two-plane refit is exact
+    raw = np.hypot(found.foot[found.labels == CREASE, 0], found.foot[found.labels == CREASE, 2])
+    r0 = 0.04  # the fit's units: about 2.5 data spacings
+    field = CreaseField.build(found, p / r0, r0)
+    off = np.hypot(field.feet[:, 0], field.feet[:, 2]) * r0
+    assert np.median(off) < 1e-9 < np.median(raw)
+    assert np.percentile(off, 90) < 1e-6
+    assert np.percentile(np.abs(field.direction[:, 1]), 10) > 1.0 - 1e-9
+
+
+def test_crease_particles_are_snapped_apart_and_unoriented():
+    field = _edge(convex=True)
+    # a sheet on the top face z = 0, x < 0 at spacing ~1, jittered; and one far particle
+    rng = np.random.default_rng(3)
+    grid = np.array([[-0.9 * i + 0.2 * (j % 2), 0.9 * j, 0.0] for i in range(4) for j in range(10)])
+    pos = grid + rng.normal(scale=0.05, size=grid.shape) * [1, 1, 0]
+    state = ParticleState.from_points(pos, np.tile([0.0, 0.0, 1.0], (len(pos), 1)))
+    crease = field.constrain(state)
+    moved = state.position
+    assert crease.any() and not crease.all()
+    np.testing.assert_allclose(moved[crease][:, [0, 2]], 0.0, atol=1e-12)  # on the line
+    assert np.array_equal(state.is_oriented, ~crease)
+    d = np.linalg.norm(moved[crease][:, None] - moved[crease][None], axis=2)
+    assert d[np.triu_indices(len(d), 1)].min() >= SNAP_CLEARANCE
+    # the crease particles' normals are the bisector; nobody else moved
+    np.testing.assert_allclose(
+        state.normal[crease], np.tile([2**-0.5, 0, 2**-0.5], (crease.sum(), 1))
+    )
+    np.testing.assert_array_equal(moved[~crease], pos[: len(moved)][~crease])
+
+
+def test_a_corner_takes_its_nearest_particle():
+    field = dataclasses.replace(_edge(convex=True), corners=np.array([[0.0, 5.0, 0.0]]))
+    pos = np.array([[-0.2, 4.9, 0.0], [-0.3, 3.0, 0.0], [-3.0, 0.0, 0.0]])
+    state = ParticleState.from_points(pos, np.tile([0.0, 0.0, 1.0], (3, 1)))
+    crease = field.constrain(state)
+    np.testing.assert_allclose(state.position[0], [0.0, 5.0, 0.0])
+    assert crease.tolist() == [True, True, False]
+
+
+def test_an_unoriented_pair_feels_only_the_spacing_force_by_finite_differences():
+    params = dataclasses.replace(
+        term_params("w_lj", "poly", 1.0),
+        w_lj=0.7,
+        w_planarity=1.1,
+        w_normality=0.9,
+        w_circularity=0.6,
+    )
+    lj_only = dataclasses.replace(params, w_planarity=0.0, w_normality=0.0, w_circularity=0.0)
+    pos = np.array([[0.0, 0.0, 0.0], [0.93, 0.2, 0.31]])
+    nrm = np.array([[0.1, 0.2, 1.0], [-0.4, 0.1, 1.0]])
+    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+
+    def energy(p, prm, oriented):
+        s = ParticleState.from_points(p, nrm)
+        s.set_oriented(oriented)
+        return accumulate_forces(s, prm).energy
+
+    h = 1e-6
+    for oriented in ([False, True], [True, False], [False, False]):
+        s = ParticleState.from_points(pos, nrm)
+        s.set_oriented(np.array(oriented))
+        got = accumulate_forces(s, params)
+        fd = np.zeros_like(pos)
+        fd_lj = np.zeros_like(pos)
+        for i in range(2):
+            for k in range(3):
+                e = np.zeros_like(pos)
+                e[i, k] = h
+                fd[i, k] = -(energy(pos + e, params, oriented) - energy(pos - e, params, oriented))
+                fd_lj[i, k] = -(
+                    energy(pos + e, lj_only, oriented) - energy(pos - e, lj_only, oriented)
+                )
+        fd /= 2 * h
+        fd_lj /= 2 * h
+        np.testing.assert_allclose(got.force, fd, rtol=1e-6, atol=1e-8)
+        np.testing.assert_allclose(fd, fd_lj, rtol=1e-9, atol=1e-12)  # spacing force only
+        assert np.all(got.torque == 0.0)
+    # and an oriented pair does feel the smoothing terms (the test can fail)
+    s = ParticleState.from_points(pos, nrm)
+    assert not np.allclose(accumulate_forces(s, params).force, accumulate_forces(s, lj_only).force)
+
+
+def _quad():
+    """Two triangles across a 90 deg crease: u on face z = 0, w on face x = 0, a and b on the
+    crease (the y axis); the diagonal u-w cuts the edge."""
+    v = np.array([[-1.0, 0.5, 0.0], [0.0, 0.5, -1.0], [0.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+    n = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.7071, 0.0, 0.7071], [0.7071, 0.0, 0.7071]])
+    u, w, a, b = 0, 1, 2, 3
+    faces = np.array([[u, w, a], [w, u, b]])
+    return v, n, faces
+
+
+def test_a_straddling_diagonal_flips_onto_the_crease():
+    v, n, faces = _quad()
+    crease = np.array([False, False, True, True])
+    out, flips = flip_straddling_edges(faces, n, crease)
+    assert flips == 1
+    edges, counts = count_edge_faces(out)
+    assert [2, 3] in edges.tolist() and [0, 1] not in edges.tolist()
+    # the outer edges and the orientation are kept
+    before, _ = count_edge_faces(faces)
+    assert sorted(map(tuple, edges[counts == 1].tolist())) == sorted(
+        map(tuple, before[count_edge_faces(faces)[1] == 1].tolist())
+    )
+    flip, conflict = orientation_flips(out)
+    assert not flip.any() and not conflict.any()
+    # nothing to flip without crease vertices
+    assert flip_straddling_edges(faces, n, np.zeros(4, dtype=bool))[1] == 0
+
+
+def test_straddling_triangles_have_both_faces_and_no_crease_corner():
+    v, n, _ = _quad()
+    n = np.vstack([n, [[0.0, 0.0, 1.0]]])
+    faces = np.array([[0, 1, 4], [0, 1, 2], [0, 4, 2]])
+    crease = np.array([False, False, True, True, False])
+    assert straddling(faces, n, crease).tolist() == [True, False, False]
+
+
+def _cube_mesh():
+    v = np.array([[x, y, z] for x in (0, 1) for y in (0, 1) for z in (0, 1)], float)
+    quads = [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4), (1, 5, 7, 3)]
+    f = np.array([t for a, b, c, d in quads for t in ((a, b, c), (a, c, d))])
+    return v, f
+
+
+def test_split_normals_at_cube_corners():
+    v, f = _cube_mesh()
+    centre = v - 0.5
+    vn = centre / np.linalg.norm(centre, axis=1, keepdims=True)
+    crease = np.ones(len(v), dtype=bool)
+    cn = corner_normals(v, f, vn, crease, 45.0)
+    area = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+    fn = area / np.linalg.norm(area, axis=1, keepdims=True)
+    np.testing.assert_allclose(cn, np.repeat(fn[:, None], 3, axis=1), atol=1e-12)
+    faces, normals, source = split_crease_vertices(v, f, vn, crease, 45.0)
+    assert len(source) == 24  # three sides meet at each corner
+    np.testing.assert_allclose(v[source][faces], v[f])  # same places
+    # away from creases the vertex normals are kept
+    cn = corner_normals(v, f, vn, np.zeros(len(v), dtype=bool), 45.0)
+    np.testing.assert_allclose(cn, vn[f])
+
+
+def _gt_lines(step=0.005):
+    """The 13 crease lines of the sample's L-block (1 x 0.8 x 0.5, a 0.6 x 0.4 notch)."""
+    outline = np.array([[0, 0], [1, 0], [1, 0.4], [0.4, 0.4], [0.4, 0.8], [0, 0.8]], float)
+    pts, segs = [], []
+    for a, b in zip(outline, np.roll(outline, -1, axis=0), strict=True):
+        for z in (0.0, 0.5):
+            segs.append((np.r_[a, z], np.r_[b, z]))
+        segs.append((np.r_[a, 0.0], np.r_[a, 0.5]))
+    for p, q in segs:
+        m = int(np.ceil(np.linalg.norm(q - p) / step)) + 1
+        pts.append(p + np.linspace(0, 1, m)[:, None] * (q - p))
+    corners = np.r_[np.c_[outline, np.zeros(6)], np.c_[outline, np.full(6, 0.5)]]
+    return np.concatenate(pts), segs, corners
+
+
+def _straddlers(v, f, r0, segs, corners):
+    """Triangles with corners on two faces of the L-block and none within 0.25 r0 of a
+    crease line, farther than 3 r0 from the block's corners."""
+    d = np.full(len(v), np.inf)
+    for p, q in segs:
+        e = q - p
+        t = np.clip((v - p) @ e / (e @ e), 0, 1)
+        d = np.minimum(d, np.linalg.norm(v - (p + t[:, None] * e), axis=1))
+    planes = [(0, 0.0), (0, 1.0), (1, 0.0), (1, 0.8), (2, 0.0), (2, 0.5), (0, 0.4), (1, 0.4)]
+    face = np.stack([np.abs(v[:, a] - c) for a, c in planes], axis=1).argmin(axis=1)[f]
+    two = (face[:, 0] != face[:, 1]) | (face[:, 1] != face[:, 2]) | (face[:, 0] != face[:, 2])
+    centre = v[f].mean(axis=1)
+    far = np.linalg.norm(centre[:, None] - corners[None], axis=2).min(axis=1) > 3 * r0
+    return int(np.sum(two & ~(d[f] < 0.25 * r0).any(axis=1) & far))
+
+
+def test_lblock_keeps_its_edges_end_to_end():
+    cloud = read_points(SAMPLE)
+    points = cloud.points + cloud.origin
+    lines, segs, corners = _gt_lines()
+    diag = float(np.linalg.norm([1.0, 0.8, 0.5]))
+    out = {}
+    for on in (False, True):
+        cfg = apply_overrides(
+            ReconConfig(), {"creases.enabled": on, "seeds.min_particles": 0, "seed": 0}
+        )
+        res = fit(points, cfg)
+        v, f = res.mesh.vertices, res.mesh.faces
+        out[on] = (
+            mesh_topology(v, f),
+            point_to_mesh_distance(lines, v, f) / diag,
+            _straddlers(v, f, res.report.spacing, segs, corners),
+            res,
+        )
+    topo, line_d, n_straddle, res = out[True]
+    assert topo["watertight"] and topo["genus"] == 0 and topo["components"] == 1
+    # the edges come back: the crease lines are much closer to the mesh than when rounded
+    assert np.median(line_d) < 0.25 * np.median(out[False][1])
+    assert np.percentile(line_d, 75) < 0.0025
+    # no triangle cuts an edge away from the corners (about 400 do when the edges are round)
+    assert n_straddle <= 0.05 * out[False][2]
+    # the mesh marks its crease vertices: on the crease lines
+    crease = res.mesh.crease
+    assert crease is not None and crease.sum() > 100
+    assert np.median(point_to_mesh_distance(res.mesh.vertices[crease], *_lines_mesh(segs))) < 1e-3
+    rep = res.report.creases
+    assert rep is not None and rep.corners >= 8 and 0.7 * 10.2 < rep.length < 1.1 * 10.2
+
+
+def _lines_mesh(segs):
+    """The crease lines as degenerate-free thin triangles (for point-to-line distances)."""
+    v, f = [], []
+    for p, q in segs:
+        k = len(v)
+        v += [p, q, p + 1e-9 * np.cross(q - p, [0.3, 0.5, 0.7])]
+        f.append([k, k + 1, k + 2])
+    return np.array(v), np.array(f)
+
+
+def test_obj_and_ply_outputs_split_normals_at_creases(tmp_path):
+    from recon.fitting import fit_file
+    from recon.io import read_mesh
+
+    cfg = apply_overrides(ReconConfig(), {"creases.enabled": True, "seeds.min_particles": 0})
+    obj = tmp_path / "m.obj"
+    fit_file(SAMPLE, tmp_path / "m.ply", cfg, extra_meshes=[obj], write_report=False)
+    text = obj.read_text().splitlines()
+    n_v = sum(1 for line in text if line.startswith("v "))
+    corners = np.array(
+        [[c.split("//") for c in line.split()[1:]] for line in text if line.startswith("f ")],
+        dtype=np.int64,
+    ).reshape(-1, 2)
+    # some vertices carry two or more normals (one per side of a crease)
+    pairs = np.unique(corners, axis=0)
+    per_vertex = np.bincount(pairs[:, 0], minlength=n_v + 1)
+    assert (per_vertex >= 2).sum() > 50
+    welded_v, welded_f = read_mesh(tmp_path / "m.ply")
+    assert len(welded_v) == n_v and mesh_topology(welded_v, welded_f)["watertight"]
+    split = apply_overrides(cfg, {"creases.split_ply": True})
+    fit_file(SAMPLE, tmp_path / "s.ply", split, write_report=False)
+    sv, sf = read_mesh(tmp_path / "s.ply")
+    assert len(sv) > len(welded_v) and len(sf) == len(welded_f)
