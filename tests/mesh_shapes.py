@@ -108,3 +108,15 @@ def mobius(n: int = 24, width: float = 0.3) -> tuple[np.ndarray, np.ndarray]:
             c, d = 1, 0
         f += [[a, c, d], [a, d, b]]
     return v, np.array(f, dtype=np.int64)
+
+
+def wedge_points(turn_deg: float, n: int = 4000, seed: int = 0) -> np.ndarray:
+    """Points on two unit squares sharing the edge along y (x = 0, |y| <= 1/2): face A in
+    z = 0 at x < 0, face B turned up by ``turn_deg`` about the y axis (``n`` on each)."""
+    rng = np.random.default_rng(seed)
+    a = np.radians(turn_deg)
+    u = rng.uniform(0.0, 1.0, (n, 2)) - [0.0, 0.5]
+    v = rng.uniform(0.0, 1.0, (n, 2)) - [0.0, 0.5]
+    face_a = np.c_[-u[:, 0], u[:, 1], np.zeros(n)]
+    face_b = np.c_[v[:, 0] * np.cos(a), v[:, 1], v[:, 0] * np.sin(a)]
+    return np.r_[face_a, face_b]

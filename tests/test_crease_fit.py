@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from mesh_shapes import wedge_points
 
 from recon import fit
 from recon.config import ReconConfig, apply_overrides
@@ -87,19 +88,9 @@ def test_anchors_far_from_a_crease_or_on_the_other_sheet_are_kept():
     np.testing.assert_array_equal(foot, foot0)
 
 
-def _wedge(turn_deg, n=4000, seed=0):
-    rng = np.random.default_rng(seed)
-    a = np.radians(turn_deg)
-    u = rng.uniform(0.0, 1.0, (n, 2)) - [0.0, 0.5]
-    v = rng.uniform(0.0, 1.0, (n, 2)) - [0.0, 0.5]
-    face_a = np.c_[-u[:, 0], u[:, 1], np.zeros(n)]
-    face_b = np.c_[v[:, 0] * np.cos(a), v[:, 1], v[:, 0] * np.sin(a)]
-    return np.r_[face_a, face_b]
-
-
 @pytest.mark.parametrize("turn", [60, 90, 120])
 def test_side_planes_are_refitted_onto_the_exact_edge(turn):
-    p = _wedge(turn)
+    p = wedge_points(turn)
     found = detect_creases(p, angle_deg=45.0)
     assert (found.labels == CREASE).sum() > 50
     # the detection's own feet are off by blended normals; the two-plane refit is exact

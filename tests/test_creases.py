@@ -9,24 +9,13 @@ import json
 import numpy as np
 import pytest
 from click.testing import CliRunner
+from mesh_shapes import wedge_points
 from recon.cli.main import app
 
 from recon.config import CreasesConfig, ReconConfig
 from recon.creases import CORNER, CREASE, SMOOTH, detect_creases
 from recon.fitting.report import FitReport
 from recon.io import write_points
-
-
-def _wedge(turn_deg, n=4000, seed=0):
-    """Two unit squares sharing the edge along y (x = 0, |y| <= 1/2): face A in z = 0 at x < 0,
-    face B turned up by ``turn_deg`` about the y axis."""
-    rng = np.random.default_rng(seed)
-    a = np.radians(turn_deg)
-    u = rng.uniform(0.0, 1.0, (n, 2)) - [0.0, 0.5]
-    v = rng.uniform(0.0, 1.0, (n, 2)) - [0.0, 0.5]
-    face_a = np.c_[-u[:, 0], u[:, 1], np.zeros(n)]
-    face_b = np.c_[v[:, 0] * np.cos(a), v[:, 1], v[:, 0] * np.sin(a)]
-    return np.r_[face_a, face_b]
 
 
 def _sample_faces(rects, n, rng):
@@ -88,7 +77,7 @@ def _noisy(p, rel, seed=1):
 @pytest.mark.parametrize("turn", [30, 60, 90, 120, 150])
 def test_wedge_is_a_crease_exactly_when_it_turns_past_the_threshold(turn):
     threshold = 45.0
-    p = _wedge(turn)
+    p = wedge_points(turn)
     found = detect_creases(p, angle_deg=threshold)
     crease = found.labels == CREASE
     if turn < threshold:
@@ -137,7 +126,7 @@ def test_rounded_edge_is_not_a_crease():
 
 
 def test_threshold_above_the_turn_finds_nothing():
-    found = detect_creases(_wedge(90), angle_deg=100.0)
+    found = detect_creases(wedge_points(90), angle_deg=100.0)
     assert not (found.labels != SMOOTH).any()
 
 
