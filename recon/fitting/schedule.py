@@ -9,6 +9,12 @@ Steps 2 to 4 of the reconstruction (see :mod:`recon.fitting`), in normalised uni
 4. release the seeds and relax ``release_steps`` steps (smoothing, fidelity pull kept), refilling
    the gaps the release opens during the first chunks.
 
+The step counts are caps: a relaxation ends early once the sheet is at rest (kinetic energy per
+particle below ``dynamics.kinetic_tolerance``, checked at every anchor refresh), and the release
+ends after its refills once a chunk ends at rest. The release starts from the grown state (the
+velocities of the last growth relaxation carry over). Particles are kept sorted by grid cell
+(after seeding and after every growth round) so that neighbours lie near in memory.
+
 If the dynamics diverge during a phase, the phase restarts once from its start with the time
 step halved (:meth:`_Schedule.run_phase`). :class:`Clock` accounts the wall time per phase and
 enforces ``dynamics.time_limit``.
@@ -34,8 +40,7 @@ from ..config import ReconConfig
 from ..dynamics import Simulation
 from ..errors import DivergenceError, LimitExceeded
 from ..growth import accept_candidates, grow_candidates, stretch_candidates
-from ..kernels.options import query_workers
-from ..neighbors import build_neighbor_list
+from ..neighbors import PointGrid, build_neighbor_list
 from ..params import PhysicsParams
 from ..seeds import select_seeds
 from ..state import ParticleState
@@ -269,8 +274,10 @@ class _Schedule:
         return self.steps["grow"] + self.steps["release"]
 
     def coverage(self, positions: np.ndarray) -> float:
-        d, _ = cKDTree(positions).query(self.cover_sample, k=1, workers=query_workers())
-        return float(np.mean(d <= COVER_RADIUS))
+        if len(positions) == 0:
+            return 0.0
+        covered = PointGrid(positions, COVER_RADIUS).covered(self.cover_sample, COVER_RADIUS)
+        return float(np.mean(covered))
 
     def relax(self, sim: Simulation, state: ParticleState, n_steps: int, phase: str) -> float:
         dyn = self.cfg.dynamics
@@ -297,7 +304,13 @@ class _Schedule:
             done += chunk
             self.steps[phase] += chunk
             self.clock.check()
+            if self.at_rest(kinetic):
+                break
         return kinetic
+
+    def at_rest(self, kinetic: float) -> bool:
+        """Whether the kinetic energy per particle is below ``dynamics.kinetic_tolerance``."""
+        return kinetic < self.cfg.dynamics.kinetic_tolerance
 
     def record(self, phase: str, state: ParticleState, kinetic: float, coverage: float) -> None:
         h = self.history
@@ -420,6 +433,7 @@ class _Schedule:
                 rest=1.0 if new_rest is None else new_rest,
             )
             sim.notify_changed()
+            sim.sort_particles()  # the new particles were appended at the end
         log.debug(
             "growth: %d candidates, %d added (%d close, %d unsupported, %d off-plane), "
             "%d particles",
@@ -437,6 +451,7 @@ class _Schedule:
         dyn = self.cfg.dynamics
         self.seed_points = seed_points
         self.seed_tree = cKDTree(seed_points)
+        sim.sort_particles()  # seeds come in input order: neighbours near in memory
         previous_added = None
         for rnd in range(g.max_rounds if g.enabled else 0):
             self.update_rest(sim, state)
@@ -483,6 +498,8 @@ class _Schedule:
                 self.grow_round(sim, state)
             self.record("release", state, kinetic, self.coverage(state.position))
             if self.total_steps() >= dyn.max_steps:
+                break
+            if refills == 0 and self.at_rest(kinetic):  # refills done and nothing moves
                 break
 
 

@@ -1,0 +1,45 @@
+"""Step counts follow the sheet's kinetic energy (dynamics.kinetic_tolerance), not fixed counts."""
+
+import numpy as np
+import pytest
+
+from recon.config import load_config
+from recon.fitting import fit
+
+FAST = ["seeds.min_particles=0"]
+
+
+@pytest.fixture(scope="module")
+def sphere():
+    rng = np.random.default_rng(0)
+    p = rng.normal(size=(1500, 3))
+    return p / np.linalg.norm(p, axis=1, keepdims=True)
+
+
+def _fit(points, tolerance):
+    cfg = load_config(overrides=FAST + [f"dynamics.kinetic_tolerance={tolerance}"])
+    rep = fit(points, cfg).report
+    return rep, rep.to_dict()["history"], cfg.dynamics
+
+
+def test_a_sheet_at_rest_stops_before_the_caps(sphere):
+    rep, hist, dyn = _fit(sphere, 0.0001)
+    assert rep.steps.release < dyn.release_steps
+    # it stopped because the last release chunk ended at rest, after the refills
+    release = [k for k, ph in zip(hist["kinetic"], hist["phase"], strict=True) if ph == "release"]
+    assert release[-1] < 1e-4
+    assert len(release) > 3
+    # the first growth round has only pinned seeds: nothing moves, one anchor chunk suffices
+    assert hist["step"][0] == 5
+
+
+@pytest.mark.parametrize("tolerance", [0, 1e-12])
+def test_a_sheet_not_at_rest_runs_the_full_counts(sphere, tolerance):
+    rep, hist, dyn = _fit(sphere, tolerance)
+    assert rep.steps.release == dyn.release_steps
+    rounds = [s for s, ph in zip(hist["step"], hist["phase"], strict=True) if ph == "grow"]
+    if tolerance == 0:  # every growth relaxation runs relax_steps
+        assert all(b - a == dyn.relax_steps for a, b in zip([0] + rounds, rounds, strict=False))
+    else:  # only the all-pinned first round is at rest (kinetic energy exactly 0)
+        assert rounds[0] == 5
+        assert all(b - a == dyn.relax_steps for a, b in zip(rounds, rounds[1:], strict=False))
