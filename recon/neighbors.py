@@ -241,9 +241,12 @@ class PointGrid:
     def n(self) -> int:
         return len(self.points)
 
-    def query(self, query: np.ndarray, k: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    def query(
+        self, query: np.ndarray, k: int = 1, workers: int | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Distances and indices of the ``k`` nearest points (shape (m,) for k = 1, else
-        (m, k); inf and n past the number of points, like ``cKDTree.query``)."""
+        (m, k); inf and n past the number of points): ``cKDTree.query``'s answer, so a grid
+        can stand in for a tree (``workers``: for the queries the tree answers)."""
         q = np.ascontiguousarray(query, dtype=np.float64).reshape(-1, 3)
         m = len(q)
         k = int(k)
@@ -257,7 +260,8 @@ class PointGrid:
                 idx[idx < 0] = self.n
             rest = np.flatnonzero(~ok)
             if len(rest):
-                d, i = self.tree.query(q[rest], k=k, workers=query_workers())
+                w = query_workers() if workers is None else workers
+                d, i = self.tree.query(q[rest], k=k, workers=w)
                 dist[rest] = np.reshape(d, (len(rest), k))
                 idx[rest] = np.reshape(i, (len(rest), k))
         if k == 1:

@@ -43,3 +43,29 @@ def test_a_sheet_not_at_rest_runs_the_full_counts(sphere, tolerance):
     else:  # only the all-pinned first round is at rest (kinetic energy exactly 0)
         assert rounds[0] == 5
         assert all(b - a == dyn.relax_steps for a, b in zip(rounds, rounds[1:], strict=False))
+
+
+def test_anchors_are_refreshed_only_for_the_particles_that_moved():
+    from recon.config import ReconConfig
+    from recon.fitting.schedule import ANCHOR_MOVE, Clock, _Schedule
+    from recon.state import ParticleState
+    from recon.surface import DataSurface
+
+    rng = np.random.default_rng(2)
+    xy = rng.uniform(-10, 10, (3000, 2))
+    data = np.column_stack([xy, 0.02 * (xy**2).sum(axis=1)])  # a curved cap
+    surface = DataSurface.build(data, np.tile([0.0, 0.0, 1.0], (len(data), 1)), k=16)
+    sched = _Schedule(surface, ReconConfig(), np.random.default_rng(0), Clock(None), None)
+    pos = np.column_stack([rng.uniform(-5, 5, (50, 2)), np.full(50, 0.3)])
+    state = ParticleState.from_points(pos, np.tile([0.0, 0.0, 1.0], (50, 1)))
+    first = [a.copy() for a in sched.refresh_anchors(state)]
+    state.position[0, 0] += ANCHOR_MOVE + 0.1
+    state.position[1, 0] += ANCHOR_MOVE  # not more than ANCHOR_MOVE: keeps its anchor
+    pts, nrm = sched.refresh_anchors(state)
+    exact, exact_n, _ = surface.anchors(state.position, state.normal)
+    assert np.allclose(pts[0], exact[0]) and not np.allclose(pts[0], first[0][0])
+    assert np.array_equal(pts[1:], first[0][1:])
+    assert np.array_equal(pts[2:], exact[2:])  # the ones that did not move: exact anyway
+    sched.forget_anchors()
+    pts, nrm = sched.refresh_anchors(state)
+    assert np.array_equal(pts, exact) and np.array_equal(nrm, exact_n)
