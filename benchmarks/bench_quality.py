@@ -166,6 +166,7 @@ def evaluate(
         "method": method,
         "seconds": float(np.median(times)),
         "runs": len(times),
+        "seconds_per_run": [round(t, 3) for t in times],
         "peak_mb": max(r["peak_mb"] for r in runs if "peak_mb" in r),
     }
     if len(f) == 0:

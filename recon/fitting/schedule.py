@@ -294,6 +294,8 @@ class _Schedule:
         dyn = self.cfg.dynamics
         kinetic = 0.0
         done = 0
+        if state.n and bool(np.all(state.is_pinned)) and self.at_rest(0.0):
+            return kinetic  # only pinned seeds: at rest before any step, none would move
         while done < n_steps:
             if self.total_steps() >= dyn.max_steps:
                 break
