@@ -248,7 +248,9 @@ def fit_local_quadrics(
     """
     n = len(points)
     out = (np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 6)), np.zeros(n))
-    fit_quadrics_kernel(points, normals, np.ascontiguousarray(neighbor_idx, dtype=np.int64), *out)
+    idx = np.ascontiguousarray(neighbor_idx, dtype=np.int64)
+    with thread_limit(n >= PARALLEL_MIN_PARTICLES):
+        fit_quadrics_kernel(points, normals, idx, *out)
     return out
 
 

@@ -117,3 +117,23 @@ def test_nearest_on_the_grid_equals_the_tree():
     d_ref, i_ref = s.tree.query(q, k=1)
     assert np.array_equal(i, i_ref)
     assert np.allclose(d, d_ref)
+
+
+def test_local_quadrics_are_the_same_on_one_and_two_threads():
+    # fit_quadrics_kernel is threaded (each point writes its own rows): no thread-count effect
+    from recon.kernels.local_surface import fit_quadrics_kernel
+    from recon.kernels.options import thread_count
+
+    pts = _sphere(3000)
+    nrm = pts / np.linalg.norm(pts, axis=1, keepdims=True)
+    _, idx = cKDTree(pts).query(pts, k=16)
+    outs = []
+    for threads in (1, 2):
+        out = (np.zeros((3000, 3)), np.zeros((3000, 3)), np.zeros((3000, 3)))
+        out += (np.zeros((3000, 6)), np.zeros(3000))
+        with thread_count(threads):
+            fit_quadrics_kernel(pts, nrm, idx.astype(np.int64), *out)
+        outs.append(out)
+    for a, b in zip(*outs, strict=True):
+        assert np.array_equal(a, b)
+    assert np.median(np.einsum("ij,ij->i", outs[0][1], nrm)) > 0.9  # normals follow the sphere
