@@ -16,11 +16,17 @@ entries within the cutoff evaluated per second: each pair counts twice, as it is
 both rows), rebuilds, compile_seconds_cold (a subprocess with an empty NUMBA_CACHE_DIR),
 compile_seconds_warm (a subprocess with the normal cache) and threads. ``--sweep`` times
 N = 10k, 100k, 1M and adds the log-log slope of time per step against N.
+
+Without ``--json`` the last line is the README's figure: pair interactions per second at the
+size run, with the date, the machine's load (``os.getloadavg``, before and after the run), the
+cores and the threads, so that a figure is never quoted without the conditions it was measured
+in.
 """
 
 from __future__ import annotations
 
 import argparse
+import datetime as dt
 import json
 import math
 import os
@@ -144,7 +150,11 @@ def main(argv: list[str] | None = None) -> int:
     from recon.dynamics import warmup
 
     parallel = True if args.parallel else (False if args.serial else None)
-    result: dict = {}
+    result: dict = {
+        "date": dt.datetime.now(dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
+        "load_before": list(os.getloadavg()),
+        "cores": os.cpu_count(),
+    }
     if not args.no_compile:
         cold = startup_seconds(cold=True)
         warm = startup_seconds(cold=False)
@@ -168,12 +178,29 @@ def main(argv: list[str] | None = None) -> int:
     else:
         result.update(run_case(args.particles, args.steps, parallel))
     result["threads"] = numba.get_num_threads()
+    result["load_after"] = list(os.getloadavg())
     if args.json:
         print(json.dumps(result))
     else:
         for key, value in result.items():
             print(f"{key}: {value}")
+        print(readme_line(result))
     return 0
+
+
+def readme_line(result: dict) -> str:
+    """The README figure: pair interactions per second with date, load, cores and threads."""
+    cases = result.get("cases") or [result]
+    rates = ", ".join(
+        f"{c['particles']:,} particles: {c['pair_interactions_per_s']:.2e} pair interactions/s"
+        for c in cases
+    )
+    load = "/".join(f"{v:.2f}" for v in result["load_before"])
+    return (
+        f"{rates} ({result['date']}; load average {load} (1/5/15 min) at start, "
+        f"{result['load_after'][0]:.2f} at end; {result['cores']} cores, "
+        f"{result['threads']} threads)"
+    )
 
 
 if __name__ == "__main__":

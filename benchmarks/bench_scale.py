@@ -183,6 +183,7 @@ def main(argv: list[str] | None = None) -> int:
                     row["peer_wall_s"] = statistics.median(r["wall_s"] for r in good)
                     row["peer_rss_mib"] = max(r["rss_mib"] for r in good)
                     row["ratio"] = row["wall_s"] / row["peer_wall_s"]
+            row["load_after"] = os.getloadavg()[0]
             rows.append(row)
             _print_row(row)
     done = [r for r in rows if not r.get("failed")]
@@ -208,7 +209,7 @@ def _print_row(r: dict[str, Any]) -> None:
         f"{r['points']:>9,d} points: {r['wall_s']:.1f} s wall ({phases}), "
         f"{r['particles']:,d} particles, {r['steps']} steps, "
         f"{pss / 1e6 if pss else float('nan'):.2f} M particle-steps/s, "
-        f"{r['rss_mib']:.0f} MiB peak{peer}",
+        f"{r['rss_mib']:.0f} MiB peak{peer} (load average {r['load_after']:.1f} after)",
         flush=True,
     )
 

@@ -215,6 +215,16 @@ class DynamicsConfig(Schema):
     )
     relax_steps: int = option(15, "Relaxation steps after each growth round.", 1, 10_000)
     release_steps: int = option(100, "Steps after the seeds are released (smoothing).", 0, 100_000)
+    kinetic_tolerance: float = option(
+        1e-4,
+        "The sheet is at rest when its kinetic energy per particle falls below this "
+        "[r0^2/time^2; 1e-4: mean speed ~0.014 r0 per time unit]: a growth round's relaxation "
+        "and a release chunk stop early (checked every 5 steps), and the release ends after "
+        "its gap refills once a chunk ends at rest. 0 = always run relax_steps and "
+        "release_steps.",
+        0.0,
+        1.0,
+    )
     fidelity: float = option(
         5.0, "Point-to-plane pull toward the data (0 = pure smoothing).", 0.0, 100.0
     )

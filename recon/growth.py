@@ -31,6 +31,7 @@ from .config import GrowthConfig
 from .geometry import poisson_disk_thin
 from .kernels.growth_rules import MAX_PER_PARTICLE, grow_kernel
 from .kernels.options import query_workers
+from .neighbors import PointGrid
 from .surface import DataSurface, max_angular_gap
 
 #: Candidates closer than this to a data point [r0] count as supported without the
@@ -96,7 +97,7 @@ def grow_candidates(
 def stretch_candidates(
     position: np.ndarray,
     normal: np.ndarray,
-    tree: cKDTree,
+    tree: cKDTree | PointGrid,
     frontier: np.ndarray,
     cfg: GrowthConfig,
     with_normals: bool = False,
@@ -148,7 +149,7 @@ class Acceptance:
 
 def accept_candidates(
     candidates: np.ndarray,
-    particle_tree: cKDTree,
+    particle_tree: cKDTree | PointGrid,
     surface: DataSurface,
     seed_tree: cKDTree,
     seed_points: np.ndarray,

@@ -25,7 +25,8 @@ import numpy as np
 from .errors import DivergenceError
 from .geometry import as_points
 from .kernels.cell_list import bin_particles, build_neighbor_list_kernel, max_displacement2
-from .kernels.options import thread_limit
+from .kernels.grid_query import covered_kernel, grid_build, knn_grid_kernel
+from .kernels.options import query_workers, thread_limit
 
 PARALLEL_MIN_PARTICLES = 30_000
 """Below this many particles the kernels run in the calling thread only.
@@ -193,3 +194,87 @@ class NeighborList:
     def neighbors_of(self, i: int) -> np.ndarray:
         """Indices of the neighbours of particle ``i`` (a view)."""
         return self.indices[self.offsets[i] : self.offsets[i + 1]]
+
+
+#: Shells searched around a query's cell before :class:`PointGrid` hands the query to a k-d tree.
+GRID_MAX_RING = 3
+
+
+class PointGrid:
+    """Static points binned once into a hashed cell grid: exact nearest-point queries.
+
+    Replaces a k-d tree where the same points are queried many times (the data during a fit)
+    or where a tree would be rebuilt every round (the particles). Queries farther than
+    ``GRID_MAX_RING`` cells from their k-th neighbour go to a k-d tree built on first need, so
+    every answer is exact; see :mod:`recon.kernels.grid_query`.
+
+    Parameters
+    ----------
+    points : (n, 3) float64
+        Finite points [length].
+    cell_size : float
+        Cell side [length], > 0; about the distance of the k-th neighbour of a typical query.
+    """
+
+    def __init__(self, points: np.ndarray, cell_size: float) -> None:
+        self.points = np.ascontiguousarray(points, dtype=np.float64)
+        if not (np.isfinite(cell_size) and cell_size > 0.0):
+            raise ValueError(f"cell_size: expected a finite number > 0, got {cell_size}")
+        self.cell_size = float(cell_size)
+        self.grid: tuple | None = None
+        if len(self.points):
+            extent = self.points.max(axis=0) - self.points.min(axis=0)
+            if np.prod(np.floor(extent / self.cell_size) + 1.0) <= _MAX_CELLS:
+                self.grid = grid_build(self.points, self.cell_size)
+        self._tree = None
+
+    @property
+    def tree(self):  # noqa: ANN201 - scipy type
+        """A k-d tree of the points (built on first use, for the queries the grid hands on)."""
+        if self._tree is None:
+            from scipy.spatial import cKDTree
+
+            self._tree = cKDTree(self.points)
+        return self._tree
+
+    @property
+    def n(self) -> int:
+        return len(self.points)
+
+    def query(
+        self, query: np.ndarray, k: int = 1, workers: int | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Distances and indices of the ``k`` nearest points (shape (m,) for k = 1, else
+        (m, k); inf and n past the number of points): ``cKDTree.query``'s answer, so a grid
+        can stand in for a tree (``workers``: for the queries the tree answers)."""
+        q = np.ascontiguousarray(query, dtype=np.float64).reshape(-1, 3)
+        m = len(q)
+        k = int(k)
+        dist = np.full((m, k), np.inf)
+        idx = np.full((m, k), self.n, dtype=np.int64)
+        if m and self.n:
+            ok = np.zeros(m, dtype=np.bool_)
+            if self.grid is not None:
+                with thread_limit(m >= PARALLEL_MIN_PARTICLES):
+                    knn_grid_kernel(q, self.grid, self.cell_size, k, GRID_MAX_RING, dist, idx, ok)
+                idx[idx < 0] = self.n
+            rest = np.flatnonzero(~ok)
+            if len(rest):
+                w = query_workers() if workers is None else workers
+                d, i = self.tree.query(q[rest], k=k, workers=w)
+                dist[rest] = np.reshape(d, (len(rest), k))
+                idx[rest] = np.reshape(i, (len(rest), k))
+        if k == 1:
+            return dist[:, 0], idx[:, 0]
+        return dist, idx
+
+    def covered(self, query: np.ndarray, radius: float) -> np.ndarray:
+        """Whether some point lies within ``radius`` of each query (bool (m,))."""
+        q = np.ascontiguousarray(query, dtype=np.float64).reshape(-1, 3)
+        if self.grid is None or radius > self.cell_size:
+            d, _ = self.query(q, k=1)
+            return d <= radius
+        out = np.zeros(len(q), dtype=np.bool_)
+        with thread_limit(len(q) >= PARALLEL_MIN_PARTICLES):
+            covered_kernel(q, self.grid, self.cell_size, float(radius), out)
+        return out

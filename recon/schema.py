@@ -24,12 +24,16 @@ import contextlib
 import dataclasses
 import functools
 import math
+import re
 from collections.abc import Iterator, Mapping
 from contextvars import ContextVar
 from dataclasses import MISSING, field, fields, is_dataclass
 from typing import Any, ClassVar, Union, get_args, get_origin, get_type_hints
 
 from .errors import ConfigError, did_you_mean
+
+#: A number in exponent notation without a dot (1e-4): YAML 1.1 reads it as a string.
+_EXPONENT_FLOAT = re.compile(r"[-+]?[0-9]+[eE][-+]?[0-9]+")
 
 __all__ = ["Schema", "check_range", "coerce", "from_dict", "option", "range_text"]
 
@@ -105,6 +109,8 @@ def coerce(key: str, value: Any, tp: Any) -> Any:
             raise ConfigError(f"{key}: expected an integer, got {value!r}")
         return int(value)
     if tp is float:
+        if isinstance(value, str) and _EXPONENT_FLOAT.fullmatch(value.strip()):
+            value = float(value)  # YAML 1.1 reads 1e-4 (no dot) as a string
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise ConfigError(f"{key}: expected a number, got {value!r}")
         value = float(value)

@@ -26,14 +26,16 @@ References
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 import numpy as np
 from scipy.spatial import cKDTree
 
+from .kernels.grid_query import anchor_feet_kernel
 from .kernels.local_surface import fit_quadrics_kernel, max_angular_gap_kernel, select_agreeing
-from .kernels.options import query_workers
+from .kernels.options import query_workers, thread_limit
+from .neighbors import GRID_MAX_RING, PARALLEL_MIN_PARTICLES, PointGrid
 
 if TYPE_CHECKING:
     from .crease_surface import CreaseField
@@ -41,6 +43,12 @@ if TYPE_CHECKING:
 #: Nearest data points searched for one whose normal agrees with a particle's
 #: (:meth:`DataSurface.nearest_agreeing`).
 AGREE_K = 8
+#: The data's query grid (:attr:`DataSurface.grid`) has cells of this many times the median
+#: distance from a data point to its ``AGREE_K``-th neighbour, so that most ``AGREE_K``-nearest
+#: queries end after the first shell of cells.
+GRID_CELL_FACTOR = 1.5
+#: Data points sampled (evenly by index) to estimate that distance.
+GRID_CELL_SAMPLE = 2000
 
 
 @dataclass
@@ -75,6 +83,7 @@ class DataSurface:
     #: Crease lines in the data (issue 12; set by the pipeline when creases are on): anchors
     #: near a crease use its per-side planes (:meth:`recon.crease_surface.CreaseField.adjust`).
     creases: CreaseField | None = None
+    _grid: PointGrid | None = field(default=None, repr=False, compare=False)
 
     @classmethod
     def build(cls, points: np.ndarray, normals: np.ndarray, k: int = 20) -> DataSurface:
@@ -94,10 +103,25 @@ class DataSurface:
     def n_points(self) -> int:
         return len(self.points)
 
+    @property
+    def grid(self) -> PointGrid:
+        """The data binned into a cell grid once (built on first use): the queries of the fit
+        (:meth:`nearest`, :meth:`anchors`) run on it instead of the k-d tree."""
+        if self._grid is None:
+            n = self.n_points
+            k = int(min(AGREE_K, n))
+            sample = self.points[:: max(1, n // GRID_CELL_SAMPLE)]
+            d, _ = self.tree.query(sample, k=k, workers=query_workers())
+            d = np.reshape(d, (len(sample), k))[:, -1]
+            cell = GRID_CELL_FACTOR * float(np.median(d)) if len(d) else 1.0
+            if not (np.isfinite(cell) and cell > 0.0):
+                cell = 1.0
+            self._grid = PointGrid(self.points, cell)
+        return self._grid
+
     def nearest(self, query: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Distance [r0] and index of the nearest data point for each query point."""
-        dist, idx = self.tree.query(query, k=1, workers=query_workers())
-        return dist, idx
+        return self.grid.query(query, k=1)
 
     def nearest_agreeing(
         self, query: np.ndarray, normals: np.ndarray | None
@@ -128,6 +152,46 @@ class DataSurface:
         its frame, and the normal is the quadric's normal there (so a point-to-plane pull
         toward (foot, normal) pulls onto the curved surface).
         """
+        q = np.ascontiguousarray(positions, dtype=np.float64).reshape(-1, 3)
+        m = len(q)
+        grid = self.grid
+        foot = np.zeros((m, 3))
+        nrm = np.zeros((m, 3))
+        dist = np.zeros(m)
+        idx = np.zeros(m, dtype=np.int64)
+        ok = np.zeros(m, dtype=np.bool_)
+        if m and grid.grid is not None:
+            qn = q if normals is None else np.ascontiguousarray(normals, dtype=np.float64)
+            frames = (self.plane_points, self.plane_normals, self.tangents, self.quadrics)
+            with thread_limit(m >= PARALLEL_MIN_PARTICLES):
+                anchor_feet_kernel(
+                    q,
+                    qn,
+                    normals is not None,
+                    self.normals,
+                    frames,
+                    grid.grid,
+                    grid.cell_size,
+                    int(min(AGREE_K, self.n_points)),
+                    GRID_MAX_RING,
+                    foot,
+                    nrm,
+                    dist,
+                    idx,
+                    ok,
+                )
+        rest = np.flatnonzero(~ok)
+        if len(rest):  # far from the data: the k-d tree answers
+            f, n_, d, i = self._anchors_tree(q[rest], None if normals is None else normals[rest])
+            foot[rest], nrm[rest], dist[rest], idx[rest] = f, n_, d, i
+        if self.creases is not None:  # crease hook: per-side planes near creases
+            foot, nrm = self.creases.adjust(q, normals, foot, nrm)
+        return foot, nrm, dist
+
+    def _anchors_tree(
+        self, positions: np.ndarray, normals: np.ndarray | None
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`anchors` through the k-d tree (foot, normal, distance, data index)."""
         dist, idx = self.nearest_agreeing(positions, normals)
         foot, nrm = _quadric_foot(
             positions,
@@ -136,9 +200,7 @@ class DataSurface:
             self.tangents[idx],
             self.quadrics[idx],
         )
-        if self.creases is not None:  # crease hook: per-side planes near creases
-            foot, nrm = self.creases.adjust(positions, normals, foot, nrm)
-        return foot, nrm, dist
+        return foot, nrm, dist, idx
 
     def project(
         self, positions: np.ndarray, normals: np.ndarray | None = None
@@ -195,7 +257,9 @@ def fit_local_quadrics(
     """
     n = len(points)
     out = (np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 6)), np.zeros(n))
-    fit_quadrics_kernel(points, normals, np.ascontiguousarray(neighbor_idx, dtype=np.int64), *out)
+    idx = np.ascontiguousarray(neighbor_idx, dtype=np.int64)
+    with thread_limit(n >= PARALLEL_MIN_PARTICLES):
+        fit_quadrics_kernel(points, normals, idx, *out)
     return out
 
 

@@ -183,3 +183,13 @@ def test_sections_validate_however_they_are_built():
 
     with pytest.raises(ConfigError, match=r"^config\.growth\.stretch_min"):
         from_dict(ReconConfig, {"growth": {"stretch_min": 3.0, "stretch_max": 2.5}}, "config.")
+
+
+def test_a_float_key_accepts_exponent_notation_without_a_dot():
+    # YAML 1.1 reads 1e-4 as a string; --set and config files must still take it as a number
+    from recon.config import apply_overrides, parse_override
+
+    cfg = apply_overrides(ReconConfig(), dict([parse_override("dynamics.kinetic_tolerance=1e-4")]))
+    assert cfg.dynamics.kinetic_tolerance == 1e-4
+    with pytest.raises(ConfigError, match="expected a number"):
+        apply_overrides(ReconConfig(), dict([parse_override("dynamics.dt=fast")]))

@@ -15,9 +15,11 @@ References
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 from .options import EXACT_JIT_OPTIONS
+
+_PARALLEL = dict(EXACT_JIT_OPTIONS, parallel=True)
 
 
 @njit(**EXACT_JIT_OPTIONS)
@@ -55,7 +57,7 @@ def select_agreeing(normals, idx, k):  # pragma: no cover - numba
     return out
 
 
-@njit(**EXACT_JIT_OPTIONS)
+@njit(**_PARALLEL)
 def fit_quadrics_kernel(
     points, normals, idx, out_p, out_n, out_u, out_a, out_r
 ):  # pragma: no cover - numba
@@ -73,10 +75,11 @@ def fit_quadrics_kernel(
 
     solved on x, y scaled by the largest principal deviation, with a small ridge (1e-6 of the
     trace's first entry). Writes centroid, normal, tangent, coefficients and the RMS residual
-    into ``out_p``, ``out_n``, ``out_u``, ``out_a``, ``out_r`` (row i).
+    into ``out_p``, ``out_n``, ``out_u``, ``out_a``, ``out_r`` (row i). Threaded over the
+    points; each iteration writes only its own rows, so any thread count gives the same result.
     """
     n, k = idx.shape
-    for i in range(n):
+    for i in prange(n):
         c = np.zeros(3)
         for a in range(k):
             c += points[idx[i, a]]
