@@ -1,0 +1,302 @@
+"""The input mesh as the data surface of a remesh: exact closest points and feature lines.
+
+:class:`MeshSurface` answers closest-point queries on the triangles (Open3D's
+``RaycastingScene``, Embree, after centring; float32 inside, so exact to ~1e-7 of the extent)
+and gives the face normal at the foot. :class:`FeatureLines` holds the polylines particles must
+stay on (boundary loops and creases, split at corners) and projects points onto their own line.
+
+Feature lines (:func:`feature_lines`): the input edges used by one face (boundary) or whose two
+face normals differ by more than the crease angle; a vertex of the feature graph whose degree is
+not 2, or where the line turns by more than the corner angle, is a corner (kept fixed).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..mesh import face_area_vectors
+from .mesh_check import edge_faces
+
+__all__ = ["FeatureLines", "MeshSurface", "feature_lines"]
+
+#: Points are projected onto a feature line in blocks of this many point-segment pairs.
+PROJECT_BLOCK = 2_000_000
+
+
+class MeshSurface:
+    """Closest points, normals and areas of a triangle mesh (any consistent unit).
+
+    Parameters
+    ----------
+    vertices : (V, 3) float64
+    faces : (F, 3) int64, consistently wound
+    """
+
+    def __init__(self, vertices: np.ndarray, faces: np.ndarray) -> None:
+        import open3d as o3d
+
+        self.vertices = np.ascontiguousarray(vertices, dtype=np.float64)
+        self.faces = np.ascontiguousarray(faces, dtype=np.int64)
+        cross = face_area_vectors(self.vertices, self.faces)
+        area2 = np.linalg.norm(cross, axis=1)
+        self.face_area = 0.5 * area2
+        self.face_normal = cross / np.maximum(area2, 1e-300)[:, None]
+        vn = np.zeros_like(self.vertices)
+        for k in range(3):
+            np.add.at(vn, self.faces[:, k], cross)
+        self.vertex_normal = vn / np.maximum(np.linalg.norm(vn, axis=1), 1e-300)[:, None]
+        lo, hi = self.vertices.min(axis=0), self.vertices.max(axis=0)
+        self.centre = 0.5 * (lo + hi)
+        self._scene = o3d.t.geometry.RaycastingScene()
+        self._scene.add_triangles(
+            o3d.core.Tensor(np.ascontiguousarray(self.vertices - self.centre, dtype=np.float32)),
+            o3d.core.Tensor(np.ascontiguousarray(self.faces, dtype=np.uint32)),
+        )
+
+    @property
+    def area(self) -> float:
+        """Total surface area."""
+        return float(self.face_area.sum())
+
+    def closest(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Closest points on the triangles, their face indices and the unit face normals there.
+
+        Returns
+        -------
+        foot : (n, 3) float64
+        face : (n,) int64
+        normal : (n, 3) float64
+        """
+        import open3d as o3d
+
+        pts = np.asarray(points, dtype=np.float64)
+        if len(pts) == 0:
+            return np.zeros((0, 3)), np.zeros(0, dtype=np.int64), np.zeros((0, 3))
+        query = o3d.core.Tensor(np.ascontiguousarray(pts - self.centre, dtype=np.float32))
+        ans = self._scene.compute_closest_points(query)
+        foot = ans["points"].numpy().astype(np.float64) + self.centre
+        face = ans["primitive_ids"].numpy().astype(np.int64)
+        # refine in float64 on the face Embree found (exact foot of the point on that triangle)
+        foot = closest_on_triangles(pts, self.vertices[self.faces[face]], foot)
+        return foot, face, self.face_normal[face]
+
+    def distance(self, points: np.ndarray) -> np.ndarray:
+        """Unsigned distance of each point to the surface."""
+        foot, _, _ = self.closest(points)
+        return np.linalg.norm(np.asarray(points, dtype=np.float64) - foot, axis=1)
+
+    def ray_hits(self, rays: np.ndarray) -> dict[str, np.ndarray]:
+        """All hits of (n, 6) rays (origin, direction): ray_ids, t_hit, primitive_ids."""
+        import open3d as o3d
+
+        r = np.array(rays, dtype=np.float64)
+        r[:, :3] -= self.centre
+        ans = self._scene.list_intersections(o3d.core.Tensor(r.astype(np.float32)))
+        return {k: ans[k].numpy() for k in ("ray_ids", "t_hit", "primitive_ids")}
+
+    def first_hit(self, rays: np.ndarray) -> np.ndarray:
+        """Distance along each (n, 6) ray (unit direction) to the first hit (inf: none)."""
+        import open3d as o3d
+
+        r = np.array(rays, dtype=np.float64)
+        r[:, :3] -= self.centre
+        ans = self._scene.cast_rays(o3d.core.Tensor(r.astype(np.float32)))
+        return ans["t_hit"].numpy().astype(np.float64)
+
+
+def closest_on_triangles(p: np.ndarray, tri: np.ndarray, fallback: np.ndarray) -> np.ndarray:
+    """Exact closest point of each point ``p[i]`` on triangle ``tri[i]`` (float64).
+
+    Ericson, "Real-Time Collision Detection", §5.1.5, vectorised; ``fallback`` is returned for
+    degenerate triangles.
+    """
+    a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
+    ab, ac, ap = b - a, c - a, p - a
+    d1, d2 = _dot(ab, ap), _dot(ac, ap)
+    bp = p - b
+    d3, d4 = _dot(ab, bp), _dot(ac, bp)
+    cp = p - c
+    d5, d6 = _dot(ab, cp), _dot(ac, cp)
+    va = d3 * d6 - d5 * d4
+    vb = d5 * d2 - d1 * d6
+    vc = d1 * d4 - d3 * d2
+    denom = va + vb + vc
+    with np.errstate(divide="ignore", invalid="ignore"):
+        v = vb / denom
+        w = vc / denom
+        out = a + ab * v[:, None] + ac * w[:, None]  # inside the face
+        # edge regions
+        t_ab = d1 / (d1 - d3)
+        t_ac = d2 / (d2 - d6)
+        t_bc = (d4 - d3) / ((d4 - d3) + (d5 - d6))
+    on_bc = (va <= 0) & (d4 - d3 >= 0) & (d5 - d6 >= 0)
+    out = np.where(on_bc[:, None], b + t_bc[:, None] * (c - b), out)
+    on_ac = (vb <= 0) & (d2 >= 0) & (d6 <= 0)
+    out = np.where(on_ac[:, None], a + t_ac[:, None] * ac, out)
+    on_ab = (vc <= 0) & (d1 >= 0) & (d3 <= 0)
+    out = np.where(on_ab[:, None], a + t_ab[:, None] * ab, out)
+    # vertex regions
+    out = np.where(((d6 >= 0) & (d5 <= d6))[:, None], c, out)
+    out = np.where(((d3 >= 0) & (d4 <= d3))[:, None], b, out)
+    out = np.where(((d1 <= 0) & (d2 <= 0))[:, None], a, out)
+    bad = ~np.all(np.isfinite(out), axis=1)
+    out[bad] = fallback[bad]
+    return out
+
+
+def _dot(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    return np.einsum("ij,ij->i", x, y)
+
+
+@dataclass
+class FeatureLines:
+    """Polylines that particles must stay on, split at corners.
+
+    Attributes
+    ----------
+    chains : list of (m,) int64 arrays
+        Vertex indices of each line; a closed loop repeats its first vertex at the end.
+    closed : (c,) bool
+    corners : (k,) int64
+        Vertex indices of the corners (fixed).
+    n_boundary_edges, n_crease_edges : int
+    segments : (S, 2, 3) float64
+        All line segments; ``segment_chain`` (S,) int64 gives the chain of each.
+    """
+
+    chains: list[np.ndarray]
+    closed: np.ndarray
+    corners: np.ndarray
+    n_boundary_edges: int
+    n_crease_edges: int
+    segments: np.ndarray
+    segment_chain: np.ndarray
+    chain_is_boundary: np.ndarray
+
+    @property
+    def empty(self) -> bool:
+        return len(self.chains) == 0
+
+    def chain_length(self, vertices: np.ndarray, i: int) -> float:
+        p = vertices[self.chains[i]]
+        return float(np.linalg.norm(np.diff(p, axis=0), axis=1).sum())
+
+    def project(self, points: np.ndarray, chain: np.ndarray) -> np.ndarray:
+        """Closest point of each point on its own chain ``chain[i]``."""
+        out = np.array(points, dtype=np.float64, copy=True)
+        if len(out) == 0:
+            return out
+        order = np.argsort(chain, kind="stable")
+        seg_order = np.argsort(self.segment_chain, kind="stable")
+        seg_start = np.searchsorted(self.segment_chain[seg_order], np.arange(len(self.chains) + 1))
+        p_start = np.searchsorted(chain[order], np.arange(len(self.chains) + 1))
+        for c in range(len(self.chains)):
+            idx = order[p_start[c] : p_start[c + 1]]
+            if len(idx) == 0:
+                continue
+            seg = self.segments[seg_order[seg_start[c] : seg_start[c + 1]]]
+            block = max(1, PROJECT_BLOCK // max(len(seg), 1))
+            for s in range(0, len(idx), block):
+                sub = idx[s : s + block]
+                out[sub] = _closest_on_segments(out[sub], seg)
+        return out
+
+
+def _closest_on_segments(points: np.ndarray, seg: np.ndarray) -> np.ndarray:
+    """Closest point on any of the segments ``seg`` (S, 2, 3) for every point (brute force)."""
+    a = seg[None, :, 0]
+    d = seg[None, :, 1] - a
+    dd = np.maximum(np.einsum("psk,psk->ps", d, d), 1e-300)
+    t = np.clip(np.einsum("psk,psk->ps", points[:, None] - a, d) / dd, 0.0, 1.0)
+    foot = a + t[..., None] * d
+    dist = np.einsum("psk,psk->ps", foot - points[:, None], foot - points[:, None])
+    best = np.argmin(dist, axis=1)
+    return foot[np.arange(len(points)), best]
+
+
+def feature_lines(
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    crease_angle_deg: float | None,
+    corner_angle_deg: float,
+) -> FeatureLines:
+    """Boundary and crease lines of a manifold mesh, split at corners (module docstring)."""
+    edges, counts, f0, f1 = edge_faces(faces, len(vertices))
+    boundary = counts == 1
+    crease = np.zeros(len(edges), dtype=bool)
+    if crease_angle_deg is not None:
+        cross = face_area_vectors(vertices, faces)
+        n = cross / np.maximum(np.linalg.norm(cross, axis=1), 1e-300)[:, None]
+        inner = counts == 2
+        cosang = np.einsum("ij,ij->i", n[f0[inner]], n[f1[inner]])
+        crease[inner] = cosang < np.cos(np.radians(crease_angle_deg))
+    feat = edges[boundary | crease]
+    is_bnd = boundary[boundary | crease]
+    nv = len(vertices)
+    degree = np.bincount(feat.ravel(), minlength=nv)
+    # adjacency lists of the feature graph
+    ends = np.concatenate([feat, feat[:, ::-1]])
+    e_id = np.concatenate([np.arange(len(feat))] * 2)
+    order = np.lexsort((ends[:, 1], ends[:, 0]))
+    ends, e_id = ends[order], e_id[order]
+    start = np.searchsorted(ends[:, 0], np.arange(nv + 1))
+    corner = (degree > 0) & (degree != 2)
+    two = np.flatnonzero(degree == 2)
+    if len(two):
+        nb = ends[start[two], 1], ends[start[two] + 1, 1]
+        u = vertices[nb[0]] - vertices[two]
+        w = vertices[nb[1]] - vertices[two]
+        cosang = np.einsum("ij,ij->i", u, w) / np.maximum(
+            np.linalg.norm(u, axis=1) * np.linalg.norm(w, axis=1), 1e-300
+        )
+        # interior angle below 180 - corner angle: the line turns by more than corner_angle
+        turn = np.degrees(np.pi - np.arccos(np.clip(cosang, -1.0, 1.0)))
+        corner[two[turn > corner_angle_deg]] = True
+    used = np.zeros(len(feat), dtype=bool)
+    chains: list[np.ndarray] = []
+    closed: list[bool] = []
+    chain_bnd: list[bool] = []
+
+    def walk(v0: int, e0: int) -> list[int]:
+        path = [v0]
+        v, e = v0, e0
+        while True:
+            used[e] = True
+            a, b = feat[e]
+            nxt = b if a == v else a
+            path.append(int(nxt))
+            if corner[nxt] or nxt == v0:
+                return path
+            nbrs = e_id[start[nxt] : start[nxt + 1]]
+            cand = [int(x) for x in nbrs if not used[x]]
+            if not cand:
+                return path
+            v, e = nxt, cand[0]
+
+    for v0 in np.flatnonzero(corner):
+        for e in e_id[start[v0] : start[v0 + 1]]:
+            if not used[e]:
+                path = walk(int(v0), int(e))
+                chains.append(np.array(path, dtype=np.int64))
+                closed.append(path[0] == path[-1] and len(path) > 2)
+                chain_bnd.append(bool(is_bnd[e]))
+    for e in range(len(feat)):
+        if not used[e]:
+            path = walk(int(feat[e, 0]), e)
+            chains.append(np.array(path, dtype=np.int64))
+            closed.append(path[0] == path[-1])
+            chain_bnd.append(bool(is_bnd[e]))
+    segs = [np.stack([vertices[c[:-1]], vertices[c[1:]]], axis=1) for c in chains]
+    seg_chain = [np.full(len(c) - 1, i, dtype=np.int64) for i, c in enumerate(chains)]
+    return FeatureLines(
+        chains=chains,
+        closed=np.array(closed, dtype=bool),
+        corners=np.flatnonzero(corner).astype(np.int64),
+        n_boundary_edges=int(boundary.sum()),
+        n_crease_edges=int(crease.sum()),
+        segments=np.concatenate(segs) if segs else np.zeros((0, 2, 3)),
+        segment_chain=np.concatenate(seg_chain) if seg_chain else np.zeros(0, dtype=np.int64),
+        chain_is_boundary=np.array(chain_bnd, dtype=bool),
+    )
