@@ -17,8 +17,9 @@ import numpy as np
 
 from ..errors import InputError
 from ..mesh import face_area_vectors, orientation_flips, vertex_fans
+from .surface import MeshSurface, edge_faces
 
-__all__ = ["CheckedMesh", "check_mesh", "edge_faces", "self_intersections"]
+__all__ = ["CheckedMesh", "check_mesh", "self_intersections"]
 
 #: Relative tolerance along an edge (fraction of its length) within which a hit of the edge's
 #: ray on another face counts as touching at the ends rather than piercing.
@@ -34,29 +35,6 @@ class CheckedMesh:
     vertices: np.ndarray
     faces: np.ndarray
     repairs: list[str] = field(default_factory=list)
-
-
-def edge_faces(
-    faces: np.ndarray, n_vertices: int
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Unique edges ``(E, 2)`` (lo, hi), their face counts, and the first two faces of each
-    (``-1`` where there is none)."""
-    he = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
-    key = he[:, 0] * np.int64(n_vertices) + he[:, 1]
-    order = np.argsort(key, kind="stable")
-    ks = key[order]
-    new = np.ones(len(ks), dtype=bool)
-    new[1:] = ks[1:] != ks[:-1]
-    first = np.flatnonzero(new)
-    counts = np.diff(np.append(first, len(ks)))
-    face_of = order // 3
-    f0 = face_of[first]
-    second = first + 1
-    has2 = counts >= 2
-    f1 = np.full(len(first), -1, dtype=np.int64)
-    f1[has2] = face_of[second[has2]]
-    edges = he[order[first]]
-    return edges, counts, f0, f1
 
 
 def _merge_duplicate_vertices(
@@ -76,8 +54,6 @@ def _merge_duplicate_vertices(
 
 def self_intersections(vertices: np.ndarray, faces: np.ndarray, surface=None) -> np.ndarray:
     """Edges ``(k, 2)`` that pierce a face sharing no vertex with them (ray casting)."""
-    from .surface import MeshSurface
-
     if surface is None:
         surface = MeshSurface(vertices, faces)
     edges, _, _, _ = edge_faces(faces, len(vertices))

@@ -17,9 +17,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..mesh import face_area_vectors
-from .mesh_check import edge_faces
 
-__all__ = ["FeatureLines", "MeshSurface", "feature_lines"]
+__all__ = ["FeatureLines", "MeshSurface", "edge_faces", "feature_lines"]
 
 #: Points are projected onto a feature line in blocks of this many point-segment pairs.
 PROJECT_BLOCK = 2_000_000
@@ -144,6 +143,29 @@ def closest_on_triangles(p: np.ndarray, tri: np.ndarray, fallback: np.ndarray) -
     bad = ~np.all(np.isfinite(out), axis=1)
     out[bad] = fallback[bad]
     return out
+
+
+def edge_faces(
+    faces: np.ndarray, n_vertices: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Unique edges ``(E, 2)`` (lo, hi), their face counts, and the first two faces of each
+    (``-1`` where there is none)."""
+    he = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+    key = he[:, 0] * np.int64(n_vertices) + he[:, 1]
+    order = np.argsort(key, kind="stable")
+    ks = key[order]
+    new = np.ones(len(ks), dtype=bool)
+    new[1:] = ks[1:] != ks[:-1]
+    first = np.flatnonzero(new)
+    counts = np.diff(np.append(first, len(ks)))
+    face_of = order // 3
+    f0 = face_of[first]
+    second = first + 1
+    has2 = counts >= 2
+    f1 = np.full(len(first), -1, dtype=np.int64)
+    f1[has2] = face_of[second[has2]]
+    edges = he[order[first]]
+    return edges, counts, f0, f1
 
 
 def _dot(x: np.ndarray, y: np.ndarray) -> np.ndarray:

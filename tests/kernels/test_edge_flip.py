@@ -1,0 +1,54 @@
+"""recon.kernels.edge_flip: angle-raising flips keep the connectivity's topology."""
+
+import numpy as np
+
+from recon.remesh.improve import flip_edges, twin_half_edges
+from recon.topology import mesh_topology, triangle_quality
+from tests.mesh_shapes import grid
+
+
+def _thin_quad():
+    # a flat rhombus split along its long diagonal: two slivers; the short one is Delaunay
+    v = np.array([[0, 0, 0], [4, 0, 0], [2, 0.5, 0], [2, -0.5, 0]], float)
+    f = np.array([[0, 1, 2], [1, 0, 3]])
+    return v, f
+
+
+def test_flip_replaces_the_long_diagonal():
+    v, f = _thin_quad()
+    out, n = flip_edges(v, f, np.zeros(4, dtype=bool))
+    assert n == 1
+    assert sorted(map(sorted, out.tolist())) == [[0, 2, 3], [1, 2, 3]]
+    # winding kept: both faces still face +z
+    n_out = np.cross(v[out[:, 1]] - v[out[:, 0]], v[out[:, 2]] - v[out[:, 0]])
+    assert np.all(n_out[:, 2] > 0)
+
+
+def test_locked_edge_and_folded_pair_are_not_flipped():
+    v, f = _thin_quad()
+    locked = np.array([True, True, False, False])  # the diagonal joins two fixed vertices
+    assert flip_edges(v, f, locked)[1] == 0
+    folded = v.copy()
+    folded[3, 2] = 1.5  # the pair is bent by ~70 degrees: flipping would cut across the bend
+    assert flip_edges(folded, f, np.zeros(4, dtype=bool))[1] == 0
+
+
+def test_flips_raise_the_worst_angle_and_keep_topology():
+    v, f = grid(8, 8)
+    rng = np.random.default_rng(1)
+    v[:, :2] += rng.uniform(-0.04, 0.04, size=(len(v), 2)) * ((v[:, :2] > 0) & (v[:, :2] < 1)).all(
+        axis=1, keepdims=True
+    )
+    v[:, 0] *= 3.0  # stretched: many diagonals are the long ones
+    out, n = flip_edges(v, f, np.zeros(len(v), dtype=bool))
+    assert n > 0
+    before, after = mesh_topology(v, f), mesh_topology(v, out)
+    for key in ("n_faces", "n_edges", "boundary_loops", "euler_characteristic", "components"):
+        assert before[key] == after[key]
+    assert after["non_manifold_edges"] == 0 and after["consistently_oriented"]
+    assert (
+        triangle_quality(v, out)["min_angle_min_deg"] > triangle_quality(v, f)["min_angle_min_deg"]
+    )
+    twin = twin_half_edges(out, len(v))
+    inner = np.flatnonzero(twin >= 0)
+    assert np.array_equal(twin[twin[inner]], inner)  # twins pair up
