@@ -11,8 +11,8 @@ smallest angle; on a surface the same local test is used, with two guards:
   pair must be near flat (``min_flat_dot``), so that a flip never cuts across a bend.
 
 The connectivity (manifold, orientation, genus, boundary loops) is unchanged by a flip: the
-quad a d b c keeps its outline and winding. Locked edges (feature and boundary lines) are never
-flipped.
+quad a d b c keeps its outline and winding. Locked edges (feature lines) are never flipped, and a
+flip that creates a *wanted* edge (a missing piece of a feature line) is always made.
 
 .. math::
 
@@ -70,8 +70,30 @@ def _unit_normal(p, q, r):  # pragma: no cover - numba
 
 
 @njit(**EXACT_JIT_OPTIONS)
+def _improves(pa, pb, pc, pd, min_normal_dot, min_flat_dot, eps):  # pragma: no cover - numba
+    """Does flipping (a, b) -> (c, d) raise the smallest angle without a fold?"""
+    old = max(_min_angle_cos(pa, pb, pc), _min_angle_cos(pb, pa, pd))
+    new = max(_min_angle_cos(pa, pd, pc), _min_angle_cos(pd, pb, pc))
+    if not new < old - eps:
+        return False
+    n1, n2 = _unit_normal(pa, pb, pc), _unit_normal(pb, pa, pd)
+    if n1[0] * n2[0] + n1[1] * n2[1] + n1[2] * n2[2] < min_flat_dot:
+        return False
+    mean = n1 + n2
+    lm = np.sqrt(mean[0] ** 2 + mean[1] ** 2 + mean[2] ** 2)
+    if lm <= 0.0:
+        return False
+    mean /= lm
+    m1, m2 = _unit_normal(pa, pd, pc), _unit_normal(pd, pb, pc)
+    return not (
+        m1[0] * mean[0] + m1[1] * mean[1] + m1[2] * mean[2] < min_normal_dot
+        or m2[0] * mean[0] + m2[1] * mean[1] + m2[2] * mean[2] < min_normal_dot
+    )
+
+
+@njit(**EXACT_JIT_OPTIONS)
 def flip_edges_kernel(
-    vertices, faces, opposite, locked, min_normal_dot, min_flat_dot, eps, max_passes
+    vertices, faces, opposite, locked, wanted, min_normal_dot, min_flat_dot, eps, max_passes
 ):  # pragma: no cover - numba
     """Flip edges in place until no flip raises the smallest angle (or ``max_passes``).
 
@@ -85,6 +107,9 @@ def flip_edges_kernel(
         boundary. Modified in place.
     locked : (3 F,) bool
         Half-edges that must not be flipped (both halves of an edge set). Modified in place.
+    wanted : (k,) int64
+        Keys ``lo * V + hi`` of edges that should exist (feature lines): a flip that creates
+        one is made whatever the angles and the fold guards say, and the edge is then locked.
     min_normal_dot, min_flat_dot : float64
         Fold guards (module docstring).
     eps : float64
@@ -104,6 +129,9 @@ def flip_edges_kernel(
             b = faces[f, (k + 1) % 3]
             lo, hi = min(a, b), max(a, b)
             edges[lo * n_v + hi] = True
+    want = dict()
+    for k in range(wanted.shape[0]):
+        want[wanted[k]] = True
     total = 0
     for _ in range(max_passes):
         flips = 0
@@ -123,23 +151,8 @@ def flip_edges_kernel(
             if key in edges:
                 continue
             pa, pb, pc, pd = vertices[a], vertices[b], vertices[c], vertices[d]
-            old = max(_min_angle_cos(pa, pb, pc), _min_angle_cos(pb, pa, pd))
-            new = max(_min_angle_cos(pa, pd, pc), _min_angle_cos(pd, pb, pc))
-            if not new < old - eps:
-                continue
-            n1, n2 = _unit_normal(pa, pb, pc), _unit_normal(pb, pa, pd)
-            if n1[0] * n2[0] + n1[1] * n2[1] + n1[2] * n2[2] < min_flat_dot:
-                continue
-            mean = n1 + n2
-            lm = np.sqrt(mean[0] ** 2 + mean[1] ** 2 + mean[2] ** 2)
-            if lm <= 0.0:
-                continue
-            mean /= lm
-            m1, m2 = _unit_normal(pa, pd, pc), _unit_normal(pd, pb, pc)
-            if (
-                m1[0] * mean[0] + m1[1] * mean[1] + m1[2] * mean[2] < min_normal_dot
-                or m2[0] * mean[0] + m2[1] * mean[1] + m2[2] * mean[2] < min_normal_dot
-            ):
+            forced = key in want
+            if not forced and not _improves(pa, pb, pc, pd, min_normal_dot, min_flat_dot, eps):
                 continue
             # outer half-edges before the flip: b->c (f), c->a (f), a->d (g), d->b (g)
             h_bc, h_ca = 3 * f + (k + 1) % 3, 3 * f + (k + 2) % 3
@@ -165,8 +178,8 @@ def flip_edges_kernel(
                     opposite[olds[i]] = news[i]
             opposite[3 * f + 1] = 3 * g + 2
             opposite[3 * g + 2] = 3 * f + 1
-            locked[3 * f + 1] = False
-            locked[3 * g + 2] = False
+            locked[3 * f + 1] = forced
+            locked[3 * g + 2] = forced
             del edges[min(a, b) * n_v + max(a, b)]
             edges[key] = True
             flips += 1

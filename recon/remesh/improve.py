@@ -49,22 +49,29 @@ def twin_half_edges(faces: np.ndarray, n_vertices: int) -> np.ndarray:
 
 
 def flip_edges(
-    vertices: np.ndarray, faces: np.ndarray, fixed: np.ndarray
+    vertices: np.ndarray, faces: np.ndarray, line_edges: np.ndarray | None = None
 ) -> tuple[np.ndarray, int]:
-    """Angle-raising flips; edges between two ``fixed`` vertices are locked. Returns
-    (faces, number of flips)."""
+    """Angle-raising flips; ``line_edges`` (k, 2) vertex pairs (feature lines) are locked where
+    they exist and recovered by a flip where one creates them. Returns (faces, flips)."""
     faces = np.ascontiguousarray(faces, dtype=np.int64).copy()
     if len(faces) < 2:
         return faces, 0
+    nv = np.int64(len(vertices))
     twin = twin_half_edges(faces, len(vertices))
     a = faces.ravel()
     b = np.roll(faces, -1, axis=1).ravel()
-    locked = np.ascontiguousarray(fixed[a] & fixed[b])
+    if line_edges is None or len(line_edges) == 0:
+        wanted = np.zeros(0, dtype=np.int64)
+    else:
+        le = np.sort(np.asarray(line_edges, dtype=np.int64), axis=1)
+        wanted = np.unique(le[:, 0] * nv + le[:, 1])
+    locked = np.ascontiguousarray(np.isin(np.minimum(a, b) * nv + np.maximum(a, b), wanted))
     n = flip_edges_kernel(
         np.ascontiguousarray(vertices, dtype=np.float64),
         faces,
         twin,
         locked,
+        wanted,
         FLIP_MIN_NORMAL_DOT,
         FLIP_MIN_FLAT_DOT,
         FLIP_EPS,
@@ -88,9 +95,11 @@ def improve(
     surface: MeshSurface,
     rounds: int,
     weights: np.ndarray | None = None,
+    line_edges: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, dict[str, int]]:
     """``rounds`` rounds of flips and tangential smoothing (module docstring).
 
+    ``fixed`` vertices do not move; ``line_edges`` (k, 2): see :func:`flip_edges`.
     ``weights`` (V,), optional: each neighbour counts with this weight in the centroid (e.g.
     1/spacing² for adaptive meshes, so that vertices drift toward the dense side less).
     """
@@ -99,7 +108,7 @@ def improve(
     free = ~fixed
     n_flips = 0
     for _ in range(rounds):
-        f, k = flip_edges(v, f, fixed)
+        f, k = flip_edges(v, f, line_edges)
         n_flips += k
         e = f[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
         rows, cols = np.concatenate([e[:, 0], e[:, 1]]), np.concatenate([e[:, 1], e[:, 0]])
@@ -113,6 +122,6 @@ def improve(
         target = v[free] + SMOOTH_STEP * move[free]
         foot, _, _ = surface.closest(target)
         v[free] = foot
-    f, k = flip_edges(v, f, fixed)
+    f, k = flip_edges(v, f, line_edges)
     n_flips += k
     return v, f, {"flips": n_flips, "smoothing_rounds": rounds}

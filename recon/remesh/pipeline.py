@@ -54,7 +54,15 @@ from ..triangulate import (
 )
 from .improve import improve
 from .mesh_check import check_mesh
-from .relax import CELL_AREA, Particles, drop_near_lines, place_feature_particles, relax, seed
+from .relax import (
+    CELL_AREA,
+    Particles,
+    drop_near_lines,
+    line_edges,
+    place_feature_particles,
+    relax,
+    seed,
+)
 from .surface import FeatureLines, MeshSurface, feature_lines
 
 __all__ = ["RemeshOptions", "RemeshResult", "remesh", "remesh_file", "spacing_field"]
@@ -332,7 +340,8 @@ def _remesh(vertices, faces, opts: RemeshOptions, name: str) -> RemeshResult:
     lap("triangulate")
     fixed = kind != 0
     weights = None if rest_at is None else 1.0 / np.maximum(_rest_of(tv, particles), 1e-6) ** 2
-    vn, fn, stats = improve(tv, tf, fixed, surface, opts.smooth_rounds, weights)
+    edges = _vertex_pairs(tv, particles, line_edges(particles, lines))
+    vn, fn, stats = improve(tv, tf, fixed, surface, opts.smooth_rounds, weights, edges)
     lap("improve")
     v_out = vn * s0 + centre
     f_out = fn
@@ -465,6 +474,16 @@ def _kind_of(vertices: np.ndarray, particles: Particles) -> np.ndarray:
     """The particle kind of each vertex (0 for the copies made by vertex splitting)."""
     d, i = cKDTree(particles.position).query(vertices, workers=query_workers())
     return np.where(d <= 1e-9, particles.kind[i], 0).astype(np.int8)
+
+
+def _vertex_pairs(vertices: np.ndarray, particles: Particles, pairs: np.ndarray) -> np.ndarray:
+    """Particle index pairs -> vertex index pairs (pairs whose particles are not vertices are
+    left out)."""
+    if len(pairs) == 0:
+        return pairs
+    d, i = cKDTree(vertices).query(particles.position, workers=query_workers())
+    ok = (d <= 1e-9)[pairs].all(axis=1)
+    return i[pairs[ok]]
 
 
 def _on_boundary_vertices(

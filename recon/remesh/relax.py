@@ -270,3 +270,28 @@ def drop_near_lines(particles: Particles, lines: FeatureLines, gap: float) -> Pa
         kind=particles.kind[keep],
         chain=particles.chain[keep],
     )
+
+
+def line_edges(particles: Particles, lines: FeatureLines) -> np.ndarray:
+    """(k, 2) particle index pairs that follow each feature line: its particles in arc-length
+    order, from the corner at its start to the corner at its end (closed loops wrap)."""
+    from .surface import chain_order
+
+    corner_set = {int(w): i for i, w in enumerate(lines.corners)}
+    corner_index = np.flatnonzero(particles.kind == 2)
+    sliding = np.flatnonzero(particles.kind == 1)
+    arc = chain_order(lines, particles.position[sliding], particles.chain[sliding])
+    pairs = []
+    for c, verts in enumerate(lines.chains):
+        members = sliding[particles.chain[sliding] == c]
+        members = members[np.argsort(arc[particles.chain[sliding] == c], kind="stable")]
+        seq = list(members)
+        start, end = corner_set.get(int(verts[0])), corner_set.get(int(verts[-1]))
+        if start is not None:
+            seq.insert(0, int(corner_index[start]))
+        if end is not None:
+            seq.append(int(corner_index[end]))
+        elif lines.closed[c] and len(seq) > 2:
+            seq.append(seq[0])
+        pairs.extend((a, b) for a, b in zip(seq[:-1], seq[1:], strict=True) if a != b)
+    return np.array(pairs, dtype=np.int64).reshape(-1, 2)

@@ -18,7 +18,7 @@ import numpy as np
 
 from ..mesh import face_area_vectors
 
-__all__ = ["FeatureLines", "MeshSurface", "edge_faces", "feature_lines"]
+__all__ = ["FeatureLines", "MeshSurface", "chain_order", "edge_faces", "feature_lines"]
 
 #: Points are projected onto a feature line in blocks of this many point-segment pairs.
 PROJECT_BLOCK = 2_000_000
@@ -226,8 +226,22 @@ class FeatureLines:
         return out
 
 
-def _closest_on_segments(points: np.ndarray, seg: np.ndarray) -> np.ndarray:
-    """Closest point on any of the segments ``seg`` (S, 2, 3) for every point (brute force)."""
+def chain_order(lines: FeatureLines, points: np.ndarray, chain: np.ndarray) -> np.ndarray:
+    """Arc-length position of each point along its own chain ``chain[i]`` (from its start)."""
+    arc = np.zeros(len(points))
+    for c in np.unique(chain):
+        idx = np.flatnonzero(chain == c)
+        seg = lines.segments[lines.segment_chain == c]
+        length = np.linalg.norm(seg[:, 1] - seg[:, 0], axis=1)
+        cum = np.concatenate([[0.0], np.cumsum(length)])
+        _, k, t = _closest_on_segments(points[idx], seg, with_param=True)
+        arc[idx] = cum[k] + t * length[k]
+    return arc
+
+
+def _closest_on_segments(points: np.ndarray, seg: np.ndarray, with_param: bool = False):
+    """Closest point on any of the segments ``seg`` (S, 2, 3) for every point (brute force);
+    with ``with_param`` also the segment index and the parameter t in [0, 1] on it."""
     a = seg[None, :, 0]
     d = seg[None, :, 1] - a
     dd = np.maximum(np.einsum("psk,psk->ps", d, d), 1e-300)
@@ -235,7 +249,10 @@ def _closest_on_segments(points: np.ndarray, seg: np.ndarray) -> np.ndarray:
     foot = a + t[..., None] * d
     dist = np.einsum("psk,psk->ps", foot - points[:, None], foot - points[:, None])
     best = np.argmin(dist, axis=1)
-    return foot[np.arange(len(points)), best]
+    rows = np.arange(len(points))
+    if with_param:
+        return foot[rows, best], best, t[rows, best]
+    return foot[rows, best]
 
 
 def feature_lines(

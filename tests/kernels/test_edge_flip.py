@@ -16,7 +16,7 @@ def _thin_quad():
 
 def test_flip_replaces_the_long_diagonal():
     v, f = _thin_quad()
-    out, n = flip_edges(v, f, np.zeros(4, dtype=bool))
+    out, n = flip_edges(v, f)
     assert n == 1
     assert sorted(map(sorted, out.tolist())) == [[0, 2, 3], [1, 2, 3]]
     # winding kept: both faces still face +z
@@ -26,11 +26,10 @@ def test_flip_replaces_the_long_diagonal():
 
 def test_locked_edge_and_folded_pair_are_not_flipped():
     v, f = _thin_quad()
-    locked = np.array([True, True, False, False])  # the diagonal joins two fixed vertices
-    assert flip_edges(v, f, locked)[1] == 0
+    assert flip_edges(v, f, np.array([[1, 0]]))[1] == 0  # the diagonal is a feature line
     folded = v.copy()
     folded[3, 2] = 1.5  # the pair is bent by ~70 degrees: flipping would cut across the bend
-    assert flip_edges(folded, f, np.zeros(4, dtype=bool))[1] == 0
+    assert flip_edges(folded, f)[1] == 0
 
 
 def test_flips_raise_the_worst_angle_and_keep_topology():
@@ -40,7 +39,7 @@ def test_flips_raise_the_worst_angle_and_keep_topology():
         axis=1, keepdims=True
     )
     v[:, 0] *= 3.0  # stretched: many diagonals are the long ones
-    out, n = flip_edges(v, f, np.zeros(len(v), dtype=bool))
+    out, n = flip_edges(v, f)
     assert n > 0
     before, after = mesh_topology(v, f), mesh_topology(v, out)
     for key in ("n_faces", "n_edges", "boundary_loops", "euler_characteristic", "components"):
@@ -52,3 +51,13 @@ def test_flips_raise_the_worst_angle_and_keep_topology():
     twin = twin_half_edges(out, len(v))
     inner = np.flatnonzero(twin >= 0)
     assert np.array_equal(twin[twin[inner]], inner)  # twins pair up
+
+
+def test_a_missing_feature_edge_is_recovered_by_a_flip():
+    # the pair is bent (no angle flip would be made), but (2, 3) is a feature line: flipped
+    v, f = _thin_quad()
+    v = v.copy()
+    v[[2, 3], 2] = -1.0
+    assert flip_edges(v, f)[1] == 0
+    out, n = flip_edges(v, f, np.array([[3, 2]]))
+    assert n == 1 and sorted(map(sorted, out.tolist())) == [[0, 2, 3], [1, 2, 3]]
