@@ -31,6 +31,8 @@ def test_remesh_sample_with_creases_writes_mesh_and_report(tmp_path):
     assert report["topology_preserved"] is True
     assert report["output"]["topology"]["n_faces"] == len(f)
     assert report["features"]["corners"] == 12
+    # every crease kept: triangles never span one (patches are meshed on their own)
+    assert report["features"]["deviation_max_relative"] < 5e-4
     assert report["distance"]["hausdorff95_relative"] < 1e-3
     q_in, q_out = report["input"]["triangle_quality"], report["output"]["triangle_quality"]
     assert q_out["min_angle_mean_deg"] > q_in["min_angle_mean_deg"]

@@ -86,6 +86,9 @@ THICKNESS_FRACTION = 0.5
 #: Adaptive defaults for min/max spacing, as factors of the spacing.
 ADAPTIVE_MIN = 0.5
 ADAPTIVE_MAX = 4.0
+#: With feature lines, a patch's triangle whose centroid lies farther than this from the
+#: input [s] bridges a reflex corner of the patch and is dropped.
+OFF_SURFACE = 0.15
 #: Interior particles closer than this to a feature line [local spacing] are dropped.
 LINE_GAP = 0.5
 #: Passes of gap closing (a zip can open a new small loop that the next pass closes).
@@ -331,11 +334,11 @@ def _remesh(vertices, faces, opts: RemeshOptions, name: str) -> RemeshResult:
     particles = relax(surface, lines, particles, opts.steps, rest_at)
     particles = drop_near_lines(particles, lines, LINE_GAP)
     lap("relax")
-    tri = _triangulate(surface, particles, rest_at is not None)
-    kind = _kind_of(tri.vertices, particles)
-    boundary_particle = _on_boundary_vertices(tri.vertices, particles, lines)
-    tv, tn, tf, n_closed = close_gaps(tri.vertices, tri.normals, tri.faces, boundary_particle)
-    tri.stats["gaps_closed"] = n_closed
+    tv, tn, tf, tri_stats = _triangulate(surface, lines, particles, rest_at is not None)
+    kind = _kind_of(tv, particles)
+    boundary_particle = _on_boundary_vertices(tv, particles, lines)
+    tv, tn, tf, n_closed = close_gaps(tv, tn, tf, boundary_particle)
+    tri_stats["gaps_closed"] = n_closed
     kind = np.concatenate([kind, np.zeros(len(tv) - len(kind), dtype=kind.dtype)])
     lap("triangulate")
     fixed = kind != 0
@@ -408,7 +411,7 @@ def _remesh(vertices, faces, opts: RemeshOptions, name: str) -> RemeshResult:
             "chamfer_l1_relative": cmp["chamfer_l1_relative"],
             "samples": DISTANCE_SAMPLES,
         },
-        "triangulation": {**tri.stats, **stats},
+        "triangulation": {**tri_stats, **stats},
         "timings": {**times, "total": t_total},
         "warnings": warnings,
     }
@@ -455,19 +458,101 @@ def _on_boundary(lines: FeatureLines, feats: Particles) -> np.ndarray:
     return out
 
 
-def _triangulate(surface: MeshSurface, particles: Particles, adaptive: bool):
+def _triangulate(surface: MeshSurface, lines: FeatureLines, particles: Particles, adaptive: bool):
+    """Triangulate each patch (the input split along its feature lines) on its own with the
+    fit's :func:`~recon.triangulate.triangulate_particles`, then join the patches on their
+    shared line particles: a triangle never spans a crease, so every crease stays an edge
+    chain. Line particles take the normal of the patch being meshed."""
+
     def is_covered(points: np.ndarray, scale: np.ndarray | None = None) -> np.ndarray:
         limit = COVER_DISTANCE if scale is None else COVER_DISTANCE * np.asarray(scale)
         return surface.distance(points) <= limit
 
-    return triangulate_particles(
-        particles.position,
-        particles.normal,
-        TriangulationConfig(),
-        MAX_HOLE,
-        is_covered,
-        local_spacing=particles.rest if adaptive else None,
-    )
+    cfg = TriangulationConfig()
+    _, face, _ = surface.closest(particles.position)
+    patch_of = lines.face_patch[face]
+    n_patches = int(lines.face_patch.max()) + 1
+    member = [[] for _ in range(n_patches)]
+    for p, idx in zip(*_group(patch_of, particles.kind == 0), strict=True):
+        member[p].append(idx)
+    sliding = np.flatnonzero(particles.kind == 1)
+    for c, pats in enumerate(lines.chain_patches):
+        on = sliding[particles.chain[sliding] == c]
+        for p in pats:
+            member[p].append(on)
+    corners = np.flatnonzero(particles.kind == 2)
+    for i, pats in enumerate(lines.corner_patches):
+        for p in pats:
+            member[p].append(corners[i : i + 1])
+    vertices = [particles.position]
+    normals = [particles.normal]
+    faces = []
+    n_total = particles.n
+    stats: dict[str, int | str] = {"patches": n_patches}
+    for p in range(n_patches):
+        idx = np.unique(np.concatenate(member[p])) if member[p] else np.zeros(0, np.int64)
+        if len(idx) < 3:
+            continue
+        nrm = particles.normal[idx].copy()
+        feat = particles.kind[idx] != 0
+        if feat.any() and n_patches > 1:
+            pf = np.flatnonzero(lines.face_patch == p)
+            centroid = surface.vertices[surface.faces[pf]].mean(axis=1)
+            _, near = cKDTree(centroid).query(particles.position[idx[feat]])
+            nrm[feat] = surface.face_normal[pf[near]]
+        tri = triangulate_particles(
+            particles.position[idx],
+            nrm,
+            cfg,
+            MAX_HOLE,
+            is_covered,
+            local_spacing=particles.rest[idx] if adaptive else None,
+        )
+        for k, v in tri.stats.items():
+            if isinstance(v, int):
+                stats[k] = int(stats.get(k, 0)) + v
+        tv, tn, tf = tri.vertices, tri.normals, tri.faces
+        d, j = cKDTree(particles.position[idx]).query(tv)
+        same = d <= 1e-12
+        if n_patches > 1:
+            # ball pivoting sees points, not the patch's outline: it bridges reflex corners;
+            # such triangles lie off the surface (their centroid does)
+            centroid = tv[tf].mean(axis=1)
+            tf = tf[surface.distance(centroid) <= OFF_SURFACE]
+            # the patch's outline is its line particles: any other loop is a gap of its own
+            on_line = same & (particles.kind[idx[j]] != 0)
+            tv, tn, tf, n_closed = close_gaps(tv, tn, tf, on_line)
+            stats["patch_gaps_closed"] = int(stats.get("patch_gaps_closed", 0)) + n_closed
+            d, j = cKDTree(particles.position[idx]).query(tv)
+            same = d <= 1e-12
+        glob = np.where(same, idx[j], -1)
+        extra = np.flatnonzero(~same)
+        glob[extra] = n_total + np.arange(len(extra))
+        n_total += len(extra)
+        vertices.append(tv[extra])
+        normals.append(tn[extra])
+        faces.append(glob[tf])
+    v = np.vstack(vertices)
+    n = np.vstack(normals)
+    f = np.vstack(faces) if faces else np.zeros((0, 3), dtype=np.int64)
+    if n_patches > 1 and len(f):
+        v, n, f = repair_non_manifold(v, n, f)
+        f = orient_consistently(v, n, f)
+    used = np.zeros(len(v), dtype=bool)
+    used[f.ravel()] = True
+    remap = np.cumsum(used) - 1
+    return v[used], n[used], remap[f].astype(np.int64), stats
+
+
+def _group(labels: np.ndarray, mask: np.ndarray) -> tuple[list[int], list[np.ndarray]]:
+    """(label, indices) of the masked entries, grouped by label."""
+    idx = np.flatnonzero(mask)
+    order = np.argsort(labels[idx], kind="stable")
+    idx = idx[order]
+    lab = labels[idx]
+    cuts = np.flatnonzero(np.diff(lab)) + 1
+    groups = np.split(idx, cuts)
+    return [int(g[0]) for g in np.split(lab, cuts) if len(g)], [g for g in groups if len(g)]
 
 
 def _kind_of(vertices: np.ndarray, particles: Particles) -> np.ndarray:

@@ -196,6 +196,9 @@ class FeatureLines:
     segments: np.ndarray
     segment_chain: np.ndarray
     chain_is_boundary: np.ndarray
+    face_patch: np.ndarray
+    chain_patches: list[np.ndarray]
+    corner_patches: list[np.ndarray]
 
     @property
     def empty(self) -> bool:
@@ -327,6 +330,24 @@ def feature_lines(
             chains.append(np.array(path, dtype=np.int64))
             closed.append(path[0] == path[-1])
             chain_bnd.append(bool(is_bnd[e]))
+    face_patch = _patches(faces, f0, f1, (counts == 2) & ~crease)
+    # the patches on both sides of every feature edge, looked up by the edge's key
+    key = edges[:, 0] * np.int64(nv) + edges[:, 1]
+
+    def side_patches(u: np.ndarray, w: np.ndarray) -> np.ndarray:
+        k = np.minimum(u, w) * np.int64(nv) + np.maximum(u, w)
+        i = np.searchsorted(key, k)
+        sides = np.concatenate([f0[i], f1[i]])
+        return np.unique(face_patch[sides[sides >= 0]])
+
+    chain_patches = [side_patches(c[:-1], c[1:]) for c in chains]
+    corner_list = np.flatnonzero(corner)
+    vf_v, vf_f = faces.ravel(), np.repeat(np.arange(len(faces)), 3)
+    order_v = np.argsort(vf_v, kind="stable")
+    vstart = np.searchsorted(vf_v[order_v], np.arange(nv + 1))
+    corner_patches = [
+        np.unique(face_patch[vf_f[order_v[vstart[w] : vstart[w + 1]]]]) for w in corner_list
+    ]
     segs = [np.stack([vertices[c[:-1]], vertices[c[1:]]], axis=1) for c in chains]
     seg_chain = [np.full(len(c) - 1, i, dtype=np.int64) for i, c in enumerate(chains)]
     return FeatureLines(
@@ -338,4 +359,19 @@ def feature_lines(
         segments=np.concatenate(segs) if segs else np.zeros((0, 2, 3)),
         segment_chain=np.concatenate(seg_chain) if seg_chain else np.zeros(0, dtype=np.int64),
         chain_is_boundary=np.array(chain_bnd, dtype=bool),
+        face_patch=face_patch,
+        chain_patches=chain_patches,
+        corner_patches=corner_patches,
     )
+
+
+def _patches(faces: np.ndarray, f0: np.ndarray, f1: np.ndarray, join: np.ndarray) -> np.ndarray:
+    """Connected components of the faces, two faces joined when an edge in ``join`` links them."""
+    from scipy import sparse
+    from scipy.sparse import csgraph
+
+    n = len(faces)
+    a, b = f0[join], f1[join]
+    graph = sparse.coo_matrix((np.ones(len(a)), (a, b)), shape=(n, n))
+    _, labels = csgraph.connected_components(graph, directed=False)
+    return labels.astype(np.int64)
