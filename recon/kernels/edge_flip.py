@@ -93,7 +93,17 @@ def _improves(pa, pb, pc, pd, min_normal_dot, min_flat_dot, eps):  # pragma: no 
 
 @njit(**EXACT_JIT_OPTIONS)
 def flip_edges_kernel(
-    vertices, faces, opposite, locked, wanted, min_normal_dot, min_flat_dot, eps, max_passes
+    vertices,
+    faces,
+    opposite,
+    locked,
+    wanted,
+    target,
+    min_normal_dot,
+    min_flat_dot,
+    eps,
+    max_passes,
+    valence_min_cos,
 ):  # pragma: no cover - numba
     """Flip edges in place until no flip raises the smallest angle (or ``max_passes``).
 
@@ -115,6 +125,12 @@ def flip_edges_kernel(
     eps : float64
         Smallest gain in the cosine of the smallest angle for a flip.
     max_passes : int
+    target : (V,) int64
+        Ideal valence of each vertex (6 inside, 4 on a boundary). Used when
+        ``valence_min_cos < 1``: a flip is also made when it lowers the valences' squared
+        deviation from their targets and leaves no angle below ``arccos(valence_min_cos)``.
+    valence_min_cos : float64
+        1 for angle flips only.
 
     Returns
     -------
@@ -132,6 +148,14 @@ def flip_edges_kernel(
     want = dict()
     for k in range(wanted.shape[0]):
         want[wanted[k]] = True
+    valence = np.zeros(n_v, dtype=np.int64)
+    for f in range(n_f):
+        for k in range(3):
+            valence[faces[f, k]] += 1
+    # faces around a vertex = its valence inside; one less than the valence on a boundary
+    for h in range(3 * n_f):
+        if opposite[h] < 0:
+            valence[faces[h // 3, h % 3]] += 1
     total = 0
     for _ in range(max_passes):
         flips = 0
@@ -152,8 +176,28 @@ def flip_edges_kernel(
                 continue
             pa, pb, pc, pd = vertices[a], vertices[b], vertices[c], vertices[d]
             forced = key in want
-            if not forced and not _improves(pa, pb, pc, pd, min_normal_dot, min_flat_dot, eps):
-                continue
+            if not forced:
+                better = _improves(pa, pb, pc, pd, min_normal_dot, min_flat_dot, eps)
+                if not better and valence_min_cos < 1.0:
+                    dev_old = (
+                        (valence[a] - target[a]) ** 2
+                        + (valence[b] - target[b]) ** 2
+                        + (valence[c] - target[c]) ** 2
+                        + (valence[d] - target[d]) ** 2
+                    )
+                    dev_new = (
+                        (valence[a] - 1 - target[a]) ** 2
+                        + (valence[b] - 1 - target[b]) ** 2
+                        + (valence[c] + 1 - target[c]) ** 2
+                        + (valence[d] + 1 - target[d]) ** 2
+                    )
+                    if dev_new < dev_old:
+                        new = max(_min_angle_cos(pa, pd, pc), _min_angle_cos(pd, pb, pc))
+                        better = new <= valence_min_cos and _improves(
+                            pa, pb, pc, pd, min_normal_dot, min_flat_dot, -2.0
+                        )
+                if not better:
+                    continue
             # outer half-edges before the flip: b->c (f), c->a (f), a->d (g), d->b (g)
             h_bc, h_ca = 3 * f + (k + 1) % 3, 3 * f + (k + 2) % 3
             h_ad, h_db = 3 * g + (m + 1) % 3, 3 * g + (m + 2) % 3
@@ -180,6 +224,10 @@ def flip_edges_kernel(
             opposite[3 * g + 2] = 3 * f + 1
             locked[3 * f + 1] = forced
             locked[3 * g + 2] = forced
+            valence[a] -= 1
+            valence[b] -= 1
+            valence[c] += 1
+            valence[d] += 1
             del edges[min(a, b) * n_v + max(a, b)]
             edges[key] = True
             flips += 1

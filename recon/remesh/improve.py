@@ -31,6 +31,9 @@ FLIP_MIN_FLAT_DOT = 0.7
 FLIP_EPS = 1e-9
 #: Passes over all edges per flip call.
 FLIP_PASSES = 20
+#: Valence flips (toward 6 neighbours) during the smoothing rounds, when no angle of the new
+#: pair falls below this [deg]; None: angle flips only.
+VALENCE_MIN_ANGLE: float | None = 30.0
 #: Fraction of the way to the neighbours' centroid moved per smoothing round.
 SMOOTH_STEP = 0.5
 
@@ -49,10 +52,15 @@ def twin_half_edges(faces: np.ndarray, n_vertices: int) -> np.ndarray:
 
 
 def flip_edges(
-    vertices: np.ndarray, faces: np.ndarray, line_edges: np.ndarray | None = None
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    line_edges: np.ndarray | None = None,
+    valence_min_angle: float | None = None,
 ) -> tuple[np.ndarray, int]:
     """Angle-raising flips; ``line_edges`` (k, 2) vertex pairs (feature lines) are locked where
-    they exist and recovered by a flip where one creates them. Returns (faces, flips)."""
+    they exist and recovered by a flip where one creates them. With ``valence_min_angle``
+    [deg], a flip that brings valences closer to 6 (4 on a boundary) is made too when no angle
+    of the new pair falls below it. Returns (faces, flips)."""
     faces = np.ascontiguousarray(faces, dtype=np.int64).copy()
     if len(faces) < 2:
         return faces, 0
@@ -66,16 +74,21 @@ def flip_edges(
         le = np.sort(np.asarray(line_edges, dtype=np.int64), axis=1)
         wanted = np.unique(le[:, 0] * nv + le[:, 1])
     locked = np.ascontiguousarray(np.isin(np.minimum(a, b) * nv + np.maximum(a, b), wanted))
+    target = np.full(len(vertices), 6, dtype=np.int64)
+    target[a[twin < 0]] = 4
+    vmin = 1.0 if valence_min_angle is None else float(np.cos(np.radians(valence_min_angle)))
     n = flip_edges_kernel(
         np.ascontiguousarray(vertices, dtype=np.float64),
         faces,
         twin,
         locked,
         wanted,
+        target,
         FLIP_MIN_NORMAL_DOT,
         FLIP_MIN_FLAT_DOT,
         FLIP_EPS,
         FLIP_PASSES,
+        vmin,
     )
     return faces, int(n)
 
@@ -108,7 +121,7 @@ def improve(
     free = ~fixed
     n_flips = 0
     for _ in range(rounds):
-        f, k = flip_edges(v, f, line_edges)
+        f, k = flip_edges(v, f, line_edges, VALENCE_MIN_ANGLE)
         n_flips += k
         e = f[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
         rows, cols = np.concatenate([e[:, 0], e[:, 1]]), np.concatenate([e[:, 1], e[:, 0]])

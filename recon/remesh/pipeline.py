@@ -70,7 +70,7 @@ __all__ = ["RemeshOptions", "RemeshResult", "remesh", "remesh_file", "spacing_fi
 #: Relaxation steps (chunks of :data:`recon.remesh.relax.CHUNK`).
 RELAX_STEPS = 40
 #: Rounds of flips and smoothing after the triangulation.
-SMOOTH_ROUNDS = 3
+SMOOTH_ROUNDS = 5
 #: Holes of the triangulation up to this diameter [s] are closed without asking the input.
 MAX_HOLE = 1.5
 #: A point counts as over the input surface within this distance [s].

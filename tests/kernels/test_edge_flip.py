@@ -61,3 +61,36 @@ def test_a_missing_feature_edge_is_recovered_by_a_flip():
     assert flip_edges(v, f)[1] == 0
     out, n = flip_edges(v, f, np.array([[3, 2]]))
     assert n == 1 and sorted(map(sorted, out.tolist())) == [[0, 2, 3], [1, 2, 3]]
+
+
+def _valence_deviation(faces, n):
+    twin = twin_half_edges(faces, n)
+    val = np.bincount(faces.ravel(), minlength=n)
+    target = np.full(n, 6)
+    boundary = faces.ravel()[twin < 0]
+    val[boundary] += 1  # faces around a boundary vertex are one fewer than its edges
+    target[boundary] = 4
+    used = np.bincount(faces.ravel(), minlength=n) > 0
+    return int(np.sum(((val - target) ** 2)[used]))
+
+
+def test_valence_flips_lower_the_valence_deviation_without_slivers():
+    # a grid with alternating diagonals has valence 4 and 8 vertices; flips can make it 6
+    v, f = grid(8, 8)
+    f = f.copy()
+    n = len(f) // 2
+    idx = np.arange(n)
+    cells = idx[(idx // 8 + idx % 8) % 2 == 1]  # the other diagonal in every other cell
+    a, b, c = f[cells].T
+    d = f[n + cells, 2]
+    f[cells] = np.stack([a, b, d], axis=1)
+    f[n + cells] = np.stack([b, c, d], axis=1)
+    before = _valence_deviation(f, len(v))
+    angle_only, _ = flip_edges(v, f)
+    out, k = flip_edges(v, f, valence_min_angle=30.0)
+    assert k > 0
+    assert _valence_deviation(out, len(v)) < min(before, _valence_deviation(angle_only, len(v)))
+    assert triangle_quality(v, out)["min_angle_min_deg"] >= 30.0 - 1e-9
+    t0, t1 = mesh_topology(v, f), mesh_topology(v, out)
+    assert t1["euler_characteristic"] == t0["euler_characteristic"]
+    assert t1["non_manifold_edges"] == 0 and t1["consistently_oriented"]
