@@ -109,7 +109,7 @@ def format_summary(report: dict[str, Any]) -> str:
 @click.option(
     "--max-spacing",
     type=click.FloatRange(min=0, min_open=True),
-    help="With --adaptive: largest edge length (default 4 x spacing).",
+    help="With --adaptive: largest edge length (default 3 x spacing).",
 )
 @click.option(
     "--crease-angle",
