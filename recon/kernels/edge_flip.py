@@ -92,6 +92,31 @@ def _improves(pa, pb, pc, pd, min_normal_dot, min_flat_dot, eps):  # pragma: no 
 
 
 @njit(**EXACT_JIT_OPTIONS)
+def _valence_better(
+    pa, pb, pc, pd, da, db, dc, dd, min_normal_dot, min_flat_dot, eps, valence_min_cos
+):  # pragma: no cover - numba
+    """The valence mode's test; ``da``... are the valences' deviations from their targets.
+
+    A pair with an angle below the floor (cosine above ``valence_min_cos``) is flipped when
+    that raises its smallest angle; otherwise a flip must lower the squared valence deviation
+    (or keep it and raise the smallest angle) and keep every angle above the floor. Both rules
+    lower (deviation, -smallest angle) lexicographically or lift a pair above the floor, so
+    the flips do not cycle.
+    """
+    old = max(_min_angle_cos(pa, pb, pc), _min_angle_cos(pb, pa, pd))
+    if old > valence_min_cos:
+        return _improves(pa, pb, pc, pd, min_normal_dot, min_flat_dot, eps)
+    new = max(_min_angle_cos(pa, pd, pc), _min_angle_cos(pd, pb, pc))
+    if new > valence_min_cos:
+        return False
+    dev_old = da * da + db * db + dc * dc + dd * dd
+    dev_new = (da - 1) ** 2 + (db - 1) ** 2 + (dc + 1) ** 2 + (dd + 1) ** 2
+    if dev_new > dev_old or (dev_new == dev_old and not new < old - eps):
+        return False
+    return _improves(pa, pb, pc, pd, min_normal_dot, min_flat_dot, -2.0)
+
+
+@njit(**EXACT_JIT_OPTIONS)
 def flip_edges_kernel(
     vertices,
     faces,
@@ -177,25 +202,14 @@ def flip_edges_kernel(
             pa, pb, pc, pd = vertices[a], vertices[b], vertices[c], vertices[d]
             forced = key in want
             if not forced:
-                better = _improves(pa, pb, pc, pd, min_normal_dot, min_flat_dot, eps)
-                if not better and valence_min_cos < 1.0:
-                    dev_old = (
-                        (valence[a] - target[a]) ** 2
-                        + (valence[b] - target[b]) ** 2
-                        + (valence[c] - target[c]) ** 2
-                        + (valence[d] - target[d]) ** 2
-                    )
-                    dev_new = (
-                        (valence[a] - 1 - target[a]) ** 2
-                        + (valence[b] - 1 - target[b]) ** 2
-                        + (valence[c] + 1 - target[c]) ** 2
-                        + (valence[d] + 1 - target[d]) ** 2
-                    )
-                    if dev_new < dev_old:
-                        new = max(_min_angle_cos(pa, pd, pc), _min_angle_cos(pd, pb, pc))
-                        better = new <= valence_min_cos and _improves(
-                            pa, pb, pc, pd, min_normal_dot, min_flat_dot, -2.0
-                        )
+                if valence_min_cos >= 1.0:
+                    better = _improves(pa, pb, pc, pd, min_normal_dot, min_flat_dot, eps)
+                else:
+                    better = _valence_better(
+                        pa, pb, pc, pd, valence[a] - target[a], valence[b] - target[b],
+                        valence[c] - target[c], valence[d] - target[d], min_normal_dot,
+                        min_flat_dot, eps, valence_min_cos,
+                    )  # fmt: skip
                 if not better:
                     continue
             # outer half-edges before the flip: b->c (f), c->a (f), a->d (g), d->b (g)

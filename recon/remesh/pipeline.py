@@ -488,7 +488,9 @@ def _triangulate(surface: MeshSurface, lines: FeatureLines, particles: Particles
         limit = COVER_DISTANCE if scale is None else COVER_DISTANCE * np.asarray(scale)
         return surface.distance(points) <= limit
 
-    cfg = TriangulationConfig()
+    # the fit's hole filling guesses which loops are gaps; here close_gaps knows (a loop not
+    # made of the input's own boundary particles), so it runs instead
+    cfg = TriangulationConfig(fill_holes=False)
     _, face, _ = surface.closest(particles.position)
     patch_of = lines.face_patch[face]
     n_patches = int(lines.face_patch.max()) + 1
