@@ -491,9 +491,12 @@ def _triangulate(surface: MeshSurface, lines: FeatureLines, particles: Particles
     # the fit's hole filling guesses which loops are gaps; here close_gaps knows (a loop not
     # made of the input's own boundary particles), so it runs instead
     cfg = TriangulationConfig(fill_holes=False)
-    _, face, _ = surface.closest(particles.position)
-    patch_of = lines.face_patch[face]
     n_patches = int(lines.face_patch.max()) + 1
+    if n_patches == 1:
+        patch_of = np.zeros(particles.n, dtype=np.int64)
+    else:
+        _, face, _ = surface.closest(particles.position)
+        patch_of = lines.face_patch[face]
     member = [[] for _ in range(n_patches)]
     for p, idx in zip(*_group(patch_of, particles.kind == 0), strict=True):
         member[p].append(idx)
@@ -615,9 +618,12 @@ def close_gaps(
         loops = [lp for lp in boundary_loops(faces) if len(lp) >= 3 and not on_boundary[lp].all()]
         if not loops:
             break
-        edges = {
-            (int(min(a, b)), int(max(a, b))) for a, b in faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
-        }
+        # the diagonals a zip must avoid: existing edges between vertices of the loops
+        on_loop = np.zeros(len(vertices), dtype=bool)
+        on_loop[np.concatenate(loops)] = True
+        he = faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
+        he = np.sort(he[on_loop[he].all(axis=1)], axis=1)
+        edges = {(int(a), int(b)) for a, b in he}
         new = [zip_loop(vertices, lp[::-1], edges) for lp in loops]
         faces = np.vstack([faces, *new])
         n_closed += len(loops)

@@ -127,13 +127,11 @@ def seed(
     rng: np.random.Generator,
 ) -> Particles:
     """Add ``n_interior`` area-sampled interior particles to the feature particles."""
-    from ..metrics import sample_surface
-
     if n_interior <= 0:
         return features
     m = CANDIDATES_PER_PARTICLE * n_interior
-    cand, _ = sample_surface(surface.vertices, surface.faces, m, rng)
-    foot, face, nrm = surface.closest(cand)
+    cand, face = surface.sample(m, rng)
+    foot, nrm = cand, surface.face_normal[face]
     rest = np.ones(m) if rest_at is None else rest_at(foot, face)
     if rest_at is not None:
         # density ~ 1/rest^2: keep each sample with probability (min rest / rest)^2
@@ -191,11 +189,11 @@ def relax(
     done = 0
     while done < steps:
         n = min(CHUNK, steps - done)
-        foot, _, nrm = surface.closest(state.position[interior])
-        anchor_p = state.position.copy()
-        anchor_n = state.normal.copy()
-        anchor_p[interior], anchor_n[interior] = foot, nrm
-        sim.set_anchors(anchor_p, anchor_n, dyn.fidelity, dyn.fidelity_normal)
+        # every particle is on the mesh here (seeded on it, then projected after each chunk):
+        # its own position and normal are its anchor
+        sim.set_anchors(
+            state.position.copy(), state.normal.copy(), dyn.fidelity, dyn.fidelity_normal
+        )
         stats = sim.run(n)
         if not (
             math.isfinite(stats.kinetic)

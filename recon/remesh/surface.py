@@ -81,6 +81,18 @@ class MeshSurface:
         foot = closest_on_triangles(pts, self.vertices[self.faces[face]], foot)
         return foot, face, self.face_normal[face]
 
+    def sample(self, n: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+        """``n`` area-uniform random points and their face indices (Osada et al. 2002)."""
+        cdf = np.cumsum(self.face_area)
+        face = np.minimum(
+            np.searchsorted(cdf, rng.random(n) * cdf[-1], side="right"), len(self.faces) - 1
+        )
+        u = np.sqrt(rng.random((n, 1)))
+        w = rng.random((n, 1))
+        p = self.vertices[self.faces[face]]
+        points = (1.0 - u) * p[:, 0] + u * (1.0 - w) * p[:, 1] + u * w * p[:, 2]
+        return points, face.astype(np.int64)
+
     def distance(self, points: np.ndarray) -> np.ndarray:
         """Unsigned distance of each point to the surface."""
         foot, _, _ = self.closest(points)
