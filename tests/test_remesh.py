@@ -198,3 +198,43 @@ def test_repairable_defects_are_repaired_and_listed():
     checked = check_mesh(v, f3, "w.ply", intersections=False)
     assert any("re-wound" in r for r in checked.repairs)
     assert mesh_topology(checked.vertices, checked.faces)["consistently_oriented"]
+
+
+def test_area_samples_lie_on_their_faces():
+    v, f = icosphere(1)
+    s = MeshSurface(v, f)
+    p, face = s.sample(500, np.random.default_rng(0))
+    tri = v[f[face]]
+    foot = closest_on_triangles(p, tri, p)
+    np.testing.assert_allclose(foot, p, atol=1e-12)
+    assert len(np.unique(face)) > 0.8 * len(f)
+
+
+def test_adaptive_spacing_is_finer_where_curved_and_graded():
+    from recon.remesh.pipeline import GRADATION, grade, spacing_field
+
+    v, f = icosphere(3)
+    v = v * [1.0, 1.0, 0.3]  # an oblate ellipsoid: curved rim, flat poles
+    s = MeshSurface(v, f)
+    h = spacing_field(s, 0.1, 0.02, 0.5)
+    rim = np.abs(v[:, 2]) < 0.05
+    poles = np.abs(v[:, 2]) > 0.28
+    assert h[rim].max() < h[poles].min()
+    assert h.min() >= 0.02 - 1e-12 and h.max() <= 0.5 + 1e-12
+    e = np.unique(np.sort(f[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1), axis=0)
+    length = np.linalg.norm(v[e[:, 0]] - v[e[:, 1]], axis=1)
+    assert np.all(np.abs(h[e[:, 0]] - h[e[:, 1]]) <= GRADATION * length + 1e-12)
+    raw = np.linspace(0.1, 1.0, len(v))
+    graded = grade(raw, v, e, 0.5)
+    assert np.all(graded <= raw) and np.any(graded < raw)
+
+
+def test_adaptive_remesh_uses_fewer_faces_on_flat_parts():
+    v, f = icosphere(3)
+    v = v * [1.0, 1.0, 0.3]
+    uniform = remesh(v, f, RemeshOptions(spacing=0.08))
+    adaptive = remesh(v, f, RemeshOptions(spacing=0.08, adaptive=True))
+    assert adaptive.report["topology_preserved"] and uniform.report["topology_preserved"]
+    assert len(adaptive.faces) < 0.8 * len(uniform.faces)
+    lo, hi = adaptive.report["spacing_range"]
+    assert lo < hi
