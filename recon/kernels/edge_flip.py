@@ -173,6 +173,7 @@ def flip_edges_kernel(
     want = dict()
     for k in range(wanted.shape[0]):
         want[wanted[k]] = True
+    has_wanted = wanted.shape[0] > 0
     valence = np.zeros(n_v, dtype=np.int64)
     for f in range(n_f):
         for k in range(3):
@@ -182,14 +183,19 @@ def flip_edges_kernel(
         if opposite[h] < 0:
             valence[faces[h // 3, h % 3]] += 1
     total = 0
+    # after the first pass only edges of faces that a flip changed (or bordered) are tried
+    dirty = np.ones(n_f, dtype=np.bool_)
     for _ in range(max_passes):
         flips = 0
+        touched = np.zeros(n_f, dtype=np.bool_)
         for h in range(3 * n_f):
             o = opposite[h]
             if o < h or locked[h]:
                 continue
             f, k = h // 3, h % 3
             g, m = o // 3, o % 3
+            if not (dirty[f] or dirty[g]):
+                continue
             a = faces[f, k]
             b = faces[f, (k + 1) % 3]
             c = faces[f, (k + 2) % 3]
@@ -197,10 +203,8 @@ def flip_edges_kernel(
             if c == d:
                 continue
             key = min(c, d) * n_v + max(c, d)
-            if key in edges:
-                continue
             pa, pb, pc, pd = vertices[a], vertices[b], vertices[c], vertices[d]
-            forced = key in want
+            forced = has_wanted and key in want
             if not forced:
                 if valence_min_cos >= 1.0:
                     better = _improves(pa, pb, pc, pd, min_normal_dot, min_flat_dot, eps)
@@ -212,6 +216,8 @@ def flip_edges_kernel(
                     )  # fmt: skip
                 if not better:
                     continue
+            if key in edges:  # the new edge exists elsewhere: the flip would be non-manifold
+                continue
             # outer half-edges before the flip: b->c (f), c->a (f), a->d (g), d->b (g)
             h_bc, h_ca = 3 * f + (k + 1) % 3, 3 * f + (k + 2) % 3
             h_ad, h_db = 3 * g + (m + 1) % 3, 3 * g + (m + 2) % 3
@@ -229,11 +235,14 @@ def flip_edges_kernel(
             news = (3 * f, 3 * f + 2, 3 * g, 3 * g + 1)
             olds = (o_ad, o_ca, o_db, o_bc)
             locks = (l_ad, l_ca, l_db, l_bc)
+            touched[f] = True
+            touched[g] = True
             for i in range(4):
                 opposite[news[i]] = olds[i]
                 locked[news[i]] = locks[i]
                 if olds[i] >= 0:
                     opposite[olds[i]] = news[i]
+                    touched[olds[i] // 3] = True
             opposite[3 * f + 1] = 3 * g + 2
             opposite[3 * g + 2] = 3 * f + 1
             locked[3 * f + 1] = forced
@@ -248,4 +257,5 @@ def flip_edges_kernel(
         total += flips
         if flips == 0:
             break
+        dirty = touched
     return total
