@@ -41,6 +41,8 @@ CELL_AREA = math.sqrt(3.0) / 2.0
 CHUNK = 5
 #: Interior seeds are Poisson-disk thinned at this fraction of the local spacing.
 SEED_THINNING = 0.75
+#: The thinning radius is corrected once when the seed count is off by more than this fraction.
+SEED_COUNT_TOLERANCE = 0.02
 #: Area samples drawn per interior particle before thinning.
 CANDIDATES_PER_PARTICLE = 8
 #: Potential energy per particle above which the relaxation counts as diverged.
@@ -142,6 +144,11 @@ def seed(
     order = np.concatenate([np.arange(n_feat), n_feat + rng.permutation(len(foot))])
     radius = SEED_THINNING * float(rest.min())
     kept = poisson_disk_thin(pts, radius, order, keep_first=n_feat)[n_feat:]
+    if abs(int(kept.sum()) - n_interior) > SEED_COUNT_TOLERANCE * n_interior:
+        # the count of a maximal Poisson-disk set goes as 1/radius^2: one correction brings
+        # it near the target, so that few particles are dropped or added at random below
+        radius *= math.sqrt(max(int(kept.sum()), 1) / n_interior)
+        kept = poisson_disk_thin(pts, radius, order, keep_first=n_feat)[n_feat:]
     idx = np.flatnonzero(kept)
     if len(idx) > n_interior:
         idx = np.sort(rng.choice(idx, n_interior, replace=False))
