@@ -9,8 +9,9 @@ rest spacing is ``rest_i`` (1 when uniform).
    against the feature particles and each other, then trimmed or topped up to the count a
    hexagonal sheet of that spacing has (a cell of area √3/2 · rest² per particle), so the sheet
    is at its rest density from the start and needs no growth (S&T92 §9).
-3. Relax in chunks of :data:`CHUNK` steps with :class:`~recon.dynamics.Simulation`, anchored to
-   the closest points of the mesh; after every chunk each interior particle is moved onto its
+3. Relax in chunks of :data:`CHUNK` steps with :class:`~recon.dynamics.Simulation` (spacing
+   term only: the mesh fixes every particle's normal), anchored to the closest points of the
+   mesh; after every chunk each interior particle is moved onto its
    closest point on the mesh and takes its face normal, each feature particle onto its own
    line (it slides along it), and corners stay where they are (pinned).
 """
@@ -187,7 +188,10 @@ def relax(
     state = ParticleState.from_points(particles.position, particles.normal)
     state.rest = particles.rest
     state.set_pinned(particles.kind == 2)
-    state.set_oriented(particles.kind == 0)
+    # the surface gives every particle its normal (it takes its face's normal after each
+    # projection), so the orientation terms have nothing to do: spacing only, as in Turk's
+    # repulsion (the same mesh quality, a third less time)
+    state.set_oriented(False)
     sim = Simulation(state, params)
     interior = particles.kind == 0
     sliding = particles.kind == 1
