@@ -82,3 +82,25 @@ def test_usage_errors(tmp_path):
 def test_help_lists_remesh():
     res = _run(["--help"])
     assert "oprecon remesh" in res.output
+
+
+def test_output_format_is_checked_before_work(tmp_path):
+    res = _run(["remesh", str(SAMPLE), "-o", str(tmp_path / "m.xyz")])
+    assert res.exit_code == 2 and "m.xyz" in res.stderr and ".ply or .obj" in res.stderr
+
+
+def test_changed_topology_is_written_and_exits_1(tmp_path, monkeypatch):
+    import recon.remesh as remesh_pkg
+    from recon.remesh.pipeline import remesh_file
+
+    def changed(*args, **kwargs):
+        result = remesh_file(*args, **kwargs)
+        result.report["topology_preserved"] = False
+        result.report["warnings"].append("topology changed: (test)")
+        return result
+
+    monkeypatch.setattr(remesh_pkg, "remesh_file", changed)
+    out = tmp_path / "m.ply"
+    res = _run(["remesh", str(SAMPLE), "-o", str(out), "--spacing", "0.1"])
+    assert res.exit_code == 1
+    assert out.exists() and "topology changed" in res.stderr

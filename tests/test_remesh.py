@@ -238,3 +238,30 @@ def test_adaptive_remesh_uses_fewer_faces_on_flat_parts():
     assert len(adaptive.faces) < 0.8 * len(uniform.faces)
     lo, hi = adaptive.report["spacing_range"]
     assert lo < hi
+
+
+def test_topology_preserved_compares_components_loops_and_euler():
+    from recon.remesh.pipeline import topology_preserved
+
+    base = {
+        "components": 1,
+        "boundary_loops": 2,
+        "euler_characteristic": 0,
+        "non_manifold_edges": 0,
+        "non_manifold_vertices": 0,
+    }
+    assert topology_preserved(base, dict(base))
+    for key, value in (
+        ("components", 2),
+        ("boundary_loops", 1),
+        ("euler_characteristic", -2),
+        ("non_manifold_edges", 1),
+    ):
+        assert not topology_preserved(base, {**base, key: value})
+
+
+def test_adaptive_with_a_face_budget_hits_it():
+    v, f = icosphere(3)
+    v = v * [1.0, 1.0, 0.3]
+    r = remesh(v, f, RemeshOptions(faces=800, adaptive=True))
+    assert abs(len(r.faces) - 800) <= 40

@@ -339,6 +339,11 @@ def _remesh(vertices, faces, opts: RemeshOptions, name: str) -> RemeshResult:
         if lo_s > hi_s:
             raise InputError(f"min spacing exceeds max spacing ({lo_s * s0} > {hi_s * s0})")
         field_v = spacing_field(surface, 1.0, lo_s, hi_s)
+        if opts.faces is not None:
+            # a face budget: scale the field so that its hexagonal cells hold ~N / 2 particles
+            rest_f = field_v[f_in].mean(axis=1)
+            cells = float(np.sum(surface.face_area / (CELL_AREA * rest_f**2)))
+            field_v = field_v * math.sqrt(cells / max(0.5 * opts.faces, 1.0))
 
         def rest_at(points: np.ndarray, face: np.ndarray) -> np.ndarray:
             return field_v[f_in[face]].mean(axis=1)
@@ -669,6 +674,8 @@ def remesh_file(
     from ..serialize import dumps
 
     input_path = Path(input_path)
+    if Path(output_path).suffix.lower() not in (".ply", ".obj"):
+        raise InputError(f"{output_path}: the mesh is written as .ply or .obj")
     output_path = check_output_path(Path(output_path), inputs=[input_path], mkdir=mkdir)
     report_path = report_path_for(output_path) if write_report else None
     if report_path is not None:
