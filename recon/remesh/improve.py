@@ -19,7 +19,7 @@ from scipy import sparse
 
 from ..kernels.edge_flip import flip_edges_kernel
 from ..mesh import face_area_vectors
-from .surface import MeshSurface
+from .surface import MeshSurface, corner_sum
 
 __all__ = ["FLIP_MIN_NORMAL_DOT", "SMOOTH_STEP", "flip_edges", "improve", "twin_half_edges"]
 
@@ -95,9 +95,7 @@ def flip_edges(
 
 def _vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     cross = face_area_vectors(vertices, faces)
-    vn = np.zeros_like(vertices)
-    for k in range(3):
-        np.add.at(vn, faces[:, k], cross)
+    vn = corner_sum(faces, cross, len(vertices))
     return vn / np.maximum(np.linalg.norm(vn, axis=1), 1e-300)[:, None]
 
 

@@ -63,7 +63,7 @@ from .relax import (
     relax,
     seed,
 )
-from .surface import FeatureLines, MeshSurface, feature_lines
+from .surface import FeatureLines, MeshSurface, corner_sum, feature_lines
 
 __all__ = ["RemeshOptions", "RemeshResult", "remesh", "remesh_file", "spacing_field"]
 
@@ -360,20 +360,26 @@ def _remesh(vertices, faces, opts: RemeshOptions, name: str) -> RemeshResult:
     particles = drop_near_lines(particles, lines, LINE_GAP)
     lap("relax")
     tv, tn, tf, tri_stats = _triangulate(surface, lines, particles, rest_at is not None)
-    kind = _kind_of(tv, particles)
-    boundary_particle = _on_boundary_vertices(tv, particles, lines)
+    match = _particle_of(tv, particles)
+    boundary_particle = (match >= 0) & _on_boundary(lines, particles)[np.maximum(match, 0)]
     tv, tn, tf, n_closed = close_gaps(tv, tn, tf, boundary_particle)
     tri_stats["gaps_closed"] = n_closed
-    kind = np.concatenate([kind, np.zeros(len(tv) - len(kind), dtype=kind.dtype)])
+    match = np.concatenate([match, np.full(len(tv) - len(match), -1)])
     lap("triangulate")
-    fixed = kind != 0
-    weights = None if rest_at is None else 1.0 / np.maximum(_rest_of(tv, particles), 1e-6) ** 2
-    edges = _vertex_pairs(tv, particles, line_edges(particles, lines))
+    fixed = (match >= 0) & (particles.kind[np.maximum(match, 0)] != 0)
+    weights = None
+    if rest_at is not None:
+        rest = np.where(match >= 0, particles.rest[np.maximum(match, 0)], 1.0)
+        weights = 1.0 / np.maximum(rest, 1e-6) ** 2
+    vertex_of = np.full(particles.n, -1)
+    vertex_of[match[match >= 0]] = np.flatnonzero(match >= 0)
+    pairs = vertex_of[line_edges(particles, lines)]
+    edges = pairs[(pairs >= 0).all(axis=1)]
     vn, fn, stats = improve(tv, tf, fixed, surface, opts.smooth_rounds, weights, edges)
     lap("improve")
     v_out = vn * s0 + centre
     f_out = fn
-    normals = _vertex_normals(v_out, f_out, surface, vn)
+    normals = _vertex_normals(v_out, f_out)
     topo_out = mesh_topology(v_out, f_out)
     t_total = time.perf_counter() - t_start
     if len(f_out) == 0:
@@ -585,29 +591,10 @@ def _group(labels: np.ndarray, mask: np.ndarray) -> tuple[list[int], list[np.nda
     return [int(g[0]) for g in np.split(lab, cuts) if len(g)], [g for g in groups if len(g)]
 
 
-def _kind_of(vertices: np.ndarray, particles: Particles) -> np.ndarray:
-    """The particle kind of each vertex (0 for the copies made by vertex splitting)."""
+def _particle_of(vertices: np.ndarray, particles: Particles) -> np.ndarray:
+    """The particle at each vertex, -1 for a vertex that is none (a copy made by a repair)."""
     d, i = cKDTree(particles.position).query(vertices, workers=query_workers())
-    return np.where(d <= 1e-9, particles.kind[i], 0).astype(np.int8)
-
-
-def _vertex_pairs(vertices: np.ndarray, particles: Particles, pairs: np.ndarray) -> np.ndarray:
-    """Particle index pairs -> vertex index pairs (pairs whose particles are not vertices are
-    left out)."""
-    if len(pairs) == 0:
-        return pairs
-    d, i = cKDTree(vertices).query(particles.position, workers=query_workers())
-    ok = (d <= 1e-9)[pairs].all(axis=1)
-    return i[pairs[ok]]
-
-
-def _on_boundary_vertices(
-    vertices: np.ndarray, particles: Particles, lines: FeatureLines
-) -> np.ndarray:
-    """Vertices that are particles on a boundary line of the input (or its corners)."""
-    d, i = cKDTree(particles.position).query(vertices, workers=query_workers())
-    on = _on_boundary(lines, particles)
-    return (d <= 1e-9) & on[i]
+    return np.where(d <= 1e-9, i, -1)
 
 
 def close_gaps(
@@ -639,18 +626,11 @@ def close_gaps(
     return vertices, normals, faces, n_closed
 
 
-def _rest_of(vertices: np.ndarray, particles: Particles) -> np.ndarray:
-    _, i = cKDTree(particles.position).query(vertices, workers=query_workers())
-    return particles.rest[i]
-
-
-def _vertex_normals(v: np.ndarray, f: np.ndarray, surface, vn_norm) -> np.ndarray:
+def _vertex_normals(v: np.ndarray, f: np.ndarray) -> np.ndarray:
     from ..mesh import face_area_vectors
 
     cross = face_area_vectors(v, f)
-    out = np.zeros_like(v)
-    for k in range(3):
-        np.add.at(out, f[:, k], cross)
+    out = corner_sum(f, cross, len(v))
     return out / np.maximum(np.linalg.norm(out, axis=1), 1e-300)[:, None]
 
 

@@ -18,7 +18,14 @@ import numpy as np
 
 from ..mesh import face_area_vectors
 
-__all__ = ["FeatureLines", "MeshSurface", "chain_order", "edge_faces", "feature_lines"]
+__all__ = [
+    "FeatureLines",
+    "MeshSurface",
+    "chain_order",
+    "corner_sum",
+    "edge_faces",
+    "feature_lines",
+]
 
 #: Points are projected onto a feature line in blocks of this many point-segment pairs.
 PROJECT_BLOCK = 2_000_000
@@ -42,9 +49,7 @@ class MeshSurface:
         area2 = np.linalg.norm(cross, axis=1)
         self.face_area = 0.5 * area2
         self.face_normal = cross / np.maximum(area2, 1e-300)[:, None]
-        vn = np.zeros_like(self.vertices)
-        for k in range(3):
-            np.add.at(vn, self.faces[:, k], cross)
+        vn = corner_sum(self.faces, cross, len(self.vertices))
         self.vertex_normal = vn / np.maximum(np.linalg.norm(vn, axis=1), 1e-300)[:, None]
         lo, hi = self.vertices.min(axis=0), self.vertices.max(axis=0)
         self.centre = 0.5 * (lo + hi)
@@ -115,6 +120,15 @@ class MeshSurface:
         r[:, :3] -= self.centre
         ans = self._scene.cast_rays(o3d.core.Tensor(r.astype(np.float32)))
         return ans["t_hit"].numpy().astype(np.float64)
+
+
+def corner_sum(faces: np.ndarray, values: np.ndarray, n_vertices: int) -> np.ndarray:
+    """(V, 3): the sum over its faces of a per-face (F, 3) value at every vertex."""
+    idx = faces.ravel()
+    rep = np.repeat(values, 3, axis=0)
+    return np.stack(
+        [np.bincount(idx, weights=rep[:, j], minlength=n_vertices) for j in range(3)], axis=1
+    )
 
 
 def closest_on_triangles(p: np.ndarray, tri: np.ndarray, fallback: np.ndarray) -> np.ndarray:
