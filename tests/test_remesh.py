@@ -265,3 +265,14 @@ def test_adaptive_with_a_face_budget_hits_it():
     v = v * [1.0, 1.0, 0.3]
     r = remesh(v, f, RemeshOptions(faces=800, adaptive=True))
     assert abs(len(r.faces) - 800) <= 40
+
+
+def test_every_component_is_kept_even_a_small_one():
+    v1, f1 = torus(32, 12)
+    v2, f2 = icosphere(2, 0.15)
+    v = np.vstack([v1, v2 + [3.0, 0.0, 0.0]])
+    f = np.vstack([f1, f2 + len(v1)])
+    r = remesh(v, f, RemeshOptions(spacing=0.08))
+    topo = mesh_topology(r.vertices, r.faces)
+    assert topo["components"] == 2 and topo["genus"] == 1 and topo["watertight"]
+    assert r.report["topology_preserved"]
