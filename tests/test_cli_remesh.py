@@ -104,3 +104,9 @@ def test_changed_topology_is_written_and_exits_1(tmp_path, monkeypatch):
     res = _run(["remesh", str(SAMPLE), "-o", str(out), "--spacing", "0.1"])
     assert res.exit_code == 1
     assert out.exists() and "topology changed" in res.stderr
+
+
+def test_a_spacing_too_small_is_refused_before_the_work(tmp_path):
+    res = _run(["remesh", str(SAMPLE), "-o", str(tmp_path / "m.ply"), "--spacing", "1e-5"])
+    assert res.exit_code == 2 and "particles" in res.stderr and "--spacing" in res.stderr
+    assert not (tmp_path / "m.ply").exists()

@@ -96,6 +96,8 @@ OFF_SURFACE = 0.15
 LINE_GAP = 0.5
 #: Passes of gap closing (a zip can open a new small loop that the next pass closes).
 GAP_PASSES = 3
+#: Refuse a spacing that needs more particles than this (``dynamics.max_particles``'s default).
+MAX_PARTICLES = 2_000_000
 #: Points sampled per mesh for the distance measures.
 DISTANCE_SAMPLES = 100_000
 
@@ -325,6 +327,15 @@ def _remesh(vertices, faces, opts: RemeshOptions, name: str) -> RemeshResult:
     else:
         e = v_in[f_in] - v_in[np.roll(f_in, -1, axis=1)]
         s0 = float(np.linalg.norm(e, axis=2).mean())
+    estimate = area / (CELL_AREA * s0**2)
+    if opts.adaptive:
+        lo_abs = opts.min_spacing if opts.min_spacing is not None else ADAPTIVE_MIN * s0
+        estimate = area / (CELL_AREA * lo_abs**2)
+    if estimate > MAX_PARTICLES:
+        raise InputError(
+            f"{name}: a spacing of {s0:.4g} needs about {estimate:,.0f} particles, more than "
+            f"{MAX_PARTICLES:,}; raise --spacing (or --min-spacing) or lower --faces"
+        )
     topo_in = mesh_topology(v_in, f_in)
     surface = MeshSurface((v_in - centre) / s0, f_in)
     corner = opts.crease_angle if opts.crease_angle is not None else CORNER_ANGLE
@@ -443,7 +454,7 @@ def _remesh(vertices, faces, opts: RemeshOptions, name: str) -> RemeshResult:
             "samples": DISTANCE_SAMPLES,
         },
         "triangulation": {**tri_stats, **stats},
-        "timings": {**times, "total": t_total},
+        "timings": {**times, "total": t_total + times["measure"]},
         "warnings": warnings,
     }
     return RemeshResult(v_out, f_out, normals, report)
