@@ -212,6 +212,13 @@ class FeatureLines:
     n_boundary_edges, n_crease_edges : int
     segments : (S, 2, 3) float64
         All line segments; ``segment_chain`` (S,) int64 gives the chain of each.
+    chain_is_boundary : (c,) bool
+        The chain runs along a boundary of the input (else along a crease).
+    face_patch : (F,) int64
+        Patch of every input face: faces joined through edges that are not on a line (so every
+        component is one patch or more).
+    chain_patches, corner_patches : lists of int64 arrays
+        The patches on the sides of each chain, and around each corner.
     """
 
     chains: list[np.ndarray]
