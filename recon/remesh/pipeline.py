@@ -81,6 +81,9 @@ CORNER_ANGLE = 50.0
 #: Adaptive spacing: the given spacing is kept where the curvature is at this area-weighted
 #: percentile; flatter regions get coarser, more curved ones finer.
 REFERENCE_PERCENTILE = 75.0
+#: Adaptive spacing: rounds of neighbour averaging of the curvature (against the noise of a
+#: badly shaped input).
+CURVATURE_SMOOTHING = 1
 #: Adaptive spacing: no larger than this fraction of the local thickness.
 THICKNESS_FRACTION = 0.5
 #: Adaptive spacing grows by at most this much per unit length (a gentle grading keeps the
@@ -227,10 +230,11 @@ def spacing_field(surface: MeshSurface, spacing: float, lo: float, hi: float) ->
     np.maximum.at(kappa, e[:, 0], k0)
     np.maximum.at(kappa, e[:, 1], k1)
     deg = np.bincount(e.ravel(), minlength=len(v)).astype(float)
-    smooth = kappa.copy()
-    np.add.at(smooth, e[:, 0], kappa[e[:, 1]])
-    np.add.at(smooth, e[:, 1], kappa[e[:, 0]])
-    kappa = smooth / (1.0 + deg)
+    for _ in range(CURVATURE_SMOOTHING):
+        smooth = kappa.copy()
+        smooth += np.bincount(e[:, 0], weights=kappa[e[:, 1]], minlength=len(v))
+        smooth += np.bincount(e[:, 1], weights=kappa[e[:, 0]], minlength=len(v))
+        kappa = smooth / (1.0 + deg)
     vertex_area = np.zeros(len(v))
     for k in range(3):
         np.add.at(vertex_area, f[:, k], surface.face_area / 3.0)
