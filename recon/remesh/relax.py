@@ -45,7 +45,7 @@ SEED_THINNING = 0.75
 #: The thinning radius is corrected once when the seed count is off by more than this fraction.
 SEED_COUNT_TOLERANCE = 0.02
 #: Area samples drawn per interior particle before thinning.
-CANDIDATES_PER_PARTICLE = 8
+CANDIDATES_PER_PARTICLE = 4
 #: Potential energy per particle above which the relaxation counts as diverged.
 EXPLODING_ENERGY = 1e6
 
