@@ -137,8 +137,17 @@ def seed(
     foot, nrm = cand, surface.face_normal[face]
     rest = np.ones(m) if rest_at is None else rest_at(foot, face)
     if rest_at is not None:
-        # density ~ 1/rest^2: keep each sample with probability (min rest / rest)^2
-        keep = rng.random(m) < (rest.min() / rest) ** 2
+        # density ~ 1/rest^2: keep each sample with probability (min rest / rest)^2, from
+        # enough samples that ~m are kept
+        prob = (rest.min() / rest) ** 2
+        extra = int(m / max(float(prob.mean()), 1e-6)) - m
+        if extra > 0:
+            more, more_face = surface.sample(extra, rng)
+            cand, face = np.vstack([cand, more]), np.concatenate([face, more_face])
+            foot, nrm = cand, surface.face_normal[face]
+            rest = rest_at(foot, face)
+            prob = (rest.min() / rest) ** 2
+        keep = rng.random(len(cand)) < prob
         cand, foot, face, nrm, rest = cand[keep], foot[keep], face[keep], nrm[keep], rest[keep]
     n_feat = features.n
     pts = np.vstack([features.position, foot])
