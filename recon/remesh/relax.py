@@ -39,7 +39,7 @@ __all__ = ["CELL_AREA", "CHUNK", "Particles", "place_feature_particles", "relax"
 #: Area of a particle's cell in a hexagonal sheet of spacing 1.
 CELL_AREA = math.sqrt(3.0) / 2.0
 #: Steps between two projections onto the mesh.
-CHUNK = 5
+CHUNK = 10
 #: Interior seeds are Poisson-disk thinned at this fraction of the local spacing.
 SEED_THINNING = 0.75
 #: The thinning radius is corrected once when the seed count is off by more than this fraction.
