@@ -29,6 +29,7 @@ def app(ctx: click.Context, debug: bool) -> None:
       oprecon report mesh.ply --input scan.ply quality of any mesh
       oprecon batch campaign.yaml              many scans, resumable
       oprecon normals scan.ply -o oriented.ply consistently oriented normals
+      oprecon remesh mc.ply -o clean.ply       near-equilateral remesh of a mesh
       oprecon config show                      every setting with its default
 
     Exit codes: 0 success, 1 a completed run failed a check, 2 bad input or usage,
@@ -39,9 +40,9 @@ def app(ctx: click.Context, debug: bool) -> None:
 
 
 def _register() -> None:
-    from . import batch, compare, config_cmd, fit, info, normals, report
+    from . import batch, compare, config_cmd, fit, info, normals, remesh, report
 
-    for module in (info, normals, fit, compare, report, batch, config_cmd):
+    for module in (info, normals, fit, remesh, compare, report, batch, config_cmd):
         app.add_command(module.command)
 
 

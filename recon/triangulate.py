@@ -294,8 +294,10 @@ def orient_consistently(vertices: np.ndarray, normals: np.ndarray, faces: np.nda
     # signed volume (x6) of each component; meaningful for closed ones
     p = vertices[faces]
     vol = np.bincount(labels, weights=np.einsum("ij,ij->i", p[:, 0], fn), minlength=n)
-    edges = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
-    _, inv, cnt = np.unique(edges, axis=0, return_inverse=True, return_counts=True)
+    # 1-D edge keys: np.unique(axis=0) on the (3F, 2) pairs was most of this function's time
+    _, inv, cnt = np.unique(
+        edge_keys(faces, len(vertices)), return_inverse=True, return_counts=True
+    )
     open_face = (cnt[inv.reshape(-1)] == 1).reshape(-1, 3).any(axis=1)
     closed = np.bincount(labels, weights=open_face, minlength=n) == 0
     turn = np.where(closed, vol < 0, vote < 0)
@@ -366,9 +368,12 @@ def split_non_manifold_vertices(
         return vertices, normals, faces, 0
     fans = vertex_fans(faces).ravel()
     corner_v = faces.ravel()
-    pair, corner_pair, size = np.unique(
-        np.stack([corner_v, fans], axis=1), axis=0, return_inverse=True, return_counts=True
+    # (vertex, fan) pairs as 1-D keys in the same (lexicographic) order; fan labels < 3F
+    span = np.int64(3 * len(faces))
+    key, corner_pair, size = np.unique(
+        corner_v * span + fans, return_inverse=True, return_counts=True
     )
+    pair = np.stack([key // span, key % span], axis=1)
     corner_pair = corner_pair.reshape(-1)
     # rank the fans of each vertex: largest first, then by label (deterministic)
     order = np.lexsort((pair[:, 1], -size, pair[:, 0]))

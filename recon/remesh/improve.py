@@ -1,0 +1,138 @@
+"""Polish the triangulated particles: angle-raising edge flips and tangential smoothing.
+
+Neither changes the connectivity's topology: a flip keeps the outline and winding of its quad
+(:mod:`recon.kernels.edge_flip`), smoothing moves vertices only. Each round flips edges until no
+flip raises the smallest angle, then moves every free vertex a fraction :data:`SMOOTH_STEP` of
+the way to the centroid of its neighbours, within its tangent plane, and back onto the input
+surface (its closest point). Vertices on feature lines and corners do not move, and no edge
+between two of them is flipped, so boundaries and creases stay where the particles put them.
+
+References
+----------
+[BK04] M. Botsch, L. Kobbelt. "A remeshing approach to multiresolution modeling". SGP 2004.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy import sparse
+
+from ..kernels.edge_flip import flip_edges_kernel
+from ..mesh import face_area_vectors
+from .surface import MeshSurface, corner_sum
+
+__all__ = ["FLIP_MIN_NORMAL_DOT", "SMOOTH_STEP", "flip_edges", "improve", "twin_half_edges"]
+
+#: A flip's new triangles must face within ~37 degrees of the old pair's mean normal...
+FLIP_MIN_NORMAL_DOT = 0.8
+#: ... and the old pair must be flatter than ~45 degrees (no flip across a bend).
+FLIP_MIN_FLAT_DOT = 0.7
+#: Smallest gain in the cosine of the smallest angle for a flip.
+FLIP_EPS = 1e-9
+#: Passes over all edges per flip call.
+FLIP_PASSES = 20
+#: Valence flips (toward 6 neighbours) during the smoothing rounds, when no angle of the new
+#: pair falls below this [deg]; None: angle flips only.
+VALENCE_MIN_ANGLE: float | None = 30.0
+#: Fraction of the way to the neighbours' centroid moved per smoothing round.
+SMOOTH_STEP = 0.5
+
+
+def twin_half_edges(faces: np.ndarray, n_vertices: int) -> np.ndarray:
+    """``(3 F,)`` int64: the twin of half-edge ``3 f + k`` (corner k -> k+1), -1 if none."""
+    a = faces.ravel()
+    b = np.roll(faces, -1, axis=1).ravel()
+    key = a * np.int64(n_vertices) + b
+    rev = b * np.int64(n_vertices) + a
+    order = np.argsort(key)
+    pos = np.searchsorted(key[order], rev)
+    pos = np.minimum(pos, len(key) - 1)
+    found = key[order[pos]] == rev
+    return np.where(found, order[pos], -1).astype(np.int64)
+
+
+def flip_edges(
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    line_edges: np.ndarray | None = None,
+    valence_min_angle: float | None = None,
+) -> tuple[np.ndarray, int]:
+    """Angle-raising flips; ``line_edges`` (k, 2) vertex pairs (feature lines) are locked where
+    they exist and recovered by a flip where one creates them. With ``valence_min_angle``
+    [deg], a flip that brings valences closer to 6 (4 on a boundary) is made too when no angle
+    of the new pair falls below it. Returns (faces, flips)."""
+    faces = np.ascontiguousarray(faces, dtype=np.int64).copy()
+    if len(faces) < 2:
+        return faces, 0
+    nv = np.int64(len(vertices))
+    twin = twin_half_edges(faces, len(vertices))
+    a = faces.ravel()
+    b = np.roll(faces, -1, axis=1).ravel()
+    if line_edges is None or len(line_edges) == 0:
+        wanted = np.zeros(0, dtype=np.int64)
+    else:
+        le = np.sort(np.asarray(line_edges, dtype=np.int64), axis=1)
+        wanted = np.unique(le[:, 0] * nv + le[:, 1])
+    locked = np.ascontiguousarray(np.isin(np.minimum(a, b) * nv + np.maximum(a, b), wanted))
+    target = np.full(len(vertices), 6, dtype=np.int64)
+    target[a[twin < 0]] = 4
+    vmin = 1.0 if valence_min_angle is None else float(np.cos(np.radians(valence_min_angle)))
+    n = flip_edges_kernel(
+        np.ascontiguousarray(vertices, dtype=np.float64),
+        faces,
+        twin,
+        locked,
+        wanted,
+        target,
+        FLIP_MIN_NORMAL_DOT,
+        FLIP_MIN_FLAT_DOT,
+        FLIP_EPS,
+        FLIP_PASSES,
+        vmin,
+    )
+    return faces, int(n)
+
+
+def _vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    cross = face_area_vectors(vertices, faces)
+    vn = corner_sum(faces, cross, len(vertices))
+    return vn / np.maximum(np.linalg.norm(vn, axis=1), 1e-300)[:, None]
+
+
+def improve(
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    fixed: np.ndarray,
+    surface: MeshSurface,
+    rounds: int,
+    weights: np.ndarray | None = None,
+    line_edges: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray, dict[str, int]]:
+    """``rounds`` rounds of flips and tangential smoothing (module docstring).
+
+    ``fixed`` vertices do not move; ``line_edges`` (k, 2): see :func:`flip_edges`.
+    ``weights`` (V,), optional: each neighbour counts with this weight in the centroid (e.g.
+    1/spacing² for adaptive meshes, so that vertices drift toward the dense side less).
+    """
+    v = np.array(vertices, dtype=np.float64, copy=True)
+    f = faces
+    free = ~fixed
+    n_flips = 0
+    for _ in range(rounds):
+        f, k = flip_edges(v, f, line_edges, VALENCE_MIN_ANGLE)
+        n_flips += k
+        e = f[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
+        rows, cols = np.concatenate([e[:, 0], e[:, 1]]), np.concatenate([e[:, 1], e[:, 0]])
+        w = np.ones(len(rows)) if weights is None else weights[cols]
+        adj = sparse.csr_matrix((w, (rows, cols)), shape=(len(v), len(v)))
+        deg = np.asarray(adj.sum(axis=1)).ravel()
+        centroid = (adj @ v) / np.maximum(deg, 1e-300)[:, None]
+        move = centroid - v
+        vn = _vertex_normals(v, f)
+        move -= np.einsum("ij,ij->i", move, vn)[:, None] * vn
+        target = v[free] + SMOOTH_STEP * move[free]
+        foot, _, _ = surface.closest(target)
+        v[free] = foot
+    f, k = flip_edges(v, f, line_edges)
+    n_flips += k
+    return v, f, {"flips": n_flips, "smoothing_rounds": rounds}

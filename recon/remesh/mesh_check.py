@@ -1,0 +1,168 @@
+"""Check and repair the input of a remesh.
+
+What can be repaired is repaired and listed (:attr:`CheckedMesh.repairs`): exactly repeated
+vertices are merged, faces with a repeated corner or of zero area and duplicate faces are
+dropped, unreferenced vertices removed, bow-tie (non-manifold) vertices split into one copy per
+fan, and the winding made consistent per component. What cannot is refused with an
+:class:`~recon.errors.InputError` naming the defect: no faces, edges shared by more than two
+faces, a non-orientable surface, and self-intersections (an edge that pierces a face it does
+not touch).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errors import InputError
+from ..mesh import face_area_vectors, orientation_flips, vertex_fans
+from .surface import MeshSurface, edge_faces
+
+__all__ = ["CheckedMesh", "check_mesh", "self_intersections"]
+
+#: Relative tolerance along an edge (fraction of its length) within which a hit of the edge's
+#: ray on another face counts as touching at the ends rather than piercing.
+PIERCE_TOLERANCE = 1e-4
+#: A face is degenerate when its doubled area is below this times its longest edge squared.
+DEGENERATE_AREA = 1e-12
+
+
+@dataclass
+class CheckedMesh:
+    """A manifold, consistently oriented triangle mesh and what was repaired to get it."""
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    repairs: list[str] = field(default_factory=list)
+
+
+def _merge_duplicate_vertices(
+    vertices: np.ndarray, faces: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, int]:
+    uniq, inverse = np.unique(vertices, axis=0, return_inverse=True)
+    inverse = inverse.reshape(-1)
+    if len(uniq) == len(vertices):
+        return vertices, faces, 0
+    # keep the first occurrence's order so the output does not depend on sorting
+    first = np.full(len(uniq), len(vertices), dtype=np.int64)
+    np.minimum.at(first, inverse, np.arange(len(vertices)))
+    rank = np.argsort(np.argsort(first))
+    new_v = vertices[np.sort(first)]
+    return new_v, rank[inverse][faces], len(vertices) - len(uniq)
+
+
+def self_intersections(vertices: np.ndarray, faces: np.ndarray, surface=None) -> np.ndarray:
+    """Edges ``(k, 2)`` that pierce a face sharing no vertex with them (ray casting)."""
+    if surface is None:
+        surface = MeshSurface(vertices, faces)
+    edges, _, _, _ = edge_faces(faces, len(vertices))
+    a, b = vertices[edges[:, 0]], vertices[edges[:, 1]]
+    hits = surface.ray_hits(np.hstack([a, b - a]))
+    ray, t, prim = hits["ray_ids"], hits["t_hit"], hits["primitive_ids"]
+    inside = (t > PIERCE_TOLERANCE) & (t < 1.0 - PIERCE_TOLERANCE)
+    ray, prim = ray[inside], prim[inside]
+    fv = faces[prim]
+    e = edges[ray]
+    touches = np.any((fv == e[:, :1]) | (fv == e[:, 1:]), axis=1)
+    bad = np.unique(ray[~touches])
+    return edges[bad]
+
+
+def check_mesh(
+    vertices: np.ndarray, faces: np.ndarray, name: str, *, intersections: bool = True
+) -> CheckedMesh:
+    """Repair what can be repaired, refuse the rest (module docstring).
+
+    Parameters
+    ----------
+    vertices : (V, 3) float64
+    faces : (F, 3) int64
+    name : str
+        The file name used in messages.
+    intersections : bool
+        Also refuse self-intersecting meshes.
+    """
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    if len(v) == 0:
+        raise InputError(f"{name}: the file holds no vertices (empty mesh)")
+    if len(f) == 0:
+        raise InputError(
+            f"{name}: the file has {len(v):,} vertices but no faces (a point cloud); "
+            "remesh needs a triangle mesh (use `oprecon fit` for points)"
+        )
+    repairs: list[str] = []
+    v, f, merged = _merge_duplicate_vertices(v, f)
+    if merged:
+        repairs.append(f"merged {merged:,} duplicate vertices")
+    repeated = (f[:, 0] == f[:, 1]) | (f[:, 1] == f[:, 2]) | (f[:, 2] == f[:, 0])
+    cross = face_area_vectors(v, f)
+    longest = np.max(np.linalg.norm(v[f] - v[np.roll(f, -1, axis=1)], axis=2), axis=1)
+    flat = np.linalg.norm(cross, axis=1) <= DEGENERATE_AREA * longest**2
+    drop = repeated | flat
+    if drop.any():
+        repairs.append(f"dropped {int(drop.sum()):,} degenerate faces (zero area)")
+        f = f[~drop]
+    key = np.sort(f, axis=1)
+    _, first = np.unique(key, axis=0, return_index=True)
+    if len(first) < len(f):
+        repairs.append(f"dropped {len(f) - len(first):,} duplicate faces")
+        f = f[np.sort(first)]
+    if len(f) == 0:
+        raise InputError(f"{name}: every face is degenerate (zero area); nothing to remesh")
+    _, counts, _, _ = edge_faces(f, len(v))
+    over = int((counts > 2).sum())
+    if over:
+        raise InputError(
+            f"{name}: non-manifold mesh: {over:,} edge(s) shared by more than two faces; "
+            "remesh needs a manifold surface (repair it first, e.g. split the sheets)"
+        )
+    # bow-tie vertices: one copy per extra fan
+    fan = vertex_fans(f)
+    keys = np.unique(f.ravel() * np.int64(3 * len(f)) + fan.ravel())
+    per_vertex = np.bincount(keys // (3 * len(f)), minlength=len(v))
+    if np.any(per_vertex > 1):
+        n_bad = int((per_vertex > 1).sum())
+        v, f = _split_fans(v, f, fan)
+        repairs.append(f"split {n_bad:,} non-manifold (bow-tie) vertices, one copy per fan")
+    used = np.zeros(len(v), dtype=bool)
+    used[f.ravel()] = True
+    if not used.all():
+        remap = np.cumsum(used) - 1
+        repairs.append(f"removed {int((~used).sum()):,} unreferenced vertices")
+        v, f = v[used], remap[f]
+    flip, conflict = orientation_flips(f)
+    if conflict.any():
+        raise InputError(
+            f"{name}: the surface is not orientable (a Moebius-like twist across "
+            f"{int(conflict.sum()):,} face(s)); remesh needs an orientable surface"
+        )
+    if flip.any():
+        f = f.copy()
+        f[flip] = f[flip][:, [0, 2, 1]]
+        repairs.append(f"re-wound {int(flip.sum()):,} faces to a consistent orientation")
+    if intersections:
+        bad = self_intersections(v, f)
+        if len(bad):
+            p = v[bad[0]].mean(axis=0)
+            raise InputError(
+                f"{name}: self-intersecting mesh: {len(bad):,} edge(s) pierce other faces "
+                f"(first near {p[0]:.6g}, {p[1]:.6g}, {p[2]:.6g}); repair it first"
+            )
+    return CheckedMesh(np.ascontiguousarray(v), np.ascontiguousarray(f), repairs)
+
+
+def _split_fans(
+    vertices: np.ndarray, faces: np.ndarray, fan: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Give every (vertex, fan) pair beyond the first its own copy of the vertex."""
+    nf = len(faces)
+    key = faces.ravel() * np.int64(3 * nf) + fan.ravel()
+    uniq, inverse = np.unique(key, return_inverse=True)
+    vert = uniq // (3 * nf)
+    first = np.ones(len(uniq), dtype=bool)
+    first[1:] = vert[1:] != vert[:-1]
+    new_index = np.where(first, vert, len(vertices) + np.cumsum(~first) - 1)
+    extra = vert[~first]
+    return np.vstack([vertices, vertices[extra]]), new_index[inverse.reshape(-1)].reshape(-1, 3)

@@ -1,0 +1,112 @@
+"""`oprecon remesh` end to end through click's runner."""
+
+import json
+from pathlib import Path
+
+import numpy as np
+from click.testing import CliRunner
+from recon.cli.main import app
+
+from recon.io import read_mesh, write_mesh
+from recon.topology import mesh_topology
+
+SAMPLE = Path("sample_data/lblock-gt.ply")
+
+
+def _run(args):
+    return CliRunner().invoke(app, args, catch_exceptions=False)
+
+
+def test_remesh_sample_with_creases_writes_mesh_and_report(tmp_path):
+    out = tmp_path / "clean.ply"
+    res = _run(["remesh", str(SAMPLE), "-o", str(out), "--crease-angle", "40"])
+    assert res.exit_code == 0, res.output
+    assert "topology" in res.stderr and "preserved" in res.stderr
+    assert "min angle mean" in res.stderr
+    v, f = read_mesh(out)
+    assert len(f) > 1000
+    topo = mesh_topology(v, f)
+    assert topo["watertight"] and topo["genus"] == 0
+    report = json.loads((tmp_path / "clean.report.json").read_text())
+    assert report["topology_preserved"] is True
+    assert report["output"]["topology"]["n_faces"] == len(f)
+    assert report["features"]["corners"] == 12
+    # every crease kept: triangles never span one (patches are meshed on their own)
+    assert report["features"]["deviation_max_relative"] < 5e-4
+    assert report["distance"]["hausdorff95_relative"] < 1e-3
+    q_in, q_out = report["input"]["triangle_quality"], report["output"]["triangle_quality"]
+    assert q_out["min_angle_mean_deg"] > q_in["min_angle_mean_deg"]
+
+
+def test_remesh_json_and_faces(tmp_path):
+    out = tmp_path / "m.obj"
+    res = _run(["remesh", str(SAMPLE), "-o", str(out), "--faces", "2000", "--json", "-q"])
+    assert res.exit_code == 0, res.output
+    report = json.loads(res.stdout)
+    assert abs(report["output"]["topology"]["n_faces"] - 2000) <= 100
+    assert res.stderr == ""
+
+
+def test_point_cloud_input_is_refused(tmp_path):
+    out = tmp_path / "o.ply"
+    res = _run(["remesh", "sample_data/sphere-sparse.ply", "-o", str(out)])
+    assert res.exit_code == 2
+    assert "sphere-sparse.ply" in res.stderr and "no faces" in res.stderr
+    assert "Traceback" not in res.output
+    assert not out.exists() and not (tmp_path / "o.report.json").exists()
+
+
+def test_non_manifold_input_is_refused_and_nothing_written(tmp_path):
+    src = tmp_path / "nm.ply"
+    v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1]], float)
+    write_mesh(src, v, np.array([[0, 1, 2], [1, 0, 3], [0, 1, 4]]))
+    out = tmp_path / "o.ply"
+    res = _run(["remesh", str(src), "-o", str(out)])
+    assert res.exit_code == 2
+    assert "nm.ply" in res.stderr and "non-manifold" in res.stderr
+    assert list(tmp_path.iterdir()) == [src]
+
+
+def test_usage_errors(tmp_path):
+    out = str(tmp_path / "o.ply")
+    res = _run(["remesh", str(SAMPLE), "-o", out, "--spacing", "0.1", "--faces", "100"])
+    assert res.exit_code == 2 and "exclusive" in res.output
+    res = _run(["remesh", str(SAMPLE), "-o", out, "--min-spacing", "0.1"])
+    assert res.exit_code == 2 and "--adaptive" in res.output
+    res = _run(["remesh", str(tmp_path / "missing.ply"), "-o", out])
+    assert res.exit_code == 2 and "missing.ply" in res.stderr
+    res = _run(["remesh", str(SAMPLE), "-o", str(SAMPLE)])
+    assert res.exit_code == 2
+
+
+def test_help_lists_remesh():
+    res = _run(["--help"])
+    assert "oprecon remesh" in res.output
+
+
+def test_output_format_is_checked_before_work(tmp_path):
+    res = _run(["remesh", str(SAMPLE), "-o", str(tmp_path / "m.xyz")])
+    assert res.exit_code == 2 and "m.xyz" in res.stderr and ".ply or .obj" in res.stderr
+
+
+def test_changed_topology_is_written_and_exits_1(tmp_path, monkeypatch):
+    import recon.remesh as remesh_pkg
+    from recon.remesh.pipeline import remesh_file
+
+    def changed(*args, **kwargs):
+        result = remesh_file(*args, **kwargs)
+        result.report["topology_preserved"] = False
+        result.report["warnings"].append("topology changed: (test)")
+        return result
+
+    monkeypatch.setattr(remesh_pkg, "remesh_file", changed)
+    out = tmp_path / "m.ply"
+    res = _run(["remesh", str(SAMPLE), "-o", str(out), "--spacing", "0.1"])
+    assert res.exit_code == 1
+    assert out.exists() and "topology changed" in res.stderr
+
+
+def test_a_spacing_too_small_is_refused_before_the_work(tmp_path):
+    res = _run(["remesh", str(SAMPLE), "-o", str(tmp_path / "m.ply"), "--spacing", "1e-5"])
+    assert res.exit_code == 2 and "particles" in res.stderr and "--spacing" in res.stderr
+    assert not (tmp_path / "m.ply").exists()
