@@ -5,8 +5,8 @@ vertices are merged, faces with a repeated corner or of zero area and duplicate 
 dropped, unreferenced vertices removed, bow-tie (non-manifold) vertices split into one copy per
 fan, and the winding made consistent per component. What cannot is refused with an
 :class:`~recon.errors.InputError` naming the defect: no faces, edges shared by more than two
-faces, a non-orientable surface, and self-intersections (an edge that pierces a face it does
-not touch).
+faces, a non-orientable surface, and self-intersections (faces sharing no vertex that cross:
+:func:`recon.intersections.self_intersections`).
 """
 
 from __future__ import annotations
@@ -16,14 +16,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import InputError
+from ..intersections import self_intersections
 from ..mesh import face_area_vectors, orientation_flips, vertex_fans
-from .surface import MeshSurface, edge_faces
+from .surface import edge_faces
 
-__all__ = ["CheckedMesh", "check_mesh", "self_intersections"]
+__all__ = ["CheckedMesh", "check_mesh"]
 
-#: Relative tolerance along an edge (fraction of its length) within which a hit of the edge's
-#: ray on another face counts as touching at the ends rather than piercing.
-PIERCE_TOLERANCE = 1e-4
 #: A face is degenerate when its doubled area is below this times its longest edge squared.
 DEGENERATE_AREA = 1e-12
 
@@ -50,23 +48,6 @@ def _merge_duplicate_vertices(
     rank = np.argsort(np.argsort(first))
     new_v = vertices[np.sort(first)]
     return new_v, rank[inverse][faces], len(vertices) - len(uniq)
-
-
-def self_intersections(vertices: np.ndarray, faces: np.ndarray, surface=None) -> np.ndarray:
-    """Edges ``(k, 2)`` that pierce a face sharing no vertex with them (ray casting)."""
-    if surface is None:
-        surface = MeshSurface(vertices, faces)
-    edges, _, _, _ = edge_faces(faces, len(vertices))
-    a, b = vertices[edges[:, 0]], vertices[edges[:, 1]]
-    hits = surface.ray_hits(np.hstack([a, b - a]))
-    ray, t, prim = hits["ray_ids"], hits["t_hit"], hits["primitive_ids"]
-    inside = (t > PIERCE_TOLERANCE) & (t < 1.0 - PIERCE_TOLERANCE)
-    ray, prim = ray[inside], prim[inside]
-    fv = faces[prim]
-    e = edges[ray]
-    touches = np.any((fv == e[:, :1]) | (fv == e[:, 1:]), axis=1)
-    bad = np.unique(ray[~touches])
-    return edges[bad]
 
 
 def check_mesh(
@@ -145,9 +126,9 @@ def check_mesh(
     if intersections:
         bad = self_intersections(v, f)
         if len(bad):
-            p = v[bad[0]].mean(axis=0)
+            p = v[f[bad[0, 0]]].mean(axis=0)
             raise InputError(
-                f"{name}: self-intersecting mesh: {len(bad):,} edge(s) pierce other faces "
+                f"{name}: self-intersecting mesh: {len(bad):,} pair(s) of faces cross "
                 f"(first near {p[0]:.6g}, {p[1]:.6g}, {p[2]:.6g}); repair it first"
             )
     return CheckedMesh(np.ascontiguousarray(v), np.ascontiguousarray(f), repairs)

@@ -103,15 +103,6 @@ class MeshSurface:
         foot, _, _ = self.closest(points)
         return np.linalg.norm(np.asarray(points, dtype=np.float64) - foot, axis=1)
 
-    def ray_hits(self, rays: np.ndarray) -> dict[str, np.ndarray]:
-        """All hits of (n, 6) rays (origin, direction): ray_ids, t_hit, primitive_ids."""
-        import open3d as o3d
-
-        r = np.array(rays, dtype=np.float64)
-        r[:, :3] -= self.centre
-        ans = self._scene.list_intersections(o3d.core.Tensor(r.astype(np.float32)))
-        return {k: ans[k].numpy() for k in ("ray_ids", "t_hit", "primitive_ids")}
-
     def first_hit(self, rays: np.ndarray) -> np.ndarray:
         """Distance along each (n, 6) ray (unit direction) to the first hit (inf: none)."""
         import open3d as o3d
