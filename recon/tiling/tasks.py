@@ -33,8 +33,8 @@ SIGN_BAND = 1.5
 SEAM_MERGE = 0.6
 #: A tile whose core holds fewer points is not fitted (its neighbours' halos cover it).
 MIN_TILE_POINTS = 8
-#: For a failed-tile test: the tile index whose first attempt raises (see ``fit_task``).
-_FAIL_ONCE_ENV = "OPRECON_TILE_FAIL"
+#: For the tests of the retry: the tile whose fit fails (see ``_injected_failure``).
+_FAIL_ENV = "OPRECON_TILE_FAIL"
 
 
 def _quiet_worker() -> None:
@@ -95,11 +95,7 @@ def fit_task(job: FitJob) -> dict:
     from ..io import cloud_from_arrays
 
     t0 = time.perf_counter()
-    if os.environ.get(_FAIL_ONCE_ENV) == str(job.tile):
-        flag = Path(job.work) / f"failed-once-{job.tile}"
-        if not flag.exists():
-            flag.write_text("")
-            raise RuntimeError(f"injected failure of tile {job.tile}")
+    _injected_failure(job, os.environ.get(_FAIL_ENV, ""))
     grid = job.store.grid
     cfg = config_from_dict(job.config)
     rows = read_box(job.store, job.tile, grid.halo)
@@ -131,6 +127,17 @@ def fit_task(job: FitJob) -> dict:
     result["border_out"] = (pos[near & ~owned], nrm[near & ~owned])
     result["seconds"] = time.perf_counter() - t0
     return result
+
+
+def _injected_failure(job: FitJob, spec: str) -> None:
+    """Tests of the retry: ``OPRECON_TILE_FAIL=3`` makes the first fit of tile 3 fail,
+    ``3!`` every fit of it."""
+    if spec.rstrip("!") != str(job.tile):
+        return
+    flag = Path(job.work) / f"failed-once-{job.tile}"
+    if spec.endswith("!") or not flag.exists():
+        flag.write_text("")
+        raise RuntimeError(f"injected failure of tile {job.tile}")
 
 
 @dataclass(frozen=True)
