@@ -62,6 +62,7 @@ def test_every_point_has_one_owner_with_half_open_cores():
         (float("nan"), 0.0, "positive length"),
         (0.5, 1.0, "smaller than the halo"),
         (1e-6, 0.0, "more than 100,000"),
+        (1e-9, 0.0, "more than 100,000"),
     ],
 )
 def test_bad_tile_sizes_are_refused(size, halo, match):

@@ -60,10 +60,10 @@ class TileGrid:
         lo = np.asarray(lo, dtype=np.float64)
         span = np.asarray(hi, dtype=np.float64) - lo
         shape = tuple(int(max(1, math.ceil(float(s) / size))) for s in span)
-        if float(np.prod(shape)) > MAX_TILES:
+        if math.prod(shape) > MAX_TILES:
             raise InputError(
                 f"tile size {size:.4g} cuts the scan ({', '.join(f'{s:.4g}' for s in span)}) "
-                f"into {int(np.prod(shape)):,} tiles, more than {MAX_TILES:,}: give a larger "
+                f"into {math.prod(shape):,} tiles, more than {MAX_TILES:,}: give a larger "
                 "--tile-size (in the input's length units)"
             )
         return cls(lo, float(size), shape, float(halo))  # type: ignore[arg-type]
