@@ -30,6 +30,8 @@ __all__ = ["SEAM_BAND", "agree_signs", "repair_seams", "seam_statistics"]
 
 #: Edges and loops within this many r0 of an inner tile face count as "on a seam".
 SEAM_BAND = 2.0
+#: A loop is a seam's when at least this fraction of its vertices lie within SEAM_BAND of one.
+SEAM_LOOP_FRACTION = 0.5
 #: A seam crack is zipped when its width (4 area / perimeter) is at most this many r0 ...
 CRACK_WIDTH = 2.5
 #: ... and pairs closer than this many r0 compare their normal signs.
@@ -112,7 +114,8 @@ def repair_seams(
 
     Faces the tiles disagree on overlap (over-shared edges, duplicates) or leave gaps; the
     repair of :mod:`recon.triangulate` drops the extra faces and splits bow-tie vertices;
-    boundary loops that touch a seam and are small (perimeter <= pi ``max_hole`` [r0]) or
+    boundary loops that lie along a seam (``SEAM_LOOP_FRACTION`` of their vertices within
+    ``SEAM_BAND`` r0 of an inner tile face) and are small (perimeter <= pi ``max_hole`` [r0]) or
     narrow (a crack: width <= ``CRACK_WIDTH`` r0) are zipped. Loops away from the seams are
     left as the tiles made them.
     """
@@ -128,7 +131,7 @@ def repair_seams(
         edge_set = {(int(min(a, b)), int(max(a, b))) for a, b in he}
         new = []
         for loop in boundary_loops(faces):
-            if len(loop) < 3 or not seam[loop].any():
+            if len(loop) < 3 or np.mean(seam[loop]) < SEAM_LOOP_FRACTION:
                 continue
             ring = vertices[loop] / r0
             perim = float(np.linalg.norm(ring - np.roll(ring, -1, axis=0), axis=1).sum())
@@ -139,6 +142,9 @@ def repair_seams(
         zipped += len(new)
         faces = np.vstack([faces, *new])
         vertices, normals, faces = repair_non_manifold(vertices, normals, faces)
+    faces = orient_consistently(vertices, normals, faces)
+    # orienting drops the faces of one-sided conflicts: repair what that leaves, orient again
+    vertices, normals, faces = repair_non_manifold(vertices, normals, faces)
     faces = orient_consistently(vertices, normals, faces)
     vertices, normals, faces = drop_unreferenced(vertices, normals, faces)
     stats["seam_loops_zipped"] = zipped
