@@ -5,6 +5,11 @@ behind."""
 from __future__ import annotations
 
 import json
+import os
+import signal
+import subprocess
+import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -14,6 +19,8 @@ from recon.cli.main import app
 
 from recon.io import read_mesh, write_points
 from recon.topology import mesh_topology
+
+OPRECON = Path(sys.executable).with_name("oprecon")
 
 
 def _sheet(n: int = 2500, offset=(0.0, 0.0, 0.0)) -> np.ndarray:
@@ -169,3 +176,65 @@ def test_a_las_scan_is_split_in_chunks_and_fitted_in_tiles(tmp_path):
     # georeferenced coordinates come back in place (the mesh lies on the data)
     assert np.all(v.min(axis=0) > offset - 1.0) and np.all(v.max(axis=0) < offset + 9.0)
     assert _leftovers(tmp_path) == []
+
+
+@pytest.mark.skipif(os.name != "posix", reason="SIGINT to a process group needs POSIX")
+@pytest.mark.skipif(not OPRECON.exists(), reason="the oprecon entry point is not installed")
+def test_ctrl_c_during_the_tile_fits_exits_130_and_leaves_nothing(tmp_path):
+    src = tmp_path / "sheet.ply"
+    write_points(src, _sheet(6000))
+    out_dir = tmp_path / "out"
+    out_dir.mkdir()
+    endless = [
+        "--set",
+        "dynamics.max_steps=100000",
+        "--set",
+        "growth.max_rounds=1000",
+        "--set",
+        "growth.min_add_fraction=0",
+    ]
+    cmd = [
+        str(OPRECON),
+        "fit",
+        str(src),
+        "-o",
+        str(out_dir / "m.ply"),
+        "--tile-size",
+        "4",
+        "--jobs",
+        "2",
+        *endless,
+    ]
+
+    def restore_sigint() -> None:
+        signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+    # a new process group, as a terminal's foreground job: Ctrl-C reaches every process in it
+    proc = subprocess.Popen(
+        cmd,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        preexec_fn=restore_sigint,
+        start_new_session=True,
+    )
+    try:
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline and not list(out_dir.glob(".oprecon-tiles-*/points-*")):
+            time.sleep(0.2)
+        time.sleep(6.0)  # the workers are fitting
+        assert proc.poll() is None, proc.stderr.read().decode()
+        os.killpg(proc.pid, signal.SIGINT)
+        code = proc.wait(timeout=60)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+    stderr = proc.stderr.read().decode()
+    assert code == 130, stderr[-2000:]
+    assert "interrupted" in stderr and "Traceback" not in stderr
+    assert os.listdir(out_dir) == []
+    time.sleep(1.0)
+    alive = subprocess.run(
+        ["ps", "-o", "pid=,stat=", "-g", str(proc.pid)], capture_output=True, text=True
+    ).stdout.split("\n")
+    assert [line for line in alive if line.strip() and "Z" not in line.split()[-1]] == []
