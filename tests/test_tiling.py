@@ -274,3 +274,18 @@ def test_tiled_report_has_tiles_section(fits):
     assert sum(t["points"] for t in tiles["per_tile"]) == 3000
     assert tiles["time_per_tile"]["max"] >= tiles["time_per_tile"]["mean"] > 0
     assert set(tiles["seams"]) >= {"seam_edges", "seam_boundary_edges", "non_manifold_edges"}
+
+
+def test_a_tile_with_a_few_unusable_points_is_left_empty(tmp_path):
+    from recon.config import config_to_dict
+    from recon.tiling.source import TileStore
+    from recon.tiling.tasks import FitJob, fit_task
+
+    grid = TileGrid.cover(np.zeros(3), np.array([20.0, 10.0, 1.0]), 10.0, 0.5)
+    line = np.column_stack([np.linspace(15, 19, 20), np.full(20, 5.0), np.zeros(20)])
+    store = TileStore(tmp_path, grid, {1: len(line)}, 3)
+    line.astype("<f8").tofile(store.path(1))
+    cfg = config_to_dict(with_values(ReconConfig(), seeds={"spacing": 0.2}))
+    out = fit_task(FitJob(1, store, cfg, 0.2, tmp_path))
+    assert out["points"] == 20 and out["particles"] == 0
+    assert "20 points not fitted" in out["warnings"][0]

@@ -255,6 +255,7 @@ def fit_tiled(
                 on_event,
             )
             timings["mesh"] = time.perf_counter() - t0
+            n_jobs = runner.jobs
         t0 = time.perf_counter()
         vertices, normals = _load_all(work, offsets, flips)
         particles_v, particles_n = vertices, normals
@@ -327,7 +328,7 @@ def fit_tiled(
                 "size": float(size),
                 "halo": float(grid.halo),
                 "executor": executor,
-                "jobs": executor_jobs,
+                "jobs": n_jobs,
                 "time_per_tile": {
                     "mean": float(np.mean(tile_times)) if tile_times else 0.0,
                     "max": float(np.max(tile_times)) if tile_times else 0.0,

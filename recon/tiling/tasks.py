@@ -33,6 +33,9 @@ SIGN_BAND = 1.5
 SEAM_MERGE = 0.6
 #: A tile whose core holds fewer points is not fitted (its neighbours' halos cover it).
 MIN_TILE_POINTS = 8
+#: ... and a tile with fewer points whose fit finds no usable data (too few, collinear) is
+#: left empty with a warning instead of failing the scan.
+SMALL_TILE_POINTS = 200
 #: For the tests of the retry: the tile whose fit fails (see ``_injected_failure``).
 _FAIL_ENV = "OPRECON_TILE_FAIL"
 
@@ -91,6 +94,7 @@ def fit_task(job: FitJob) -> dict:
     import os
 
     from ..config import config_from_dict
+    from ..errors import InputError
     from ..fitting.pipeline import fit_particles
     from ..io import cloud_from_arrays
 
@@ -106,12 +110,18 @@ def fit_task(job: FitJob) -> dict:
     rest = None
     if n_core >= MIN_TILE_POINTS:
         normals = rows[:, 3:6] if job.store.columns == 6 else None
-        cloud = cloud_from_arrays(rows[:, :3], normals)
-        pf = fit_particles(cloud, cfg)
-        pos, nrm, rest = pf.positions, pf.normals, pf.rest
-        result["steps"] = pf.steps
-        result["warnings"] = pf.warnings
-        result["trimmed"] = pf.n_trimmed
+        try:
+            pf = fit_particles(cloud_from_arrays(rows[:, :3], normals), cfg)
+        except InputError as exc:
+            if n_core >= SMALL_TILE_POINTS:
+                raise
+            # a few points at a tile's corner (a roof edge, a stray return): no sheet there
+            result["warnings"] = [f"{n_core} points not fitted: {exc}"]
+        else:
+            pos, nrm, rest = pf.positions, pf.normals, pf.rest
+            result["steps"] = pf.steps
+            result["warnings"] = pf.warnings
+            result["trimmed"] = pf.n_trimmed
     owned = grid.in_core(job.tile, pos) if len(pos) else np.zeros(0, dtype=bool)
     np.savez(
         particles_path(job.work, job.tile),
