@@ -98,6 +98,16 @@ def agree_signs(
     return flips, disagreeing
 
 
+def _edges_among(faces: np.ndarray, ids: np.ndarray, n_vertices: int) -> set[tuple[int, int]]:
+    """The mesh edges between vertices of ``ids`` as ``(lo, hi)`` pairs (what :func:`zip_loop`
+    must not add twice), without a Python set of every edge of the mesh."""
+    inside = np.zeros(n_vertices, dtype=bool)
+    inside[ids] = True
+    e = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+    e = e[inside[e[:, 0]] & inside[e[:, 1]]]
+    return {(int(a), int(b)) for a, b in e}
+
+
 def _seam_vertices(grid: TileGrid, vertices: np.ndarray, r0: float) -> np.ndarray:
     return grid.seam_distance(vertices) <= SEAM_BAND * r0
 
@@ -127,16 +137,18 @@ def repair_seams(
     zipped = 0
     for _ in range(3):
         seam = _seam_vertices(grid, vertices, r0)
-        he = faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
-        edge_set = {(int(min(a, b)), int(max(a, b))) for a, b in he}
-        new = []
+        chosen = []
         for loop in boundary_loops(faces):
             if len(loop) < 3 or np.mean(seam[loop]) < SEAM_LOOP_FRACTION:
                 continue
             ring = vertices[loop] / r0
             perim = float(np.linalg.norm(ring - np.roll(ring, -1, axis=0), axis=1).sum())
             if perim <= np.pi * max_hole or (len(loop) >= 4 and loop_width(ring) <= CRACK_WIDTH):
-                new.append(zip_loop(vertices, loop[::-1], edge_set))
+                chosen.append(loop)
+        if not chosen:
+            break
+        edge_set = _edges_among(faces, np.concatenate(chosen), len(vertices))
+        new = [zip_loop(vertices, loop[::-1], edge_set) for loop in chosen]
         if not new:
             break
         zipped += len(new)
