@@ -192,6 +192,8 @@ def test_ctrl_c_during_the_tile_fits_exits_130_and_leaves_nothing(tmp_path):
         "growth.max_rounds=1000",
         "--set",
         "growth.min_add_fraction=0",
+        "--set",
+        "dynamics.release_steps=100000",
     ]
     cmd = [
         str(OPRECON),

@@ -155,9 +155,29 @@ def repair_seams(
         faces = np.vstack([faces, *new])
         vertices, normals, faces = repair_non_manifold(vertices, normals, faces)
     faces = orient_consistently(vertices, normals, faces)
-    # orienting drops the faces of one-sided conflicts: repair what that leaves, orient again
+    # orienting drops the faces of one-sided conflicts: repair what that leaves, close the
+    # small holes it opens (the rule of the untiled fit: perimeter <= pi max_hole, or a slit
+    # no wider than CRACK_WIDTH), orient again
+    for _ in range(2):
+        vertices, normals, faces = repair_non_manifold(vertices, normals, faces)
+        small = []
+        for loop in boundary_loops(faces):
+            if len(loop) < 3:
+                continue
+            ring = vertices[loop] / r0
+            perim = float(np.linalg.norm(ring - np.roll(ring, -1, axis=0), axis=1).sum())
+            slit = len(loop) >= 4 and loop_width(ring) <= CRACK_WIDTH
+            if perim <= np.pi * max_hole or (slit and perim <= 3 * np.pi * max_hole):
+                small.append(loop)
+        if small:
+            edge_set = _edges_among(faces, np.concatenate(small), len(vertices))
+            faces = np.vstack([faces, *[zip_loop(vertices, lp[::-1], edge_set) for lp in small]])
+            zipped += len(small)
+            vertices, normals, faces = repair_non_manifold(vertices, normals, faces)
+        faces = orient_consistently(vertices, normals, faces)
+        if not small:
+            break
     vertices, normals, faces = repair_non_manifold(vertices, normals, faces)
-    faces = orient_consistently(vertices, normals, faces)
     vertices, normals, faces = drop_unreferenced(vertices, normals, faces)
     stats["seam_loops_zipped"] = zipped
     return vertices, normals, faces, stats
