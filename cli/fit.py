@@ -270,6 +270,41 @@ def format_summary(report: FitReport) -> str:
     default=None,
     help="Skip crease detection even when a config enables it (creases.enabled).",
 )
+@click.option(
+    "--tile-size",
+    type=click.FloatRange(min=0, min_open=True),
+    metavar="LENGTH",
+    help="Fit in cubic tiles of this side (input units), each on a worker, and stitch one "
+    "seamless mesh: for scans too large for one fit (tiling.size).",
+)
+@click.option(
+    "--tiles",
+    type=click.Choice(["auto"]),
+    help="auto: tile only when one fit would exceed --max-memory (else tiling.memory, 2G), "
+    "with the largest tile size that fits (tiling.auto).",
+)
+@click.option(
+    "-j",
+    "--jobs",
+    type=click.IntRange(min=1),
+    help="Tiled fits: tiles at a time (local), or LocalCluster workers (dask without "
+    "--scheduler). Default: the number of cores; each tile gets cores / jobs threads.",
+)
+@click.option(
+    "--executor",
+    type=click.Choice(["local", "dask"]),
+    default="local",
+    show_default=True,
+    help="Tiled fits: local worker processes, or tasks on a Dask cluster "
+    '(pip install "oprecon[distributed]"); the input and output folder must then be on '
+    "storage every worker sees.",
+)
+@click.option(
+    "--scheduler",
+    metavar="ADDRESS",
+    help="Tiled fits: the Dask scheduler, e.g. tcp://10.0.0.5:8786 (with --executor dask); "
+    "without it a LocalCluster is started.",
+)
 @click.option("--seed", type=int, help="Random seed (same seed, same mesh).")
 @click.option("--max-particles", type=int, help="Cap on particles (dynamics.max_particles).")
 @click.option("--max-steps", type=int, help="Cap on dynamics steps (dynamics.max_steps).")
@@ -301,6 +336,11 @@ def command(
     no_colors: bool | None,
     crease_angle: float | None,
     no_creases: bool | None,
+    tile_size: float | None,
+    tiles: str | None,
+    jobs: int | None,
+    executor: str,
+    scheduler: str | None,
     seed: int | None,
     max_particles: int | None,
     max_steps: int | None,
@@ -334,8 +374,16 @@ def command(
       oprecon fit scan.ply -o mesh.ply --set dynamics.release_steps=200 --seed 3
       oprecon fit city.laz -o roofs.ply --classes 2,6 --transfer classification --quality
       oprecon fit site.e57 -o site.obj --obj-colors --max-memory 8G
+      oprecon fit big.laz -o mesh.ply --tile-size 50 --jobs 4
+      oprecon fit big.laz -o mesh.ply --tiles auto --max-memory 4G --executor dask
 
-    Exit codes: 0 success, 2 bad input or usage, 130 interrupted.
+    Tiled fits (--tile-size, --tiles auto) cut space into tiles with a halo of a few r0, fit
+    them on worker processes or a Dask cluster with one r0 and configuration for the whole
+    scan, and stitch one seamless mesh (faces on a seam are decided with both sides'
+    particles). A failed tile is retried once. The report gets a "tiles" section.
+
+    Exit codes: 0 success, 1 tiles failed twice (not an input problem), 2 bad input or usage,
+    130 interrupted.
     """
     from recon.fitting import fit_file, report_path_for
     from recon.serialize import dumps
@@ -367,6 +415,14 @@ def command(
             "enabled": False if no_creases else (True if crease_angle is not None else None),
         },
     )
+    if tile_size is not None and tiles is not None:
+        raise click.UsageError("--tile-size and --tiles auto are exclusive; give one")
+    if scheduler and executor != "dask":
+        raise click.UsageError("--scheduler needs --executor dask")
+    if tile_size is not None:
+        cfg = apply_overrides(cfg, {"tiling.size": tile_size, "tiling.auto": False})
+    elif tiles == "auto":
+        cfg = apply_overrides(cfg, {"tiling.size": None, "tiling.auto": True})
     if seed is not None:
         cfg = apply_overrides(cfg, {"seed": seed})
     if threads is not None:
@@ -383,6 +439,22 @@ def command(
         )
         if p
     ]
+    if cfg.tiling.size is not None or cfg.tiling.auto:
+        if _fit_tiles(
+            input_path,
+            output_path,
+            cfg,
+            particles_path=particles_path,
+            preview_path=preview_path,
+            no_report=no_report,
+            mkdir=mkdir,
+            jobs=jobs,
+            executor=executor,
+            scheduler=scheduler,
+            quiet=quiet,
+            as_json=as_json,
+        ):
+            return
     try:
         result = fit_file(
             input_path,
@@ -406,3 +478,143 @@ def command(
         click.echo(format_summary(result.report), err=True)
     if as_json:
         click.echo(dumps(result.report.to_dict()))
+
+
+class TileProgress:
+    """Tiles done and in flight on stderr: one updating line on a terminal, one line per
+    finished tile otherwise; retries are always reported."""
+
+    def __init__(self, enabled: bool) -> None:
+        self.enabled = enabled
+        self.tty = sys.stderr.isatty()
+        self.last = ""
+
+    def __call__(self, event: Any) -> None:
+        if event.message:
+            self._end_line()
+            click.echo(f"oprecon: {event.message}", err=True)
+        if not self.enabled:
+            return
+        text = (
+            f"{event.phase:<7} tiles {event.done}/{event.total} done, {event.in_flight} in flight"
+        )
+        if self.tty:
+            click.echo("\r" + text.ljust(len(self.last)), err=True, nl=False)
+            self.last = text
+        elif event.done and text != self.last:
+            click.echo(text, err=True)
+            self.last = text
+
+    def _end_line(self) -> None:
+        if self.tty and self.last:
+            click.echo("", err=True)
+            self.last = ""
+
+    def close(self) -> None:
+        self._end_line()
+
+
+def format_tiled_summary(report: dict[str, Any]) -> str:
+    """A short human summary of a tiled fit's report (stderr)."""
+    topo, tiles = report["topology"], report["tiles"]
+    seams = tiles["seams"]
+    times = report["timings"]
+    rows = [
+        ("input points", f"{report['input']['points']:,}"),
+        ("spacing r0", f"{report['spacing']:.6g}"),
+        (
+            "tiles",
+            f"{tiles['count']} ({' x '.join(map(str, tiles['grid']))} grid, side "
+            f"{tiles['size']:.4g}, halo {tiles['halo']:.4g}), {tiles['time_per_tile']['mean']:.1f}"
+            f" s per tile (max {tiles['time_per_tile']['max']:.1f} s)",
+        ),
+        ("particles", f"{report['particles']:,}"),
+        (
+            "time",
+            "  ".join(f"{k} {v:.1f}s" for k, v in times.items() if k != "total")
+            + f"  (total {times['total']:.1f}s)",
+        ),
+        (
+            "mesh",
+            f"{topo['n_vertices']:,} vertices, {topo['n_faces']:,} faces, "
+            f"{topo['components']} component(s)",
+        ),
+        (
+            "topology",
+            f"boundary loops {topo['boundary_loops']}, non-manifold edges "
+            f"{topo['non_manifold_edges']}, vertices {topo['non_manifold_vertices']}",
+        ),
+        (
+            "seams",
+            f"{seams['seam_edges']:,} edges across tiles, {seams['seam_boundary_edges']} of them "
+            f"on a boundary; {tiles['repair']['faces_dropped']} overlapping faces dropped, "
+            f"{tiles['repair']['seam_loops_zipped']} cracks zipped",
+        ),
+    ]
+    width = max(len(k) for k, _ in rows)
+    lines = [f"  {k:<{width}}  {v}" for k, v in rows]
+    lines += [f"  warning: {w}" for w in report["warnings"]]
+    return "\n".join(lines)
+
+
+def _fit_tiles(
+    input_path: Path,
+    output_path: Path,
+    cfg: Any,
+    *,
+    particles_path: Path | None,
+    preview_path: Path | None,
+    no_report: bool,
+    mkdir: bool,
+    jobs: int | None,
+    executor: str,
+    scheduler: str | None,
+    quiet: bool,
+    as_json: bool,
+) -> bool:
+    """The tiled fit; False when --tiles auto found that one fit will do."""
+    from recon.serialize import dumps
+    from recon.tiling import TileError, fit_tiled
+
+    from .common import fail
+
+    if preview_path is not None:
+        raise click.UsageError("--preview is not available for tiled fits (yet)")
+    if cfg.output.transfer or cfg.output.quality or cfg.output.obj_colors:
+        raise click.UsageError(
+            "--transfer, --quality and --obj-colors are not available for tiled fits (yet)"
+        )
+    progress = TileProgress(enabled=not quiet)
+    try:
+        result = fit_tiled(
+            input_path,
+            output_path,
+            cfg,
+            jobs=jobs,
+            executor=executor,
+            scheduler=scheduler,
+            particles_path_out=particles_path,
+            write_report=False if no_report else None,
+            mkdir=mkdir,
+            on_event=progress,
+        )
+    except TileError as exc:
+        progress.close()
+        fail(f"{input_path}: {exc}", exc.exit_code)
+        return True
+    except OpreconError as exc:
+        if str(exc).startswith(str(input_path)):
+            raise
+        raise type(exc)(f"{input_path}: {exc}") from exc
+    finally:
+        progress.close()
+    if result is None:
+        if not quiet:
+            click.echo("oprecon: the scan fits in one fit's memory budget: not tiling", err=True)
+        return False
+    if not quiet:
+        click.echo(f"oprecon: wrote {output_path}", err=True)
+        click.echo(format_tiled_summary(result.report), err=True)
+    if as_json:
+        click.echo(dumps(result.report))
+    return True

@@ -438,6 +438,39 @@ class OutputConfig(Schema):
 
 
 @dataclass(frozen=True)
+class TilingConfig(Schema):
+    PREFIX: ClassVar[str] = "tiling."
+
+    size: float | None = option(
+        None,
+        "Fit in cubic tiles of this side [input length units], each on its own worker, and "
+        "stitch one seamless mesh (oprecon fit --tile-size); null = one piece unless auto.",
+        0.0,
+        None,
+        lo_open=True,
+    )
+    auto: bool = option(
+        False,
+        "Tile when one fit would exceed the memory budget (io.max_memory, else "
+        "tiling.memory), with the largest tile size whose fit stays within it (--tiles auto).",
+    )
+    memory: str = option(
+        "2G",
+        "Memory budget of one tile's fit with tiling.auto when io.max_memory is unset "
+        "(a size such as '2G').",
+    )
+    halo: float = option(
+        4.0,
+        "Each tile also fits (and triangulates over) the data this far around its core [r0].",
+        2.0,
+        50.0,
+    )
+
+    def check(self, prefix: str) -> None:
+        parse_size(self.memory, f"{prefix}memory")
+
+
+@dataclass(frozen=True)
 class ReconConfig(Schema):
     version: int = option(CONFIG_VERSION, "Configuration format version.", 1, 1)
     seed: int = option(0, "Random seed: same input, config and seed give the same mesh.", 0, None)
@@ -474,6 +507,10 @@ class ReconConfig(Schema):
     creases: CreasesConfig = field(
         default_factory=CreasesConfig,
         metadata={"doc": "Sharp-feature detection (reported; the mesh is unchanged)."},
+    )
+    tiling: TilingConfig = field(
+        default_factory=TilingConfig,
+        metadata={"doc": "Tiled fits of large scans (seamless stitching)."},
     )
 
 

@@ -138,7 +138,8 @@ def check_memory(
     raise InputError(
         f"the fit needs an estimated {format_bytes(estimate.peak_bytes)} at peak "
         f"({estimate.points:,} points, ~{estimate.particles:,} particles at r0 = {r0:.4g}), "
-        f"more than {key} {format_bytes(cap)}; {hint}, or raise {key}"
+        f"more than {key} {format_bytes(cap)}; {hint}, fit in tiles (--tiles auto), or raise "
+        f"{key}"
     )
 
 

@@ -29,6 +29,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -69,9 +70,12 @@ __all__ = [
     "TRIM_GAP_FRACTION",
     "FitResult",
     "Mesh",
+    "ParticleFit",
     "Particles",
     "fit",
     "fit_file",
+    "fit_particles",
+    "local_density_scale",
     "reconstruct",
 ]
 
@@ -163,11 +167,27 @@ def density_spacing(surface: DataSurface, positions: np.ndarray, max_scale: floa
     neighbour; a particle takes that of its nearest data point, divided by the median and by
     ``DENSITY_TOLERANCE``.
     """
-    if max_scale <= 1.0 or surface.n_points <= DENSITY_NEIGHBOURS:
+    return local_density_scale(surface.tree, surface.points, positions, max_scale)
+
+
+def local_density_scale(
+    tree: Any,
+    points: np.ndarray,
+    positions: np.ndarray,
+    max_scale: float,
+    median: float | None = None,
+) -> np.ndarray:
+    """:func:`density_spacing` over a k-d ``tree`` of the data ``points`` [r0]; ``median`` is
+    the median local spacing [r0] (default: that of ``points``; a tile of a tiled fit passes
+    the whole scan's)."""
+    if max_scale <= 1.0 or len(points) <= DENSITY_NEIGHBOURS:
         return np.ones(len(positions))
-    local = data_spacing(surface)
-    _, nearest = surface.tree.query(positions, workers=query_workers())
-    ratio = local[nearest] / max(float(np.median(local)), 1e-12)
+    dk, _ = tree.query(points, DENSITY_NEIGHBOURS + 1, workers=query_workers())
+    local = dk[:, -1]
+    _, nearest = tree.query(positions, workers=query_workers())
+    if median is None:
+        median = float(np.median(local))
+    ratio = local[nearest] / max(float(median), 1e-12)
     return np.clip(ratio / DENSITY_TOLERANCE, 1.0, max_scale)
 
 
@@ -276,7 +296,55 @@ def reconstruct(
         return _reconstruct(cloud, cfg, on_progress)
 
 
-def _reconstruct(cloud: PointCloud, cfg: ReconConfig, on_progress: ProgressFn | None) -> FitResult:
+@dataclass
+class ParticleFit:
+    """The particle sheet of one fit, before triangulation (:func:`fit_particles`).
+
+    Attributes
+    ----------
+    positions : (n, 3) float64 [length]
+        Absolute (file) coordinates.
+    normals : (n, 3) float64
+    rest : (n,) float64 [r0] or None
+        Each particle's rest spacing with ``seeds.adaptive``; None otherwise.
+    r0 : float [length]
+    config : ReconConfig
+        The configuration as resolved by the fit (``normals.k``, ``growth.max_gap``, ``dt``).
+    n_trimmed : int
+    steps : dict
+    warnings : list of str
+    stop_reason : str or None
+    """
+
+    positions: np.ndarray
+    normals: np.ndarray
+    rest: np.ndarray | None
+    r0: float
+    config: ReconConfig
+    n_trimmed: int
+    steps: dict
+    warnings: list
+    stop_reason: str | None
+
+
+@dataclass
+class _Sheet:
+    """What :func:`_fit_sheet` hands on to the triangulation and the report."""
+
+    cfg: ReconConfig
+    points: np.ndarray
+    normals_info: dict
+    creases: CreaseStats | None
+    r0: float
+    d_nn: float
+    surface: DataSurface
+    sched: Any
+    n_trimmed: int
+    clock: Clock
+
+
+def _fit_sheet(cloud: PointCloud, cfg: ReconConfig, on_progress: ProgressFn | None) -> _Sheet:
+    """Normals, r0, the schedule and the trim: everything before the triangulation."""
     clock = Clock(cfg.dynamics.time_limit)
     rng = np.random.default_rng(cfg.seed)
     points = np.asarray(cloud.points, dtype=np.float64)
@@ -290,7 +358,6 @@ def _reconstruct(cloud: PointCloud, cfg: ReconConfig, on_progress: ProgressFn | 
     r0, d_nn = choose_spacing(points, cfg)
     check_grid_size(points, r0)
     cfg = with_max_gap(cfg, r0, d_nn)
-    diag = bbox_diagonal(points)
     surface = DataSurface.build(points / r0, normals, k=cfg.normals.k)
     if found is not None and cfg.creases.fit:  # per-side planes and crease particles
         surface.creases = CreaseField.build(found, surface.points, r0)
@@ -298,11 +365,49 @@ def _reconstruct(cloud: PointCloud, cfg: ReconConfig, on_progress: ProgressFn | 
     clock.check()
 
     sched = run_schedule(surface, cfg, rng, clock, on_progress)
-    state = sched.state
     if sched.dt != cfg.dynamics.dt:
         cfg = with_values(cfg, dynamics={"dt": sched.dt})
+    n_trimmed = _trim(sched.state, surface, cfg)
+    return _Sheet(cfg, points, normals_info, creases, r0, d_nn, surface, sched, n_trimmed, clock)
 
-    n_trimmed = _trim(state, surface, cfg)
+
+def fit_particles(
+    cloud: PointCloud, config: ReconConfig | None = None, on_progress: ProgressFn | None = None
+) -> ParticleFit:
+    """The particle sheet of a fit without its mesh: one tile of a tiled fit
+    (:mod:`recon.tiling`), which gives r0 (``seeds.spacing``), ``growth.max_gap`` and
+    ``normals.k`` fixed for the whole scan."""
+    cfg = config if config is not None else ReconConfig()
+    with thread_count(cfg.threads):
+        sheet = _fit_sheet(cloud, cfg, on_progress)
+    state = sheet.sched.state
+    origin = np.asarray(cloud.origin, dtype=np.float64)
+    return ParticleFit(
+        positions=state.position * sheet.r0 + origin,
+        normals=state.normal.copy(),
+        rest=np.array(state.rest, dtype=float) if sheet.cfg.seeds.adaptive else None,
+        r0=sheet.r0,
+        config=sheet.cfg,
+        n_trimmed=sheet.n_trimmed,
+        steps=dict(sheet.sched.steps),
+        warnings=list(sheet.sched.warnings),
+        stop_reason=sheet.sched.stop_reason,
+    )
+
+
+def _reconstruct(cloud: PointCloud, cfg: ReconConfig, on_progress: ProgressFn | None) -> FitResult:
+    sheet = _fit_sheet(cloud, cfg, on_progress)
+    cfg, points, surface, sched, clock = (
+        sheet.cfg,
+        sheet.points,
+        sheet.surface,
+        sheet.sched,
+        sheet.clock,
+    )
+    r0, d_nn, n_trimmed = sheet.r0, sheet.d_nn, sheet.n_trimmed
+    normals_info, creases = sheet.normals_info, sheet.creases
+    state = sched.state
+    diag = bbox_diagonal(points)
     tri = _triangulate(state, surface, cfg)
     clock.lap("triangulate")
     clock.check()

@@ -31,6 +31,7 @@ __all__ = [
     "SPACING_SAMPLE_SEED",
     "check_grid_size",
     "choose_spacing",
+    "spacing_from_median",
     "with_max_gap",
     "with_neighborhood_size",
 ]
@@ -91,15 +92,28 @@ def choose_spacing(points: np.ndarray, cfg: ReconConfig) -> tuple[float, float]:
         No positive finite spacing can be derived (e.g. mostly duplicate points).
     """
     d_nn = median_nearest_neighbor_distance(points, rng=np.random.default_rng(SPACING_SAMPLE_SEED))
+    return spacing_from_median(d_nn, len(points), bbox_diagonal(points), cfg), float(d_nn)
+
+
+def spacing_from_median(d_nn: float, n_points: int, diag: float, cfg: ReconConfig) -> float:
+    """r0 [length] from the median point spacing ``d_nn``, the point count and the bounding-box
+    diagonal (the rule of :func:`choose_spacing`, also used by a tiled fit, which measures
+    them tile by tile).
+
+    Raises
+    ------
+    InputError
+        No positive finite spacing can be derived.
+    """
     s = cfg.seeds
     if s.spacing is not None:
         r0 = s.spacing
     elif s.spacing_relative is not None:
-        r0 = s.spacing_relative * bbox_diagonal(points)
+        r0 = s.spacing_relative * diag
     else:
         factor = s.spacing_factor
         if s.min_particles > 0:
-            floor = math.sqrt(AREA_PER_POINT * len(points) / (HEX_AREA * s.min_particles))
+            floor = math.sqrt(AREA_PER_POINT * n_points / (HEX_AREA * s.min_particles))
             factor = min(factor, max(floor, MIN_SPACING_FACTOR))
         r0 = factor * d_nn
     if not (r0 > 0 and math.isfinite(r0)):
@@ -107,7 +121,7 @@ def choose_spacing(points: np.ndarray, cfg: ReconConfig) -> tuple[float, float]:
         if d_nn == 0.0:
             msg += " (most points are exact duplicates: set io.merge_duplicates: true)"
         raise InputError(msg + "; or give --spacing")
-    return float(r0), float(d_nn)
+    return float(r0)
 
 
 def check_grid_size(points: np.ndarray, r0: float) -> None:

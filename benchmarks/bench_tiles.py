@@ -1,0 +1,282 @@
+"""Tiled fits (issue #14): seams against the untiled fit, and scaling on a Dask LocalCluster.
+
+``seams`` (default): an N-point synthetic scene (``benchmarks/scenes.py``: terrain, buildings,
+tree crowns, open boundary, exact ground truth) fitted whole and cut into >= 8 tiles. Prints
+boundary loops, non-manifold edges, Chamfer-L1 and F@1% against the ground truth, and time,
+for both.
+
+``scale``: writes an N-point LAZ scene per size (a larger N is a larger area at the same
+density), fits it in tiles of a fixed side on a 2-worker Dask LocalCluster
+(``--executor dask --jobs 2``), and prints wall time, points/s, tiles, and the peak RSS of the
+coordinating process and of each worker (sampled every 0.2 s over the process tree), then the
+slope of log(time) against log(points).
+
+Examples::
+
+    python benchmarks/bench_tiles.py seams --points 1000000
+    python benchmarks/bench_tiles.py scale --points 250000 500000 1000000
+    python benchmarks/bench_tiles.py scale --points 10000000 --tile-size 100
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parent
+sys.path.insert(0, str(HERE))
+
+from scenes import Scene, write_laz  # noqa: E402
+
+OPRECON = [sys.executable, "-m", "recon.cli.main"]
+
+
+def _oprecon() -> list[str]:
+    exe = Path(sys.executable).with_name("oprecon")
+    return [str(exe)] if exe.exists() else OPRECON
+
+
+class TreeRss:
+    """Peak RSS of a process and of each of its descendants, sampled in a thread."""
+
+    def __init__(self, pid: int, every: float = 0.2) -> None:
+        import psutil
+
+        self.root = psutil.Process(pid)
+        self.every = every
+        self.peak: dict[int, int] = {}
+        self.names: dict[int, str] = {}
+        self.stop = threading.Event()
+        self.thread = threading.Thread(target=self._run, daemon=True)
+        self.thread.start()
+
+    def _run(self) -> None:
+        import psutil
+
+        while not self.stop.is_set():
+            try:
+                procs = [self.root, *self.root.children(recursive=True)]
+            except psutil.Error:
+                break
+            for p in procs:
+                try:
+                    rss = p.memory_info().rss
+                    self.peak[p.pid] = max(self.peak.get(p.pid, 0), rss)
+                    if p.pid not in self.names:
+                        self.names[p.pid] = " ".join(p.cmdline()[:3])
+                except psutil.Error:
+                    pass
+            time.sleep(self.every)
+
+    def close(self) -> tuple[int, list[int]]:
+        """(peak of the root, peaks of the descendants that were workers)."""
+        self.stop.set()
+        self.thread.join()
+        root = self.peak.get(self.root.pid, 0)
+        workers = [
+            v
+            for pid, v in self.peak.items()
+            if pid != self.root.pid and "resource_tracker" not in self.names.get(pid, "")
+        ]
+        return root, sorted(workers, reverse=True)
+
+
+def run_fit(args: list[str], env: dict | None = None) -> tuple[float, int, list[int], int]:
+    """Run ``oprecon fit ...``; wall seconds, coordinator peak RSS, worker peaks, exit code."""
+    t0 = time.perf_counter()
+    proc = subprocess.Popen(
+        [*_oprecon(), "fit", *args, "-q"],
+        env=env,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    rss = TreeRss(proc.pid)
+    _, err = proc.communicate()
+    wall = time.perf_counter() - t0
+    root, workers = rss.close()
+    if proc.returncode != 0:
+        print(err, file=sys.stderr)
+    return wall, root, workers, proc.returncode
+
+
+def mesh_scores(mesh: Path, truth: np.ndarray) -> dict:
+    from recon.io import read_mesh
+    from recon.metrics import compare_meshes
+    from recon.topology import mesh_topology
+
+    v, f = read_mesh(mesh)
+    topo = mesh_topology(v, f)
+    cmp = compare_meshes((v, f), (truth, None), n_samples=len(truth))
+    return {
+        "vertices": topo["n_vertices"],
+        "faces": topo["n_faces"],
+        "boundary_loops": topo["boundary_loops"],
+        "non_manifold_edges": topo["non_manifold_edges"],
+        "non_manifold_vertices": topo["non_manifold_vertices"],
+        "duplicate_faces": topo["duplicate_faces"],
+        "chamfer_l1": cmp["chamfer_l1"],
+        "fscore": cmp["fscore"],
+    }
+
+
+def seams(ns: argparse.Namespace) -> int:
+    n = ns.points[0]
+    scene = Scene.for_points(n, seed=ns.seed)
+    pts, cls = scene.sample(n, seed=ns.seed + 1, noise=ns.noise)
+    truth = scene.ground_truth(ns.truth)
+    tiles_per_side = ns.tiles_per_side
+    size = scene.side / tiles_per_side * 1.0001
+    with tempfile.TemporaryDirectory(prefix="bench_tiles_", dir=ns.workdir) as tmp:
+        d = Path(tmp)
+        src = d / "scene.laz"
+        write_laz(src, pts, cls)
+        rows = {}
+        for name, extra in (
+            ("untiled", []),
+            (
+                f"tiled {tiles_per_side}x{tiles_per_side}",
+                ["--tile-size", f"{size:.6f}", "--jobs", str(ns.jobs)],
+            ),
+        ):
+            out = d / f"{name.split()[0]}.ply"
+            wall, root, workers, code = run_fit([str(src), "-o", str(out), *extra, *ns.fit_args])
+            if code != 0:
+                return code
+            row = mesh_scores(out, truth)
+            report = json.loads(out.with_suffix(".report.json").read_text())
+            row.update(
+                time_s=wall,
+                tiles=report.get("tiles", {}).get("count", 1),
+                peak_rss_gib=max([root, *workers]) / 2**30,
+            )
+            rows[name] = row
+            print(f"{name}: {json.dumps(row)}", flush=True)
+    base = rows["untiled"]
+    tiled = rows[next(k for k in rows if k != "untiled")]
+    print()
+    print(
+        f"scene: {n:,} points, {scene.side:.0f} m square, {len(scene.buildings)} buildings, "
+        f"{len(scene.trees)} trees; noise {ns.noise} m; truth {len(truth):,} points"
+    )
+    print("| run | tiles | boundary loops | non-manifold edges | Chamfer-L1 [m] | F@1% | time s |")
+    print("|---|---|---|---|---|---|---|")
+    for name, r in rows.items():
+        print(
+            f"| {name} | {r['tiles']} | {r['boundary_loops']} | {r['non_manifold_edges']} | "
+            f"{r['chamfer_l1']:.4f} | {r['fscore']:.4f} | {r['time_s']:.0f} |"
+        )
+    dc = tiled["chamfer_l1"] / base["chamfer_l1"] - 1
+    df = tiled["fscore"] - base["fscore"]
+    print(
+        f"\nChamfer-L1 tiled vs untiled: {100 * dc:+.2f} % (goal within 2 %); "
+        f"F@1%: {df:+.4f} (goal within 0.002)"
+    )
+    ok = (
+        abs(dc) <= 0.02
+        and abs(df) <= 0.002
+        and tiled["non_manifold_edges"] == 0
+        and tiled["boundary_loops"] == base["boundary_loops"]
+    )
+    print("seamless goals met" if ok else "seamless goals NOT met")
+    return 0
+
+
+def scale(ns: argparse.Namespace) -> int:
+    rows = []
+    for n in ns.points:
+        scene = Scene.for_points(n, seed=ns.seed, offset=(5e6, 5e6, 200.0))
+        with tempfile.TemporaryDirectory(prefix="bench_tiles_", dir=ns.workdir) as tmp:
+            d = Path(tmp)
+            src = d / "scene.laz"
+            t0 = time.perf_counter()
+            # write in parts so that the generator does not hold 10M points twice
+            pts, cls = scene.sample(n, seed=ns.seed + 1, noise=ns.noise)
+            write_laz(src, pts, cls)
+            del pts, cls
+            t_write = time.perf_counter() - t0
+            out = d / "mesh.ply"
+            args = [
+                str(src),
+                "-o",
+                str(out),
+                "--tile-size",
+                str(ns.tile_size),
+                "--jobs",
+                "2",
+                "--executor",
+                ns.executor,
+                *ns.fit_args,
+            ]
+            wall, root, workers, code = run_fit(args)
+            if code != 0:
+                return code
+            report = json.loads(out.with_suffix(".report.json").read_text())
+            row = {
+                "points": n,
+                "side_m": scene.side,
+                "tiles": report["tiles"]["count"],
+                "wall_s": wall,
+                "points_per_s": n / wall,
+                "coordinator_gib": root / 2**30,
+                "worker_gib": [w / 2**30 for w in workers[:2]],
+                "tile_s_mean": report["tiles"]["time_per_tile"]["mean"],
+                "write_laz_s": t_write,
+                "non_manifold_edges": report["topology"]["non_manifold_edges"],
+                "boundary_loops": report["topology"]["boundary_loops"],
+            }
+            rows.append(row)
+            print(json.dumps(row), flush=True)
+    print()
+    print("| points | tiles | wall s | points/s | coordinator peak GiB | worker peak GiB |")
+    print("|---|---|---|---|---|---|")
+    for r in rows:
+        print(
+            f"| {r['points']:,} | {r['tiles']} | {r['wall_s']:.0f} | {r['points_per_s']:,.0f} | "
+            f"{r['coordinator_gib']:.2f} | {', '.join(f'{w:.2f}' for w in r['worker_gib'])} |"
+        )
+    for a, b in zip(rows, rows[1:], strict=False):
+        slope = math.log(b["wall_s"] / a["wall_s"]) / math.log(b["points"] / a["points"])
+        print(f"slope {a['points']:,} -> {b['points']:,}: {slope:.2f} (goal <= 1.1)")
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("mode", choices=["seams", "scale"], nargs="?", default="seams")
+    ap.add_argument("--points", type=int, nargs="+", default=None)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--noise", type=float, default=0.02, help="[m] along the normal")
+    ap.add_argument("--truth", type=int, default=2_000_000, help="ground-truth points")
+    ap.add_argument("--tiles-per-side", type=int, default=3, help="seams: tiles per side")
+    ap.add_argument("--tile-size", type=float, default=100.0, help="scale: tile side [m]")
+    ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--executor", default="dask", choices=["local", "dask"])
+    ap.add_argument("--workdir", default=None, help="folder for the scenes and meshes")
+    ap.add_argument(
+        "--fit-arg",
+        dest="fit_args",
+        action="append",
+        default=[],
+        help="extra argument for oprecon fit (repeatable)",
+    )
+    ns = ap.parse_args(argv)
+    if ns.points is None:
+        ns.points = [1_000_000] if ns.mode == "seams" else [250_000, 500_000, 1_000_000]
+    os.environ.setdefault("PYTHONWARNINGS", "ignore")
+    return seams(ns) if ns.mode == "seams" else scale(ns)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,268 @@
+"""Where the tiles run: a local process pool (``--jobs``) or a Dask cluster (``--executor dask``,
+a LocalCluster started here or a running scheduler), the executors of ``oprecon batch``.
+
+:func:`run_tasks` submits one task per tile, retries a failed task once, reports tiles done and
+in flight, and raises :class:`TileError` naming the tiles that failed twice with their bounds.
+Ctrl-C cancels the tasks and stops the worker processes before it propagates.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import multiprocessing
+import signal
+import threading
+import time
+import traceback
+from collections.abc import Callable, Iterator
+from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
+from dataclasses import dataclass
+from typing import Any
+
+from ..batch.executors import default_jobs, import_dask
+from ..errors import OpreconError
+from ..version import __version__
+
+log = logging.getLogger(__name__)
+
+__all__ = ["EXECUTORS", "TileError", "TileEvent", "TileRunner", "run_tasks", "tile_runner"]
+
+EXECUTORS = ("local", "dask")
+#: Seconds between polls of the running tasks.
+POLL = 0.1
+
+
+class TileError(OpreconError):
+    """Tiles failed twice; ``exit_code`` is 2 when every failure was an input problem (an
+    :class:`OpreconError` in the tile), else 1."""
+
+    def __init__(self, message: str, exit_code: int) -> None:
+        super().__init__(message)
+        self.exit_code = exit_code
+
+
+@dataclass(frozen=True)
+class TileEvent:
+    """Progress of a phase: ``done`` of ``total`` tiles finished, ``in_flight`` running."""
+
+    phase: str
+    done: int
+    in_flight: int
+    total: int
+    message: str = ""
+
+
+class TileRunner:
+    """Submits functions to a process pool or a Dask client."""
+
+    def __init__(self, kind: str, jobs: int, client: Any = None) -> None:
+        self.kind = kind
+        self.jobs = jobs
+        self.client = client
+        self.pools: list[ProcessPoolExecutor] = []
+        if client is None:
+            self._new_pool()
+
+    def _new_pool(self) -> ProcessPoolExecutor:
+        ctx = multiprocessing.get_context("spawn")  # numba/OpenMP state does not survive fork
+        pool = ProcessPoolExecutor(
+            max_workers=self.jobs, mp_context=ctx, initializer=_ignore_sigint
+        )
+        self.pools.append(pool)
+        return pool
+
+    def submit(self, fn: Callable[..., Any], *args: Any) -> Any:
+        if self.client is not None:
+            return self.client.submit(fn, *args, pure=False)
+        try:
+            return self.pools[-1].submit(fn, *args)
+        except BrokenProcessPool:  # a worker died (killed, out of memory): start new ones
+            self._close_pool(self.pools[-1])
+            return self._new_pool().submit(fn, *args)
+
+    @staticmethod
+    def _close_pool(pool: ProcessPoolExecutor) -> None:
+        """Stop a pool's worker processes now (they ignore Ctrl-C; see ``_ignore_sigint``)."""
+        processes = list((getattr(pool, "_processes", None) or {}).values())
+        pool.shutdown(wait=False, cancel_futures=True)
+        for p in processes:
+            with contextlib.suppress(Exception):
+                if p.is_alive():
+                    p.terminate()
+        for p in processes:
+            with contextlib.suppress(Exception):
+                p.join(5)
+
+    def close(self) -> None:
+        for pool in self.pools:
+            self._close_pool(pool)
+
+    def cancel(self, futures: list[Any]) -> None:
+        for f in futures:
+            with contextlib.suppress(Exception):
+                f.cancel()
+
+
+def _worker_version() -> str:
+    from recon.version import __version__ as version
+
+    return version
+
+
+def _ignore_sigint() -> None:  # pragma: no cover - runs in the workers
+    """Workers leave Ctrl-C to the coordinator, which stops them (and, like ``oprecon``,
+    keep numba's notice about an old TBB off stderr)."""
+    import warnings
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    warnings.filterwarnings("ignore", message="The TBB threading layer requires")
+
+
+@contextlib.contextmanager
+def _sigint_ignored() -> Iterator[None]:
+    """Ignore SIGINT while processes start, so that they ignore Ctrl-C."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+@contextlib.contextmanager
+def tile_runner(kind: str, jobs: int | None, scheduler: str | None = None) -> Iterator[TileRunner]:
+    """A :class:`TileRunner` for ``kind`` (``local`` or ``dask``), closed (workers stopped) on
+    exit, also on Ctrl-C."""
+    if kind not in EXECUTORS:
+        raise OpreconError(f"executor: expected one of {', '.join(EXECUTORS)}, got {kind!r}")
+    jobs = int(jobs) if jobs else default_jobs()
+    if kind == "local":
+        runner = TileRunner(kind, jobs)
+        try:
+            yield runner
+        finally:
+            runner.close()
+        return
+    dd = import_dask()
+    cluster = None
+    client = None
+    try:
+        if scheduler:
+            try:
+                client = dd.Client(scheduler, timeout="20s", set_as_default=False)
+            except (OSError, TimeoutError) as exc:
+                raise OpreconError(
+                    f"cannot connect to the Dask scheduler at {scheduler}: {exc}"
+                ) from None
+        else:
+            with _sigint_ignored():
+                cluster = dd.LocalCluster(
+                    n_workers=jobs,
+                    processes=True,
+                    threads_per_worker=1,
+                    dashboard_address=None,
+                    silence_logs=logging.ERROR,
+                )
+            client = dd.Client(cluster, set_as_default=False)
+        try:
+            versions = client.run(_worker_version)
+        except Exception as exc:  # noqa: BLE001 - the workers cannot import oprecon
+            raise OpreconError(
+                "cannot run oprecon on the Dask workers (install the same "
+                f"oprecon version on every worker): {exc}"
+            ) from None
+        wrong = {w: v for w, v in versions.items() if v != __version__}
+        if wrong:
+            raise OpreconError(
+                f"Dask workers run other oprecon versions than {__version__}: "
+                + ", ".join(f"{w} has {v}" for w, v in sorted(wrong.items()))
+            )
+        yield TileRunner(kind, max(1, len(versions)) if scheduler else jobs, client=client)
+    finally:
+        for obj in (client, cluster):
+            with contextlib.suppress(Exception):
+                if obj is not None:
+                    obj.close()
+
+
+def run_tasks(
+    runner: TileRunner,
+    phase: str,
+    tasks: dict[int, tuple[Callable[..., Any], tuple[Any, ...]]],
+    describe: Callable[[int], str],
+    on_event: Callable[[TileEvent], None] | None = None,
+) -> dict[int, Any]:
+    """Run ``tasks`` (tile -> (function, args)); a task that fails is run once more.
+
+    Raises
+    ------
+    TileError
+        Some tiles failed twice (the message lists each with its bounds and error).
+    """
+    emit = on_event or (lambda e: None)
+    total = len(tasks)
+    attempts = dict.fromkeys(tasks, 0)
+    futures: dict[Any, int] = {}
+    results: dict[int, Any] = {}
+    failed: dict[int, BaseException] = {}
+
+    def submit(tile: int) -> None:
+        fn, args = tasks[tile]
+        attempts[tile] += 1
+        futures[runner.submit(fn, *args)] = tile
+
+    for tile in tasks:
+        submit(tile)
+    emit(TileEvent(phase, 0, min(runner.jobs, total), total))
+    try:
+        while futures:
+            done = [f for f in futures if f.done()]
+            if not done:
+                time.sleep(POLL)
+                continue
+            for f in done:
+                tile = futures.pop(f)
+                try:
+                    results[tile] = f.result()
+                except Exception as exc:  # noqa: BLE001 - a tile's failure is reported below
+                    log.debug(
+                        "%s failed: %s",
+                        describe(tile),
+                        "".join(traceback.format_exception(type(exc), exc, exc.__traceback__)),
+                    )
+                    if attempts[tile] < 2:
+                        emit(
+                            TileEvent(
+                                phase,
+                                len(results) + len(failed),
+                                min(runner.jobs, len(futures) + 1),
+                                total,
+                                f"{describe(tile)} failed ({_short(exc)}); retrying",
+                            )
+                        )
+                        submit(tile)
+                        continue
+                    failed[tile] = exc
+                finished = len(results) + len(failed)
+                emit(TileEvent(phase, finished, min(runner.jobs, len(futures)), total))
+    except BaseException:
+        runner.cancel(list(futures))
+        raise
+    if failed:
+        lines = [f"{describe(t)}: {_short(e)}" for t, e in sorted(failed.items())]
+        code = 2 if all(isinstance(e, OpreconError) for e in failed.values()) else 1
+        raise TileError(
+            f"{len(failed)} of {total} tile(s) failed twice in the {phase} phase: "
+            + "; ".join(lines),
+            code,
+        )
+    return results
+
+
+def _short(exc: BaseException) -> str:
+    text = str(exc).strip().splitlines()
+    return f"{type(exc).__name__}: {text[0] if text else ''}".rstrip(": ")

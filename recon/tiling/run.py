@@ -1,0 +1,397 @@
+"""A tiled fit from a file to the output files: :func:`fit_tiled`.
+
+1. The scan's header (LAS/LAZ: point count and bounds without reading the points) and the
+   tile size (``tiling.size``, or with ``tiling.auto`` the largest whose fit stays within the
+   memory budget, :func:`recon.tiling.grid.choose_auto_tile_size`).
+2. The points are split into one file per tile in a work folder beside the output
+   (:mod:`recon.tiling.source`; shared storage on a cluster).
+3. r0, ``growth.max_gap`` and ``normals.k`` are decided once for the whole scan: from all the
+   points for formats read whole (exactly as an untiled fit decides them), from per-tile
+   samples for LAS/LAZ (:func:`recon.tiling.tasks.spacing_task`).
+4. Every tile fits its core plus a halo of ``tiling.halo`` r0 and keeps the particles in its
+   half-open core (:func:`recon.tiling.tasks.fit_task`).
+5. Normal signs are agreed across seams (:func:`recon.tiling.stitch.agree_signs`).
+6. Every tile triangulates its particles plus its neighbours' within the halo and keeps the
+   faces whose centroid lies in its core (:func:`recon.tiling.tasks.mesh_task`): near a seam
+   both tiles see the same particles, so they agree on the faces there.
+7. The faces are merged by global particle id and the seams repaired
+   (:func:`recon.tiling.stitch.repair_seams`); the mesh, particles and report are written all
+   or nothing. The work folder is removed whatever happens.
+"""
+
+from __future__ import annotations
+
+import math
+import shutil
+import tempfile
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..config import ReconConfig, config_to_dict, parse_size, with_values
+from ..errors import InputError
+from ..fitting.memory import check_memory, estimate_peak_memory
+from ..fitting.report import report_path_for
+from ..fitting.scale import choose_spacing, spacing_from_median, with_max_gap
+from ..geometry import SPACING_SAMPLE_SEED
+from ..serialize import dumps
+from ..version import __version__
+from .executors import TileEvent, run_tasks, tile_runner
+from .grid import TileGrid, choose_auto_tile_size
+from .source import ScanHeader, scan_header, split_input
+from .stitch import agree_signs, repair_seams, seam_statistics
+from .tasks import FitJob, MeshJob, fit_task, mesh_task, particles_path, spacing_task
+
+__all__ = ["TiledResult", "fit_tiled", "plan_tile_size"]
+
+#: Points whose spacing the whole scan samples (as ``median_nearest_neighbor_distance``).
+SPACING_SAMPLE = 20_000
+
+
+@dataclass
+class TiledResult:
+    """The stitched mesh (absolute coordinates) and the report (a JSON-ready dict)."""
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    normals: np.ndarray
+    report: dict = field(default_factory=dict)
+
+
+def _budget(cfg: ReconConfig) -> int:
+    if cfg.io.max_memory is not None:
+        return parse_size(cfg.io.max_memory, "io.max_memory")
+    return parse_size(cfg.tiling.memory, "tiling.memory")
+
+
+def plan_tile_size(header: ScanHeader, cfg: ReconConfig) -> float | None:
+    """The tile side [length]: ``tiling.size``, or with ``tiling.auto`` the largest that fits
+    the memory budget (None: the whole scan fits in one fit)."""
+    if cfg.tiling.size is not None:
+        return float(cfg.tiling.size)
+    if not cfg.tiling.auto:
+        return None
+    if header.kind == "whole":
+        r0, d_nn = choose_spacing(header.cloud.points, cfg)
+    else:
+        from .source import spacing_sample
+
+        d_nn = spacing_sample(header, cfg, SPACING_SAMPLE_SEED)
+        diag = float(np.linalg.norm(header.hi - header.lo))
+        r0 = spacing_from_median(d_nn, header.n_points, diag, cfg)
+
+    def peak(n: int) -> int:
+        return estimate_peak_memory(n, r0, d_nn, cfg.dynamics.max_particles).peak_bytes
+
+    return choose_auto_tile_size(
+        header.lo, header.hi, header.n_points, peak, _budget(cfg), cfg.tiling.halo * r0
+    )
+
+
+def _default_threads(
+    cfg: ReconConfig, jobs: int, executor: str, scheduler: str | None
+) -> int | None:
+    """Threads per tile: cores / jobs (as ``oprecon batch``) unless set; a remote cluster's
+    workers use their own cores."""
+    if cfg.threads is not None or (executor == "dask" and scheduler):
+        return cfg.threads
+    from ..batch.executors import default_jobs
+
+    return max(1, default_jobs() // max(1, jobs))
+
+
+def _scan_scales(header: ScanHeader, store: Any, cfg: ReconConfig, runner: Any, emit: Any):
+    """(n_points, median spacing, median 6th-neighbour distance, k) of the whole scan."""
+    from scipy.spatial import cKDTree
+
+    from ..fitting.pipeline import DENSITY_NEIGHBOURS
+    from ..fitting.scale import with_neighborhood_size
+
+    n_total = sum(store.counts.values())
+    if header.cloud is not None:  # read whole: exactly as an untiled fit
+        pts = header.cloud.points
+        _, d_nn = choose_spacing(pts, cfg)
+        tree = cKDTree(pts)
+        d6 = float(np.median(tree.query(pts, DENSITY_NEIGHBOURS + 1)[0][:, -1]))
+        k = with_neighborhood_size(pts, cfg).normals.k
+        return n_total, d_nn, d6, k
+    tasks = {
+        t: (
+            spacing_task,
+            (
+                store,
+                t,
+                max(1, math.ceil(SPACING_SAMPLE * store.counts[t] / n_total)),
+                cfg.normals.k,
+                cfg.normals.auto_scale,
+            ),
+        )
+        for t in store.tiles()
+    }
+    res = run_tasks(runner, "spacing", tasks, store.grid.describe, emit)
+    d1 = np.concatenate([r["d1"] for r in res.values()])
+    d6 = np.concatenate([r["d6"] for r in res.values()])
+    if len(d1) == 0:
+        raise InputError(f"{header.path}: too few points per tile to measure the point spacing")
+    ks = [r["k"] for r in res.values() if "k" in r]
+    k = int(np.median(ks)) if ks else cfg.normals.k
+    return n_total, float(np.median(d1)), float(np.median(d6)), k
+
+
+def fit_tiled(
+    input_path: str | Path,
+    output_path: str | Path,
+    config: ReconConfig | None = None,
+    *,
+    jobs: int | None = None,
+    executor: str = "local",
+    scheduler: str | None = None,
+    particles_path_out: str | Path | None = None,
+    write_report: bool | None = None,
+    mkdir: bool = False,
+    on_event: Callable[[TileEvent], None] | None = None,
+) -> TiledResult | None:
+    """Fit ``input_path`` tile by tile and write one stitched mesh (see the module docstring).
+
+    Returns None, having written nothing, when ``tiling.auto`` finds that the whole scan fits
+    in one fit (the caller then runs the ordinary fit).
+
+    Raises
+    ------
+    InputError
+        Bad input, a bad tile size, a tile that would exceed ``io.max_memory``.
+    TileError
+        Tiles failed twice (each named with its bounds).
+    """
+    from ..io import atomic_output, atomic_outputs, check_output_path, write_mesh, write_points
+    from ..topology import mesh_topology, triangle_quality
+
+    cfg = config if config is not None else ReconConfig()
+    t_start = time.perf_counter()
+    input_path = Path(input_path)
+    output_path = check_output_path(Path(output_path), inputs=[input_path], mkdir=mkdir)
+    want_report = cfg.output.write_report if write_report is None else write_report
+    report_path = report_path_for(output_path) if want_report else None
+    for p in (particles_path_out, report_path):
+        if p is not None:
+            check_output_path(Path(p), inputs=[input_path, output_path], mkdir=mkdir)
+    header = scan_header(input_path, cfg)
+    size = plan_tile_size(header, cfg)
+    if size is None:
+        return None
+    grid = TileGrid.cover(header.lo, header.hi, size, 0.0)
+    timings: dict[str, float] = {}
+    warnings: list[str] = []
+    if header.cloud is not None and header.cloud.colors is not None and cfg.output.colors:
+        warnings.append("the input's colours are not carried onto a tiled mesh (not yet)")
+    work = Path(tempfile.mkdtemp(prefix=".oprecon-tiles-", dir=output_path.parent))
+    try:
+        t0 = time.perf_counter()
+        cloud = header.cloud
+        store = split_input(header, grid, work, cfg)
+        header.cloud = cloud  # the scales below need it once more (formats read whole)
+        timings["split"] = time.perf_counter() - t0
+        executor_jobs = jobs
+        with tile_runner(executor, executor_jobs, scheduler) as runner:
+            t0 = time.perf_counter()
+            n_points, d_nn, d6, k = _scan_scales(header, store, cfg, runner, on_event)
+            header.cloud = cloud = None
+            diag = float(np.linalg.norm(header.hi - header.lo))
+            r0 = spacing_from_median(d_nn, n_points, diag, cfg)
+            cfg = with_max_gap(cfg, r0, d_nn)
+            tile_cfg = with_values(
+                cfg,
+                seeds={"spacing": r0},
+                normals={"k": k, "auto_scale": False},
+                io={"max_memory": None},
+            )
+            tile_cfg = replace(
+                tile_cfg,
+                seeds=replace(tile_cfg.seeds, spacing_relative=None),
+                threads=_default_threads(cfg, runner.jobs, executor, scheduler),
+            )
+            grid = TileGrid.cover(header.lo, header.hi, size, cfg.tiling.halo * r0)
+            store = replace(store, grid=grid)
+            _check_tile_memory(store, cfg, r0, d_nn)
+            timings["spacing"] = time.perf_counter() - t0
+
+            t0 = time.perf_counter()
+            cfg_dict = config_to_dict(tile_cfg)
+            fits = run_tasks(
+                runner,
+                "fit",
+                {t: (fit_task, (FitJob(t, store, cfg_dict, r0, work),)) for t in store.tiles()},
+                grid.describe,
+                on_event,
+            )
+            timings["fit"] = time.perf_counter() - t0
+            flips, disagreeing = agree_signs(
+                grid,
+                {t: r["border_in"] for t, r in fits.items()},
+                {t: r["border_out"] for t, r in fits.items()},
+                r0,
+            )
+            offsets: dict[int, int] = {}
+            total = 0
+            for t in sorted(fits):
+                if fits[t]["particles"] > 0:
+                    offsets[t] = total
+                    total += fits[t]["particles"]
+            if total == 0:
+                raise InputError(f"{input_path}: no tile produced particles")
+            t0 = time.perf_counter()
+            meshes = run_tasks(
+                runner,
+                "mesh",
+                {
+                    t: (mesh_task, (MeshJob(t, store, work, r0, cfg_dict, offsets, flips, d6),))
+                    for t in offsets
+                },
+                grid.describe,
+                on_event,
+            )
+            timings["mesh"] = time.perf_counter() - t0
+            n_jobs = runner.jobs
+        t0 = time.perf_counter()
+        vertices, normals = _load_all(work, offsets, flips)
+        particles_v, particles_n = vertices, normals
+        parts = []
+        extra_v, extra_n = [], []
+        base = len(vertices)
+        for t in sorted(meshes):
+            m = meshes[t]
+            f = m["faces"].copy()
+            neg = f < 0
+            f[neg] = base + (-1 - f[neg])
+            base += len(m["new_vertices"])
+            parts.append(f)
+            extra_v.append(m["new_vertices"])
+            extra_n.append(m["new_normals"])
+        vertices = np.vstack([vertices, *extra_v])
+        normals = np.vstack([normals, *extra_n])
+        faces = np.vstack(parts) if parts else np.zeros((0, 3), dtype=np.int64)
+        max_hole = (
+            cfg.triangulation.max_hole
+            if cfg.triangulation.max_hole is not None
+            else cfg.growth.max_gap
+        )
+        vertices, normals, faces, repair = repair_seams(
+            grid, vertices, normals, faces, r0, max_hole
+        )
+        if len(faces) == 0:
+            raise InputError(
+                f"{input_path}: the reconstruction produced no triangles: the data may be too "
+                "sparse for the spacing (try a smaller --spacing or a larger --max-gap)"
+            )
+        seams = seam_statistics(grid, vertices, faces, grid.cell_of(vertices), r0)
+        timings["stitch"] = time.perf_counter() - t0
+        topology = mesh_topology(vertices, faces)
+        quality = triangle_quality(vertices, faces)
+        timings["total"] = time.perf_counter() - t_start
+        per_tile = []
+        for t in sorted(fits):
+            lo, hi = grid.bounds(t)
+            per_tile.append(
+                {
+                    "tile": t,
+                    "index": list(grid.ijk(t)),
+                    "bounds": [lo.tolist(), hi.tolist()],
+                    "points": fits[t]["points"],
+                    "particles": fits[t]["particles"],
+                    "fit_s": fits[t]["seconds"],
+                    "mesh_s": meshes[t]["seconds"] if t in meshes else 0.0,
+                    "sign_flipped": flips.get(t, 1.0) < 0,
+                }
+            )
+            warnings += [f"{grid.describe(t)}: {w}" for w in fits[t].get("warnings", [])]
+        tile_times = [r["fit_s"] + r["mesh_s"] for r in per_tile]
+        report: dict[str, Any] = {
+            "oprecon_version": __version__,
+            "input": {
+                "path": str(input_path),
+                "points": int(n_points),
+                "bbox_diagonal": diag,
+                "median_spacing": d_nn,
+            },
+            "spacing": r0,
+            "particles": int(len(particles_v)),
+            "topology": topology,
+            "triangle_quality": quality,
+            "timings": timings,
+            "tiles": {
+                "count": len(per_tile),
+                "grid": list(grid.shape),
+                "size": float(size),
+                "halo": float(grid.halo),
+                "executor": executor,
+                "jobs": n_jobs,
+                "time_per_tile": {
+                    "mean": float(np.mean(tile_times)) if tile_times else 0.0,
+                    "max": float(np.max(tile_times)) if tile_times else 0.0,
+                },
+                "sign_disagreements": disagreeing,
+                "seams": seams,
+                "repair": repair,
+                "per_tile": per_tile,
+            },
+            "warnings": warnings,
+            "config": config_to_dict(cfg),
+            "output": {
+                "mesh": str(output_path),
+                "particles": None if particles_path_out is None else str(particles_path_out),
+                "report": None if report_path is None else str(report_path),
+            },
+        }
+        with atomic_outputs() as outputs:
+            write_mesh(
+                output_path,
+                vertices,
+                faces,
+                normals if cfg.output.vertex_normals else None,
+                ascii=cfg.io.ascii,
+                outputs=outputs,
+            )
+            if particles_path_out is not None:
+                write_points(
+                    Path(particles_path_out),
+                    particles_v,
+                    particles_n,
+                    ascii=cfg.io.ascii,
+                    outputs=outputs,
+                )
+            if report_path is not None:
+                with atomic_output(report_path, outputs) as tmp:
+                    tmp.write_text(dumps(report) + "\n")
+        return TiledResult(vertices, faces, normals, report)
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+
+
+def _load_all(
+    work: Path, offsets: dict[int, int], flips: dict[int, float]
+) -> tuple[np.ndarray, np.ndarray]:
+    """Every tile's own particles, in global id order."""
+    pos, nrm = [], []
+    for t in sorted(offsets, key=offsets.get):  # type: ignore[arg-type]
+        with np.load(particles_path(work, t)) as z:
+            pos.append(z["positions"])
+            nrm.append(z["normals"] * flips.get(t, 1.0))
+    return np.vstack(pos), np.vstack(nrm)
+
+
+def _check_tile_memory(store: Any, cfg: ReconConfig, r0: float, d_nn: float) -> None:
+    """Refuse (exit 2) when the largest tile's fit would exceed ``io.max_memory``."""
+    if cfg.io.max_memory is None or not store.counts:
+        return
+    grid = store.grid
+    grow = (1.0 + 2.0 * grid.halo / grid.size) ** 2
+    n = int(max(store.counts.values()) * grow)
+    estimate = estimate_peak_memory(n, r0, d_nn, cfg.dynamics.max_particles)
+    try:
+        check_memory(estimate, cfg.io.max_memory, r0)
+    except InputError as exc:
+        raise InputError(f"the largest tile: {exc}; or use a smaller --tile-size") from None

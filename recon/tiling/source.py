@@ -1,0 +1,213 @@
+"""The scan cut into per-tile files, so that no process ever holds all of its points.
+
+:func:`split_input` writes, for every tile of a :class:`~recon.tiling.grid.TileGrid` that holds
+points, one raw file of float64 rows (x, y, z and, when the input has them, nx, ny, nz) in a
+work folder. LAS/LAZ inputs are read chunk by chunk (:data:`recon.io.las.CHUNK_POINTS` points
+at a time), so the splitting process holds one chunk, whatever the file's size; other formats
+are read whole (they are not made for scans of that size). A tile's fit then reads its own file
+and its neighbours' (:func:`read_box`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..errors import InputError
+from ..geometry import median_nearest_neighbor_distance
+from .grid import TileGrid
+
+__all__ = ["ScanHeader", "TileStore", "read_box", "scan_header", "split_input", "spacing_sample"]
+
+#: Size of the random sample that estimates the point spacing before tiling (--tiles auto
+#: on a LAS/LAZ file).
+SAMPLE_POINTS = 100_000
+
+
+@dataclass
+class ScanHeader:
+    """What is known of a scan before its points are split.
+
+    ``points`` is None for formats read whole (then ``cloud`` holds them).
+    """
+
+    path: Path
+    kind: str
+    n_points: int
+    lo: np.ndarray
+    hi: np.ndarray
+    cloud: Any = None
+    info: dict = field(default_factory=dict)
+
+
+@dataclass
+class TileStore:
+    """The per-tile files of a split scan."""
+
+    directory: Path
+    grid: TileGrid
+    counts: dict[int, int]
+    columns: int  # 3, or 6 with normals
+
+    def path(self, tile: int) -> Path:
+        return self.directory / f"points-{tile}.f64"
+
+    def tiles(self) -> list[int]:
+        """The tiles that hold points, in index order."""
+        return sorted(t for t, n in self.counts.items() if n > 0)
+
+
+def _is_las(path: Path) -> bool:
+    with open(path, "rb") as fh:
+        return fh.read(4) == b"LASF"
+
+
+def scan_header(path: Path, cfg: Any) -> ScanHeader:
+    """Point count and bounds: from the header of a LAS/LAZ file, else by reading the file."""
+    from ..io import read_points
+    from ..io.common import check_readable
+
+    check_readable(path)
+    if _is_las(path):
+        import laspy
+
+        try:
+            with laspy.open(str(path)) as reader:
+                h = reader.header
+                n = int(h.point_count)
+                lo = np.asarray(h.mins, dtype=np.float64)
+                hi = np.asarray(h.maxs, dtype=np.float64)
+        except Exception:  # noqa: BLE001 - let the full reader say what is wrong
+            read_points(path, max_points=cfg.io.max_points, classes=cfg.io.classes)
+            raise
+        if n < 4 or not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
+            read_points(path, max_points=cfg.io.max_points, classes=cfg.io.classes)
+            raise InputError(f"{path}: the header's point count or bounds are not usable")
+        return ScanHeader(path, "las", n, lo, hi)
+    cloud = read_points(
+        path,
+        max_points=cfg.io.max_points,
+        merge_duplicates=cfg.io.merge_duplicates,
+        classes=cfg.io.classes,
+    )
+    pts = cloud.absolute_points()
+    return ScanHeader(
+        path, "whole", len(pts), pts.min(axis=0), pts.max(axis=0), cloud, dict(cloud.info)
+    )
+
+
+def _las_chunks(path: Path, classes: Sequence[int] | None, max_points: int) -> Iterator[np.ndarray]:
+    """Absolute xyz of a LAS/LAZ file, chunk by chunk, filtered by class."""
+    import laspy
+
+    from ..io.las import CHUNK_POINTS
+
+    keep = None if not classes else np.asarray(sorted(set(classes)), dtype=np.int64)
+    n_seen = 0
+    n_kept = 0
+    with laspy.open(str(path)) as reader:
+        n_total = int(reader.header.point_count)
+        try:
+            for chunk in reader.chunk_iterator(CHUNK_POINTS):
+                xyz = np.stack(
+                    [np.asarray(chunk.x), np.asarray(chunk.y), np.asarray(chunk.z)], axis=1
+                ).astype(np.float64, copy=False)
+                n_seen += len(xyz)
+                if keep is not None:
+                    xyz = xyz[np.isin(np.asarray(chunk.classification), keep)]
+                xyz = xyz[np.all(np.isfinite(xyz), axis=1)]
+                n_kept += len(xyz)
+                if n_kept > max_points:
+                    raise InputError(f"{path}: more than io.max_points = {max_points:,} points")
+                yield xyz
+        except InputError:
+            raise
+        except Exception as exc:  # noqa: BLE001 - corrupt chunks
+            raise InputError(
+                f"{path}: not a valid LAS/LAZ file: reading the points failed after "
+                f"{n_seen} of {n_total} ({str(exc).splitlines()[0] if str(exc) else exc!r})"
+            ) from None
+    if n_seen < n_total:
+        raise InputError(
+            f"{path}: truncated LAS/LAZ file: {n_seen} of the {n_total} declared points present"
+        )
+
+
+def spacing_sample(header: ScanHeader, cfg: Any, seed: int = 0) -> float:
+    """Median point spacing [length] estimated from a random sample of a LAS/LAZ file.
+
+    A random fraction f of a surface sample is sparser by 1/sqrt(f), so the median
+    nearest-neighbour distance of the sample times sqrt(f) estimates the scan's (good to a few
+    % on near-uniform scans); only used to choose the tile size of ``--tiles auto``.
+    """
+    rng = np.random.default_rng(seed)
+    keep: list[np.ndarray] = []
+    n = 0
+    frac = min(1.0, SAMPLE_POINTS / max(header.n_points, 1))
+    for xyz in _las_chunks(header.path, cfg.io.classes, cfg.io.max_points):
+        n += len(xyz)
+        keep.append(xyz[rng.random(len(xyz)) < frac])
+    sample = np.concatenate(keep) if keep else np.zeros((0, 3))
+    if len(sample) < 4 or n == 0:
+        raise InputError(f"{header.path}: fewer than 4 points to fit")
+    d = median_nearest_neighbor_distance(sample, rng=rng)
+    return float(d) * float(np.sqrt(len(sample) / n))
+
+
+def split_input(header: ScanHeader, grid: TileGrid, directory: Path, cfg: Any) -> TileStore:
+    """Write every tile's points to ``directory`` (see the module docstring)."""
+    directory.mkdir(parents=True, exist_ok=True)
+    counts: dict[int, int] = {}
+    if header.kind == "las":
+        columns = 3
+        chunks: Iterator[np.ndarray] = _las_chunks(header.path, cfg.io.classes, cfg.io.max_points)
+    else:
+        cloud = header.cloud
+        rows = cloud.absolute_points()
+        use_normals = cloud.normals is not None and cfg.normals.mode != "estimate"
+        if use_normals:
+            nrm = np.nan_to_num(cloud.normals, nan=0.0)
+            rows = np.hstack([rows, nrm])
+        columns = rows.shape[1]
+        chunks = iter([rows])
+    store = TileStore(directory, grid, counts, columns)
+    for rows in chunks:
+        if len(rows) == 0:
+            continue
+        cell = grid.cell_of(rows[:, :3])
+        order = np.argsort(cell, kind="stable")
+        cell = cell[order]
+        rows = rows[order]
+        starts = np.flatnonzero(np.r_[True, cell[1:] != cell[:-1]])
+        ends = np.r_[starts[1:], len(cell)]
+        for a, b in zip(starts, ends, strict=True):
+            t = int(cell[a])
+            with open(store.path(t), "ab") as fh:
+                fh.write(np.ascontiguousarray(rows[a:b], dtype="<f8").tobytes())
+            counts[t] = counts.get(t, 0) + int(b - a)
+    header.cloud = None  # the coordinator keeps no points
+    if sum(counts.values()) < 4:
+        raise InputError(f"{header.path}: fewer than 4 points to fit")
+    return store
+
+
+def read_tile(store: TileStore, tile: int) -> np.ndarray:
+    """The rows of one tile's file, (n, columns) float64."""
+    p = store.path(tile)
+    if not p.exists():
+        return np.zeros((0, store.columns))
+    return np.fromfile(p, dtype="<f8").reshape(-1, store.columns)
+
+
+def read_box(store: TileStore, tile: int, margin: float) -> np.ndarray:
+    """The rows within ``margin`` [length] of a tile's core: its file and its neighbours'."""
+    parts = []
+    for t in [tile, *store.grid.neighbours(tile)]:
+        rows = read_tile(store, t)
+        if len(rows):
+            parts.append(rows[store.grid.in_halo_box(tile, rows[:, :3], margin)])
+    return np.concatenate(parts) if parts else np.zeros((0, store.columns))

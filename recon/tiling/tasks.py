@@ -1,0 +1,286 @@
+"""The work of one tile, run on a worker (a local process or a Dask worker).
+
+Three tasks, each a plain function of picklable arguments that reads its inputs from the work
+folder (shared storage on a cluster) and returns small results:
+
+* :func:`spacing_task`: the point-spacing sample of one tile (r0 is then chosen once for the
+  whole scan);
+* :func:`fit_task`: the particle sheet over the tile's core and halo with the scan's r0 and
+  configuration; the particles in the tile's half-open core are written to the work folder,
+  and the particles near the core's faces come back to compare normal signs across seams;
+* :func:`mesh_task`: the triangulation over the tile's particles and its neighbours' (the halo),
+  keeping the faces whose centroid lies in the core, in global particle ids.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .grid import TileGrid
+from .source import TileStore, read_box, read_tile
+
+__all__ = ["SIGN_BAND", "fit_task", "mesh_task", "particles_path", "spacing_task"]
+
+#: Particles within this many r0 of a core face are sent back to compare normal signs.
+SIGN_BAND = 1.5
+#: Particles of different tiles closer than this [r0] are one too many (see
+#: :func:`seam_duplicates`).
+SEAM_MERGE = 0.6
+#: A tile whose core holds fewer points is not fitted (its neighbours' halos cover it).
+MIN_TILE_POINTS = 8
+#: ... and a tile with fewer points whose fit finds no usable data (too few, collinear) is
+#: left empty with a warning instead of failing the scan.
+SMALL_TILE_POINTS = 200
+#: For the tests of the retry: the tile whose fit fails (see ``_injected_failure``).
+_FAIL_ENV = "OPRECON_TILE_FAIL"
+
+
+def _quiet_worker() -> None:
+    """Keep numba's notice about an old TBB off a worker's stderr (as ``oprecon`` does)."""
+    import warnings
+
+    warnings.filterwarnings("ignore", message="The TBB threading layer requires")
+
+
+def particles_path(directory: Path, tile: int) -> Path:
+    return Path(directory) / f"particles-{tile}.npz"
+
+
+def spacing_task(store: TileStore, tile: int, sample: int, k: int, auto_scale: bool) -> dict:
+    """Nearest-neighbour and 6th-neighbour distances of ``sample`` random points of the tile
+    (against the points within a small margin around it), and the k that
+    ``normals.auto_scale`` would choose there."""
+    _quiet_worker()
+    from scipy.spatial import cKDTree
+
+    from ..fitting.pipeline import DENSITY_NEIGHBOURS
+    from ..geometry import SPACING_SAMPLE_SEED
+    from ..normals import choose_neighborhood_size
+
+    rows = read_tile(store, tile)[:, :3]
+    out: dict[str, Any] = {"tile": tile, "n": len(rows), "d1": np.zeros(0), "d6": np.zeros(0)}
+    if len(rows) < DENSITY_NEIGHBOURS + 2:
+        return out
+    rng = np.random.default_rng([SPACING_SAMPLE_SEED, tile])
+    tree = cKDTree(rows)
+    q = rows if sample >= len(rows) else rows[rng.choice(len(rows), sample, replace=False)]
+    d, _ = tree.query(q, DENSITY_NEIGHBOURS + 1)
+    out["d1"] = d[:, 1]
+    out["d6"] = d[:, -1]
+    if auto_scale:
+        out["k"] = choose_neighborhood_size(rows, k)
+    return out
+
+
+@dataclass(frozen=True)
+class FitJob:
+    """What :func:`fit_task` needs."""
+
+    tile: int
+    store: TileStore
+    config: dict  # config_to_dict of the scan's resolved configuration
+    r0: float
+    work: Path
+
+
+def fit_task(job: FitJob) -> dict:
+    """Fit the particles of one tile (core + halo); write the core's particles."""
+    _quiet_worker()
+    import os
+
+    from ..config import config_from_dict
+    from ..errors import InputError
+    from ..fitting.pipeline import fit_particles
+    from ..io import cloud_from_arrays
+
+    t0 = time.perf_counter()
+    _injected_failure(job, os.environ.get(_FAIL_ENV, ""))
+    grid = job.store.grid
+    cfg = config_from_dict(job.config)
+    rows = read_box(job.store, job.tile, grid.halo)
+    n_core = int(grid.in_core(job.tile, rows[:, :3]).sum()) if len(rows) else 0
+    result: dict[str, Any] = {"tile": job.tile, "points": n_core, "particles": 0}
+    pos = np.zeros((0, 3))
+    nrm = np.zeros((0, 3))
+    rest = None
+    if n_core >= MIN_TILE_POINTS:
+        normals = rows[:, 3:6] if job.store.columns == 6 else None
+        try:
+            pf = fit_particles(cloud_from_arrays(rows[:, :3], normals), cfg)
+        except InputError as exc:
+            if n_core >= SMALL_TILE_POINTS:
+                raise
+            # a few points at a tile's corner (a roof edge, a stray return): no sheet there
+            result["warnings"] = [f"{n_core} points not fitted: {exc}"]
+        else:
+            pos, nrm, rest = pf.positions, pf.normals, pf.rest
+            result["steps"] = pf.steps
+            result["warnings"] = pf.warnings
+            result["trimmed"] = pf.n_trimmed
+    owned = grid.in_core(job.tile, pos) if len(pos) else np.zeros(0, dtype=bool)
+    np.savez(
+        particles_path(job.work, job.tile),
+        positions=pos[owned],
+        normals=nrm[owned],
+        rest=rest[owned] if rest is not None else np.zeros(0),
+    )
+    # the particles close to the core's faces, inside and outside: the seam sign comparison
+    band = SIGN_BAND * job.r0
+    near = grid.in_halo_box(job.tile, pos, band) if len(pos) else owned
+    result["particles"] = int(owned.sum())
+    result["border_in"] = (pos[near & owned], nrm[near & owned])
+    result["border_out"] = (pos[near & ~owned], nrm[near & ~owned])
+    result["seconds"] = time.perf_counter() - t0
+    return result
+
+
+def _injected_failure(job: FitJob, spec: str) -> None:
+    """Tests of the retry: ``OPRECON_TILE_FAIL=3`` makes the first fit of tile 3 fail,
+    ``3!`` every fit of it."""
+    if spec.rstrip("!") != str(job.tile):
+        return
+    flag = Path(job.work) / f"failed-once-{job.tile}"
+    if spec.endswith("!") or not flag.exists():
+        flag.write_text("")
+        raise RuntimeError(f"injected failure of tile {job.tile}")
+
+
+@dataclass(frozen=True)
+class MeshJob:
+    """What :func:`mesh_task` needs."""
+
+    tile: int
+    store: TileStore
+    work: Path
+    r0: float
+    config: dict
+    offsets: dict[int, int]  # tile -> global id of its first particle
+    flips: dict[int, float]  # tile -> +1 / -1 normal sign
+    median_d6: float  # median 6th-neighbour distance of the scan [length]
+
+
+def _load_particles(
+    job: MeshJob, grid: TileGrid
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    pos, nrm, rest, gid, owners = [], [], [], [], []
+    for t in [job.tile, *grid.neighbours(job.tile)]:
+        if t not in job.offsets:
+            continue
+        owners.append(t)
+        with np.load(particles_path(job.work, t)) as z:
+            p, n, r = z["positions"], z["normals"], z["rest"]
+        keep = grid.in_halo_box(job.tile, p) if len(p) else np.zeros(0, dtype=bool)
+        idx = np.flatnonzero(keep)
+        pos.append(p[idx])
+        nrm.append(n[idx] * job.flips.get(t, 1.0))
+        rest.append(r[idx] if len(r) else np.ones(len(idx)))
+        gid.append(job.offsets[t] + idx)
+    if not pos:
+        return np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), np.zeros(0, dtype=np.int64)
+    tiles = np.concatenate([np.full(len(p), t) for p, t in zip(pos, owners, strict=True)])
+    pos_a, gid_a = np.concatenate(pos), np.concatenate(gid)
+    keep = ~seam_duplicates(pos_a, tiles, SEAM_MERGE * job.r0)
+    return pos_a[keep], np.concatenate(nrm)[keep], np.concatenate(rest)[keep], gid_a[keep]
+
+
+def seam_duplicates(positions: np.ndarray, tiles: np.ndarray, distance: float) -> np.ndarray:
+    """Particles of two tiles closer than ``distance``: the one of the higher tile is marked.
+
+    Each tile fitted its side of a seam without the other's particles, so a few pairs across
+    the seam sit much closer than r0 and would make slivers. The rule depends only on the
+    pair, so every tile that sees it drops the same particle.
+    """
+    from scipy.spatial import cKDTree
+
+    drop = np.zeros(len(positions), dtype=bool)
+    if len(positions) < 2:
+        return drop
+    pairs = cKDTree(positions).query_pairs(distance, output_type="ndarray")
+    if len(pairs) == 0:
+        return drop
+    a, b = pairs[:, 0], pairs[:, 1]
+    cross = tiles[a] != tiles[b]
+    a, b = a[cross], b[cross]
+    drop[np.where(tiles[a] > tiles[b], a, b)] = True
+    return drop
+
+
+def mesh_task(job: MeshJob) -> dict:
+    """Triangulate a tile over its particles and its neighbours' within the halo; keep the
+    faces whose centroid lies in the tile's half-open core.
+
+    Returns ``faces`` (F, 3) int64 in global particle ids, where ``-1 - j`` stands for the
+    ``j``-th of ``new_vertices`` (vertices the repair added, absolute) with ``new_normals``.
+    """
+    _quiet_worker()
+    from scipy.spatial import cKDTree
+
+    from ..config import config_from_dict
+    from ..fitting.pipeline import HOLE_COVER_DISTANCE, local_density_scale
+    from ..kernels.options import thread_count
+    from ..triangulate import triangulate_particles
+
+    t0 = time.perf_counter()
+    grid = job.store.grid
+    cfg = config_from_dict(job.config)
+    pos, nrm, rest, gid = _load_particles(job, grid)
+    empty = {
+        "tile": job.tile,
+        "faces": np.zeros((0, 3), dtype=np.int64),
+        "new_vertices": np.zeros((0, 3)),
+        "new_normals": np.zeros((0, 3)),
+        "seconds": 0.0,
+    }
+    if len(pos) < 3:
+        return empty
+    lo, hi = grid.bounds(job.tile)
+    centre = 0.5 * (lo + hi)
+    r0 = job.r0
+    x = (pos - centre) / r0
+    data = read_box(job.store, job.tile, grid.halo + r0)[:, :3]
+    data = (data - centre) / r0
+    tree = cKDTree(data) if len(data) else None
+    tri_cfg = cfg.triangulation
+    max_hole = tri_cfg.max_hole if tri_cfg.max_hole is not None else cfg.growth.max_gap
+    with thread_count(cfg.threads):
+        spacing = None
+        if tri_cfg.max_density_scale > 1.0 and tree is not None:
+            spacing = local_density_scale(
+                tree, data, x, tri_cfg.max_density_scale, job.median_d6 / r0
+            )
+        if cfg.seeds.adaptive:
+            spacing = rest if spacing is None else np.maximum(spacing, rest)
+
+        def is_covered(c: np.ndarray, s: Any = 1.0) -> np.ndarray:
+            if tree is None:
+                return np.zeros(len(c), dtype=bool)
+            return tree.query(c)[0] < HOLE_COVER_DISTANCE * np.asarray(s)
+
+        tri = triangulate_particles(
+            x, nrm, tri_cfg, max_hole, is_covered=is_covered, local_spacing=spacing
+        )
+    faces = tri.faces
+    if len(faces) == 0:
+        return empty
+    # result vertices -> input particles (order kept; repair adds shifted copies at the end)
+    d, src = cKDTree(x).query(tri.vertices)
+    original = d <= 1e-9
+    centroid = tri.vertices[faces].mean(axis=1) * r0 + centre
+    faces = faces[grid.in_core(job.tile, centroid)]
+    new_ids = np.flatnonzero(~original)
+    code = np.empty(len(tri.vertices), dtype=np.int64)
+    code[original] = gid[src[original]]
+    code[new_ids] = -1 - np.arange(len(new_ids))
+    return {
+        "tile": job.tile,
+        "faces": code[faces],
+        "new_vertices": tri.vertices[new_ids] * r0 + centre,
+        "new_normals": tri.normals[new_ids],
+        "seconds": time.perf_counter() - t0,
+        "stats": tri.stats,
+    }

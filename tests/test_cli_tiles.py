@@ -1,0 +1,242 @@
+"""``oprecon fit --tile-size / --tiles auto`` end to end: PLY and LAS inputs, the report's tiles
+section, a tile failing twice (exit 1, its bounds named), bad options (exit 2), nothing left
+behind."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+from recon.cli.main import app
+
+from recon.io import read_mesh, write_points
+from recon.topology import mesh_topology
+
+OPRECON = Path(sys.executable).with_name("oprecon")
+
+
+def _sheet(n: int = 2500, offset=(0.0, 0.0, 0.0)) -> np.ndarray:
+    xy = np.random.default_rng(3).uniform(0, 8, (n, 2))
+    z = 0.4 * np.sin(xy[:, 0] / 1.3) * np.cos(xy[:, 1] / 1.7)
+    return np.column_stack([xy, z]) + np.asarray(offset)
+
+
+def _run(args, env=None):
+    return CliRunner().invoke(app, args, catch_exceptions=False, env=env)
+
+
+@pytest.fixture(scope="module")
+def sheet_file(tmp_path_factory) -> Path:
+    path = tmp_path_factory.mktemp("cli_tiles") / "sheet.ply"
+    write_points(path, _sheet())
+    return path
+
+
+def _leftovers(folder: Path) -> list[str]:
+    return sorted(p.name for p in folder.iterdir() if p.name.startswith(".oprecon"))
+
+
+def test_fit_in_tiles_writes_one_seamless_mesh_and_a_tiles_report(sheet_file, tmp_path):
+    out = tmp_path / "mesh.ply"
+    res = _run(
+        [
+            "fit",
+            str(sheet_file),
+            "-o",
+            str(out),
+            "--tile-size",
+            "4",
+            "--jobs",
+            "2",
+            "--json",
+            "--particles",
+            str(tmp_path / "p.ply"),
+        ]
+    )
+    assert res.exit_code == 0, res.output
+    report = json.loads(res.stdout)
+    assert report["tiles"]["count"] == 4 and report["tiles"]["jobs"] == 2
+    assert json.loads((tmp_path / "mesh.report.json").read_text())["tiles"]["grid"] == [2, 2, 1]
+    v, f = read_mesh(out)
+    topo = mesh_topology(v, f)
+    assert topo["boundary_loops"] == 1 and topo["non_manifold_edges"] == 0
+    assert topo["duplicate_faces"] == 0
+    assert (tmp_path / "p.ply").exists()
+    assert "tiles 4/4 done" in res.stderr and "seams" in res.stderr
+    assert _leftovers(tmp_path) == []
+
+
+def test_a_tile_failing_twice_exits_1_with_its_bounds_and_writes_nothing(sheet_file, tmp_path):
+    out = tmp_path / "mesh.ply"
+    res = _run(
+        ["fit", str(sheet_file), "-o", str(out), "--tile-size", "4", "--jobs", "2"],
+        env={"OPRECON_TILE_FAIL": "1!"},
+    )
+    assert res.exit_code == 1, res.output
+    assert "tile 1 (0, 1, 0) [" in res.stderr and "failed twice" in res.stderr
+    assert "retrying" in res.stderr
+    assert "Traceback" not in res.output
+    assert sorted(p.name for p in tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        (["--tile-size", "0"], "'--tile-size': 0.0 is not in the range x>0"),
+        (["--tile-size", "-3"], "is not in the range x>0"),
+        (["--tile-size", "0.3"], "smaller than the halo"),
+        (["--tile-size", "1e-9"], "give a larger --tile-size"),
+        (["--tile-size", "4", "--tiles", "auto"], "--tile-size and --tiles auto are exclusive"),
+        (["--tiles", "some"], "'--tiles'"),
+        (["--tile-size", "4", "--scheduler", "tcp://x:1"], "--scheduler needs --executor dask"),
+        (["--tile-size", "4", "--preview", "m.png"], "--preview is not available"),
+        (["--tile-size", "4", "--quality"], "not available for tiled fits"),
+        (["--set", "tiling.size=-1"], "tiling.size"),
+        (["--set", "tiling.memory=lots", "--tiles", "auto"], "tiling.memory"),
+    ],
+)
+def test_bad_tiling_options_exit_2(sheet_file, tmp_path, extra, message):
+    res = _run(["fit", str(sheet_file), "-o", str(tmp_path / "m.ply"), *extra])
+    assert res.exit_code == 2, res.output
+    assert message in res.output
+    assert "Traceback" not in res.output
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_tiles_auto_does_not_tile_a_scan_that_fits(sheet_file, tmp_path):
+    out = tmp_path / "m.ply"
+    res = _run(
+        [
+            "fit",
+            str(sheet_file),
+            "-o",
+            str(out),
+            "--tiles",
+            "auto",
+            "--set",
+            "dynamics.max_steps=300",
+        ]
+    )
+    assert res.exit_code == 0, res.output
+    assert "not tiling" in res.stderr
+    assert "tiles" not in json.loads((tmp_path / "m.report.json").read_text())
+
+
+def test_tiles_auto_tiles_a_scan_past_the_budget(sheet_file, tmp_path):
+    # 2500 points need ~290 MiB by the estimate; a 300 MiB budget is met by small tiles only
+    out = tmp_path / "m.ply"
+    res = _run(
+        [
+            "fit",
+            str(sheet_file),
+            "-o",
+            str(out),
+            "--tiles",
+            "auto",
+            "--max-memory",
+            "285M",
+            "--jobs",
+            "2",
+            "--json",
+        ]
+    )
+    assert res.exit_code == 0, res.output
+    report = json.loads(res.stdout)
+    assert report["tiles"]["count"] >= 2
+
+
+def test_a_las_scan_is_split_in_chunks_and_fitted_in_tiles(tmp_path):
+    laspy = pytest.importorskip("laspy")
+    offset = np.array([5_200_000.0, 4_800_000.0, 250.0])
+    pts = _sheet(2500, offset)
+    header = laspy.LasHeader(point_format=3, version="1.2")
+    header.scales = np.array([0.0001] * 3)
+    header.offsets = offset
+    las = laspy.LasData(header)
+    las.x, las.y, las.z = pts[:, 0], pts[:, 1], pts[:, 2]
+    las.classification = np.full(len(pts), 2, dtype=np.uint8)
+    src = tmp_path / "sheet.las"
+    las.write(str(src))
+    out = tmp_path / "m.ply"
+    res = _run(["fit", str(src), "-o", str(out), "--tile-size", "4", "--jobs", "2", "--json"])
+    assert res.exit_code == 0, res.output
+    report = json.loads(res.stdout)
+    assert report["tiles"]["count"] == 4
+    v, f = read_mesh(out)
+    topo = mesh_topology(v, f)
+    assert topo["boundary_loops"] == 1 and topo["non_manifold_edges"] == 0
+    # georeferenced coordinates come back in place (the mesh lies on the data)
+    assert np.all(v.min(axis=0) > offset - 1.0) and np.all(v.max(axis=0) < offset + 9.0)
+    assert _leftovers(tmp_path) == []
+
+
+@pytest.mark.skipif(os.name != "posix", reason="SIGINT to a process group needs POSIX")
+@pytest.mark.skipif(not OPRECON.exists(), reason="the oprecon entry point is not installed")
+def test_ctrl_c_during_the_tile_fits_exits_130_and_leaves_nothing(tmp_path):
+    src = tmp_path / "sheet.ply"
+    write_points(src, _sheet(6000))
+    out_dir = tmp_path / "out"
+    out_dir.mkdir()
+    endless = [
+        "--set",
+        "dynamics.max_steps=100000",
+        "--set",
+        "growth.max_rounds=1000",
+        "--set",
+        "growth.min_add_fraction=0",
+        "--set",
+        "dynamics.release_steps=100000",
+    ]
+    cmd = [
+        str(OPRECON),
+        "fit",
+        str(src),
+        "-o",
+        str(out_dir / "m.ply"),
+        "--tile-size",
+        "4",
+        "--jobs",
+        "2",
+        *endless,
+    ]
+
+    def restore_sigint() -> None:
+        signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+    # a new process group, as a terminal's foreground job: Ctrl-C reaches every process in it
+    proc = subprocess.Popen(
+        cmd,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        preexec_fn=restore_sigint,
+        start_new_session=True,
+    )
+    try:
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline and not list(out_dir.glob(".oprecon-tiles-*/points-*")):
+            time.sleep(0.2)
+        time.sleep(6.0)  # the workers are fitting
+        assert proc.poll() is None, proc.stderr.read().decode()
+        os.killpg(proc.pid, signal.SIGINT)
+        code = proc.wait(timeout=60)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+    stderr = proc.stderr.read().decode()
+    assert code == 130, stderr[-2000:]
+    assert "interrupted" in stderr and "Traceback" not in stderr
+    assert os.listdir(out_dir) == []
+    time.sleep(1.0)
+    alive = subprocess.run(
+        ["ps", "-o", "pid=,stat=", "-g", str(proc.pid)], capture_output=True, text=True
+    ).stdout.split("\n")
+    assert [line for line in alive if line.strip() and "Z" not in line.split()[-1]] == []

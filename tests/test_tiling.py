@@ -1,0 +1,291 @@
+"""Tiled fits (issue #14, part 2): the tile grid, the retry, the seam rules, and a 4-tile fit of
+a small open terrain sheet compared with the untiled fit of the same file."""
+
+from __future__ import annotations
+
+import os
+from concurrent.futures import ThreadPoolExecutor
+
+import numpy as np
+import pytest
+
+from recon.config import ReconConfig, with_values
+from recon.errors import InputError, OpreconError
+from recon.fitting import fit_file
+from recon.io import read_mesh, write_points
+from recon.mesh import boundary_loops, count_edge_faces
+from recon.metrics import compare_meshes
+from recon.tiling import TileError, TileGrid, choose_auto_tile_size, fit_tiled, run_tasks
+from recon.tiling.stitch import agree_signs
+from recon.tiling.tasks import seam_duplicates
+from recon.topology import mesh_topology
+
+SIDE = 10.0
+
+
+def height(xy: np.ndarray) -> np.ndarray:
+    return 0.5 * np.sin(xy[:, 0] / 1.5) * np.cos(xy[:, 1] / 2.0)
+
+
+def sheet(n: int, seed: int = 0) -> np.ndarray:
+    """An open terrain patch SIDE x SIDE, area-uniform (its ground truth is ``height``)."""
+    xy = np.random.default_rng(seed).uniform(0, SIDE, (n, 2))
+    return np.column_stack([xy, height(xy)])
+
+
+# -- the grid ---------------------------------------------------------------------------------
+
+
+def test_every_point_has_one_owner_with_half_open_cores():
+    grid = TileGrid.cover(np.zeros(3), np.array([10.0, 10.0, 1.0]), 5.0, 1.0)
+    assert grid.shape == (2, 2, 1) and grid.count == 4
+    pts = np.array([[5.0, 0.0, 0.0], [4.999, 0.0, 0.0], [10.0, 10.0, 1.0], [0.0, 5.0, 0.5]])
+    owners = grid.cell_of(pts)
+    # x = 5 lies on the face between tiles (0,0,0) and (1,0,0): the upper tile holds it
+    assert grid.ijk(owners[0]) == (1, 0, 0)
+    assert grid.ijk(owners[1]) == (0, 0, 0)
+    assert grid.ijk(owners[2]) == (1, 1, 0)  # the bounding box's upper corner is in a core
+    assert grid.ijk(owners[3]) == (0, 1, 0)
+    rand = np.random.default_rng(1).uniform([-1, -1, -1], [11, 11, 2], (500, 3))
+    inside = np.stack([grid.in_core(t, rand) for t in range(grid.count)])
+    assert np.all(inside.sum(axis=0) == 1)
+    assert sorted(grid.neighbours(0)) == [1, 2, 3]
+    d = grid.seam_distance(np.array([[4.0, 1.0, 0.0], [1.0, 1.0, 0.0]]))
+    assert d == pytest.approx([1.0, 4.0])
+
+
+@pytest.mark.parametrize(
+    ("size", "halo", "match"),
+    [
+        (0.0, 0.0, "positive length"),
+        (-2.0, 0.0, "positive length"),
+        (float("nan"), 0.0, "positive length"),
+        (0.5, 1.0, "smaller than the halo"),
+        (1e-6, 0.0, "more than 100,000"),
+        (1e-9, 0.0, "more than 100,000"),
+    ],
+)
+def test_bad_tile_sizes_are_refused(size, halo, match):
+    with pytest.raises(InputError, match=match):
+        TileGrid.cover(np.zeros(3), np.ones(3) * 10, size, halo)
+
+
+def test_auto_tile_size_fits_the_budget():
+    lo, hi = np.zeros(3), np.array([100.0, 50.0, 5.0])
+
+    def peak(n: int) -> int:
+        return 1000 + 10 * n
+
+    assert choose_auto_tile_size(lo, hi, 1000, peak, 20_000, 1.0) is None
+    s = choose_auto_tile_size(lo, hi, 100_000, peak, 200_000, 1.0)
+    assert s is not None and s < 100.0
+    w = s + 2.0
+    assert peak(int(100_000 * min(1, w / 100) * min(1, w / 50))) <= 200_000
+    with pytest.raises(InputError, match="no tile size"):
+        choose_auto_tile_size(lo, hi, 100_000, peak, 500, 1.0)
+
+
+# -- the retry --------------------------------------------------------------------------------
+
+
+class ThreadRunner:
+    """A runner over threads (the retry logic does not depend on processes)."""
+
+    jobs = 2
+
+    def __init__(self) -> None:
+        self.pool = ThreadPoolExecutor(2)
+
+    def submit(self, fn, *args):
+        return self.pool.submit(fn, *args)
+
+    def cancel(self, futures):
+        for f in futures:
+            f.cancel()
+
+
+def test_a_failed_tile_is_retried_once():
+    calls: dict[int, int] = {}
+
+    def flaky(tile: int) -> int:
+        calls[tile] = calls.get(tile, 0) + 1
+        if tile == 1 and calls[tile] == 1:
+            raise RuntimeError("worker lost")
+        return 10 * tile
+
+    events = []
+    tasks = {t: (flaky, (t,)) for t in range(3)}
+    out = run_tasks(ThreadRunner(), "fit", tasks, lambda t: f"tile {t}", events.append)
+    assert out == {0: 0, 1: 10, 2: 20}
+    assert calls == {0: 1, 1: 2, 2: 1}
+    retry = [e for e in events if e.message]
+    assert (
+        len(retry) == 1
+        and "tile 1 failed (RuntimeError: worker lost); retrying" in retry[0].message
+    )
+    assert events[-1].done == 3 and events[-1].in_flight == 0
+
+
+@pytest.mark.parametrize(("error", "code"), [(RuntimeError, 1), (InputError, 2)])
+def test_a_tile_failing_twice_is_reported_with_its_bounds(error, code):
+    grid = TileGrid.cover(np.zeros(3), np.array([10.0, 10.0, 1.0]), 5.0, 1.0)
+
+    def broken(tile: int) -> int:
+        if tile == 3:
+            raise error("no data")
+        return tile
+
+    tasks = {t: (broken, (t,)) for t in range(4)}
+    with pytest.raises(TileError) as err:
+        run_tasks(ThreadRunner(), "fit", tasks, grid.describe)
+    assert err.value.exit_code == code
+    assert "1 of 4 tile(s) failed twice" in str(err.value)
+    assert "tile 3 (1, 1, 0) [5, 10) x [5, 10) x [0, 5)" in str(err.value)
+    assert isinstance(err.value, OpreconError)
+
+
+# -- the seam rules ---------------------------------------------------------------------------
+
+
+def test_seam_duplicates_drop_the_higher_tiles_particle_only():
+    pos = np.array([[0.0, 0, 0], [0.3, 0, 0], [3.0, 0, 0], [3.2, 0, 0], [6.0, 0, 0]])
+    tiles = np.array([2, 1, 0, 0, 5])
+    drop = seam_duplicates(pos, tiles, 0.5)
+    # pair (0, 1) across tiles 2 / 1: tile 2's goes; pair (2, 3) is within one tile: kept
+    assert drop.tolist() == [True, False, False, False, False]
+    # the same rule whatever the order the particles come in
+    perm = np.array([4, 3, 2, 1, 0])
+    assert seam_duplicates(pos[perm], tiles[perm], 0.5).tolist() == drop[perm].tolist()
+
+
+def test_normal_signs_agree_across_seams():
+    grid = TileGrid.cover(np.zeros(3), np.array([10.0, 10.0, 1.0]), 5.0, 1.0)
+    rng = np.random.default_rng(0)
+    up = np.array([0.0, 0.0, 1.0])
+    signs = {0: 1.0, 1: -1.0, 2: -1.0, 3: 1.0}  # tiles 1 and 2 oriented the other way
+    border_in, border_out = {}, {}
+    for t in range(4):
+        lo, hi = grid.bounds(t)
+        p = np.column_stack(
+            [
+                rng.uniform(lo[0] - 1, hi[0] + 1, 4000),
+                rng.uniform(lo[1] - 1, hi[1] + 1, 4000),
+                np.zeros(4000),
+            ]
+        )
+        p = p[grid.in_halo_box(t, p, 1.0)]
+        own = grid.in_core(t, p)
+        n = np.tile(up * signs[t], (len(p), 1))
+        border_in[t] = (p[own], n[own])
+        border_out[t] = (p[~own], n[~own])
+    flips, disagreeing = agree_signs(grid, border_in, border_out, r0=0.2)
+    assert disagreeing == 4  # 0-1, 0-2, 1-3, 2-3 disagree; 1-2 and 0-3 agree
+    oriented = {t: signs[t] * flips[t] for t in range(4)}
+    assert len(set(oriented.values())) == 1
+
+
+# -- a tiled fit against the untiled one ------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def fits(tmp_path_factory):
+    """The same 3000-point sheet fitted whole and in 2 x 2 tiles (with tile 2's first fit
+    failing, so that the retry is exercised end to end)."""
+    d = tmp_path_factory.mktemp("tiles")
+    src = d / "sheet.ply"
+    write_points(src, sheet(3000))
+    cfg = ReconConfig()
+    whole = fit_file(src, d / "whole.ply", cfg)
+    events = []
+    old = os.environ.get("OPRECON_TILE_FAIL")
+    os.environ["OPRECON_TILE_FAIL"] = "2"
+    try:
+        tiled = fit_tiled(
+            src,
+            d / "tiled.ply",
+            with_values(cfg, tiling={"size": SIDE / 2}),
+            jobs=2,
+            on_event=events.append,
+        )
+    finally:
+        if old is None:
+            del os.environ["OPRECON_TILE_FAIL"]
+        else:
+            os.environ["OPRECON_TILE_FAIL"] = old
+    return d, whole, tiled, events
+
+
+def test_the_failed_tile_was_retried(fits):
+    _, _, tiled, events = fits
+    retries = [e.message for e in events if e.message]
+    assert len(retries) == 1 and "tile 2 (1, 0, 0)" in retries[0] and "retrying" in retries[0]
+    assert tiled.report["tiles"]["count"] == 4
+
+
+def test_tiled_mesh_is_seamless(fits):
+    d, whole, tiled, _ = fits
+    v, f = read_mesh(d / "tiled.ply")
+    topo = mesh_topology(v, f)
+    whole_topo = whole.report.topology
+    assert topo["boundary_loops"] == whole_topo.boundary_loops == 1
+    assert topo["non_manifold_edges"] == 0 and topo["non_manifold_vertices"] == 0
+    assert topo["duplicate_faces"] == 0
+    assert topo["components"] == 1 and topo["consistently_oriented"]
+    # no face twice, whatever its winding
+    key = np.sort(f, axis=1)
+    assert len(np.unique(key, axis=0)) == len(f)
+    # tile borders leave no boundary edge: every boundary edge lies on the sheet's outer rim,
+    # no deeper inside than the untiled mesh's (a crack along a seam would reach the centre)
+    r0 = tiled.report["spacing"]
+    depth = {}
+    for name in ("whole", "tiled"):
+        vv, ff = read_mesh(d / f"{name}.ply")
+        edges, counts = count_edge_faces(ff)
+        mid = vv[edges[counts == 1]].mean(axis=1)
+        depth[name] = np.minimum(mid[:, :2], SIDE - mid[:, :2]).min(axis=1).max()
+    assert depth["tiled"] <= depth["whole"] + r0
+    assert depth["tiled"] < 5 * r0
+    assert len(boundary_loops(f)) == 1
+    seams = tiled.report["tiles"]["seams"]
+    assert seams["non_manifold_edges"] == 0 and seams["seam_edges"] > 0
+
+
+def test_tiled_fit_is_as_close_to_the_truth_as_the_untiled_one(fits):
+    d, whole, tiled, _ = fits
+    xy = np.random.default_rng(7).uniform(0, SIDE, (100_000, 2))
+    truth = np.column_stack([xy, height(xy)])
+    scores = {}
+    for name in ("whole", "tiled"):
+        v, f = read_mesh(d / f"{name}.ply")
+        scores[name] = compare_meshes((v, f), (truth, None), n_samples=50_000)
+    assert tiled.report["spacing"] == pytest.approx(whole.report.spacing, rel=1e-12)
+    assert scores["tiled"]["chamfer_l1"] <= 1.05 * scores["whole"]["chamfer_l1"]
+    assert scores["tiled"]["fscore"] >= scores["whole"]["fscore"] - 0.005
+    n_whole = whole.report.topology.n_vertices
+    assert abs(tiled.report["topology"]["n_vertices"] - n_whole) < 0.05 * n_whole
+
+
+def test_tiled_report_has_tiles_section(fits):
+    _, _, tiled, _ = fits
+    tiles = tiled.report["tiles"]
+    assert tiles["grid"] == [2, 2, 1]
+    assert len(tiles["per_tile"]) == 4
+    assert all(t["fit_s"] > 0 and t["mesh_s"] > 0 and t["particles"] > 0 for t in tiles["per_tile"])
+    assert sum(t["points"] for t in tiles["per_tile"]) == 3000
+    assert tiles["time_per_tile"]["max"] >= tiles["time_per_tile"]["mean"] > 0
+    assert set(tiles["seams"]) >= {"seam_edges", "seam_boundary_edges", "non_manifold_edges"}
+
+
+def test_a_tile_with_a_few_unusable_points_is_left_empty(tmp_path):
+    from recon.config import config_to_dict
+    from recon.tiling.source import TileStore
+    from recon.tiling.tasks import FitJob, fit_task
+
+    grid = TileGrid.cover(np.zeros(3), np.array([20.0, 10.0, 1.0]), 10.0, 0.5)
+    line = np.column_stack([np.linspace(15, 19, 20), np.full(20, 5.0), np.zeros(20)])
+    store = TileStore(tmp_path, grid, {1: len(line)}, 3)
+    line.astype("<f8").tofile(store.path(1))
+    cfg = config_to_dict(with_values(ReconConfig(), seeds={"spacing": 0.2}))
+    out = fit_task(FitJob(1, store, cfg, 0.2, tmp_path))
+    assert out["points"] == 20 and out["particles"] == 0
+    assert "20 points not fitted" in out["warnings"][0]
