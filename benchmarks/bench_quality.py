@@ -127,13 +127,26 @@ def run_method(
         v = np.asarray(mesh.vertices)
         f = np.asarray(mesh.triangles, dtype=np.int64)
     seconds = time.perf_counter() - t0
-    peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    peak_mb = _own_peak_mb()
     return {
         "v": np.asarray(v + cloud.origin),
         "f": np.asarray(f),
         "seconds": seconds,
         "peak_mb": peak_mb,
     }
+
+
+def _own_peak_mb() -> float:
+    """This process's peak resident memory [MB]: ``VmHWM`` of ``/proc/self/status`` where there
+    is one (``ru_maxrss`` survives exec on Linux, so a spawned worker would report its parent's
+    peak when that was higher), else ``ru_maxrss``."""
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("VmHWM:"):
+                return float(line.split()[1]) / 1024.0
+    except OSError:
+        pass
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
 def reconstruct_once(
