@@ -194,6 +194,8 @@ def test_ctrl_c_during_the_tile_fits_exits_130_and_leaves_nothing(tmp_path):
         "growth.min_add_fraction=0",
         "--set",
         "dynamics.release_steps=100000",
+        "--set",
+        "dynamics.kinetic_tolerance=0",  # no early stop at rest
     ]
     cmd = [
         str(OPRECON),

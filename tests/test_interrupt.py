@@ -26,6 +26,8 @@ ENDLESS = [
     "growth.max_rounds=1000",
     "--set",
     "growth.min_add_fraction=0",
+    "--set",
+    "dynamics.kinetic_tolerance=0",  # no early stop at rest
 ]
 
 
