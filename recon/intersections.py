@@ -42,41 +42,58 @@ def candidate_pairs(
 ) -> np.ndarray:
     """Face pairs ``(m, 2)``, ``i < j``, whose bounding spheres (centroid, farthest corner)
     overlap: a superset of the intersecting pairs (with ``subset``: of those pairs, the ones
-    with a face in ``subset``)."""
-    if len(faces) < 2:
+    with a face in ``subset``).
+
+    Pairs of ordinary faces come from one search radius (twice the largest ordinary bounding
+    radius); the few faces larger than ``LARGE_FACE`` times the median are paired one by one
+    with their own radius, so that one large face does not widen every search.
+    """
+    n = len(faces)
+    if n < 2:
         return np.zeros((0, 2), dtype=np.int64)
     corners = vertices[faces]
     centroid = corners.mean(axis=1)
     radius = np.linalg.norm(corners - centroid[:, None, :], axis=2).max(axis=1)
     tree = cKDTree(centroid)
-    if subset is not None:
-        found = [np.zeros((0, 2), dtype=np.int64)]
-        near = tree.query_ball_point(
-            centroid[subset], radius[subset] + radius.max(), workers=query_workers()
-        )
-        for i, js in zip(subset.tolist(), near, strict=True):
-            js = np.asarray(js, dtype=np.int64)
-            js = js[js != i]
-            found.append(np.stack([np.minimum(js, i), np.maximum(js, i)], axis=1))
-        pairs = np.vstack(found)
-        gap = np.linalg.norm(centroid[pairs[:, 0]] - centroid[pairs[:, 1]], axis=1)
-        pairs = pairs[gap <= radius[pairs[:, 0]] + radius[pairs[:, 1]]]
-        key = np.unique(pairs[:, 0] * len(faces) + pairs[:, 1])
-        return np.stack([key // len(faces), key % len(faces)], axis=1)
     large = radius > LARGE_FACE * max(float(np.median(radius)), 1e-300)
     r_small = float(radius[~large].max()) if np.any(~large) else 0.0
-    found = [tree.query_pairs(2.0 * r_small, output_type="ndarray").astype(np.int64)]
-    for i in np.flatnonzero(large):
-        near = np.asarray(tree.query_ball_point(centroid[i], radius[i] + radius.max()), np.int64)
-        near = near[near != i]
-        found.append(np.stack([np.minimum(near, i), np.maximum(near, i)], axis=1))
+    found = [np.zeros((0, 2), dtype=np.int64)]
+    if subset is None:
+        found.append(tree.query_pairs(2.0 * r_small, output_type="ndarray").astype(np.int64))
+    else:
+        queries = np.asarray(subset, dtype=np.int64)
+        queries = queries[~large[queries]]
+        found.append(_around(tree, centroid, queries, radius[queries] + r_small))
+    big = np.flatnonzero(large)
+    if len(big):
+        found.append(_around(tree, centroid, big, radius[big] + radius.max()))
     pairs = np.vstack(found)
     gap = np.linalg.norm(centroid[pairs[:, 0]] - centroid[pairs[:, 1]], axis=1)
     pairs = pairs[gap <= radius[pairs[:, 0]] + radius[pairs[:, 1]]]
-    if len(found) > 1:  # a large face may have been paired twice
-        key = np.unique(pairs[:, 0] * len(faces) + pairs[:, 1])
-        pairs = np.stack([key // len(faces), key % len(faces)], axis=1)
-    return pairs
+    if subset is not None:
+        mark = np.zeros(n, dtype=bool)
+        mark[np.asarray(subset, dtype=np.int64)] = True
+        pairs = pairs[mark[pairs[:, 0]] | mark[pairs[:, 1]]]
+    key = np.unique(pairs[:, 0] * n + pairs[:, 1])  # a pair may have been found twice
+    return np.stack([key // n, key % n], axis=1)
+
+
+def _around(tree: cKDTree, centroid: np.ndarray, faces: np.ndarray, reach: np.ndarray):
+    """Pairs ``(i, j)``, ``i < j``, of each face i of ``faces`` with every face whose centroid
+    lies within ``reach`` of i's (one vectorised query)."""
+    if len(faces) == 0:
+        return np.zeros((0, 2), dtype=np.int64)
+    near = tree.query_ball_point(centroid[faces], reach, workers=query_workers())
+    counts = np.fromiter((len(x) for x in near), dtype=np.int64, count=len(near))
+    other = (
+        np.concatenate([np.asarray(x, dtype=np.int64) for x in near])
+        if counts.sum()
+        else np.zeros(0, dtype=np.int64)
+    )
+    own = np.repeat(faces, counts)
+    keep = other != own
+    own, other = own[keep], other[keep]
+    return np.stack([np.minimum(own, other), np.maximum(own, other)], axis=1)
 
 
 def self_intersections(
@@ -165,4 +182,6 @@ def untangle(
             best, best_left = vertices.copy(), len(pairs)
         if len(pairs) == 0:
             break
-    return best, found, best_left
+    # the passes re-test only pairs with a face that moved: count what is left over all faces
+    # (a crossing between fixed vertices, for one, never moves)
+    return best, found, int(len(self_intersections(best, faces)))

@@ -243,7 +243,7 @@ _DIRECTIONS = _fibonacci_directions()
 
 
 def _across_neighbours(
-    points: np.ndarray, normals: np.ndarray, idx: np.ndarray, k: int
+    points: np.ndarray, normals: np.ndarray, idx: np.ndarray, k: int, start: int = 0
 ) -> tuple[np.ndarray, np.ndarray]:
     """Which neighbours lie on the other face of a thin part.
 
@@ -255,6 +255,8 @@ def _across_neighbours(
     group (its best split is about 2.7 deviations apart); two faces a thickness t apart with
     noise sigma split t / sigma apart.
 
+    The rows of ``idx`` are the points ``start, start + 1, ...`` (a block of a large cloud).
+
     Returns
     -------
     across : (n, k) bool
@@ -263,8 +265,10 @@ def _across_neighbours(
         i's neighbourhood spans two faces (so its first ``k`` neighbours are classified).
     """
     n, k_wide = idx.shape
-    rel = points[idx] - points[:, None, :]
-    offsets = np.einsum("ijk,ik->ij", rel, normals)
+    if k_wide < _SIDES_K:  # too few neighbours: a split would be chance
+        return np.zeros((n, k), dtype=bool), np.zeros(n, dtype=bool)
+    rel = points[idx] - points[start : start + n, None, :]
+    offsets = np.einsum("ijk,ik->ij", rel, normals[start : start + n])
     radius = np.linalg.norm(rel[:, -1], axis=1)
     d = np.concatenate([np.zeros((n, 1)), offsets], axis=1)  # the point itself at 0
     m = k_wide + 1
@@ -325,18 +329,23 @@ def _knn_graph(
         np.abs(np.einsum("ij,ij->i", u, normals[rows]))
         + np.abs(np.einsum("ij,ij->i", u, normals[cols]))
     )
-    across, two_sided = _across_neighbours(points, normals, wide[:, 1:], k_eff)
+    across = np.zeros((n, k_eff), dtype=bool)
+    two_sided = np.zeros(n, dtype=bool)
+    for lo in range(0, n, _CHUNK):  # in blocks: the split holds ~10 (block, k_wide) arrays
+        hi = min(lo + _CHUNK, n)
+        across[lo:hi], two_sided[lo:hi] = _across_neighbours(
+            points, normals, wide[lo:hi, 1:], k_eff, start=lo
+        )
     # across when both ends see it so (where only one end's neighbourhood looks two-sided,
     # that is more often noise than a thin part)
-    half = sparse.coo_matrix(
-        (across.reshape(-1)[keep].astype(np.float64), (rows, cols)), shape=(n, n)
-    ).tocsr()
-    flip = half.minimum(half.T).tocsr()
+    key = rows * np.int64(n) + cols
+    one_way = np.sort(key[across.reshape(-1)[keep]])
+    seen_back = one_way[np.isin(one_way, (one_way % n) * np.int64(n) + one_way // n)]
+    both = np.isin(key, seen_back)
     # an edge known to join the two faces propagates exactly (opposed signs): no penalty
-    penalised = _symmetric(base + across_cost * a * a, rows, cols, n)
-    plain = _symmetric(base, rows, cols, n)
-    graph = (penalised - penalised.multiply(flip) + plain.multiply(flip)).tocsr()
-    return graph, flip, two_sided
+    graph = _symmetric(np.where(both, base, base + across_cost * a * a), rows, cols, n)
+    flip = sparse.coo_matrix((np.ones(int(both.sum())), (rows[both], cols[both])), shape=(n, n))
+    return graph, flip.tocsr(), two_sided
 
 
 def _symmetric(values: np.ndarray, rows: np.ndarray, cols: np.ndarray, n: int):

@@ -33,6 +33,10 @@ def test_subset_gives_the_pairs_touching_it():
     n = 200
     vertices = (rng.uniform(0, 3, (n, 1, 3)) + rng.normal(scale=0.3, size=(n, 3, 3))).reshape(-1, 3)
     faces = np.arange(3 * n).reshape(n, 3)
+    # and one face much larger than the rest, far away
+    vertices = np.vstack([vertices, [[20.0, 0, 0], [30.0, 0, 0], [20.0, 10.0, 0]]])
+    faces = np.vstack([faces, [[3 * n, 3 * n + 1, 3 * n + 2]]])
+    n += 1
     every = candidate_pairs(vertices, faces)
     subset = np.arange(0, n, 7)
     some = candidate_pairs(vertices, faces, subset)
@@ -84,3 +88,10 @@ def test_untangle_never_moves_fixed_vertices():
     out, found, _ = untangle(v, f, fixed=fixed)
     assert found > 0 and np.array_equal(out[fixed], v[fixed])
     assert not np.array_equal(out, v)
+
+
+def test_untangle_counts_the_crossings_it_could_not_move():
+    v = np.array([[0, 0, 0], [2, 0, 0], [0, 2, 0], [0.5, 0.5, -1], [0.5, 0.5, 1], [1.5, 1.5, 0]])
+    f = np.array([[0, 1, 2], [3, 4, 5]])
+    out, found, left = untangle(v.astype(float), f, fixed=np.ones(6, dtype=bool))
+    assert (found, left) == (1, 1) and np.array_equal(out, v)

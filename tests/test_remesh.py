@@ -276,3 +276,15 @@ def test_every_component_is_kept_even_a_small_one():
     topo = mesh_topology(r.vertices, r.faces)
     assert topo["components"] == 2 and topo["genus"] == 1 and topo["watertight"]
     assert r.report["topology_preserved"]
+
+
+def test_bow_tie_input_is_split_not_refused_as_self_intersecting():
+    # two tetrahedra sharing one vertex: a bow-tie, repaired by one copy per fan (the copies
+    # coincide, so the crossing test must run before the split)
+    t_v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], dtype=float)
+    t_f = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
+    v = np.vstack([t_v, -t_v[1:]])
+    f = np.vstack([t_f, np.where(t_f == 0, 0, t_f + 3)[:, ::-1]])
+    checked = check_mesh(v, f, "bowtie.ply")
+    assert any("bow-tie" in r for r in checked.repairs)
+    assert len(checked.vertices) == len(v) + 1

@@ -85,9 +85,10 @@ __all__ = [
 TRIM_GAP_FRACTION = 0.5
 #: A hole candidate counts as covered by data (and is filled) when the data point nearest to
 #: its projection onto the data lies within this distance [r0] times the local spacing, or
-#: times that data point's sampling spacing (:func:`data_spacing`) over the median one,
-#: whichever is larger: where the data is k times sparser than usual, a sample covers k times
-#: farther (uniformly sparse data keeps the test at r0, so small true holes stay open).
+#: times that data point's sampling spacing (:func:`data_spacing`) over the median one
+#: (clipped to ``triangulation.max_density_scale``), whichever is larger: where the data is k
+#: times sparser than usual, a sample covers k times farther (uniformly sparse data keeps the
+#: test at r0, so small true holes stay open).
 HOLE_COVER_DISTANCE = 1.0
 #: The local data spacing is the distance to this many-th nearest data point.
 DENSITY_NEIGHBOURS = 6
@@ -208,8 +209,14 @@ def _triangulate(
     if cfg.seeds.adaptive and state.n:
         rest = np.array(state.rest, dtype=float)
         spacing = rest if spacing is None else np.maximum(spacing, rest)
+    # a sample k times sparser than the median covers k times farther, up to the same limit
+    # as the ball radii (max_density_scale; 1 when that is off)
     sampling = data_spacing(surface)
-    sparser = sampling / max(float(np.median(sampling)), 1e-12) if len(sampling) else sampling
+    sparser = np.clip(
+        sampling / max(float(np.median(sampling)), 1e-12) if len(sampling) else sampling,
+        1.0,
+        max(tri_cfg.max_density_scale, 1.0),
+    )
 
     def is_covered(c: np.ndarray, spacing: float | np.ndarray = 1.0) -> np.ndarray:
         dist, idx = surface.nearest(surface.project(c)[0])

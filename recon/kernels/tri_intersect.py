@@ -28,6 +28,9 @@ from .options import EXACT_JIT_OPTIONS
 #: an edge or a corner of the triangle, or ending on it, counts as crossing (faces that touch
 #: intersect; faces sharing a vertex are not tested at all).
 EPS = 1e-12
+#: Faces are coplanar when the smaller one's corners lie within this fraction of the larger
+#: one's size (the square root of twice its area) off its plane.
+COPLANAR = 1e-9
 
 
 @njit(**EXACT_JIT_OPTIONS)
@@ -112,8 +115,10 @@ def triangles_intersect(vertices, f, g):  # pragma: no cover - numba
     """Do faces ``f`` and ``g`` (vertex index triples, no shared vertex) intersect?
 
     True when one of the six edges crosses the other face (:func:`segment_crosses_triangle`),
-    or, for coplanar faces (every corner of ``g`` within ``EPS`` of the size of ``f`` off its
-    plane), when they overlap in that plane (:func:`coplanar_overlap`).
+    or, for coplanar faces (every corner of the smaller face within ``COPLANAR`` times the
+    larger face's size off the larger face's plane), when they overlap in that plane
+    (:func:`coplanar_overlap`). The larger face gives the plane, so the answer does not depend
+    on the order of ``f`` and ``g``.
     """
     a = np.empty((3, 3))
     b = np.empty((3, 3))
@@ -122,11 +127,14 @@ def triangles_intersect(vertices, f, g):  # pragma: no cover - numba
             a[k, c] = vertices[f[k], c]
             b[k, c] = vertices[g[k], c]
     n = np.cross(a[1] - a[0], a[2] - a[0])
+    m = np.cross(b[1] - b[0], b[2] - b[0])
+    if np.dot(m, m) > np.dot(n, n):  # the plane of the larger face
+        a, b, n = b, a, m
     nn = np.sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2])
     if nn > 0:
         coplanar = True
         for k in range(3):
-            if abs(np.dot(n, b[k] - a[0])) > 1e-9 * nn * np.sqrt(nn):
+            if abs(np.dot(n, b[k] - a[0])) > COPLANAR * nn * np.sqrt(nn):
                 coplanar = False
         if coplanar:
             axis = 0

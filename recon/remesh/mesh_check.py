@@ -99,6 +99,16 @@ def check_mesh(
             f"{name}: non-manifold mesh: {over:,} edge(s) shared by more than two faces; "
             "remesh needs a manifold surface (repair it first, e.g. split the sheets)"
         )
+    # before the bow-ties are split: their copies coincide, and faces meeting at a split vertex
+    # would then touch without sharing it (which counts as crossing)
+    if intersections:
+        bad = self_intersections(v, f)
+        if len(bad):
+            p = v[f[bad[0, 0]]].mean(axis=0)
+            raise InputError(
+                f"{name}: self-intersecting mesh: {len(bad):,} pair(s) of faces cross "
+                f"(first near {p[0]:.6g}, {p[1]:.6g}, {p[2]:.6g}); repair it first"
+            )
     # bow-tie vertices: one copy per extra fan
     fan = vertex_fans(f)
     keys = np.unique(f.ravel() * np.int64(3 * len(f)) + fan.ravel())
@@ -123,14 +133,6 @@ def check_mesh(
         f = f.copy()
         f[flip] = f[flip][:, [0, 2, 1]]
         repairs.append(f"re-wound {int(flip.sum()):,} faces to a consistent orientation")
-    if intersections:
-        bad = self_intersections(v, f)
-        if len(bad):
-            p = v[f[bad[0, 0]]].mean(axis=0)
-            raise InputError(
-                f"{name}: self-intersecting mesh: {len(bad):,} pair(s) of faces cross "
-                f"(first near {p[0]:.6g}, {p[1]:.6g}, {p[2]:.6g}); repair it first"
-            )
     return CheckedMesh(np.ascontiguousarray(v), np.ascontiguousarray(f), repairs)
 
 
