@@ -138,6 +138,64 @@ def _input_of(specs: list[dict[str, Any]], name: str) -> str:
     return next((s["input"] for s in specs if s["name"] == name), "")
 
 
+@contextlib.contextmanager
+def dask_client(scheduler: str | None, jobs: int) -> Iterator[tuple[Any, dict[str, str]]]:
+    """A Dask client, on the running ``scheduler`` or on a LocalCluster of ``jobs``
+    single-threaded worker processes (started ignoring Ctrl-C, which the caller handles), with
+    every worker checked to run this oprecon version. Client and cluster close on exit.
+
+    Yields
+    ------
+    client, versions
+        ``versions``: worker address -> its oprecon version (empty: no worker has joined yet).
+
+    Raises
+    ------
+    OpreconError
+        Dask missing or unreachable, or its workers run another oprecon version.
+    """
+    dd = import_dask()
+    cluster = None
+    client = None
+    try:
+        if scheduler:
+            try:
+                client = dd.Client(scheduler, timeout="20s", set_as_default=False)
+            except (OSError, TimeoutError) as exc:
+                raise OpreconError(
+                    f"cannot connect to the Dask scheduler at {scheduler}: {exc}"
+                ) from None
+        else:
+            with _sigint_ignored():  # Ctrl-C is handled here, not in the workers
+                cluster = dd.LocalCluster(
+                    n_workers=jobs,
+                    processes=True,
+                    threads_per_worker=1,
+                    dashboard_address=None,
+                    silence_logs=logging.ERROR,
+                )
+            client = dd.Client(cluster, set_as_default=False)
+        try:
+            versions = client.run(_worker_version)
+        except Exception as exc:  # noqa: BLE001 - the workers cannot import oprecon
+            raise OpreconError(
+                "cannot run oprecon on the Dask workers (install the same "
+                f"oprecon version on every worker): {exc}"
+            ) from None
+        wrong = {w: v for w, v in versions.items() if v != __version__}
+        if wrong:
+            raise OpreconError(
+                f"Dask workers run other oprecon versions than {__version__}: "
+                + ", ".join(f"{w} has {v}" for w, v in sorted(wrong.items()))
+            )
+        yield client, versions
+    finally:
+        for obj in (client, cluster):
+            with contextlib.suppress(Exception):
+                if obj is not None:
+                    obj.close()
+
+
 def _worker_version() -> str:
     """The oprecon version a Dask worker imports."""
     from recon.version import __version__ as version
@@ -240,7 +298,7 @@ def run_dask(
         Dask missing or unreachable, or its workers run another oprecon version.
     """
     dd = import_dask()
-    cluster = None
+    stack = contextlib.ExitStack()
     client = None
     interrupted = False
     futures: dict[Any, str] = {}
@@ -261,36 +319,7 @@ def run_dask(
         results[name] = res
 
     try:
-        if scheduler:
-            try:
-                client = dd.Client(scheduler, timeout="20s", set_as_default=False)
-            except (OSError, TimeoutError) as exc:
-                raise OpreconError(
-                    f"cannot connect to the Dask scheduler at {scheduler}: {exc}"
-                ) from None
-        else:
-            with _sigint_ignored():  # Ctrl-C is handled here, not in the workers
-                cluster = dd.LocalCluster(
-                    n_workers=jobs,
-                    processes=True,
-                    threads_per_worker=1,
-                    dashboard_address=None,
-                    silence_logs=logging.ERROR,
-                )
-            client = dd.Client(cluster, set_as_default=False)
-        try:
-            versions = client.run(_worker_version)
-        except Exception as exc:  # noqa: BLE001 - the workers cannot import oprecon
-            raise OpreconError(
-                "cannot run oprecon on the Dask workers (install the same "
-                f"oprecon version on every worker): {exc}"
-            ) from None
-        wrong = {w: v for w, v in versions.items() if v != __version__}
-        if wrong:
-            raise OpreconError(
-                f"Dask workers run other oprecon versions than {__version__}: "
-                + ", ".join(f"{w} has {v}" for w, v in sorted(wrong.items()))
-            )
+        client, versions = stack.enter_context(dask_client(scheduler, jobs))
         if not versions:
             log.warning("the Dask scheduler has no workers yet; items wait until workers join")
         token = uuid.uuid4().hex[:12]
@@ -323,10 +352,5 @@ def run_dask(
             with contextlib.suppress(Exception):
                 if client is not None and futures:
                     client.cancel([f for f in futures if futures[f] not in results])
-            with contextlib.suppress(Exception):
-                if client is not None:
-                    client.close()
-            with contextlib.suppress(Exception):
-                if cluster is not None:
-                    cluster.close()
+            stack.close()
     return interrupted

@@ -12,7 +12,6 @@ import contextlib
 import logging
 import multiprocessing
 import signal
-import threading
 import time
 import traceback
 from collections.abc import Callable, Iterator
@@ -21,9 +20,8 @@ from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from typing import Any
 
-from ..batch.executors import default_jobs, import_dask
+from ..batch.executors import dask_client, default_jobs
 from ..errors import OpreconError
-from ..version import __version__
 
 log = logging.getLogger(__name__)
 
@@ -105,12 +103,6 @@ class TileRunner:
                 f.cancel()
 
 
-def _worker_version() -> str:
-    from recon.version import __version__ as version
-
-    return version
-
-
 def _ignore_sigint() -> None:  # pragma: no cover - runs in the workers
     """Workers leave Ctrl-C to the coordinator, which stops them (and, like ``oprecon``,
     keep numba's notice about an old TBB off stderr)."""
@@ -118,19 +110,6 @@ def _ignore_sigint() -> None:  # pragma: no cover - runs in the workers
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     warnings.filterwarnings("ignore", message="The TBB threading layer requires")
-
-
-@contextlib.contextmanager
-def _sigint_ignored() -> Iterator[None]:
-    """Ignore SIGINT while processes start, so that they ignore Ctrl-C."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGINT, previous)
 
 
 @contextlib.contextmanager
@@ -147,46 +126,8 @@ def tile_runner(kind: str, jobs: int | None, scheduler: str | None = None) -> It
         finally:
             runner.close()
         return
-    dd = import_dask()
-    cluster = None
-    client = None
-    try:
-        if scheduler:
-            try:
-                client = dd.Client(scheduler, timeout="20s", set_as_default=False)
-            except (OSError, TimeoutError) as exc:
-                raise OpreconError(
-                    f"cannot connect to the Dask scheduler at {scheduler}: {exc}"
-                ) from None
-        else:
-            with _sigint_ignored():
-                cluster = dd.LocalCluster(
-                    n_workers=jobs,
-                    processes=True,
-                    threads_per_worker=1,
-                    dashboard_address=None,
-                    silence_logs=logging.ERROR,
-                )
-            client = dd.Client(cluster, set_as_default=False)
-        try:
-            versions = client.run(_worker_version)
-        except Exception as exc:  # noqa: BLE001 - the workers cannot import oprecon
-            raise OpreconError(
-                "cannot run oprecon on the Dask workers (install the same "
-                f"oprecon version on every worker): {exc}"
-            ) from None
-        wrong = {w: v for w, v in versions.items() if v != __version__}
-        if wrong:
-            raise OpreconError(
-                f"Dask workers run other oprecon versions than {__version__}: "
-                + ", ".join(f"{w} has {v}" for w, v in sorted(wrong.items()))
-            )
+    with dask_client(scheduler, jobs) as (client, versions):
         yield TileRunner(kind, max(1, len(versions)) if scheduler else jobs, client=client)
-    finally:
-        for obj in (client, cluster):
-            with contextlib.suppress(Exception):
-                if obj is not None:
-                    obj.close()
 
 
 def run_tasks(
