@@ -349,7 +349,10 @@ def time_ratios(results: dict[str, list[dict[str, Any]]]) -> list[str]:
     if lines:
         load = "/".join(f"{v:.2f}" for v in os.getloadavg())
         when = dt.datetime.now(dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
-        lines.append(f"({when}, load average {load} (1/5/15 min) at the end)")
+        policy = os.environ.get("OMP_WAIT_POLICY", "the runtime's default")
+        lines.append(
+            f"({when}, load average {load} (1/5/15 min) at the end, OMP_WAIT_POLICY {policy})"
+        )
     return lines
 
 
@@ -374,13 +377,21 @@ def main(argv: list[str] | None = None) -> int:
         default=1,
         help="runs per method and case, alternating between the methods; median time",
     )
+    ap.add_argument(
+        "--omp-wait-policy",
+        choices=("default", "PASSIVE", "ACTIVE"),
+        default=os.environ.get("OMP_WAIT_POLICY", "default").upper() or "default",
+        help="OMP_WAIT_POLICY for every method (default: the OpenMP runtime's own, spinning, "
+        "fastest on a quiet machine; PASSIVE helps on a loaded one)",
+    )
     ap.add_argument("--out", type=Path, help="write the Markdown table here too")
     ap.add_argument("--json-out", type=Path)
     args = ap.parse_args(argv)
-    # OpenMP threads (MeshLab's and Open3D's) spin while they wait unless told otherwise; on a
-    # shared machine that made screened Poisson 10x slower (see bench_scale.py). Passive waiting
-    # is what a user of a busy machine would set; the workers inherit it.
-    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+    # OpenMP threads (MeshLab's, Open3D's, numba's) spin while they wait by default. On a quiet
+    # machine that is fastest (bunny-clean screened Poisson, 2026-11-23, load 0.6: 2.2 s by
+    # default, 9.4 s PASSIVE); on a loaded one spinning can cost 10x. The workers inherit it.
+    if args.omp_wait_policy != "default":
+        os.environ["OMP_WAIT_POLICY"] = args.omp_wait_policy
     manifest = json.loads((args.data / "manifest.json").read_text())
     cases = [c for c in manifest["cases"] if not args.cases or c["id"] in args.cases]
     if not cases:

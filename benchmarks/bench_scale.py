@@ -4,7 +4,7 @@ Samples one smooth closed shape (a torus, R = 1, r = 0.35, area-uniform) at seve
 fits each with ``oprecon fit`` in a fresh process and prints, per size: wall time, the time per
 phase (from the report), particles, dynamics steps, particle-steps per second, peak RSS, and,
 where pymeshlab is installed (``pip install -e ".[bench]"``), the wall time and peak RSS of
-screened Poisson (pymeshlab, its own normal estimation, ``OMP_WAIT_POLICY=PASSIVE``) on the same
+screened Poisson (pymeshlab, its own normal estimation, ``--omp-wait-policy``) on the same
 file, run alternately with oprecon, with medians over ``--repeats`` and the ratio. Then the
 log-log slope of wall time against input size (1.0 = linear). A benchmark, not a test: the
 machine is shared, so compare ratios measured in the same run rather than absolute times across
@@ -113,11 +113,11 @@ def run_oprecon(path: Path, out: Path, threads: int | None) -> dict[str, Any]:
     }
 
 
-def run_peer(path: Path, out: Path, depth: int) -> dict[str, Any]:
-    # MeshLab's Poisson runs OpenMP threads that spin while they wait: on a shared machine that
-    # made depth 8 on 40k points take 64 s instead of 5-7 s. Passive waiting is what a user
-    # with a busy machine would set; it costs nothing measurable on a quiet one.
-    env = {"OMP_WAIT_POLICY": "PASSIVE"}
+def run_peer(path: Path, out: Path, depth: int, policy: str = "default") -> dict[str, Any]:
+    # MeshLab's Poisson runs OpenMP threads that spin while they wait. On a loaded machine that
+    # made depth 8 on 40k points take 64 s instead of 5-7 s; on a quiet one PASSIVE made it 4x
+    # slower (2.2 s -> 9.4 s, 2026-11-23). So the policy is a choice, the runtime's by default.
+    env = {} if policy == "default" else {"OMP_WAIT_POLICY": policy}
     cmd = [sys.executable, "-c", _PEER_CODE, str(path), str(out), str(depth)]
     wall, rss, code = _run(cmd, env)
     return {"wall_s": wall, "rss_mib": rss, "failed": code != 0}
@@ -145,6 +145,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--peer-depth", type=int, default=10, help="screened Poisson depth")
     parser.add_argument("--peer-max", type=int, default=1_000_000, help="largest size for the peer")
     parser.add_argument("--threads", type=int, default=None, help="NUMBA_NUM_THREADS for oprecon")
+    parser.add_argument(
+        "--omp-wait-policy",
+        choices=("default", "PASSIVE", "ACTIVE"),
+        default="default",
+        help="OMP_WAIT_POLICY for screened Poisson (default: the runtime's own; PASSIVE helps "
+        "on a loaded machine)",
+    )
     parser.add_argument("--json-out", type=Path)
     args = parser.parse_args(argv)
 
@@ -170,7 +177,11 @@ def main(argv: list[str] | None = None) -> int:
             for _ in range(args.repeats):  # alternate: the machine's load drifts
                 ours.append(run_oprecon(path, Path(tmp) / f"o-{n}.ply", args.threads))
                 if peer and n <= args.peer_max:
-                    theirs.append(run_peer(path, Path(tmp) / f"p-{n}.ply", args.peer_depth))
+                    theirs.append(
+                        run_peer(
+                            path, Path(tmp) / f"p-{n}.ply", args.peer_depth, args.omp_wait_policy
+                        )
+                    )
             ok = [r for r in ours if not r.get("failed")]
             if not ok:
                 rows.append({"points": n, "failed": True})
