@@ -288,3 +288,24 @@ def test_bow_tie_input_is_split_not_refused_as_self_intersecting():
     checked = check_mesh(v, f, "bowtie.ply")
     assert any("bow-tie" in r for r in checked.repairs)
     assert len(checked.vertices) == len(v) + 1
+
+
+def test_crossing_pairs_from_edges_agree_with_the_face_pair_search():
+    from recon.intersections import self_intersections
+    from recon.remesh.mesh_check import crossing_pairs
+    from recon.remesh.surface import edge_faces
+
+    # two overlapping spheres cross along a circle; a third apart crosses nothing
+    v1, f1 = icosphere(2)
+    rot = np.array([[0.8, -0.6, 0.0], [0.6, 0.8, 0.0], [0.0, 0.0, 1.0]])
+    v = np.vstack([v1, v1 @ rot.T + [0.7, 0.3, 0.1], v1 + [5.0, 0.0, 0.0]])
+    f = np.vstack([f1, f1 + len(v1), f1 + 2 * len(v1)])
+    edges, _, f0, f1e = edge_faces(f, len(v))
+    got = crossing_pairs(v, f, edges, f0, f1e)
+    want = self_intersections(v, f)
+    assert len(want) > 20
+    assert {tuple(p) for p in got.tolist()} == {tuple(p) for p in want.tolist()}
+    assert not np.isin(got, np.arange(2 * len(f1), 3 * len(f1))).any()
+    # a sphere alone: none
+    e1, _, a0, a1 = edge_faces(f1, len(v1))
+    assert len(crossing_pairs(v1, f1, e1, a0, a1)) == 0

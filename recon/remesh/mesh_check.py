@@ -16,14 +16,17 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import InputError
-from ..intersections import self_intersections
+from ..kernels.tri_intersect import pairs_intersect
 from ..mesh import face_area_vectors, orientation_flips, vertex_fans
 from .surface import edge_faces
 
-__all__ = ["CheckedMesh", "check_mesh"]
+__all__ = ["CheckedMesh", "check_mesh", "crossing_pairs"]
 
 #: A face is degenerate when its doubled area is below this times its longest edge squared.
 DEGENERATE_AREA = 1e-12
+#: The edge segments cast by :func:`crossing_pairs` stop this fraction of their length short
+#: of both ends (the faces at the ends touch them there).
+RAY_TRIM = 1e-4
 
 
 @dataclass
@@ -92,7 +95,7 @@ def check_mesh(
         f = f[np.sort(first)]
     if len(f) == 0:
         raise InputError(f"{name}: every face is degenerate (zero area); nothing to remesh")
-    _, counts, _, _ = edge_faces(f, len(v))
+    edges, counts, f0, f1 = edge_faces(f, len(v))
     over = int((counts > 2).sum())
     if over:
         raise InputError(
@@ -102,7 +105,7 @@ def check_mesh(
     # before the bow-ties are split: their copies coincide, and faces meeting at a split vertex
     # would then touch without sharing it (which counts as crossing)
     if intersections:
-        bad = self_intersections(v, f)
+        bad = crossing_pairs(v, f, edges, f0, f1)
         if len(bad):
             p = v[f[bad[0, 0]]].mean(axis=0)
             raise InputError(
@@ -149,3 +152,65 @@ def _split_fans(
     new_index = np.where(first, vert, len(vertices) + np.cumsum(~first) - 1)
     extra = vert[~first]
     return np.vstack([vertices, vertices[extra]]), new_index[inverse.reshape(-1)].reshape(-1, 3)
+
+
+def crossing_pairs(
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    edges: np.ndarray,
+    face0: np.ndarray,
+    face1: np.ndarray,
+) -> np.ndarray:
+    """Pairs of faces ``(m, 2)`` sharing no vertex that cross, as
+    :func:`recon.intersections.self_intersections` finds them, but from the edges.
+
+    Where two triangles cross (not in one plane), each end of the segment they share lies on
+    an edge of one of them, so some edge of one pierces the other. Every edge ``(a, b)`` (with
+    its faces ``face0``, ``face1``, -1 for none: :func:`~recon.remesh.surface.edge_faces`) is
+    cast as a segment against the mesh (Embree, float32; trimmed by :data:`RAY_TRIM` at both
+    ends); the few edges that hit a face are listed with all their hits, and each hit face
+    that has neither a nor b is tested against the edge's faces exactly, in float64
+    (:func:`recon.kernels.tri_intersect.pairs_intersect`). Faces that overlap in one plane are
+    not found (no edge pierces the other).
+    """
+    import open3d as o3d
+
+    v = np.ascontiguousarray(vertices, dtype=np.float64)
+    f = np.ascontiguousarray(faces, dtype=np.int64)
+    if len(f) < 2 or len(edges) == 0:
+        return np.zeros((0, 2), dtype=np.int64)
+    centre = 0.5 * (v.min(axis=0) + v.max(axis=0))
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(
+        o3d.core.Tensor(np.ascontiguousarray(v - centre, dtype=np.float32)),
+        o3d.core.Tensor(np.ascontiguousarray(f, dtype=np.uint32)),
+    )
+    a, b = edges[:, 0], edges[:, 1]
+    d = v[b] - v[a]
+    # direction (1 - 2 trim) d: the segment is t in [0, 1] (Embree's t is in units of |dir|)
+    rays = np.hstack([v[a] - centre + RAY_TRIM * d, (1.0 - 2.0 * RAY_TRIM) * d])
+    rays = o3d.core.Tensor(np.ascontiguousarray(rays, dtype=np.float32))
+    # an edge lies in its own faces' planes, so float32 may report those: listed, then dropped
+    hit = np.flatnonzero(scene.test_occlusions(rays, tnear=0.0, tfar=1.0).numpy())
+    if len(hit) == 0:
+        return np.zeros((0, 2), dtype=np.int64)
+    ans = scene.list_intersections(rays[o3d.core.Tensor(hit.astype(np.int64))])
+    t = ans["t_hit"].numpy()
+    edge = hit[ans["ray_ids"].numpy().astype(np.int64)]
+    other = ans["primitive_ids"].numpy().astype(np.int64)
+    keep = (t >= -RAY_TRIM) & (t <= 1.0 + RAY_TRIM)
+    edge, other = edge[keep], other[keep]
+    fo = f[other]
+    apart = ~((fo == a[edge, None]) | (fo == b[edge, None])).any(axis=1)
+    edge, other = edge[apart], other[apart]
+    own = np.concatenate([face0[edge], face1[edge]])
+    other = np.concatenate([other, other])
+    ok = own >= 0
+    own, other = own[ok], other[ok]
+    n = np.int64(len(f))
+    key = np.unique(np.minimum(own, other) * n + np.maximum(own, other))
+    pairs = np.stack([key // n, key % n], axis=1)
+    crossing = np.zeros(len(pairs), dtype=np.bool_)
+    if len(pairs):
+        pairs_intersect(v, f, pairs, crossing)
+    return pairs[crossing]
