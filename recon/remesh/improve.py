@@ -21,7 +21,15 @@ from ..kernels.edge_flip import flip_edges_kernel
 from ..mesh import face_area_vectors
 from .surface import MeshSurface, corner_sum
 
-__all__ = ["FLIP_MIN_NORMAL_DOT", "SMOOTH_STEP", "flip_edges", "improve", "twin_half_edges"]
+__all__ = [
+    "FLIP_MIN_NORMAL_DOT",
+    "SMOOTH_STEP",
+    "EdgeFlipper",
+    "flip_edges",
+    "improve",
+    "neighbour_centroids",
+    "twin_half_edges",
+]
 
 #: A flip's new triangles must face within ~37 degrees of the old pair's mean normal...
 FLIP_MIN_NORMAL_DOT = 0.8
@@ -51,6 +59,56 @@ def twin_half_edges(faces: np.ndarray, n_vertices: int) -> np.ndarray:
     return np.where(found, order[pos], -1).astype(np.int64)
 
 
+class EdgeFlipper:
+    """Angle-raising flips on one mesh, round after round: the twin half-edges, locks and
+    valence targets are built once and kept up to date by the kernel (a flip changes faces,
+    twins and locks in place, never the boundary).
+
+    ``line_edges`` (k, 2) vertex pairs (feature lines) are locked where they exist and
+    recovered by a flip where one creates them.
+    """
+
+    def __init__(
+        self, n_vertices: int, faces: np.ndarray, line_edges: np.ndarray | None = None
+    ) -> None:
+        self.faces = np.ascontiguousarray(faces, dtype=np.int64).copy()
+        nv = np.int64(n_vertices)
+        self.twin = twin_half_edges(self.faces, n_vertices)
+        a = self.faces.ravel()
+        b = np.roll(self.faces, -1, axis=1).ravel()
+        if line_edges is None or len(line_edges) == 0:
+            self.wanted = np.zeros(0, dtype=np.int64)
+        else:
+            le = np.sort(np.asarray(line_edges, dtype=np.int64), axis=1)
+            self.wanted = np.unique(le[:, 0] * nv + le[:, 1])
+        self.locked = np.ascontiguousarray(
+            np.isin(np.minimum(a, b) * nv + np.maximum(a, b), self.wanted)
+        )
+        self.target = np.full(n_vertices, 6, dtype=np.int64)
+        self.target[a[self.twin < 0]] = 4
+
+    def flip(self, vertices: np.ndarray, valence_min_angle: float | None = None) -> int:
+        """Flip until no flip helps (:func:`flip_edges`); returns the number of flips."""
+        if len(self.faces) < 2:
+            return 0
+        vmin = 1.0 if valence_min_angle is None else float(np.cos(np.radians(valence_min_angle)))
+        return int(
+            flip_edges_kernel(
+                np.ascontiguousarray(vertices, dtype=np.float64),
+                self.faces,
+                self.twin,
+                self.locked,
+                self.wanted,
+                self.target,
+                FLIP_MIN_NORMAL_DOT,
+                FLIP_MIN_FLAT_DOT,
+                FLIP_EPS,
+                FLIP_PASSES,
+                vmin,
+            )
+        )
+
+
 def flip_edges(
     vertices: np.ndarray,
     faces: np.ndarray,
@@ -61,36 +119,23 @@ def flip_edges(
     they exist and recovered by a flip where one creates them. With ``valence_min_angle``
     [deg], a flip that brings valences closer to 6 (4 on a boundary) is made too when no angle
     of the new pair falls below it. Returns (faces, flips)."""
-    faces = np.ascontiguousarray(faces, dtype=np.int64).copy()
-    if len(faces) < 2:
-        return faces, 0
-    nv = np.int64(len(vertices))
-    twin = twin_half_edges(faces, len(vertices))
-    a = faces.ravel()
-    b = np.roll(faces, -1, axis=1).ravel()
-    if line_edges is None or len(line_edges) == 0:
-        wanted = np.zeros(0, dtype=np.int64)
-    else:
-        le = np.sort(np.asarray(line_edges, dtype=np.int64), axis=1)
-        wanted = np.unique(le[:, 0] * nv + le[:, 1])
-    locked = np.ascontiguousarray(np.isin(np.minimum(a, b) * nv + np.maximum(a, b), wanted))
-    target = np.full(len(vertices), 6, dtype=np.int64)
-    target[a[twin < 0]] = 4
-    vmin = 1.0 if valence_min_angle is None else float(np.cos(np.radians(valence_min_angle)))
-    n = flip_edges_kernel(
-        np.ascontiguousarray(vertices, dtype=np.float64),
-        faces,
-        twin,
-        locked,
-        wanted,
-        target,
-        FLIP_MIN_NORMAL_DOT,
-        FLIP_MIN_FLAT_DOT,
-        FLIP_EPS,
-        FLIP_PASSES,
-        vmin,
+    flipper = EdgeFlipper(len(vertices), faces, line_edges)
+    n = flipper.flip(vertices, valence_min_angle)
+    return flipper.faces, n
+
+
+def neighbour_centroids(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(V, 3): the mean of each vertex's neighbours, every neighbour counted once per face
+    the two share (twice across an interior edge, once across a boundary edge)."""
+    n = len(vertices)
+    idx = faces.ravel()
+    around = vertices[np.roll(faces, -1, axis=1)] + vertices[np.roll(faces, 1, axis=1)]
+    around = around.reshape(-1, 3)
+    total = np.stack(
+        [np.bincount(idx, weights=around[:, j], minlength=n) for j in range(3)], axis=1
     )
-    return faces, int(n)
+    count = 2.0 * np.bincount(idx, minlength=n)
+    return total / np.maximum(count, 1.0)[:, None]
 
 
 def _vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
@@ -115,24 +160,26 @@ def improve(
     1/spacing² for adaptive meshes, so that vertices drift toward the dense side less).
     """
     v = np.array(vertices, dtype=np.float64, copy=True)
-    f = faces
+    flipper = EdgeFlipper(len(v), faces, line_edges)
     free = ~fixed
     n_flips = 0
     for _ in range(rounds):
-        f, k = flip_edges(v, f, line_edges, VALENCE_MIN_ANGLE)
-        n_flips += k
-        e = f[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
-        rows, cols = np.concatenate([e[:, 0], e[:, 1]]), np.concatenate([e[:, 1], e[:, 0]])
-        w = np.ones(len(rows)) if weights is None else weights[cols]
-        adj = sparse.csr_matrix((w, (rows, cols)), shape=(len(v), len(v)))
-        deg = np.asarray(adj.sum(axis=1)).ravel()
-        centroid = (adj @ v) / np.maximum(deg, 1e-300)[:, None]
+        n_flips += flipper.flip(v, VALENCE_MIN_ANGLE)
+        f = flipper.faces
+        if weights is None:
+            centroid = neighbour_centroids(v, f)
+        else:
+            e = f[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
+            rows, cols = np.concatenate([e[:, 0], e[:, 1]]), np.concatenate([e[:, 1], e[:, 0]])
+            adj = sparse.csr_matrix((weights[cols], (rows, cols)), shape=(len(v), len(v)))
+            deg = np.asarray(adj.sum(axis=1)).ravel()
+            centroid = (adj @ v) / np.maximum(deg, 1e-300)[:, None]
         move = centroid - v
         vn = _vertex_normals(v, f)
         move -= np.einsum("ij,ij->i", move, vn)[:, None] * vn
         target = v[free] + SMOOTH_STEP * move[free]
         foot, _, _ = surface.closest(target)
         v[free] = foot
-    f, k = flip_edges(v, f, line_edges)
-    n_flips += k
+    n_flips += flipper.flip(v)
+    f = flipper.faces
     return v, f, {"flips": n_flips, "smoothing_rounds": rounds}

@@ -94,3 +94,39 @@ def test_valence_flips_lower_the_valence_deviation_without_slivers():
     t0, t1 = mesh_topology(v, f), mesh_topology(v, out)
     assert t1["euler_characteristic"] == t0["euler_characteristic"]
     assert t1["non_manifold_edges"] == 0 and t1["consistently_oriented"]
+
+
+def test_a_kept_flipper_matches_fresh_flips_round_after_round():
+    # the twins and locks the kernel updates in place must equal those rebuilt from scratch
+    from recon.remesh.improve import EdgeFlipper
+
+    v, f = grid(10, 10)
+    rng = np.random.default_rng(4)
+    inner = ((v[:, :2] > 0) & (v[:, :2] < 1)).all(axis=1)
+    lines = np.array([[0, 1], [1, 2]])
+    kept = EdgeFlipper(len(v), f, lines)
+    fresh = f.copy()
+    total = 0
+    for _ in range(4):
+        v[inner, :2] += rng.uniform(-0.03, 0.03, size=(int(inner.sum()), 2))
+        n = kept.flip(v, 30.0)
+        fresh, m = flip_edges(v, fresh, lines, 30.0)
+        assert n == m
+        total += n
+        np.testing.assert_array_equal(kept.faces, fresh)
+        np.testing.assert_array_equal(kept.twin, twin_half_edges(fresh, len(v)))
+    assert total > 0
+
+
+def test_neighbour_centroids_count_each_shared_face():
+    from scipy import sparse
+
+    from recon.remesh.improve import neighbour_centroids
+
+    v, f = grid(5, 4)
+    v = v + np.random.default_rng(0).normal(scale=0.01, size=v.shape)
+    e = f[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
+    rows, cols = np.r_[e[:, 0], e[:, 1]], np.r_[e[:, 1], e[:, 0]]
+    adj = sparse.csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(len(v), len(v)))
+    want = (adj @ v) / np.asarray(adj.sum(axis=1))
+    np.testing.assert_allclose(neighbour_centroids(v, f), want, rtol=0, atol=1e-14)
