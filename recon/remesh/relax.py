@@ -185,7 +185,8 @@ def relax(
     rest_at: RestFn | None,
     cfg: ReconConfig | None = None,
 ) -> Particles:
-    """Relax the particles over the mesh (module docstring); returns the moved particles.
+    """Relax the particles over the mesh (module docstring); returns the moved particles,
+    sorted by grid cell (not in the order given).
 
     Raises
     ------
@@ -202,9 +203,13 @@ def relax(
     # repulsion (the same mesh quality, a third less time)
     state.set_oriented(False)
     sim = Simulation(state, params)
-    interior = particles.kind == 0
-    sliding = particles.kind == 1
-    chain = particles.chain[sliding]
+    # seeds come in random order; sorted by grid cell, neighbours sit close in memory (the
+    # pair loop, the neighbour lists and the closest-point queries all run faster)
+    order = sim.sort_particles()
+    kind, chain_of = particles.kind[order], particles.chain[order]
+    interior = kind == 0
+    sliding = kind == 1
+    chain = chain_of[sliding]
     dyn = cfg.dynamics
     done = 0
     while done < steps:
@@ -230,10 +235,10 @@ def relax(
         _project(surface, lines, state, interior, sliding, chain, rest_at)
     return Particles(
         position=state.position.copy(),
-        normal=_normals_after(surface, lines, state, particles.kind),
+        normal=_normals_after(surface, lines, state, kind),
         rest=state.rest.copy(),
-        kind=particles.kind.copy(),
-        chain=particles.chain.copy(),
+        kind=kind.copy(),
+        chain=chain_of.copy(),
     )
 
 
