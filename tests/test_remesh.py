@@ -309,3 +309,24 @@ def test_crossing_pairs_from_edges_agree_with_the_face_pair_search():
     # a sphere alone: none
     e1, _, a0, a1 = edge_faces(f1, len(v1))
     assert len(crossing_pairs(v1, f1, e1, a0, a1)) == 0
+
+
+def test_absolute_curvature_of_a_sphere_and_a_cylinder():
+    from recon.remesh.pipeline import absolute_curvature
+
+    v, f = icosphere(5)
+    v = 2.0 * v
+    k = absolute_curvature(v, MeshSurface(v, f).vertex_normal, 0.3)
+    np.testing.assert_allclose(k, 2 * 0.5, rtol=0.02)  # two principal curvatures 1/R
+    th, z = np.meshgrid(np.linspace(0, 2 * np.pi, 200, endpoint=False), np.linspace(0, 3, 120))
+    p = np.stack([0.5 * np.cos(th), 0.5 * np.sin(th), z], -1).reshape(-1, 3)
+    n = np.stack([np.cos(th), np.sin(th), 0 * th], -1).reshape(-1, 3)
+    mid = (p[:, 2] > 0.5) & (p[:, 2] < 2.5)
+    k = absolute_curvature(p, n, 0.2)
+    np.testing.assert_allclose(k[mid], 1 / 0.5, rtol=0.05)  # one principal curvature 1/r
+    # noise finer than the reach does not count: a noisy plane stays near flat
+    rng = np.random.default_rng(0)
+    q = np.c_[rng.uniform(0, 10, (4000, 2)), 0.005 * rng.standard_normal(4000)]
+    inner = (q[:, :2] > 1).all(1) & (q[:, :2] < 9).all(1)
+    k = absolute_curvature(q, np.tile([0.0, 0.0, 1.0], (len(q), 1)), 1.0)
+    assert np.median(k[inner]) < 0.1

@@ -65,7 +65,14 @@ from .relax import (
 )
 from .surface import FeatureLines, MeshSurface, corner_sum, feature_lines
 
-__all__ = ["RemeshOptions", "RemeshResult", "remesh", "remesh_file", "spacing_field"]
+__all__ = [
+    "RemeshOptions",
+    "RemeshResult",
+    "absolute_curvature",
+    "remesh",
+    "remesh_file",
+    "spacing_field",
+]
 
 #: Relaxation steps (chunks of :data:`recon.remesh.relax.CHUNK`).
 RELAX_STEPS = 40
@@ -84,6 +91,8 @@ REFERENCE_PERCENTILE = 75.0
 #: Adaptive spacing: rounds of neighbour averaging of the curvature (against the noise of a
 #: badly shaped input).
 CURVATURE_SMOOTHING = 1
+#: Adaptive spacing: the curvature is fitted over at least this many input edge lengths.
+CURVATURE_REACH = 2.0
 #: Adaptive spacing: no larger than this fraction of the local thickness.
 THICKNESS_FRACTION = 0.5
 #: Adaptive spacing grows by at most this much per unit length (a gentle grading keeps the
@@ -217,18 +226,15 @@ def spacing_field(surface: MeshSurface, spacing: float, lo: float, hi: float) ->
     most :data:`THICKNESS_FRACTION` of the local thickness (the distance to the opposite side,
     by a ray cast inward), then clipped to [lo, hi].
 
-    Curvature per vertex: the largest normal curvature over its edges, 2 |n_i · (x_j − x_i)| /
-    |x_j − x_i|², averaged once with its neighbours against noise.
+    Curvature per vertex: |κ1| + |κ2| of a quadric fitted to the vertices within ``spacing``
+    (:func:`absolute_curvature`; at least :data:`CURVATURE_REACH` input edges), the scale of
+    the chord, so that noise and facets finer than the new edges (a marching-cubes staircase,
+    scanner noise) do not count as curvature; averaged once with its neighbours.
     """
     v, f, vn = surface.vertices, surface.faces, surface.vertex_normal
     e = np.unique(np.sort(f[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1), axis=0)
-    d = v[e[:, 1]] - v[e[:, 0]]
-    d2 = np.maximum(np.einsum("ij,ij->i", d, d), 1e-300)
-    k0 = 2.0 * np.abs(np.einsum("ij,ij->i", vn[e[:, 0]], d)) / d2
-    k1 = 2.0 * np.abs(np.einsum("ij,ij->i", vn[e[:, 1]], d)) / d2
-    kappa = np.zeros(len(v))
-    np.maximum.at(kappa, e[:, 0], k0)
-    np.maximum.at(kappa, e[:, 1], k1)
+    mean_edge = float(np.linalg.norm(v[e[:, 1]] - v[e[:, 0]], axis=1).mean())
+    kappa = absolute_curvature(v, vn, max(spacing, CURVATURE_REACH * mean_edge))
     deg = np.bincount(e.ravel(), minlength=len(v)).astype(float)
     for _ in range(CURVATURE_SMOOTHING):
         smooth = kappa.copy()
@@ -249,6 +255,58 @@ def spacing_field(surface: MeshSurface, spacing: float, lo: float, hi: float) ->
     thick = surface.first_hit(rays) + eps
     h = np.minimum(h, THICKNESS_FRACTION * np.where(np.isfinite(thick), thick, np.inf))
     return grade(np.clip(h, lo, hi), v, e, GRADATION)
+
+
+def absolute_curvature(vertices: np.ndarray, normals: np.ndarray, radius: float) -> np.ndarray:
+    """Per vertex, |κ1| + |κ2| (principal curvatures) of the surface at scale ``radius``.
+
+    The vertices within ``radius`` of vertex i, in a frame with the normal axis along
+    ``normals[i]``, are fitted (least squares) with the height z = a x² + b x y + c y² + d x +
+    e y + g; the principal curvatures are the eigenvalues of [[2a, b], [b, 2c]] (exact for a
+    small slope d, e). A vertex with fewer than six neighbours in reach gets 0.
+
+    Why the sum: a linear triangle of edge h deviates from z = ½ xᵀ H x at its centroid by
+    ½ R² times the mean normal curvature over its three corner directions, on average over
+    the triangle's orientation (κ1 + κ2) R² / 4 (R = h / √3): a sphere deviates twice as much
+    as a cylinder of the same largest curvature. The sum of absolute values keeps saddles
+    (κ1 = −κ2, no deviation at the centroid but elsewhere) from counting as flat.
+    """
+    from scipy.spatial import cKDTree
+
+    v = np.asarray(vertices, dtype=np.float64)
+    n = len(v)
+    near = cKDTree(v).query_ball_point(v, radius, workers=query_workers())
+    counts = np.fromiter((len(x) for x in near), dtype=np.int64, count=n)
+    j = np.concatenate([np.asarray(x, dtype=np.int64) for x in near])
+    i = np.repeat(np.arange(n), counts)
+    nz = np.asarray(normals, dtype=np.float64)
+    # a tangent frame per vertex
+    helper = np.where(np.abs(nz[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
+    t1 = np.cross(nz, helper)
+    t1 /= np.maximum(np.linalg.norm(t1, axis=1), 1e-300)[:, None]
+    t2 = np.cross(nz, t1)
+    d = (v[j] - v[i]) / radius  # scaled: the normal equations stay well conditioned
+    x = np.einsum("ij,ij->i", d, t1[i])
+    y = np.einsum("ij,ij->i", d, t2[i])
+    z = np.einsum("ij,ij->i", d, nz[i])
+    design = np.stack([x * x, x * y, y * y, x, y, np.ones_like(x)], axis=1)
+    ata = np.zeros((n, 6, 6))
+    atz = np.zeros((n, 6))
+    for p in range(6):
+        atz[:, p] = np.bincount(i, weights=design[:, p] * z, minlength=n)
+        for q in range(p, 6):
+            ata[:, p, q] = ata[:, q, p] = np.bincount(
+                i, weights=design[:, p] * design[:, q], minlength=n
+            )
+    ok = counts >= 6
+    ata[~ok] = np.eye(6)
+    ata += 1e-9 * np.eye(6)
+    coef = np.linalg.solve(ata, atz[:, :, None])[:, :, 0]
+    a, b, c = coef[:, 0], coef[:, 1], coef[:, 2]
+    # eigenvalues of [[2a, b], [b, 2c]]: a + c ± sqrt((a - c)² + b²)
+    root = np.sqrt((a - c) ** 2 + b * b)
+    k = np.abs(a + c + root) + np.abs(a + c - root)
+    return np.where(ok, k / radius, 0.0)
 
 
 def grade(h: np.ndarray, vertices: np.ndarray, edges: np.ndarray, rate: float) -> np.ndarray:
