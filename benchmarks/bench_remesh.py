@@ -5,7 +5,8 @@ screened Poisson reconstruction of 200k area samples of the bunny: its triangles
 marching cubes, with slivers down to ~0 degrees). Target edge = the input's mean edge length.
 
 For every tool and input, runs alternate (ours, anchors, ours, ...) and the medians are printed:
-wall time (ours with its input checks but without the distance measurement of its report,
+wall time (ours with its input checks but without the measurements of its report: distances
+and triangle quality,
 which the anchors do not do),
 worst / mean min angle, Hausdorff-95 / diagonal (100k samples each way, exact point-to-surface,
 ``recon.metrics.compare_meshes``), topology before and after, and the time ratio against
@@ -13,16 +14,23 @@ gpytoolbox ``remesh_botsch`` (10 iterations). Anchors are run where installed
 (``pip install -e .[bench]``): gpytoolbox, pymeshlab (isotropic explicit remeshing, 10
 iterations); CGAL and pyacvd are not packaged here and are reported as not installed.
 
-Then: ``--adaptive`` face saving at equal Hausdorff-95 on the bunny (uniform runs at several
+Both tools run in this one process, so under the same OpenMP wait policy: the runtime's
+default unless ``OMP_WAIT_POLICY`` is set (printed; PASSIVE slows OpenMP code ~4x on a quiet
+machine). Run the timing part without ``nice``.
+
+Then: ``--adaptive`` face saving at equal Hausdorff-95 on the bunny, the marching-cubes bunny
+and a generated blob (an ellipsoid with a sharp bump and waves; uniform runs at several
 spacings, interpolated in log-log), ``--faces N`` accuracy, and the crease deviation on
 ``gt/lblock.ply``.
 
-    .venv/bin/python benchmarks/bench_remesh.py [--runs 3] [--data ../shared/data]
+    .venv/bin/python benchmarks/bench_remesh.py --skip adaptive faces      # timings
+    nice -n 10 .venv/bin/python benchmarks/bench_remesh.py --skip compare  # the rest
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import statistics
 import time
 from pathlib import Path
@@ -47,6 +55,19 @@ def marching_cubes_bunny(v: np.ndarray, f: np.ndarray, depth: int) -> tuple[np.n
     m.remove_degenerate_triangles()
     m.remove_unreferenced_vertices()
     return np.asarray(m.vertices).copy(), np.asarray(m.triangles).astype(np.int64)
+
+
+def blob() -> tuple[np.ndarray, np.ndarray]:
+    """An ellipsoid (1 x 0.7 x 0.5) with a sharp bump and low waves: 81,920 faces of a
+    subdivided icosahedron, deformed."""
+    import open3d as o3d
+
+    m = o3d.geometry.TriangleMesh.create_icosahedron(1.0).subdivide_midpoint(6)
+    v = np.asarray(m.vertices).copy()
+    u = v / np.linalg.norm(v, axis=1, keepdims=True)
+    r = 1.0 + 0.25 * np.exp(-((u - [0.0, 0.0, 1.0]) ** 2).sum(axis=1) / 0.05)
+    r += 0.12 * np.sin(5 * u[:, 0]) * np.cos(4 * u[:, 1])
+    return u * r[:, None] * [1.0, 0.7, 0.5], np.asarray(m.triangles).astype(np.int64)
 
 
 def mean_edge(v: np.ndarray, f: np.ndarray) -> float:
@@ -142,11 +163,11 @@ def compare_tools(name, v, f, runs, tools) -> None:
         )
 
 
-def adaptive_saving(v, f) -> None:
+def adaptive_saving(name, v, f) -> None:
     h = mean_edge(v, f)
-    print("\n## --adaptive on the bunny: faces at equal Hausdorff and Hausdorff-95")
+    print(f"\n## --adaptive on the {name}: faces at equal Hausdorff and Hausdorff-95")
     uniform = []
-    for k in (0.8, 1.0, 1.25, 1.6):
+    for k in (0.8, 1.0, 1.25, 1.6, 2.0):
         V, F, _ = run_ours(v, f, k * h)
         m = measure(v, f, V, F)
         uniform.append((m["faces"], m["h95"], m["h"]))
@@ -203,23 +224,29 @@ def main() -> None:
     ap.add_argument("--data", type=Path, default=Path(__file__).parents[2] / "shared" / "data")
     ap.add_argument("--runs", type=int, default=3)
     ap.add_argument("--mc-depth", type=int, default=7)
-    ap.add_argument("--skip", nargs="*", default=[], help="parts to skip: compare adaptive faces")
+    ap.add_argument(
+        "--skip", nargs="*", default=[], help="parts to skip: compare adaptive faces creases"
+    )
     args = ap.parse_args()
+    policy = os.environ.get("OMP_WAIT_POLICY")
+    print(f"OMP_WAIT_POLICY: {policy or 'not set (the OpenMP runtime default)'}; both tools alike")
     v, f = read_mesh(args.data / "gt" / "bunny.ply")
     # warm up the compiled kernels (numba caches) outside the timings
     remesh(v, f, RemeshOptions(spacing=4 * mean_edge(v, f), check_intersections=False))
+    vm, fm = marching_cubes_bunny(v, f, args.mc_depth)
+    mc_name = f"marching-cubes bunny (Poisson depth {args.mc_depth})"
     if "compare" not in args.skip:
         tools = available()
         compare_tools("bunny", v, f, args.runs, tools)
-        vm, fm = marching_cubes_bunny(v, f, args.mc_depth)
-        compare_tools(
-            f"marching-cubes bunny (Poisson depth {args.mc_depth})", vm, fm, args.runs, tools
-        )
+        compare_tools(mc_name, vm, fm, args.runs, tools)
     if "adaptive" not in args.skip:
-        adaptive_saving(v, f)
+        adaptive_saving("bunny", v, f)
+        adaptive_saving(mc_name, vm, fm)
+        adaptive_saving("blob", *blob())
     if "faces" not in args.skip:
         faces_accuracy(v, f)
-    creases(args.data / "gt" / "lblock.ply")
+    if "creases" not in args.skip:
+        creases(args.data / "gt" / "lblock.ply")
 
 
 if __name__ == "__main__":

@@ -330,3 +330,19 @@ def test_absolute_curvature_of_a_sphere_and_a_cylinder():
     inner = (q[:, :2] > 1).all(1) & (q[:, :2] < 9).all(1)
     k = absolute_curvature(q, np.tile([0.0, 0.0, 1.0], (len(q), 1)), 1.0)
     assert np.median(k[inner]) < 0.1
+
+
+def test_relax_returns_the_particles_in_the_order_given():
+    # relax sorts by grid cell internally; corners are matched to the input's by their order
+    from recon.remesh.relax import place_feature_particles, relax, seed
+
+    v, f = square_with_hole()
+    s = MeshSurface(v / 0.1, f)
+    lines = feature_lines(s.vertices, f, None, 50.0)
+    p0 = seed(s, place_feature_particles(s, lines, None), 60, None, np.random.default_rng(0))
+    p1 = relax(s, lines, p0, 10, None)
+    np.testing.assert_array_equal(p1.kind, p0.kind)
+    np.testing.assert_array_equal(p1.chain, p0.chain)
+    corners = p0.kind == 2
+    np.testing.assert_array_equal(p1.position[corners], p0.position[corners])
+    assert np.linalg.norm(p1.position - p0.position, axis=1).max() < 1.0

@@ -460,6 +460,7 @@ def _remesh(vertices, faces, opts: RemeshOptions, name: str) -> RemeshResult:
         )
     cmp = compare_meshes((v_out, f_out), (v_in, f_in), n_samples=DISTANCE_SAMPLES, seed=opts.seed)
     deviation = _feature_deviation(v_in, lines, v_out, f_out, 0.25 * s0)
+    quality_in, quality_out = triangle_quality(v_in, f_in), triangle_quality(v_out, f_out)
     lap("measure")
     preserved = topology_preserved(topo_in, topo_out)
     warnings = []
@@ -477,7 +478,7 @@ def _remesh(vertices, faces, opts: RemeshOptions, name: str) -> RemeshResult:
             "area": area,
             "bbox_diag": diag,
             "topology": _summary(topo_in),
-            "triangle_quality": triangle_quality(v_in, f_in),
+            "triangle_quality": quality_in,
         },
         "options": asdict(opts),
         "spacing": s0,
@@ -500,7 +501,7 @@ def _remesh(vertices, faces, opts: RemeshOptions, name: str) -> RemeshResult:
         },
         "output": {
             "topology": _summary(topo_out),
-            "triangle_quality": triangle_quality(v_out, f_out),
+            "triangle_quality": quality_out,
         },
         "topology_preserved": bool(preserved),
         "distance": {

@@ -185,8 +185,8 @@ def relax(
     rest_at: RestFn | None,
     cfg: ReconConfig | None = None,
 ) -> Particles:
-    """Relax the particles over the mesh (module docstring); returns the moved particles,
-    sorted by grid cell (not in the order given).
+    """Relax the particles over the mesh (module docstring); returns the moved particles (in
+    the order given).
 
     Raises
     ------
@@ -233,12 +233,14 @@ def relax(
         # moved in place: the engine measures displacements against its own reference
         # positions, so the neighbour list is rebuilt when the projections add up
         _project(surface, lines, state, interior, sliding, chain, rest_at)
+    # back in the order given: corners are matched to the input's by their order
+    back = np.argsort(order)
     return Particles(
-        position=state.position.copy(),
-        normal=_normals_after(surface, lines, state, kind),
-        rest=state.rest.copy(),
-        kind=kind.copy(),
-        chain=chain_of.copy(),
+        position=state.position[back],
+        normal=_normals_after(surface, lines, state, kind)[back],
+        rest=state.rest[back],
+        kind=particles.kind.copy(),
+        chain=particles.chain.copy(),
     )
 
 
