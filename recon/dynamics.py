@@ -22,6 +22,7 @@ References
 from __future__ import annotations
 
 import math
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -29,6 +30,7 @@ import numpy as np
 
 from .forces import Anchors, accumulate_forces, evaluate_pair, kernel_extras, pack_coefficients
 from .integrate import StepBuffers, integrate_step
+from .kernels.options import ThreadChooser
 from .neighbors import PARALLEL_MIN_PARTICLES, NeighborList, sort_order_by_cell
 from .params import PhysicsParams
 from .state import ParticleState
@@ -77,7 +79,9 @@ class Simulation:
     params : PhysicsParams
     parallel : bool, optional
         Force the threaded (True) or single-threaded (False) kernels; default: threaded when
-        n ≥ ``recon.neighbors.PARALLEL_MIN_PARTICLES``.
+        n ≥ ``recon.neighbors.PARALLEL_MIN_PARTICLES``, and below that whichever of the two
+        was faster lately (:class:`recon.kernels.options.ThreadChooser`; the states are
+        bit-identical either way).
 
     Attributes
     ----------
@@ -107,6 +111,8 @@ class Simulation:
         self._mode = int(params.weighting)
         self._coefficients = pack_coefficients(params)
         self._needs_rebuild = True
+        self._step_threads = ThreadChooser(PARALLEL_MIN_PARTICLES)
+        self._build_threads = ThreadChooser(PARALLEL_MIN_PARTICLES)
         self.n_steps_done = 0
         self.n_rebuilds = 0
 
@@ -178,11 +184,19 @@ class Simulation:
             return bool(self.parallel)
         return self.state.n >= PARALLEL_MIN_PARTICLES
 
+    def _choose(self, chooser: ThreadChooser) -> bool:
+        if self.parallel is not None:
+            return bool(self.parallel)
+        return chooser.parallel(self.state.n, PARALLEL_MIN_PARTICLES)
+
     def _rebuild(self) -> None:
         # the cell grid and list radius follow the largest pair cutoff in use (adaptive spacing)
         largest = float(np.max(self.state.rest)) if self.state.n else 1.0
         self._neighbors.cutoff = self.params.cutoff * max(largest, 1.0)
-        self._neighbors.build(self.state.position, parallel=self.uses_parallel())
+        parallel = self._choose(self._build_threads)
+        start = time.perf_counter()
+        self._neighbors.build(self.state.position, parallel=parallel)
+        self._build_threads.record(parallel, time.perf_counter() - start, self.state.n)
         self.n_rebuilds += 1
         self._needs_rebuild = False
 
@@ -257,6 +271,8 @@ class Simulation:
         if self._needs_rebuild or self._neighbors.n != self.state.n:
             self._rebuild()
             rebuilt = True
+        parallel = self._choose(self._step_threads)
+        start = time.perf_counter()
         result = integrate_step(
             self.state,
             self._coefficients,
@@ -265,9 +281,10 @@ class Simulation:
             self._neighbors.reference_position,
             kernel_extras(self._anchors, self._external_force),
             self._buffers,
-            parallel=self.uses_parallel(),
+            parallel=parallel,
             step_index=self.n_steps_done,
         )
+        self._step_threads.record(parallel, time.perf_counter() - start, self.state.n)
         half_skin = 0.5 * self.params.skin
         self._needs_rebuild = not (result.max_displacement2 <= half_skin * half_skin)
         self.n_steps_done += 1

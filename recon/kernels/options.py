@@ -25,6 +25,7 @@ References
 from __future__ import annotations
 
 import contextlib
+import time
 from collections.abc import Iterator
 
 import numba
@@ -119,3 +120,79 @@ def query_workers() -> int:
     A query's result does not depend on its workers.
     """
     return int(numba.get_num_threads())
+
+
+#: Below this many items a threaded region costs more than it saves even on an idle machine
+#: (waking the pool takes tens of microseconds; DESIGN §3); the kernel runs in the caller.
+TIMED_MIN_ITEMS = 2_000
+#: A :class:`ThreadChooser` re-times the mode it is not using every this many calls.
+PROBE_EVERY = 16
+#: Weight of the newest timing in a :class:`ThreadChooser`'s running mean.
+TIMING_WEIGHT = 0.5
+
+
+class ThreadChooser:
+    """Run a kernel threaded or in the calling thread, whichever was faster lately.
+
+    The kernels give bit-identical results either way (every ``prange`` iteration writes only
+    its own rows), so the choice is a matter of speed only, and it depends on the machine's
+    load: on an idle 2-core machine two threads win from ~2,000 particles, but while the other
+    core is busy a parallel region waits for a descheduled thread and the calling thread alone
+    is faster up to ~50,000 (measurements at :data:`recon.neighbors.PARALLEL_MIN_PARTICLES`).
+    So between :data:`TIMED_MIN_ITEMS` and ``always`` items the chooser times both modes (per
+    item, a running mean) and uses the faster, re-timing the other one every
+    :data:`PROBE_EVERY` calls; from ``always`` items it always threads, below
+    :data:`TIMED_MIN_ITEMS` never. With one numba thread (``threads=1``) it never threads.
+
+    Usage::
+
+        parallel = chooser.parallel(n)
+        t0 = time.perf_counter()
+        ...  # the kernel, under thread_limit(parallel)
+        chooser.record(parallel, time.perf_counter() - t0, n)
+    """
+
+    def __init__(self, always: int) -> None:
+        self.always = int(always)
+        self._per_item: list[float | None] = [None, None]  # serial, threaded [s per item]
+        self._calls = 0
+
+    def parallel(self, n: int, always: int | None = None) -> bool:
+        """Whether the next call on ``n`` items should run threaded (``always``: overrides
+        the threshold given at construction)."""
+        limit = self.always if always is None else int(always)
+        if n >= limit:
+            return True
+        if n < TIMED_MIN_ITEMS or numba.get_num_threads() < 2:
+            return False
+        self._calls += 1
+        serial, threaded = self._per_item
+        if serial is None:
+            return False
+        if threaded is None:
+            return True
+        best = threaded < serial
+        return (not best) if self._calls % PROBE_EVERY == 0 else best
+
+    def record(self, parallel: bool, seconds: float, n: int) -> None:
+        """Account a call of ``seconds`` on ``n`` items in the given mode."""
+        if n < TIMED_MIN_ITEMS:
+            return
+        rate = seconds / n
+        slot = int(bool(parallel))
+        old = self._per_item[slot]
+        self._per_item[slot] = (
+            rate if old is None else (TIMING_WEIGHT * rate + (1.0 - TIMING_WEIGHT) * old)
+        )
+
+
+@contextlib.contextmanager
+def timed_threads(chooser: ThreadChooser, n: int, always: int | None = None) -> Iterator[bool]:
+    """Run the block threaded or not as ``chooser`` decides for ``n`` items, and time it.
+
+    Yields the decision (True: threaded)."""
+    parallel = chooser.parallel(n, always)
+    start = time.perf_counter()
+    with thread_limit(parallel):
+        yield parallel
+    chooser.record(parallel, time.perf_counter() - start, n)
