@@ -35,7 +35,12 @@ from .neighbors import PARALLEL_MIN_PARTICLES, NeighborList, sort_order_by_cell
 from .params import PhysicsParams
 from .state import ParticleState
 
-__all__ = ["PhysicsParams", "Simulation", "StepStats", "warmup"]
+__all__ = ["ALWAYS_THREADED", "PhysicsParams", "Simulation", "StepStats", "warmup"]
+
+#: Steps and list builds of this many particles always run threaded; None: the
+#: :class:`~recon.kernels.options.ThreadChooser` times both ways at every size (under load the
+#: calling thread alone was faster even at 100k particles).
+ALWAYS_THREADED: int | None = None
 
 
 @dataclass(frozen=True)
@@ -78,10 +83,10 @@ class Simulation:
         Updated in place by :meth:`step`.
     params : PhysicsParams
     parallel : bool, optional
-        Force the threaded (True) or single-threaded (False) kernels; default: threaded when
-        n ≥ ``recon.neighbors.PARALLEL_MIN_PARTICLES``, and below that whichever of the two
-        was faster lately (:class:`recon.kernels.options.ThreadChooser`; the states are
-        bit-identical either way).
+        Force the threaded (True) or single-threaded (False) kernels; default: whichever of
+        the two was faster lately (:class:`recon.kernels.options.ThreadChooser`, by the
+        machine's load; the states are bit-identical either way), threaded from
+        :data:`ALWAYS_THREADED` particles if that is set.
 
     Attributes
     ----------
@@ -111,8 +116,8 @@ class Simulation:
         self._mode = int(params.weighting)
         self._coefficients = pack_coefficients(params)
         self._needs_rebuild = True
-        self._step_threads = ThreadChooser(PARALLEL_MIN_PARTICLES)
-        self._build_threads = ThreadChooser(PARALLEL_MIN_PARTICLES)
+        self._step_threads = ThreadChooser()
+        self._build_threads = ThreadChooser()
         self.n_steps_done = 0
         self.n_rebuilds = 0
 
@@ -187,7 +192,7 @@ class Simulation:
     def _choose(self, chooser: ThreadChooser) -> bool:
         if self.parallel is not None:
             return bool(self.parallel)
-        return chooser.parallel(self.state.n, PARALLEL_MIN_PARTICLES)
+        return chooser.parallel(self.state.n, ALWAYS_THREADED)
 
     def _rebuild(self) -> None:
         # the cell grid and list radius follow the largest pair cutoff in use (adaptive spacing)

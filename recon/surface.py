@@ -44,7 +44,7 @@ if TYPE_CHECKING:
 #: (:meth:`DataSurface.nearest_agreeing`).
 AGREE_K = 8
 #: Threaded or serial anchor queries, whichever was faster lately (the feet do not depend on it).
-_ANCHOR_THREADS = ThreadChooser(PARALLEL_MIN_PARTICLES)
+_ANCHOR_THREADS = ThreadChooser()
 #: The data's query grid (:attr:`DataSurface.grid`) has cells of this many times the median
 #: distance from a data point to its ``AGREE_K``-th neighbour, so that most ``AGREE_K``-nearest
 #: queries end after the first shell of cells.

@@ -91,3 +91,16 @@ def test_states_do_not_depend_on_the_choices(monkeypatch):
         runs.append((state.position.copy(), state.orientation.copy(), sim.n_rebuilds))
     assert np.array_equal(runs[0][0], runs[1][0])
     assert np.array_equal(runs[0][1], runs[1][1])
+
+
+@needs_two
+@pytest.mark.parametrize(("threaded_s", "rare"), [(2.0, True), (1.2, False)])
+def test_a_clear_loser_is_re_timed_ever_more_rarely(threaded_s, rare):
+    calls = 8 * options.PROBE_EVERY_MAX
+    with thread_count(2):
+        got = _decisions(ThreadChooser(), N, calls, 1.0, threaded_s)
+    probes = sum(got[2:])
+    if rare:  # intervals 16, 32, 64, 128, 128, ...
+        assert 1 <= probes <= calls // options.PROBE_EVERY_MAX + 4
+    else:  # within PROBE_BACKOFF: every PROBE_EVERY calls
+        assert probes >= calls // PROBE_EVERY - 2

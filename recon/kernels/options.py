@@ -125,8 +125,13 @@ def query_workers() -> int:
 #: Below this many items a threaded region costs more than it saves even on an idle machine
 #: (waking the pool takes tens of microseconds; DESIGN §3); the kernel runs in the caller.
 TIMED_MIN_ITEMS = 2_000
-#: A :class:`ThreadChooser` re-times the mode it is not using every this many calls.
+#: A :class:`ThreadChooser` re-times the mode it is not using after this many calls ...
 PROBE_EVERY = 16
+#: ... and after twice as many each time that mode was again this much slower, up to
+#: :data:`PROBE_EVERY_MAX` calls (so a clear loser costs little: one call in 128).
+PROBE_BACKOFF = 1.5
+#: See :data:`PROBE_BACKOFF`.
+PROBE_EVERY_MAX = 128
 #: Weight of the newest timing in a :class:`ThreadChooser`'s running mean.
 TIMING_WEIGHT = 0.5
 
@@ -137,12 +142,14 @@ class ThreadChooser:
     The kernels give bit-identical results either way (every ``prange`` iteration writes only
     its own rows), so the choice is a matter of speed only, and it depends on the machine's
     load: on an idle 2-core machine two threads win from ~2,000 particles, but while the other
-    core is busy a parallel region waits for a descheduled thread and the calling thread alone
-    is faster up to ~50,000 (measurements at :data:`recon.neighbors.PARALLEL_MIN_PARTICLES`).
-    So between :data:`TIMED_MIN_ITEMS` and ``always`` items the chooser times both modes (per
-    item, a running mean) and uses the faster, re-timing the other one every
-    :data:`PROBE_EVERY` calls; from ``always`` items it always threads, below
-    :data:`TIMED_MIN_ITEMS` never. With one numba thread (``threads=1``) it never threads.
+    cores are busy a parallel region waits for descheduled threads and the calling thread alone
+    is faster (measured 2026-11-23, load ~3 on 2 cores, ``bench_dynamics.py``: 27.5k particles
+    2.3-2.8e7 pair interactions/s serial vs 1.3-1.8e7 threaded; 100k: 2.0-2.9e7 vs 1.6-1.8e7).
+    So from :data:`TIMED_MIN_ITEMS` items (and below ``always``, if given) the chooser times
+    both modes (per item, a running mean) and uses the faster, re-timing the other one after
+    :data:`PROBE_EVERY` calls (backing off to :data:`PROBE_EVERY_MAX` while it keeps losing
+    clearly). Below :data:`TIMED_MIN_ITEMS`, or with one numba thread (``threads=1``), it
+    never threads.
 
     Usage::
 
@@ -152,27 +159,33 @@ class ThreadChooser:
         chooser.record(parallel, time.perf_counter() - t0, n)
     """
 
-    def __init__(self, always: int) -> None:
-        self.always = int(always)
+    def __init__(self, always: int | None = None) -> None:
+        self.always = always
         self._per_item: list[float | None] = [None, None]  # serial, threaded [s per item]
-        self._calls = 0
+        self._since_probe = 0
+        self._interval = PROBE_EVERY
+        self._probe: int | None = None  # the mode being re-timed (0 serial, 1 threaded)
 
     def parallel(self, n: int, always: int | None = None) -> bool:
-        """Whether the next call on ``n`` items should run threaded (``always``: overrides
-        the threshold given at construction)."""
-        limit = self.always if always is None else int(always)
-        if n >= limit:
+        """Whether the next call on ``n`` items should run threaded (``always``: threaded from
+        this many items, overriding the constructor's; None there and here: never forced)."""
+        limit = self.always if always is None else always
+        if limit is not None and n >= limit:
             return True
         if n < TIMED_MIN_ITEMS or numba.get_num_threads() < 2:
             return False
-        self._calls += 1
         serial, threaded = self._per_item
         if serial is None:
             return False
         if threaded is None:
             return True
         best = threaded < serial
-        return (not best) if self._calls % PROBE_EVERY == 0 else best
+        self._since_probe += 1
+        if self._since_probe >= self._interval:
+            self._since_probe = 0
+            self._probe = int(not best)
+            return not best
+        return best
 
     def record(self, parallel: bool, seconds: float, n: int) -> None:
         """Account a call of ``seconds`` on ``n`` items in the given mode."""
@@ -184,6 +197,11 @@ class ThreadChooser:
         self._per_item[slot] = (
             rate if old is None else (TIMING_WEIGHT * rate + (1.0 - TIMING_WEIGHT) * old)
         )
+        if self._probe == slot:
+            self._probe = None
+            other = self._per_item[1 - slot]
+            losing = other is not None and self._per_item[slot] > PROBE_BACKOFF * other
+            self._interval = min(2 * self._interval, PROBE_EVERY_MAX) if losing else PROBE_EVERY
 
 
 @contextlib.contextmanager
