@@ -91,6 +91,8 @@ class Simulation:
     Attributes
     ----------
     n_steps_done : int
+    n_threaded_steps : int
+        Steps that ran on numba's threads (the others ran in the calling thread).
     n_rebuilds : int
         Neighbour-list builds so far.
 
@@ -119,6 +121,7 @@ class Simulation:
         self._step_threads = ThreadChooser()
         self._build_threads = ThreadChooser()
         self.n_steps_done = 0
+        self.n_threaded_steps = 0
         self.n_rebuilds = 0
 
     # ------------------------------------------------------------------ external terms
@@ -290,6 +293,7 @@ class Simulation:
             step_index=self.n_steps_done,
         )
         self._step_threads.record(parallel, time.perf_counter() - start, self.state.n)
+        self.n_threaded_steps += int(parallel)
         half_skin = 0.5 * self.params.skin
         self._needs_rebuild = not (result.max_displacement2 <= half_skin * half_skin)
         self.n_steps_done += 1

@@ -38,8 +38,8 @@ def test_chooser_times_both_modes_then_uses_the_faster_and_probes_the_other(thre
         chooser = ThreadChooser(always=10 * N)
         serial_s, threaded_s = (2.0, 1.0) if threaded_faster else (1.0, 2.0)
         got = _decisions(chooser, N, 4 * PROBE_EVERY, serial_s, threaded_s)
-    assert got[:2] == [False, True]  # each mode timed once
-    rest = got[2:]
+    assert got[:4] == [False, False, True, True]  # each mode: a warm-up call, then timed
+    rest = got[4:]
     best = sum(p == threaded_faster for p in rest)
     probes = len(rest) - best
     assert 1 <= probes <= len(rest) // PROBE_EVERY + 1  # the other mode only now and then
@@ -99,7 +99,7 @@ def test_a_clear_loser_is_re_timed_ever_more_rarely(threaded_s, rare):
     calls = 8 * options.PROBE_EVERY_MAX
     with thread_count(2):
         got = _decisions(ThreadChooser(), N, calls, 1.0, threaded_s)
-    probes = sum(got[2:])
+    probes = sum(got[4:])
     if rare:  # intervals 16, 32, 64, 128, 128, ...
         assert 1 <= probes <= calls // options.PROBE_EVERY_MAX + 4
     else:  # within PROBE_BACKOFF: every PROBE_EVERY calls

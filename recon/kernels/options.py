@@ -146,9 +146,9 @@ class ThreadChooser:
     is faster (measured 2026-11-23, load ~3 on 2 cores, ``bench_dynamics.py``: 27.5k particles
     2.3-2.8e7 pair interactions/s serial vs 1.3-1.8e7 threaded; 100k: 2.0-2.9e7 vs 1.6-1.8e7).
     So from :data:`TIMED_MIN_ITEMS` items (and below ``always``, if given) the chooser times
-    both modes (per item, a running mean) and uses the faster, re-timing the other one after
-    :data:`PROBE_EVERY` calls (backing off to :data:`PROBE_EVERY_MAX` while it keeps losing
-    clearly). Below :data:`TIMED_MIN_ITEMS`, or with one numba thread (``threads=1``), it
+    both modes (per item, a running mean; the first call of each is not counted) and uses the
+    faster, re-timing the other one after :data:`PROBE_EVERY` calls (backing off to
+    :data:`PROBE_EVERY_MAX` while it keeps losing clearly). Below :data:`TIMED_MIN_ITEMS`, or with one numba thread (``threads=1``), it
     never threads.
 
     Usage::
@@ -165,6 +165,7 @@ class ThreadChooser:
         self._since_probe = 0
         self._interval = PROBE_EVERY
         self._probe: int | None = None  # the mode being re-timed (0 serial, 1 threaded)
+        self._warm = [False, False]  # first calls (allocations, cold caches) are not timed
 
     def parallel(self, n: int, always: int | None = None) -> bool:
         """Whether the next call on ``n`` items should run threaded (``always``: threaded from
@@ -193,6 +194,9 @@ class ThreadChooser:
             return
         rate = seconds / n
         slot = int(bool(parallel))
+        if not self._warm[slot]:
+            self._warm[slot] = True
+            return
         old = self._per_item[slot]
         self._per_item[slot] = (
             rate if old is None else (TIMING_WEIGHT * rate + (1.0 - TIMING_WEIGHT) * old)
