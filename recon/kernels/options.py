@@ -148,8 +148,8 @@ class ThreadChooser:
     So from :data:`TIMED_MIN_ITEMS` items (and below ``always``, if given) the chooser times
     both modes (per item, a running mean; the first call of each is not counted) and uses the
     faster, re-timing the other one after :data:`PROBE_EVERY` calls (backing off to
-    :data:`PROBE_EVERY_MAX` while it keeps losing clearly). Below :data:`TIMED_MIN_ITEMS`, or with one numba thread (``threads=1``), it
-    never threads.
+    :data:`PROBE_EVERY_MAX` while it keeps losing clearly). Below :data:`TIMED_MIN_ITEMS`, or
+    with one numba thread (``threads=1``), it never threads.
 
     Usage::
 
