@@ -131,6 +131,7 @@ def run_case(n: int, steps: int, parallel: bool | None = None) -> dict:
         ),
         "rebuilds": int(rebuilt.sum()),
         "parallel": sim.uses_parallel(),
+        "threaded_steps": sim.n_threaded_steps,
     }
 
 
@@ -192,7 +193,8 @@ def readme_line(result: dict) -> str:
     """The README figure: pair interactions per second with date, load, cores and threads."""
     cases = result.get("cases") or [result]
     rates = ", ".join(
-        f"{c['particles']:,} particles: {c['pair_interactions_per_s']:.2e} pair interactions/s"
+        f"{c['particles']:,} particles: {c['pair_interactions_per_s']:.2e} pair interactions/s "
+        f"({c['threaded_steps']}/{c['steps']} steps threaded)"
         for c in cases
     )
     load = "/".join(f"{v:.2f}" for v in result["load_before"])

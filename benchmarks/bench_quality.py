@@ -356,6 +356,13 @@ def time_ratios(results: dict[str, list[dict[str, Any]]]) -> list[str]:
     return lines
 
 
+def _wait_policy_default() -> str:
+    """``--omp-wait-policy``'s default: the environment's PASSIVE/ACTIVE, else ``default``
+    (``OMP_WAIT_POLICY=DEFAULT`` is no value libgomp knows: it warns and ignores it)."""
+    value = os.environ.get("OMP_WAIT_POLICY", "").strip().upper()
+    return value if value in ("PASSIVE", "ACTIVE") else "default"
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--data", type=Path, default=ROOT.parent / "shared" / "data")
@@ -380,7 +387,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument(
         "--omp-wait-policy",
         choices=("default", "PASSIVE", "ACTIVE"),
-        default=os.environ.get("OMP_WAIT_POLICY", "default").upper() or "default",
+        default=_wait_policy_default(),
         help="OMP_WAIT_POLICY for every method (default: the OpenMP runtime's own, spinning, "
         "fastest on a quiet machine; PASSIVE helps on a loaded one)",
     )

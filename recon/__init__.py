@@ -10,7 +10,10 @@ References
 """
 
 from .errors import ConfigError, InputError, OpreconError
+from .lazy_imports import defer_open3d_plotly
 from .version import __version__
+
+defer_open3d_plotly()  # 0.7 s of dash/plotly imports that no command uses
 
 __all__ = ["ConfigError", "InputError", "OpreconError", "__version__", "fit", "load_config"]
 

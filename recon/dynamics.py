@@ -22,6 +22,7 @@ References
 from __future__ import annotations
 
 import math
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -29,11 +30,17 @@ import numpy as np
 
 from .forces import Anchors, accumulate_forces, evaluate_pair, kernel_extras, pack_coefficients
 from .integrate import StepBuffers, integrate_step
+from .kernels.options import ThreadChooser
 from .neighbors import PARALLEL_MIN_PARTICLES, NeighborList, sort_order_by_cell
 from .params import PhysicsParams
 from .state import ParticleState
 
-__all__ = ["PhysicsParams", "Simulation", "StepStats", "warmup"]
+__all__ = ["ALWAYS_THREADED", "PhysicsParams", "Simulation", "StepStats", "warmup"]
+
+#: Steps and list builds of this many particles always run threaded; None: the
+#: :class:`~recon.kernels.options.ThreadChooser` times both ways at every size (under load the
+#: calling thread alone was faster even at 100k particles).
+ALWAYS_THREADED: int | None = None
 
 
 @dataclass(frozen=True)
@@ -76,12 +83,16 @@ class Simulation:
         Updated in place by :meth:`step`.
     params : PhysicsParams
     parallel : bool, optional
-        Force the threaded (True) or single-threaded (False) kernels; default: threaded when
-        n ≥ ``recon.neighbors.PARALLEL_MIN_PARTICLES``.
+        Force the threaded (True) or single-threaded (False) kernels; default: whichever of
+        the two was faster lately (:class:`recon.kernels.options.ThreadChooser`, by the
+        machine's load; the states are bit-identical either way), threaded from
+        :data:`ALWAYS_THREADED` particles if that is set.
 
     Attributes
     ----------
     n_steps_done : int
+    n_threaded_steps : int
+        Steps that ran on numba's threads (the others ran in the calling thread).
     n_rebuilds : int
         Neighbour-list builds so far.
 
@@ -107,7 +118,10 @@ class Simulation:
         self._mode = int(params.weighting)
         self._coefficients = pack_coefficients(params)
         self._needs_rebuild = True
+        self._step_threads = ThreadChooser()
+        self._build_threads = ThreadChooser()
         self.n_steps_done = 0
+        self.n_threaded_steps = 0
         self.n_rebuilds = 0
 
     # ------------------------------------------------------------------ external terms
@@ -178,11 +192,19 @@ class Simulation:
             return bool(self.parallel)
         return self.state.n >= PARALLEL_MIN_PARTICLES
 
+    def _choose(self, chooser: ThreadChooser) -> bool:
+        if self.parallel is not None:
+            return bool(self.parallel)
+        return chooser.parallel(self.state.n, ALWAYS_THREADED)
+
     def _rebuild(self) -> None:
         # the cell grid and list radius follow the largest pair cutoff in use (adaptive spacing)
         largest = float(np.max(self.state.rest)) if self.state.n else 1.0
         self._neighbors.cutoff = self.params.cutoff * max(largest, 1.0)
-        self._neighbors.build(self.state.position, parallel=self.uses_parallel())
+        parallel = self._choose(self._build_threads)
+        start = time.perf_counter()
+        self._neighbors.build(self.state.position, parallel=parallel)
+        self._build_threads.record(parallel, time.perf_counter() - start, self.state.n)
         self.n_rebuilds += 1
         self._needs_rebuild = False
 
@@ -257,6 +279,8 @@ class Simulation:
         if self._needs_rebuild or self._neighbors.n != self.state.n:
             self._rebuild()
             rebuilt = True
+        parallel = self._choose(self._step_threads)
+        start = time.perf_counter()
         result = integrate_step(
             self.state,
             self._coefficients,
@@ -265,9 +289,11 @@ class Simulation:
             self._neighbors.reference_position,
             kernel_extras(self._anchors, self._external_force),
             self._buffers,
-            parallel=self.uses_parallel(),
+            parallel=parallel,
             step_index=self.n_steps_done,
         )
+        self._step_threads.record(parallel, time.perf_counter() - start, self.state.n)
+        self.n_threaded_steps += int(parallel)
         half_skin = 0.5 * self.params.skin
         self._needs_rebuild = not (result.max_displacement2 <= half_skin * half_skin)
         self.n_steps_done += 1

@@ -34,7 +34,7 @@ from scipy.spatial import cKDTree
 
 from .kernels.grid_query import anchor_feet_kernel
 from .kernels.local_surface import fit_quadrics_kernel, max_angular_gap_kernel, select_agreeing
-from .kernels.options import query_workers, thread_limit
+from .kernels.options import ThreadChooser, query_workers, thread_limit, timed_threads
 from .neighbors import GRID_MAX_RING, PARALLEL_MIN_PARTICLES, PointGrid
 
 if TYPE_CHECKING:
@@ -43,6 +43,8 @@ if TYPE_CHECKING:
 #: Nearest data points searched for one whose normal agrees with a particle's
 #: (:meth:`DataSurface.nearest_agreeing`).
 AGREE_K = 8
+#: Threaded or serial anchor queries, whichever was faster lately (the feet do not depend on it).
+_ANCHOR_THREADS = ThreadChooser()
 #: The data's query grid (:attr:`DataSurface.grid`) has cells of this many times the median
 #: distance from a data point to its ``AGREE_K``-th neighbour, so that most ``AGREE_K``-nearest
 #: queries end after the first shell of cells.
@@ -163,7 +165,7 @@ class DataSurface:
         if m and grid.grid is not None:
             qn = q if normals is None else np.ascontiguousarray(normals, dtype=np.float64)
             frames = (self.plane_points, self.plane_normals, self.tangents, self.quadrics)
-            with thread_limit(m >= PARALLEL_MIN_PARTICLES):
+            with timed_threads(_ANCHOR_THREADS, m):
                 anchor_feet_kernel(
                     q,
                     qn,

@@ -97,6 +97,7 @@ def _force_threaded_kernels(monkeypatch) -> None:
 
     for mod in (recon.neighbors, recon.dynamics, recon.forces):
         monkeypatch.setattr(mod, "PARALLEL_MIN_PARTICLES", 0)
+    monkeypatch.setattr(recon.dynamics, "ALWAYS_THREADED", 0)
 
 
 @needs_two

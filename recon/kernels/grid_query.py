@@ -283,29 +283,47 @@ def anchor_feet_kernel(
     point and unit normal of the quadric (module docstring), the distance to the chosen data
     point and its index. ``out_ok[i]`` False: the search needed more than ``max_ring`` shells;
     the row is not written.
+
+    The nearest point is searched first (a 1-nearest search ends after fewer cells); only when
+    it disagrees are the ``k`` nearest searched, which gives the same choice.
     """
     plane_points, plane_normals, tangents, quadrics = frames
     m = query.shape[0]
     for i in prange(m):
         best_d2 = np.empty(k)
         best_i = np.empty(k, dtype=np.int64)
+        # fast path: the nearest point alone (the shells end sooner) when it agrees
         found, ok = _knn_one(
-            query[i, 0],
-            query[i, 1],
-            query[i, 2],
-            grid,
-            cell_size,
-            k,
-            max_ring,
-            best_d2,
-            best_i,
+            query[i, 0], query[i, 1], query[i, 2], grid, cell_size, 1, max_ring, best_d2, best_i
         )
+        if ok and found == 1:
+            j = best_i[0]
+            agrees = (
+                normals[j, 0] * qnormals[i, 0]
+                + normals[j, 1] * qnormals[i, 1]
+                + normals[j, 2] * qnormals[i, 2]
+            ) > 0.0
+            fast = agrees or not use_normals
+        else:
+            fast = False
+        if not fast:
+            found, ok = _knn_one(
+                query[i, 0],
+                query[i, 1],
+                query[i, 2],
+                grid,
+                cell_size,
+                k,
+                max_ring,
+                best_d2,
+                best_i,
+            )
         out_ok[i] = ok
         if not ok or found == 0:
             out_ok[i] = False
             continue
         pick = 0
-        if use_normals:
+        if use_normals and not fast:
             for a in range(found):
                 j = best_i[a]
                 dot = (

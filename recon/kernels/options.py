@@ -25,6 +25,7 @@ References
 from __future__ import annotations
 
 import contextlib
+import time
 from collections.abc import Iterator
 
 import numba
@@ -119,3 +120,101 @@ def query_workers() -> int:
     A query's result does not depend on its workers.
     """
     return int(numba.get_num_threads())
+
+
+#: Below this many items a threaded region costs more than it saves even on an idle machine
+#: (waking the pool takes tens of microseconds; DESIGN §3); the kernel runs in the caller.
+TIMED_MIN_ITEMS = 2_000
+#: A :class:`ThreadChooser` re-times the mode it is not using after this many calls ...
+PROBE_EVERY = 16
+#: ... and after twice as many each time that mode was again this much slower, up to
+#: :data:`PROBE_EVERY_MAX` calls (so a clear loser costs little: one call in 128).
+PROBE_BACKOFF = 1.5
+#: See :data:`PROBE_BACKOFF`.
+PROBE_EVERY_MAX = 128
+#: Weight of the newest timing in a :class:`ThreadChooser`'s running mean.
+TIMING_WEIGHT = 0.5
+
+
+class ThreadChooser:
+    """Run a kernel threaded or in the calling thread, whichever was faster lately.
+
+    The kernels give bit-identical results either way (every ``prange`` iteration writes only
+    its own rows), so the choice is a matter of speed only, and it depends on the machine's
+    load: on an idle 2-core machine two threads win from ~2,000 particles, but while the other
+    cores are busy a parallel region waits for descheduled threads and the calling thread alone
+    is faster (measured 2026-11-23, load ~3 on 2 cores, ``bench_dynamics.py``: 27.5k particles
+    2.3-2.8e7 pair interactions/s serial vs 1.3-1.8e7 threaded; 100k: 2.0-2.9e7 vs 1.6-1.8e7).
+    So from :data:`TIMED_MIN_ITEMS` items (and below ``always``, if given) the chooser times
+    both modes (per item, a running mean; the first call of each is not counted) and uses the
+    faster, re-timing the other one after :data:`PROBE_EVERY` calls (backing off to
+    :data:`PROBE_EVERY_MAX` while it keeps losing clearly). Below :data:`TIMED_MIN_ITEMS`, or
+    with one numba thread (``threads=1``), it never threads.
+
+    Usage::
+
+        parallel = chooser.parallel(n)
+        t0 = time.perf_counter()
+        ...  # the kernel, under thread_limit(parallel)
+        chooser.record(parallel, time.perf_counter() - t0, n)
+    """
+
+    def __init__(self, always: int | None = None) -> None:
+        self.always = always
+        self._per_item: list[float | None] = [None, None]  # serial, threaded [s per item]
+        self._since_probe = 0
+        self._interval = PROBE_EVERY
+        self._probe: int | None = None  # the mode being re-timed (0 serial, 1 threaded)
+        self._warm = [False, False]  # first calls (allocations, cold caches) are not timed
+
+    def parallel(self, n: int, always: int | None = None) -> bool:
+        """Whether the next call on ``n`` items should run threaded (``always``: threaded from
+        this many items, overriding the constructor's; None there and here: never forced)."""
+        limit = self.always if always is None else always
+        if limit is not None and n >= limit:
+            return True
+        if n < TIMED_MIN_ITEMS or numba.get_num_threads() < 2:
+            return False
+        serial, threaded = self._per_item
+        if serial is None:
+            return False
+        if threaded is None:
+            return True
+        best = threaded < serial
+        self._since_probe += 1
+        if self._since_probe >= self._interval:
+            self._since_probe = 0
+            self._probe = int(not best)
+            return not best
+        return best
+
+    def record(self, parallel: bool, seconds: float, n: int) -> None:
+        """Account a call of ``seconds`` on ``n`` items in the given mode."""
+        if n < TIMED_MIN_ITEMS:
+            return
+        rate = seconds / n
+        slot = int(bool(parallel))
+        if not self._warm[slot]:
+            self._warm[slot] = True
+            return
+        old = self._per_item[slot]
+        self._per_item[slot] = (
+            rate if old is None else (TIMING_WEIGHT * rate + (1.0 - TIMING_WEIGHT) * old)
+        )
+        if self._probe == slot:
+            self._probe = None
+            other = self._per_item[1 - slot]
+            losing = other is not None and self._per_item[slot] > PROBE_BACKOFF * other
+            self._interval = min(2 * self._interval, PROBE_EVERY_MAX) if losing else PROBE_EVERY
+
+
+@contextlib.contextmanager
+def timed_threads(chooser: ThreadChooser, n: int, always: int | None = None) -> Iterator[bool]:
+    """Run the block threaded or not as ``chooser`` decides for ``n`` items, and time it.
+
+    Yields the decision (True: threaded)."""
+    parallel = chooser.parallel(n, always)
+    start = time.perf_counter()
+    with thread_limit(parallel):
+        yield parallel
+    chooser.record(parallel, time.perf_counter() - start, n)

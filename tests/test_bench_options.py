@@ -1,0 +1,32 @@
+"""The benchmarks' options that change what they measure."""
+
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _bench_quality():
+    spec = importlib.util.spec_from_file_location(
+        "bench_quality", ROOT / "benchmarks" / "bench_quality.py"
+    )
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+@pytest.mark.parametrize(
+    ("env", "expected"),
+    [(None, "default"), ("passive", "PASSIVE"), ("ACTIVE", "ACTIVE"), ("", "default")],
+)
+def test_wait_policy_default_is_never_an_invalid_openmp_value(monkeypatch, env, expected):
+    """Unset, the default must not become OMP_WAIT_POLICY=DEFAULT (libgomp rejects it)."""
+    if env is None:
+        monkeypatch.delenv("OMP_WAIT_POLICY", raising=False)
+    else:
+        monkeypatch.setenv("OMP_WAIT_POLICY", env)
+    assert _bench_quality()._wait_policy_default() == expected
