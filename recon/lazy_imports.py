@@ -41,6 +41,12 @@ def _forward(name: str) -> Callable:
     return call
 
 
+def _other_name(name: str) -> object:
+    if name.startswith("__"):
+        raise AttributeError(name)
+    return getattr(_load_real(), name)
+
+
 def defer_open3d_plotly() -> None:
     """Register the stand-in for open3d's plotly viewer (no-op once open3d is imported)."""
     if "open3d" in sys.modules or PLOTLY_MODULE in sys.modules:
@@ -49,4 +55,8 @@ def defer_open3d_plotly() -> None:
     stand_in._oprecon_stand_in = True  # type: ignore[attr-defined]
     for name in PLOTLY_FUNCTIONS:
         setattr(stand_in, name, _forward(name))
+    # Any other public name (a later open3d importing more from the module) loads the real
+    # module (PEP 562), so the stand-in cannot break ``import open3d``; the import system's
+    # probes of dunder names (``__path__``, ``__all__``) must not.
+    stand_in.__getattr__ = _other_name  # type: ignore[attr-defined]
     sys.modules[PLOTLY_MODULE] = stand_in

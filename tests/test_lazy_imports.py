@@ -43,3 +43,12 @@ def test_no_stand_in_once_open3d_was_imported_first():
         " False))"
     )
     assert out == "False"
+
+
+def test_any_other_name_of_the_module_loads_the_real_one():
+    out = _run(
+        "import sys, recon\n"
+        "from open3d.visualization.draw_plotly import get_point_object\n"
+        "print(callable(get_point_object), 'plotly' in sys.modules)"
+    )
+    assert out == "True True"
