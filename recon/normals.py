@@ -306,9 +306,14 @@ def _knn_graph(
     the gap (which orients one face inward). It also perturbs the tree on very noisy data.
 
     With ``across_cost`` > 0 it also returns which edges join the two faces of a thin part
-    (:func:`_across_neighbours`, seen so from both ends; else None), along which the
-    propagation asks for opposed normals (and which carry no ``across_cost``), and which
-    points have a two-sided neighbourhood."""
+    (:func:`_across_neighbours` over the ``_SIDES_K`` nearest, seen so from both ends; else
+    None), along which the propagation asks for opposed normals (and which carry no
+    ``across_cost``), and which points have a two-sided neighbourhood. Those edges join the
+    graph even where they are not among the k nearest: a part thicker than the k-neighbour
+    radius but within the wider one has no k-NN edge between its faces, and its rim, narrower
+    than a PCA neighbourhood, carries the sign over unchanged (one face inward). Two sheets
+    with nothing between them always face opposite ways (the space between is inside both
+    or outside both), so an opposed sign is right for any pair found across."""
     n = points.shape[0]
     k_eff = int(min(k, n - 1))
     k_wide = int(min(max(k, _SIDES_K), n - 1)) if across_cost > 0.0 else k_eff
@@ -319,29 +324,33 @@ def _knn_graph(
     cols = idx[:, 1:].reshape(-1)
     keep = rows != cols  # defensive: duplicate points can reorder self
     rows, cols = rows[keep], cols[keep]
+    if across_cost <= 0.0:
+        dots = np.einsum("ij,ij->i", normals[rows], normals[cols])
+        base = np.clip(1.0 - np.abs(dots), 0.0, None) + _EDGE_EPSILON
+        return _symmetric(base, rows, cols, n), None, None
+    across = np.zeros((n, k_wide), dtype=bool)
+    two_sided = np.zeros(n, dtype=bool)
+    for lo in range(0, n, _CHUNK):  # in blocks: the split holds ~10 (block, k_wide) arrays
+        hi = min(lo + _CHUNK, n)
+        across[lo:hi], two_sided[lo:hi] = _across_neighbours(
+            points, normals, wide[lo:hi, 1:], k_wide, start=lo
+        )
+    # across when both ends see it so (where only one end's neighbourhood looks two-sided,
+    # that is more often noise than a thin part)
+    w_rows, w_cols = np.nonzero(across)
+    one_way = np.sort(w_rows * np.int64(n) + wide[w_rows, 1 + w_cols])
+    seen_back = one_way[np.isin(one_way, (one_way % n) * np.int64(n) + one_way // n)]
+    key = np.union1d(rows * np.int64(n) + cols, seen_back)
+    rows, cols = key // n, key % n
+    both = np.isin(key, seen_back)
     dots = np.einsum("ij,ij->i", normals[rows], normals[cols])
     base = np.clip(1.0 - np.abs(dots), 0.0, None) + _EDGE_EPSILON
-    if across_cost <= 0.0:
-        return _symmetric(base, rows, cols, n), None, None
     u = points[cols] - points[rows]
     u /= np.maximum(np.linalg.norm(u, axis=1, keepdims=True), 1e-300)
     a = 0.5 * (
         np.abs(np.einsum("ij,ij->i", u, normals[rows]))
         + np.abs(np.einsum("ij,ij->i", u, normals[cols]))
     )
-    across = np.zeros((n, k_eff), dtype=bool)
-    two_sided = np.zeros(n, dtype=bool)
-    for lo in range(0, n, _CHUNK):  # in blocks: the split holds ~10 (block, k_wide) arrays
-        hi = min(lo + _CHUNK, n)
-        across[lo:hi], two_sided[lo:hi] = _across_neighbours(
-            points, normals, wide[lo:hi, 1:], k_eff, start=lo
-        )
-    # across when both ends see it so (where only one end's neighbourhood looks two-sided,
-    # that is more often noise than a thin part)
-    key = rows * np.int64(n) + cols
-    one_way = np.sort(key[across.reshape(-1)[keep]])
-    seen_back = one_way[np.isin(one_way, (one_way % n) * np.int64(n) + one_way // n)]
-    both = np.isin(key, seen_back)
     # an edge known to join the two faces propagates exactly (opposed signs): no penalty
     graph = _symmetric(np.where(both, base, base + across_cost * a * a), rows, cols, n)
     flip = sparse.coo_matrix((np.ones(int(both.sum())), (rows[both], cols[both])), shape=(n, n))
