@@ -21,6 +21,7 @@ from typing import Any
 
 import numpy as np
 
+from .assemble import write_tile_mesh
 from .grid import TileGrid
 from .source import TileStore, read_box, read_tile
 
@@ -214,8 +215,9 @@ def mesh_task(job: MeshJob) -> dict:
     """Triangulate a tile over its particles and its neighbours' within the halo; keep the
     faces whose centroid lies in the tile's half-open core.
 
-    Returns ``faces`` (F, 3) int64 in global particle ids, where ``-1 - j`` stands for the
-    ``j``-th of ``new_vertices`` (vertices the repair added, absolute) with ``new_normals``.
+    The faces, in global particle ids (``-1 - j``: the ``j``-th vertex the tile's repair
+    added), go to the work folder split into seam zone, rim and interior
+    (:func:`recon.tiling.assemble.write_tile_mesh`); the result holds their counts.
     """
     _quiet_worker()
     from scipy.spatial import cKDTree
@@ -229,14 +231,9 @@ def mesh_task(job: MeshJob) -> dict:
     grid = job.store.grid
     cfg = config_from_dict(job.config)
     pos, nrm, rest, gid = _load_particles(job, grid)
-    empty = {
-        "tile": job.tile,
-        "faces": np.zeros((0, 3), dtype=np.int64),
-        "new_vertices": np.zeros((0, 3)),
-        "new_normals": np.zeros((0, 3)),
-        "seconds": 0.0,
-    }
+    empty = {"tile": job.tile, "faces": 0, "zone_faces": 0, "new_vertices": 0, "seconds": 0.0}
     if len(pos) < 3:
+        write_tile_mesh(job.work, job.tile, grid, job.r0, *_no_mesh())
         return empty
     lo, hi = grid.bounds(job.tile)
     centre = 0.5 * (lo + hi)
@@ -266,21 +263,36 @@ def mesh_task(job: MeshJob) -> dict:
         )
     faces = tri.faces
     if len(faces) == 0:
+        write_tile_mesh(job.work, job.tile, grid, r0, *_no_mesh())
         return empty
     # result vertices -> input particles (order kept; repair adds shifted copies at the end)
     d, src = cKDTree(x).query(tri.vertices)
     original = d <= 1e-9
-    centroid = tri.vertices[faces].mean(axis=1) * r0 + centre
-    faces = faces[grid.in_core(job.tile, centroid)]
+    absolute = tri.vertices * r0 + centre
+    faces = faces[grid.in_core(job.tile, absolute[faces].mean(axis=1))]
     new_ids = np.flatnonzero(~original)
     code = np.empty(len(tri.vertices), dtype=np.int64)
     code[original] = gid[src[original]]
     code[new_ids] = -1 - np.arange(len(new_ids))
+    counts = write_tile_mesh(
+        job.work,
+        job.tile,
+        grid,
+        r0,
+        absolute,
+        faces,
+        code,
+        absolute[new_ids],
+        tri.normals[new_ids],
+    )
     return {
         "tile": job.tile,
-        "faces": code[faces],
-        "new_vertices": tri.vertices[new_ids] * r0 + centre,
-        "new_normals": tri.normals[new_ids],
+        **counts,
         "seconds": time.perf_counter() - t0,
         "stats": tri.stats,
     }
+
+
+def _no_mesh() -> tuple[np.ndarray, ...]:
+    z3 = np.zeros((0, 3))
+    return z3, np.zeros((0, 3), dtype=np.int64), np.zeros(0, dtype=np.int64), z3, z3
