@@ -106,6 +106,7 @@ def write_tile_mesh(
     codes: np.ndarray,
     new_vertices: np.ndarray,
     new_normals: np.ndarray,
+    new_colors: np.ndarray | None = None,
 ) -> dict:
     """File a tile's faces as zone, rim and interior faces (see the module docstring).
 
@@ -129,6 +130,7 @@ def write_tile_mesh(
         rim_cell=cell[rim],
         new_vertices=np.asarray(new_vertices, dtype=np.float64).reshape(-1, 3),
         new_normals=np.asarray(new_normals, dtype=np.float64).reshape(-1, 3),
+        new_colors=np.zeros((0, 3), np.uint8) if new_colors is None else new_colors,
     )
     return {
         "faces": int(len(faces)),
@@ -148,12 +150,14 @@ class VertexStore:
     def __init__(self) -> None:
         self.starts: list[int] = []
         self.counts: list[int] = []
-        self.loaders: list[Callable[[], tuple[np.ndarray, np.ndarray]]] = []
-        self.cache: OrderedDict[int, tuple[np.ndarray, np.ndarray]] = OrderedDict()
+        self.loaders: list[Callable[[], tuple]] = []
+        self.cache: OrderedDict[int, tuple] = OrderedDict()
         self.total = 0
         self.max_cached = 0
 
-    def add(self, count: int, loader: Callable[[], tuple[np.ndarray, np.ndarray]]) -> int:
+    def add(self, count: int, loader: Callable[[], tuple]) -> int:
+        """A block of ``count`` vertices; ``loader()`` returns (positions, normals, colours),
+        colours a (count, 3) uint8 array or empty when the scan has none."""
         start = self.total
         self.starts.append(start)
         self.counts.append(int(count))
@@ -161,11 +165,12 @@ class VertexStore:
         self.total += int(count)
         return start
 
-    def add_arrays(self, pos: np.ndarray, nrm: np.ndarray) -> int:
+    def add_arrays(self, pos: np.ndarray, nrm: np.ndarray, rgb: np.ndarray | None = None) -> int:
         pos, nrm = np.asarray(pos, dtype=np.float64), np.asarray(nrm, dtype=np.float64)
-        return self.add(len(pos), lambda: (pos, nrm))
+        rgb = np.zeros((0, 3), np.uint8) if rgb is None else rgb
+        return self.add(len(pos), lambda: (pos, nrm, rgb))
 
-    def block(self, b: int) -> tuple[np.ndarray, np.ndarray]:
+    def block(self, b: int) -> tuple:
         if b in self.cache:
             self.cache.move_to_end(b)
             return self.cache[b]
@@ -173,7 +178,7 @@ class VertexStore:
         self.cache[b] = arrays
         if len(self.cache) > CACHED_BLOCKS:
             self.cache.popitem(last=False)
-        self.max_cached = max(self.max_cached, sum(len(p) for p, _ in self.cache.values()))
+        self.max_cached = max(self.max_cached, sum(len(a[0]) for a in self.cache.values()))
         return arrays
 
     def block_of(self, ids: np.ndarray) -> np.ndarray:
@@ -188,11 +193,23 @@ class VertexStore:
         b = self.block_of(ids)
         for k in np.unique(b):
             sel = b == k
-            p, n = self.block(int(k))
+            p, n, _ = self.block(int(k))
             j = ids[sel] - self.starts[k]
             pos[sel] = p[j]
             nrm[sel] = n[j]
         return pos, nrm
+
+    def get_colors(self, ids: np.ndarray) -> np.ndarray:
+        """Colours (uint8) by global id; black where a block has none."""
+        ids = np.asarray(ids, dtype=np.int64)
+        rgb = np.zeros((len(ids), 3), dtype=np.uint8)
+        b = self.block_of(ids) if len(ids) else ids
+        for k in np.unique(b):
+            c = self.block(int(k))[2]
+            if len(c):
+                sel = b == k
+                rgb[sel] = c[ids[sel] - self.starts[k]]
+        return rgb
 
 
 def face_keys(faces: np.ndarray) -> np.ndarray:
@@ -489,32 +506,50 @@ class TopologyAccumulator:
 # --- streamed output ---------------------------------------------------------------------
 
 
-def _ply_vertex_props(coord_type: str, normals: bool) -> list[tuple[str, str]]:
+def _ply_vertex_props(coord_type: str, normals: bool, colors: bool) -> list[tuple[str, str]]:
     props = [("x", coord_type), ("y", coord_type), ("z", coord_type)]
     if normals:
         props += [("nx", "f4"), ("ny", "f4"), ("nz", "f4")]
+    if colors:
+        props += [("red", "u1"), ("green", "u1"), ("blue", "u1")]
     return props
 
 
 def write_vertex_rows(
-    fh: BinaryIO, fmt: str, pos: np.ndarray, nrm: np.ndarray | None, coord_type: str, ascii: bool
+    fh: BinaryIO,
+    fmt: str,
+    pos: np.ndarray,
+    nrm: np.ndarray | None,
+    coord_type: str,
+    ascii: bool,
+    rgb: np.ndarray | None = None,
 ) -> None:
-    """Append vertex rows (PLY binary/ascii or OBJ ``v``/``vn`` lines are written apart)."""
+    """Append vertex rows as :func:`recon.io.write_mesh` writes them (OBJ: ``v`` lines, the
+    ``vn`` lines are written apart)."""
     if fmt == "obj":
-        np.savetxt(fh, pos, fmt="v %.17g %.17g %.17g")
+        if rgb is None:
+            np.savetxt(fh, pos, fmt="v %.17g %.17g %.17g")
+        else:
+            data = np.hstack([pos, rgb.astype(np.float64) / 255.0])
+            np.savetxt(fh, data, fmt="v %.17g %.17g %.17g %.6g %.6g %.6g")
         return
     if ascii:
-        data = pos if nrm is None else np.hstack([pos, nrm])
+        cols = [pos] + ([nrm] if nrm is not None else []) + ([rgb] if rgb is not None else [])
+        data = np.hstack([np.asarray(c, dtype=np.float64) for c in cols])
         f = ["%.17g" if coord_type == "f8" else "%.9g"] * 3 + ["%.9g"] * (0 if nrm is None else 3)
+        f += ["%d"] * (0 if rgb is None else 3)
         np.savetxt(fh, data, fmt=f, delimiter=" ")
         return
-    props = _ply_vertex_props(coord_type, nrm is not None)
+    props = _ply_vertex_props(coord_type, nrm is not None, rgb is not None)
     rows = np.zeros(len(pos), dtype=[(n, "<" + t) for n, t in props])
     for j, c in enumerate("xyz"):
         rows[c] = pos[:, j]
     if nrm is not None:
         for j, c in enumerate(("nx", "ny", "nz")):
             rows[c] = nrm[:, j]
+    if rgb is not None:
+        for j, c in enumerate(("red", "green", "blue")):
+            rows[c] = rgb[:, j]
     fh.write(rows.tobytes())
 
 
@@ -545,10 +580,18 @@ def coordinate_type(lo: np.ndarray, hi: np.ndarray) -> str:
     return _coordinate_type(corners)
 
 
-def ply_header(n_vertices: int, n_faces: int | None, coord_type: str, normals: bool, ascii: bool):
+def ply_header(
+    n_vertices: int,
+    n_faces: int | None,
+    coord_type: str,
+    normals: bool,
+    ascii: bool,
+    colors: bool = False,
+) -> bytes:
     from ..io.ply import _ply_header
 
-    return _ply_header(n_vertices, _ply_vertex_props(coord_type, normals), n_faces, ascii)
+    props = _ply_vertex_props(coord_type, normals, colors)
+    return _ply_header(n_vertices, props, n_faces, ascii)
 
 
 # --- the coordinator's stitch ------------------------------------------------------------
@@ -590,7 +633,8 @@ def stitch_streamed(
     def particle_loader(t: int):
         def load():
             with np.load(particles_path(work, t)) as z:
-                return z["positions"], z["normals"] * flips.get(t, 1.0)
+                rgb = z["colors"] if "colors" in z.files else np.zeros((0, 3), np.uint8)
+                return z["positions"], z["normals"] * flips.get(t, 1.0), rgb
 
         return load
 
@@ -600,7 +644,7 @@ def stitch_streamed(
     def new_loader(t: int):
         def load():
             with np.load(mesh_path(work, t)) as z:
-                return z["new_vertices"], z["new_normals"]
+                return z["new_vertices"], z["new_normals"], z["new_colors"]
 
         return load
 
@@ -658,7 +702,11 @@ def stitch_streamed(
         gmap = np.concatenate([ids, np.full(len(v2) - len(ids), -1, dtype=np.int64)])
         extra = np.unique(fl[fl >= len(ids)])
         if len(extra):
-            start = store.add_arrays(v2[extra], n2[extra])
+            # a copy of a bow-tie vertex takes the colour of the vertex it copies (the nearest)
+            from scipy.spatial import cKDTree
+
+            src = cKDTree(pos).query(v2[extra])[1]
+            start = store.add_arrays(v2[extra], n2[extra], store.get_colors(ids[src]))
             gmap[extra] = start + np.arange(len(extra))
         np.save(out_path(c), gmap[fl])
         done.add(c)
@@ -728,6 +776,7 @@ def write_streamed(
     coord_type: str,
     normals: bool,
     ascii: bool,
+    colors: bool = False,
 ) -> None:
     """Write the stitched mesh to ``path`` (an open temporary, see :mod:`recon.io.files`):
     vertices block by block, then faces unit by unit, renumbered to the used vertices."""
@@ -755,15 +804,26 @@ def write_streamed(
 
     with open(path, "wb") as fh:
         if fmt == "ply":
-            fh.write(ply_header(int(used.sum()), stitched["n_faces"], coord_type, normals, ascii))
+            n_used = int(used.sum())
+            fh.write(ply_header(n_used, stitched["n_faces"], coord_type, normals, ascii, colors))
         else:
             fh.write(b"# written by oprecon\n")
         for k, (s, n) in enumerate(zip(store.starts, store.counts, strict=True)):
             sel = used[s : s + n]
             if not sel.any():
                 continue
-            p, nr = store.block(k)
-            write_vertex_rows(fh, fmt, p[sel], nr[sel] if normals else None, coord_type, ascii)
+            p, nr, rgb = store.block(k)
+            if colors and len(rgb) != len(p):
+                rgb = np.zeros((len(p), 3), dtype=np.uint8)
+            write_vertex_rows(
+                fh,
+                fmt,
+                p[sel],
+                nr[sel] if normals else None,
+                coord_type,
+                ascii,
+                rgb[sel] if colors else None,
+            )
         if fmt == "obj" and normals:
             for k, (s, n) in enumerate(zip(store.starts, store.counts, strict=True)):
                 sel = used[s : s + n]
@@ -784,5 +844,5 @@ def write_particles_streamed(
     with open(path, "wb") as fh:
         fh.write(ply_header(n, None, coord_type, True, ascii))
         for k in range(n_blocks):
-            p, nr = store.block(k)
+            p, nr, _ = store.block(k)
             write_vertex_rows(fh, "ply", p, nr, coord_type, ascii)

@@ -14,9 +14,10 @@
 6. Every tile triangulates its particles plus its neighbours' within the halo and keeps the
    faces whose centroid lies in its core (:func:`recon.tiling.tasks.mesh_task`): near a seam
    both tiles see the same particles, so they agree on the faces there.
-7. The faces are merged by global particle id and the seams repaired
-   (:func:`recon.tiling.stitch.repair_seams`); the mesh, particles and report are written all
-   or nothing. The work folder is removed whatever happens.
+7. The seam zone is repaired one dual cell at a time, the topology measured unit by unit and
+   the mesh streamed into its file tile by tile (:mod:`recon.tiling.assemble`): the
+   coordinator holds a tile's worth of faces, never the whole mesh. The mesh, particles and
+   report are written all or nothing. The work folder is removed whatever happens.
 """
 
 from __future__ import annotations
@@ -189,8 +190,6 @@ def fit_tiled(
     grid = TileGrid.cover(header.lo, header.hi, size, 0.0)
     timings: dict[str, float] = {}
     warnings: list[str] = []
-    if header.cloud is not None and header.cloud.colors is not None and cfg.output.colors:
-        warnings.append("the input's colours are not carried onto a tiled mesh (not yet)")
     work = Path(tempfile.mkdtemp(prefix=".oprecon-tiles-", dir=output_path.parent))
     try:
         t0 = time.perf_counter()
@@ -343,7 +342,14 @@ def fit_tiled(
         coord_type = coordinate_type(header.lo - halo, header.hi + halo)
         with atomic_outputs() as outputs:
             with atomic_output(output_path, outputs) as tmp:
-                write_streamed(tmp, stitched, coord_type, cfg.output.vertex_normals, cfg.io.ascii)
+                write_streamed(
+                    tmp,
+                    stitched,
+                    coord_type,
+                    cfg.output.vertex_normals,
+                    cfg.io.ascii,
+                    colors=store.has_colors and output_path.suffix.lower() == ".ply",
+                )
             if particles_path_out is not None:
                 with atomic_output(Path(particles_path_out), outputs) as tmp:
                     write_particles_streamed(

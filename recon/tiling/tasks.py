@@ -110,7 +110,7 @@ def fit_task(job: FitJob) -> dict:
     nrm = np.zeros((0, 3))
     rest = None
     if n_core >= MIN_TILE_POINTS:
-        normals = rows[:, 3:6] if job.store.columns == 6 else None
+        normals = job.store.normals(rows)
         try:
             pf = fit_particles(cloud_from_arrays(rows[:, :3], normals), cfg)
         except InputError as exc:
@@ -129,6 +129,7 @@ def fit_task(job: FitJob) -> dict:
         positions=pos[owned],
         normals=nrm[owned],
         rest=rest[owned] if rest is not None else np.zeros(0),
+        colors=vertex_colors(job.store, rows, pos[owned], job.r0),
     )
     # the particles close to the core's faces, inside and outside: the seam sign comparison
     band = SIGN_BAND * job.r0
@@ -138,6 +139,20 @@ def fit_task(job: FitJob) -> dict:
     result["border_out"] = (pos[near & ~owned], nrm[near & ~owned])
     result["seconds"] = time.perf_counter() - t0
     return result
+
+
+def vertex_colors(store: TileStore, rows: np.ndarray, vertices: np.ndarray, r0: float):
+    """Colours (uint8) of ``vertices`` from the input points ``rows`` of the tile and its halo
+    (:func:`recon.attributes.transfer_attributes`: the distance-weighted mean of the k
+    nearest), or an empty (0, 3) array when the scan has none."""
+    rgb = store.colors(rows)
+    if rgb is None or len(vertices) == 0 or len(rows) == 0:
+        return np.zeros((0, 3), dtype=np.uint8)
+    from ..attributes import transfer_attributes
+    from ..io import cloud_from_arrays
+
+    cloud = cloud_from_arrays(rows[:, :3], colors=rgb, merge_duplicates=False)
+    return transfer_attributes(cloud, vertices, r0, colors=True).colors
 
 
 def _injected_failure(job: FitJob, spec: str) -> None:
@@ -239,8 +254,8 @@ def mesh_task(job: MeshJob) -> dict:
     centre = 0.5 * (lo + hi)
     r0 = job.r0
     x = (pos - centre) / r0
-    data = read_box(job.store, job.tile, grid.halo + r0)[:, :3]
-    data = (data - centre) / r0
+    rows = read_box(job.store, job.tile, grid.halo + r0)
+    data = (rows[:, :3] - centre) / r0
     tree = cKDTree(data) if len(data) else None
     tri_cfg = cfg.triangulation
     max_hole = tri_cfg.max_hole if tri_cfg.max_hole is not None else cfg.growth.max_gap
