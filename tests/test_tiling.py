@@ -302,3 +302,14 @@ def test_tiled_report_topology_is_the_written_meshs(fits):
         assert report[key] == pytest.approx(whole[key]), key
     memory = tiled.report["tiles"]["coordinator"]
     assert 0 < memory["largest_unit_faces"] < len(f)
+
+
+def test_tiled_mesh_does_not_cross_itself(fits):
+    """Every tile untangles its mesh (its own vertices move, the neighbours' stay put)."""
+    from recon.intersections import self_intersections
+
+    d, _, tiled, _ = fits
+    v, f = read_mesh(d / "tiled.ply")
+    assert len(self_intersections(v, f)) == 0
+    found = tiled.report["tiles"]["self_intersections"]
+    assert found["left"] <= found["found"]

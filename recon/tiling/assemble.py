@@ -107,11 +107,14 @@ def write_tile_mesh(
     new_vertices: np.ndarray,
     new_normals: np.ndarray,
     new_colors: np.ndarray | None = None,
+    moved_ids: np.ndarray | None = None,
+    moved_positions: np.ndarray | None = None,
 ) -> dict:
     """File a tile's faces as zone, rim and interior faces (see the module docstring).
 
     ``vertices`` are the absolute positions of the faces' vertices, ``faces`` index them and
     ``codes`` maps them to global particle ids (``-1 - j``: the tile's ``j``-th new vertex).
+    ``moved_ids`` / ``moved_positions``: the tile's own particles that untangling moved.
     Returns the counts.
     """
     dist = grid.seam_distance(vertices)
@@ -131,6 +134,8 @@ def write_tile_mesh(
         new_vertices=np.asarray(new_vertices, dtype=np.float64).reshape(-1, 3),
         new_normals=np.asarray(new_normals, dtype=np.float64).reshape(-1, 3),
         new_colors=np.zeros((0, 3), np.uint8) if new_colors is None else new_colors,
+        moved_ids=np.zeros(0, np.int64) if moved_ids is None else moved_ids,
+        moved_positions=np.zeros((0, 3)) if moved_positions is None else moved_positions,
     )
     return {
         "faces": int(len(faces)),
@@ -634,10 +639,17 @@ def stitch_streamed(
         def load():
             with np.load(particles_path(work, t)) as z:
                 rgb = z["colors"] if "colors" in z.files else np.zeros((0, 3), np.uint8)
-                return z["positions"], z["normals"] * flips.get(t, 1.0), rgb
+                pos, nrm = z["positions"], z["normals"] * flips.get(t, 1.0)
+            if t in mesh_results:  # the moves of the tile's untangling
+                with np.load(mesh_path(work, t)) as z:
+                    if "moved_ids" in z.files and len(z["moved_ids"]):
+                        pos = pos.copy()
+                        pos[z["moved_ids"] - store.starts[index[t]]] = z["moved_positions"]
+            return pos, nrm, rgb
 
         return load
 
+    index = {t: k for k, t in enumerate(tiles)}
     for t in tiles:
         store.add(particle_counts[t], particle_loader(t))
 

@@ -328,6 +328,12 @@ def fit_tiled(
                 "seams": seams,
                 "repair": repair,
                 "coordinator": stitched["memory"],
+                # each tile untangles its own mesh (halo included, the neighbours' particles
+                # fixed); crossings the seam repair makes are not searched
+                "self_intersections": {
+                    "found": sum(m.get("self_intersections_found", 0) for m in meshes.values()),
+                    "left": sum(m.get("self_intersections_left", 0) for m in meshes.values()),
+                },
                 "per_tile": per_tile,
             },
             "warnings": warnings,

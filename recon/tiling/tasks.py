@@ -283,12 +283,20 @@ def mesh_task(job: MeshJob) -> dict:
     # result vertices -> input particles (order kept; repair adds shifted copies at the end)
     d, src = cKDTree(x).query(tri.vertices)
     original = d <= 1e-9
-    absolute = tri.vertices * r0 + centre
-    faces = faces[grid.in_core(job.tile, absolute[faces].mean(axis=1))]
     new_ids = np.flatnonzero(~original)
     code = np.empty(len(tri.vertices), dtype=np.int64)
     code[original] = gid[src[original]]
     code[new_ids] = -1 - np.arange(len(new_ids))
+    # untangle over the whole tile mesh (halo included); only the tile's own particles and its
+    # new vertices move (the neighbours' belong to their tiles); the moves go to the stitch
+    from ..intersections import untangle
+
+    own = ~original | (grid.cell_of(tri.vertices * r0 + centre) == job.tile)
+    fixed = ~own if tri.crease is None else ~own | np.asarray(tri.crease, dtype=bool)
+    moved_x, found, left = untangle(tri.vertices, faces, fixed=fixed)
+    moved = np.flatnonzero(np.any(moved_x != tri.vertices, axis=1) & original)
+    absolute = moved_x * r0 + centre
+    faces = faces[grid.in_core(job.tile, absolute[faces].mean(axis=1))]
     counts = write_tile_mesh(
         job.work,
         job.tile,
@@ -299,10 +307,15 @@ def mesh_task(job: MeshJob) -> dict:
         code,
         absolute[new_ids],
         tri.normals[new_ids],
+        vertex_colors(job.store, rows, absolute[new_ids], r0),
+        moved_ids=code[moved],
+        moved_positions=absolute[moved],
     )
     return {
         "tile": job.tile,
         **counts,
+        "self_intersections_found": int(found),
+        "self_intersections_left": int(left),
         "seconds": time.perf_counter() - t0,
         "stats": tri.stats,
     }
