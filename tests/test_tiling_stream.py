@@ -8,13 +8,9 @@ import pytest
 
 from recon.io import read_mesh
 from recon.tiling import TileGrid
-from recon.tiling.assemble import (
-    coordinate_type,
-    stitch_streamed,
-    write_streamed,
-    write_tile_mesh,
-)
+from recon.tiling.assemble import stitch_streamed, write_tile_mesh
 from recon.tiling.tasks import particles_path
+from recon.tiling.writer import coordinate_type, write_streamed
 from recon.topology import mesh_topology
 
 SIZE = 12.0  # tile side [r0]
@@ -125,12 +121,12 @@ def test_a_failing_write_leaves_nothing(tmp_path, monkeypatch):
     grid, out, _ = stitch(tmp_path / ".", 2, False)
     target = tmp_path / "out" / "mesh.ply"
     target.parent.mkdir()
-    import recon.tiling.assemble as assemble
+    import recon.tiling.writer as writer
 
     def boom(*args, **kwargs):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(assemble, "write_face_rows", boom)
+    monkeypatch.setattr(writer, "write_face_rows", boom)
     with pytest.raises(KeyboardInterrupt), atomic_output(target) as tmp:
         write_streamed(tmp, out, "f4", True, False)
     assert list(target.parent.iterdir()) == []

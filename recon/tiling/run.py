@@ -41,17 +41,13 @@ from ..fitting.scale import choose_spacing, spacing_from_median, with_max_gap
 from ..geometry import SPACING_SAMPLE_SEED
 from ..serialize import dumps
 from ..version import __version__
-from .assemble import (
-    coordinate_type,
-    stitch_streamed,
-    write_particles_streamed,
-    write_streamed,
-)
+from .assemble import stitch_streamed
 from .executors import TileEvent, run_tasks, tile_runner
 from .grid import TileGrid, choose_auto_tile_size
 from .source import ScanHeader, scan_header, split_input
 from .stitch import agree_signs
 from .tasks import FitJob, MeshJob, fit_task, mesh_task, particles_path, spacing_task
+from .writer import coordinate_type, write_particles_streamed, write_streamed
 
 __all__ = ["TiledResult", "fit_tiled", "plan_tile_size"]
 

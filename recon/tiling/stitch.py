@@ -25,7 +25,7 @@ from ..triangulate import (
 )
 from .grid import TileGrid
 
-__all__ = ["SEAM_BAND", "agree_signs", "repair_cell"]
+__all__ = ["SEAM_BAND", "agree_signs", "face_keys", "repair_cell", "same_winding"]
 
 #: Edges and loops within this many r0 of an inner tile face count as "on a seam".
 SEAM_BAND = 2.0
@@ -107,6 +107,23 @@ def _edges_among(faces: np.ndarray, ids: np.ndarray, n_vertices: int) -> set[tup
     return {(int(a), int(b)) for a, b in e}
 
 
+def face_keys(faces: np.ndarray) -> np.ndarray:
+    """One int64 key per face, the same for the same three vertices in any order."""
+    s = np.sort(np.asarray(faces, dtype=np.int64), axis=1)
+    if len(s) == 0 or s.max() >= 2**21:
+        return np.unique(s, axis=0, return_inverse=True)[1].reshape(-1).astype(np.int64)
+    return (s[:, 0] << 42) | (s[:, 1] << 21) | s[:, 2]  # three local ids in 63 bits
+
+
+def same_winding(faces: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """Whether each face runs its three vertices in the cyclic order of ``reference``."""
+    if len(faces) == 0:
+        return np.zeros(0, dtype=bool)
+    pos0 = np.argmax(reference == faces[:, [0]], axis=1)
+    nxt = reference[np.arange(len(faces)), (pos0 + 1) % 3]
+    return nxt == faces[:, 1]
+
+
 def _split_keeping_frame(
     vertices: np.ndarray, normals: np.ndarray, faces: np.ndarray, is_frame: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -155,7 +172,6 @@ def _orient_with_frame(
     the component reaches the frame, else by :func:`orient_consistently`'s rule. Conflicting
     editable faces are dropped. Returns faces, is_frame and the frame faces left disagreeing."""
     from ..mesh import face_components, orientation_flips
-    from .assemble import face_keys, same_winding
 
     faces = faces.copy()
     for _ in range(3):
@@ -209,7 +225,6 @@ def repair_cell(
     Returns the vertices (with copies appended), normals, the editable faces after the repair,
     and counts.
     """
-    from .assemble import face_keys
 
     stats = {"faces_dropped": 0, "seam_loops_zipped": 0, "cut_orientation_conflicts": 0}
     faces = np.asarray(faces, dtype=np.int64)
