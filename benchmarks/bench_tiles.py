@@ -131,6 +131,40 @@ def mesh_scores(mesh: Path, truth: np.ndarray) -> dict:
     }
 
 
+def loop_table(mesh: Path, grid_lo: np.ndarray | None, size: float | None) -> list[dict]:
+    """Every boundary loop: edges, perimeter, centroid and distance to the nearest seam [m]."""
+    from scipy import sparse
+    from scipy.sparse import csgraph
+
+    from recon.io import read_mesh
+    from recon.mesh import count_edge_faces
+
+    v, f = read_mesh(mesh)
+    edges, counts = count_edge_faces(f)
+    b = edges[counts == 1]
+    if len(b) == 0:
+        return []
+    g = sparse.coo_matrix((np.ones(len(b)), (b[:, 0], b[:, 1])), (len(v), len(v)))
+    _, lab = csgraph.connected_components(g, directed=False)
+    out = []
+    for c in np.unique(lab[b[:, 0]]):
+        e = b[lab[b[:, 0]] == c]
+        mid = v[e].mean(axis=1)
+        seam = float("nan")
+        if grid_lo is not None and size:
+            u = (mid[:, :2] - grid_lo[:2]) / size
+            seam = float((np.abs(u - np.round(u)) * size).min())
+        out.append(
+            {
+                "edges": len(e),
+                "perimeter_m": float(np.linalg.norm(v[e[:, 0]] - v[e[:, 1]], axis=1).sum()),
+                "centroid": [round(float(x), 2) for x in mid.mean(axis=0)],
+                "seam_m": seam,
+            }
+        )
+    return sorted(out, key=lambda r: -r["perimeter_m"])
+
+
 def seams(ns: argparse.Namespace) -> int:
     n = ns.points[0]
     scene = Scene.for_points(n, seed=ns.seed)
@@ -163,6 +197,10 @@ def seams(ns: argparse.Namespace) -> int:
             )
             rows[name] = row
             print(f"{name}: {json.dumps(row)}", flush=True)
+            tiles = report.get("tiles")
+            lo = np.asarray(tiles["per_tile"][0]["bounds"][0]) if tiles else pts.min(axis=0)
+            for loop in loop_table(out, lo, size):
+                print(f"  loop {json.dumps(loop)}")
     base = rows["untiled"]
     tiled = rows[next(k for k in rows if k != "untiled")]
     print()

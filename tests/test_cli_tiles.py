@@ -242,3 +242,33 @@ def test_ctrl_c_during_the_tile_fits_exits_130_and_leaves_nothing(tmp_path):
         ["ps", "-o", "pid=,stat=", "-g", str(proc.pid)], capture_output=True, text=True
     ).stdout.split("\n")
     assert [line for line in alive if line.strip() and "Z" not in line.split()[-1]] == []
+
+
+def test_las_colours_end_up_on_the_tiled_mesh(tmp_path):
+    """A two-coloured LAS sheet (16-bit colours: red for x < 4, blue beyond) in 2 x 2 tiles:
+    each tile colours its own vertices from its points, so the halves keep their colours."""
+    laspy = pytest.importorskip("laspy")
+    from recon.io import read_points
+
+    pts = _sheet(2500)
+    header = laspy.LasHeader(point_format=3, version="1.2")
+    header.scales = np.array([0.0001] * 3)
+    header.offsets = np.zeros(3)
+    las = laspy.LasData(header)
+    las.x, las.y, las.z = pts[:, 0], pts[:, 1], pts[:, 2]
+    red = pts[:, 0] < 4.0
+    las.red = np.where(red, 65535, 0).astype(np.uint16)
+    las.green = np.zeros(len(pts), dtype=np.uint16)
+    las.blue = np.where(red, 0, 65535).astype(np.uint16)
+    src = tmp_path / "sheet.las"
+    las.write(str(src))
+    out = tmp_path / "m.ply"
+    res = _run(["fit", str(src), "-o", str(out), "--tile-size", "4", "--jobs", "2", "-q"])
+    assert res.exit_code == 0, res.output
+    mesh = read_points(out)
+    v, rgb = mesh.absolute_points(), np.rint(mesh.colors * 255)
+    assert len(rgb) == len(read_mesh(out)[0])
+    left, right = v[:, 0] < 3.5, v[:, 0] > 4.5
+    assert left.sum() > 100 and right.sum() > 100
+    assert np.all(rgb[left] == [255, 0, 0]) and np.all(rgb[right] == [0, 0, 255])
+    assert np.all(rgb[:, 1] == 0)

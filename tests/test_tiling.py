@@ -289,3 +289,27 @@ def test_a_tile_with_a_few_unusable_points_is_left_empty(tmp_path):
     out = fit_task(FitJob(1, store, cfg, 0.2, tmp_path))
     assert out["points"] == 20 and out["particles"] == 0
     assert "20 points not fitted" in out["warnings"][0]
+
+
+def test_tiled_report_topology_is_the_written_meshs(fits):
+    """The coordinator measures the topology unit by unit (it never holds the whole mesh):
+    the same counts as measuring the written mesh whole."""
+    d, _, tiled, _ = fits
+    v, f = read_mesh(d / "tiled.ply")
+    whole = mesh_topology(v, f)
+    report = tiled.report["topology"]
+    for key in whole:
+        assert report[key] == pytest.approx(whole[key]), key
+    memory = tiled.report["tiles"]["coordinator"]
+    assert 0 < memory["largest_unit_faces"] < len(f)
+
+
+def test_tiled_mesh_does_not_cross_itself(fits):
+    """Every tile untangles its mesh (its own vertices move, the neighbours' stay put)."""
+    from recon.intersections import self_intersections
+
+    d, _, tiled, _ = fits
+    v, f = read_mesh(d / "tiled.ply")
+    assert len(self_intersections(v, f)) == 0
+    found = tiled.report["tiles"]["self_intersections"]
+    assert found["left"] <= found["found"]

@@ -14,9 +14,10 @@
 6. Every tile triangulates its particles plus its neighbours' within the halo and keeps the
    faces whose centroid lies in its core (:func:`recon.tiling.tasks.mesh_task`): near a seam
    both tiles see the same particles, so they agree on the faces there.
-7. The faces are merged by global particle id and the seams repaired
-   (:func:`recon.tiling.stitch.repair_seams`); the mesh, particles and report are written all
-   or nothing. The work folder is removed whatever happens.
+7. The seam zone is repaired one dual cell at a time, the topology measured unit by unit and
+   the mesh streamed into its file tile by tile (:mod:`recon.tiling.assemble`): the
+   coordinator holds a tile's worth of faces, never the whole mesh. The mesh, particles and
+   report are written all or nothing. The work folder is removed whatever happens.
 """
 
 from __future__ import annotations
@@ -40,11 +41,13 @@ from ..fitting.scale import choose_spacing, spacing_from_median, with_max_gap
 from ..geometry import SPACING_SAMPLE_SEED
 from ..serialize import dumps
 from ..version import __version__
+from .assemble import stitch_streamed
 from .executors import TileEvent, run_tasks, tile_runner
 from .grid import TileGrid, choose_auto_tile_size
 from .source import ScanHeader, scan_header, split_input
-from .stitch import agree_signs, repair_seams, seam_statistics
+from .stitch import agree_signs
 from .tasks import FitJob, MeshJob, fit_task, mesh_task, particles_path, spacing_task
+from .writer import coordinate_type, write_particles_streamed, write_streamed
 
 __all__ = ["TiledResult", "fit_tiled", "plan_tile_size"]
 
@@ -54,11 +57,9 @@ SPACING_SAMPLE = 20_000
 
 @dataclass
 class TiledResult:
-    """The stitched mesh (absolute coordinates) and the report (a JSON-ready dict)."""
+    """The report (a JSON-ready dict) of a tiled fit; the mesh is in the output file (it is
+    streamed there, never held whole)."""
 
-    vertices: np.ndarray
-    faces: np.ndarray
-    normals: np.ndarray
     report: dict = field(default_factory=dict)
 
 
@@ -167,8 +168,7 @@ def fit_tiled(
     TileError
         Tiles failed twice (each named with its bounds).
     """
-    from ..io import atomic_output, atomic_outputs, check_output_path, write_mesh, write_points
-    from ..topology import mesh_topology, triangle_quality
+    from ..io import atomic_output, atomic_outputs, check_output_path
 
     cfg = config if config is not None else ReconConfig()
     t_start = time.perf_counter()
@@ -186,8 +186,6 @@ def fit_tiled(
     grid = TileGrid.cover(header.lo, header.hi, size, 0.0)
     timings: dict[str, float] = {}
     warnings: list[str] = []
-    if header.cloud is not None and header.cloud.colors is not None and cfg.output.colors:
-        warnings.append("the input's colours are not carried onto a tiled mesh (not yet)")
     work = Path(tempfile.mkdtemp(prefix=".oprecon-tiles-", dir=output_path.parent))
     try:
         t0 = time.perf_counter()
@@ -257,40 +255,29 @@ def fit_tiled(
             timings["mesh"] = time.perf_counter() - t0
             n_jobs = runner.jobs
         t0 = time.perf_counter()
-        vertices, normals = _load_all(work, offsets, flips)
-        particles_v, particles_n = vertices, normals
-        parts = []
-        extra_v, extra_n = [], []
-        base = len(vertices)
-        for t in sorted(meshes):
-            m = meshes[t]
-            f = m["faces"].copy()
-            neg = f < 0
-            f[neg] = base + (-1 - f[neg])
-            base += len(m["new_vertices"])
-            parts.append(f)
-            extra_v.append(m["new_vertices"])
-            extra_n.append(m["new_normals"])
-        vertices = np.vstack([vertices, *extra_v])
-        normals = np.vstack([normals, *extra_n])
-        faces = np.vstack(parts) if parts else np.zeros((0, 3), dtype=np.int64)
         max_hole = (
             cfg.triangulation.max_hole
             if cfg.triangulation.max_hole is not None
             else cfg.growth.max_gap
         )
-        vertices, normals, faces, repair = repair_seams(
-            grid, vertices, normals, faces, r0, max_hole
+        stitched = stitch_streamed(
+            work,
+            grid,
+            {t: fits[t]["particles"] for t in offsets},
+            flips,
+            meshes,
+            r0,
+            max_hole,
+            particles_path,
         )
-        if len(faces) == 0:
+        if stitched["n_faces"] == 0:
             raise InputError(
                 f"{input_path}: the reconstruction produced no triangles: the data may be too "
                 "sparse for the spacing (try a smaller --spacing or a larger --max-gap)"
             )
-        seams = seam_statistics(grid, vertices, faces, grid.cell_of(vertices), r0)
+        seams, repair = stitched["seams"], stitched["repair"]
         timings["stitch"] = time.perf_counter() - t0
-        topology = mesh_topology(vertices, faces)
-        quality = triangle_quality(vertices, faces)
+        topology, quality = stitched["topology"], stitched["quality"]
         timings["total"] = time.perf_counter() - t_start
         per_tile = []
         for t in sorted(fits):
@@ -318,7 +305,7 @@ def fit_tiled(
                 "median_spacing": d_nn,
             },
             "spacing": r0,
-            "particles": int(len(particles_v)),
+            "particles": int(total),
             "topology": topology,
             "triangle_quality": quality,
             "timings": timings,
@@ -336,6 +323,13 @@ def fit_tiled(
                 "sign_disagreements": disagreeing,
                 "seams": seams,
                 "repair": repair,
+                "coordinator": stitched["memory"],
+                # each tile untangles its own mesh (halo included, the neighbours' particles
+                # fixed); crossings the seam repair makes are not searched
+                "self_intersections": {
+                    "found": sum(m.get("self_intersections_found", 0) for m in meshes.values()),
+                    "left": sum(m.get("self_intersections_left", 0) for m in meshes.values()),
+                },
                 "per_tile": per_tile,
             },
             "warnings": warnings,
@@ -346,41 +340,29 @@ def fit_tiled(
                 "report": None if report_path is None else str(report_path),
             },
         }
+        halo = np.full(3, grid.halo + r0)
+        coord_type = coordinate_type(header.lo - halo, header.hi + halo)
         with atomic_outputs() as outputs:
-            write_mesh(
-                output_path,
-                vertices,
-                faces,
-                normals if cfg.output.vertex_normals else None,
-                ascii=cfg.io.ascii,
-                outputs=outputs,
-            )
-            if particles_path_out is not None:
-                write_points(
-                    Path(particles_path_out),
-                    particles_v,
-                    particles_n,
-                    ascii=cfg.io.ascii,
-                    outputs=outputs,
+            with atomic_output(output_path, outputs) as tmp:
+                write_streamed(
+                    tmp,
+                    stitched,
+                    coord_type,
+                    cfg.output.vertex_normals,
+                    cfg.io.ascii,
+                    colors=store.has_colors and output_path.suffix.lower() == ".ply",
                 )
+            if particles_path_out is not None:
+                with atomic_output(Path(particles_path_out), outputs) as tmp:
+                    write_particles_streamed(
+                        tmp, stitched["store"], len(offsets), coord_type, cfg.io.ascii
+                    )
             if report_path is not None:
                 with atomic_output(report_path, outputs) as tmp:
                     tmp.write_text(dumps(report) + "\n")
-        return TiledResult(vertices, faces, normals, report)
+        return TiledResult(report)
     finally:
         shutil.rmtree(work, ignore_errors=True)
-
-
-def _load_all(
-    work: Path, offsets: dict[int, int], flips: dict[int, float]
-) -> tuple[np.ndarray, np.ndarray]:
-    """Every tile's own particles, in global id order."""
-    pos, nrm = [], []
-    for t in sorted(offsets, key=offsets.get):  # type: ignore[arg-type]
-        with np.load(particles_path(work, t)) as z:
-            pos.append(z["positions"])
-            nrm.append(z["normals"] * flips.get(t, 1.0))
-    return np.vstack(pos), np.vstack(nrm)
 
 
 def _check_tile_memory(store: Any, cfg: ReconConfig, r0: float, d_nn: float) -> None:

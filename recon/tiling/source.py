@@ -10,6 +10,7 @@ and its neighbours' (:func:`read_box`).
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -51,10 +52,22 @@ class TileStore:
     directory: Path
     grid: TileGrid
     counts: dict[int, int]
-    columns: int  # 3, or 6 with normals
+    columns: int  # x y z, then nx ny nz (has_normals), then r g b (has_colors)
+    has_normals: bool = False
+    has_colors: bool = False
+    color_scale: float = 1.0  # stored colour values times this are in [0, 1]
 
     def path(self, tile: int) -> Path:
         return self.directory / f"points-{tile}.f64"
+
+    def normals(self, rows: np.ndarray) -> np.ndarray | None:
+        return rows[:, 3:6] if self.has_normals else None
+
+    def colors(self, rows: np.ndarray) -> np.ndarray | None:
+        """Colours in [0, 1] of a tile's rows, or None."""
+        if not self.has_colors:
+            return None
+        return np.clip(rows[:, self.columns - 3 :] * self.color_scale, 0.0, 1.0)
 
     def tiles(self) -> list[int]:
         """The tiles that hold points, in index order."""
@@ -100,8 +113,12 @@ def scan_header(path: Path, cfg: Any) -> ScanHeader:
     )
 
 
-def _las_chunks(path: Path, classes: Sequence[int] | None, max_points: int) -> Iterator[np.ndarray]:
-    """Absolute xyz of a LAS/LAZ file, chunk by chunk, filtered by class."""
+def _las_chunks(
+    path: Path, classes: Sequence[int] | None, max_points: int, colors: bool = False
+) -> Iterator[np.ndarray]:
+    """Absolute xyz of a LAS/LAZ file, chunk by chunk, filtered by class; with ``colors``
+    (and a point format that has them) the raw red, green, blue values follow as 3 more
+    columns."""
     import laspy
 
     from ..io.las import CHUNK_POINTS
@@ -111,15 +128,25 @@ def _las_chunks(path: Path, classes: Sequence[int] | None, max_points: int) -> I
     n_kept = 0
     with laspy.open(str(path)) as reader:
         n_total = int(reader.header.point_count)
+        dims = set(reader.header.point_format.dimension_names)
+        rgb = colors and {"red", "green", "blue"} <= dims
         try:
             for chunk in reader.chunk_iterator(CHUNK_POINTS):
                 xyz = np.stack(
                     [np.asarray(chunk.x), np.asarray(chunk.y), np.asarray(chunk.z)], axis=1
                 ).astype(np.float64, copy=False)
                 n_seen += len(xyz)
+                if rgb:
+                    xyz = np.hstack(
+                        [xyz]
+                        + [
+                            np.asarray(chunk[c], dtype=np.float64)[:, None]
+                            for c in ("red", "green", "blue")
+                        ]
+                    )
                 if keep is not None:
                     xyz = xyz[np.isin(np.asarray(chunk.classification), keep)]
-                xyz = xyz[np.all(np.isfinite(xyz), axis=1)]
+                xyz = xyz[np.all(np.isfinite(xyz[:, :3]), axis=1)]
                 n_kept += len(xyz)
                 if n_kept > max_points:
                     raise InputError(f"{path}: more than io.max_points = {max_points:,} points")
@@ -162,9 +189,15 @@ def split_input(header: ScanHeader, grid: TileGrid, directory: Path, cfg: Any) -
     """Write every tile's points to ``directory`` (see the module docstring)."""
     directory.mkdir(parents=True, exist_ok=True)
     counts: dict[int, int] = {}
+    want_colors = bool(cfg.output.colors)
+    use_normals = has_colors = False
     if header.kind == "las":
-        columns = 3
-        chunks: Iterator[np.ndarray] = _las_chunks(header.path, cfg.io.classes, cfg.io.max_points)
+        chunks: Iterator[np.ndarray] = _las_chunks(
+            header.path, cfg.io.classes, cfg.io.max_points, want_colors
+        )
+        first = next(chunks, np.zeros((0, 3)))
+        has_colors = first.shape[1] == 6
+        chunks = itertools.chain([first], chunks)
     else:
         cloud = header.cloud
         rows = cloud.absolute_points()
@@ -172,10 +205,16 @@ def split_input(header: ScanHeader, grid: TileGrid, directory: Path, cfg: Any) -
         if use_normals:
             nrm = np.nan_to_num(cloud.normals, nan=0.0)
             rows = np.hstack([rows, nrm])
-        columns = rows.shape[1]
+        has_colors = want_colors and cloud.colors is not None
+        if has_colors:
+            rows = np.hstack([rows, np.asarray(cloud.colors, dtype=np.float64)])
         chunks = iter([rows])
-    store = TileStore(directory, grid, counts, columns)
+    columns = 3 + 3 * use_normals + 3 * has_colors
+    store = TileStore(directory, grid, counts, columns, use_normals, has_colors)
+    top = 0.0
     for rows in chunks:
+        if has_colors and len(rows):
+            top = max(top, float(rows[:, -3:].max()))
         if len(rows) == 0:
             continue
         cell = grid.cell_of(rows[:, :3])
@@ -189,6 +228,9 @@ def split_input(header: ScanHeader, grid: TileGrid, directory: Path, cfg: Any) -
             with open(store.path(t), "ab") as fh:
                 fh.write(np.ascontiguousarray(rows[a:b], dtype="<f8").tobytes())
             counts[t] = counts.get(t, 0) + int(b - a)
+    if has_colors and header.kind == "las":
+        # as recon.io.las: 8-bit values when no channel exceeds 255, else 16-bit
+        store.color_scale = 1.0 / 255.0 if top <= 255.0 else 1.0 / 65535.0
     header.cloud = None  # the coordinator keeps no points
     if sum(counts.values()) < 4:
         raise InputError(f"{header.path}: fewer than 4 points to fit")

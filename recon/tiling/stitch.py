@@ -1,5 +1,6 @@
-"""One mesh from the tiles: normal signs agreed across seams, faces merged by global particle
-id, the seams repaired, and the seam statistics of the report.
+"""One mesh from the tiles: normal signs agreed across seams (:func:`agree_signs`) and the
+seam zone repaired one dual cell at a time (:func:`repair_cell`, driven by
+:func:`recon.tiling.assemble.stitch_streamed`).
 
 Normal signs. Every tile orients its normals on its own (PCA is local, so a point's normal
 does not depend on the tile when its k neighbours lie within the halo, but the global sign of
@@ -15,18 +16,16 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-from ..mesh import boundary_loops, count_edge_faces
+from ..mesh import boundary_loops
 from ..triangulate import (
-    drop_unreferenced,
     loop_width,
     orient_consistently,
     remove_non_manifold_faces,
-    repair_non_manifold,
     zip_loop,
 )
 from .grid import TileGrid
 
-__all__ = ["SEAM_BAND", "agree_signs", "repair_seams", "seam_statistics"]
+__all__ = ["SEAM_BAND", "agree_signs", "face_keys", "repair_cell", "same_winding"]
 
 #: Edges and loops within this many r0 of an inner tile face count as "on a seam".
 SEAM_BAND = 2.0
@@ -108,95 +107,186 @@ def _edges_among(faces: np.ndarray, ids: np.ndarray, n_vertices: int) -> set[tup
     return {(int(a), int(b)) for a, b in e}
 
 
-def _seam_vertices(grid: TileGrid, vertices: np.ndarray, r0: float) -> np.ndarray:
-    return grid.seam_distance(vertices) <= SEAM_BAND * r0
+def face_keys(faces: np.ndarray) -> np.ndarray:
+    """One int64 key per face, the same for the same three vertices in any order."""
+    s = np.sort(np.asarray(faces, dtype=np.int64), axis=1)
+    if len(s) == 0 or s.max() >= 2**21:
+        return np.unique(s, axis=0, return_inverse=True)[1].reshape(-1).astype(np.int64)
+    return (s[:, 0] << 42) | (s[:, 1] << 21) | s[:, 2]  # three local ids in 63 bits
 
 
-def repair_seams(
+def same_winding(faces: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """Whether each face runs its three vertices in the cyclic order of ``reference``."""
+    if len(faces) == 0:
+        return np.zeros(0, dtype=bool)
+    pos0 = np.argmax(reference == faces[:, [0]], axis=1)
+    nxt = reference[np.arange(len(faces)), (pos0 + 1) % 3]
+    return nxt == faces[:, 1]
+
+
+def _split_keeping_frame(
+    vertices: np.ndarray, normals: np.ndarray, faces: np.ndarray, is_frame: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Split bow-tie vertices (:func:`split_non_manifold_vertices`) without touching the frame:
+    when a frame face would move to the copy, the copy and the original swap roles; when
+    frame faces are on both sides, the vertex stays a bow-tie."""
+    from ..triangulate import split_non_manifold_vertices
+
+    n0 = len(vertices)
+    v2, n2, f2, k = split_non_manifold_vertices(vertices, normals, faces)
+    if k == 0:
+        return vertices, normals, faces
+    for new in range(n0, n0 + k):
+        at = f2 == new
+        rows = at.any(axis=1)
+        src = int(faces[at][0])
+        if not (rows & is_frame).any():
+            continue
+        kept = (f2 == src).any(axis=1)
+        if (kept & is_frame).any():
+            f2[at] = src  # frame on both sides: leave the bow-tie
+        else:
+            src_at = f2 == src
+            f2[at] = src
+            f2[src_at] = new
+    return v2, n2, f2
+
+
+def _open_vertices(faces: np.ndarray, is_frame: np.ndarray, n: int) -> np.ndarray:
+    """Vertices only frame faces use: their stars are cut off by the sub-mesh."""
+    ed = np.zeros(n, dtype=bool)
+    ed[faces[~is_frame].ravel()] = True
+    fr = np.zeros(n, dtype=bool)
+    fr[faces[is_frame].ravel()] = True
+    return fr & ~ed
+
+
+def _orient_with_frame(
+    vertices: np.ndarray,
+    normals: np.ndarray,
+    faces: np.ndarray,
+    is_frame: np.ndarray,
+    frame_ref: dict,
+) -> tuple[np.ndarray, np.ndarray, int]:
+    """One winding per component, chosen to agree with the frame's (unchanged) faces where
+    the component reaches the frame, else by :func:`orient_consistently`'s rule. Conflicting
+    editable faces are dropped. Returns faces, is_frame and the frame faces left disagreeing."""
+    from ..mesh import face_components, orientation_flips
+
+    faces = faces.copy()
+    for _ in range(3):
+        flip, conflict = orientation_flips(faces)
+        faces[flip] = faces[flip][:, [0, 2, 1]]
+        drop = conflict & ~is_frame
+        if not drop.any():
+            break
+        faces, is_frame = faces[~drop], is_frame[~drop]
+    n, labels = face_components(faces, len(vertices))
+    keys = face_keys(faces)
+    ref = np.array([frame_ref.get(int(k), (-1, -1, -1)) for k in keys[is_frame]]).reshape(-1, 3)
+    same = same_winding(faces[is_frame], ref)
+    vote = np.bincount(labels[is_frame], weights=np.where(same, 1.0, -1.0), minlength=n)
+    has_frame = np.bincount(labels[is_frame], minlength=n) > 0
+    turn = has_frame & (vote < 0)
+    bad = turn[labels]
+    faces[bad] = faces[bad][:, [0, 2, 1]]
+    free = ~has_frame[labels]
+    if free.any():
+        sub = orient_consistently(vertices, normals, faces[free])
+        if len(sub) == int(free.sum()):
+            faces[free] = sub
+        else:  # conflicts dropped inside a free component
+            faces = np.vstack([faces[~free], sub])
+            is_frame = np.concatenate([is_frame[~free], np.zeros(len(sub), dtype=bool)])
+    ref = np.array([frame_ref.get(int(k), (-1, -1, -1)) for k in face_keys(faces)[is_frame]])
+    left = int((~same_winding(faces[is_frame], ref.reshape(-1, 3))).sum())
+    return faces, is_frame, left
+
+
+def repair_cell(
     grid: TileGrid,
     vertices: np.ndarray,
     normals: np.ndarray,
     faces: np.ndarray,
+    n_frame: int,
     r0: float,
     max_hole: float,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict]:
-    """Make the merged mesh manifold and close the cracks the tiles left along the seams.
+    """Repair the seam zone of one dual cell: ``faces[n_frame:]`` may change, the first
+    ``n_frame`` (the frame: neighbouring cells' and tile interiors' faces that share a vertex
+    with them) may not.
 
-    Faces the tiles disagree on overlap (over-shared edges, duplicates) or leave gaps; the
-    repair of :mod:`recon.triangulate` drops the extra faces and splits bow-tie vertices;
-    boundary loops that lie along a seam (``SEAM_LOOP_FRACTION`` of their vertices within
-    ``SEAM_BAND`` r0 of an inner tile face) and are small (perimeter <= pi ``max_hole`` [r0]) or
-    narrow (a crack: width <= ``CRACK_WIDTH`` r0) are zipped. Loops away from the seams are
-    left as the tiles made them.
+    The rules of the untiled fit: faces on over-shared edges
+    dropped (the frame's kept first), bow-ties split, seam cracks (loops along a seam, small or
+    narrow) zipped, the winding made consistent (and agreeing with the frame), then the small
+    holes orienting opened closed. Loops through a vertex only the frame uses (the sub-mesh's
+    cut-off edge) are never zipped.
+
+    Returns the vertices (with copies appended), normals, the editable faces after the repair,
+    and counts.
     """
-    stats = {"faces_merged": int(len(faces))}
-    n0 = len(faces)
-    faces = remove_non_manifold_faces(faces, len(vertices))
-    stats["faces_dropped"] = int(n0 - len(faces))
-    vertices, normals, faces = repair_non_manifold(vertices, normals, faces)
-    zipped = 0
-    for _ in range(3):
-        seam = _seam_vertices(grid, vertices, r0)
+
+    stats = {"faces_dropped": 0, "seam_loops_zipped": 0, "cut_orientation_conflicts": 0}
+    faces = np.asarray(faces, dtype=np.int64)
+    frame_faces = faces[:n_frame]
+    frame_ref = {int(k): tuple(f) for k, f in zip(face_keys(frame_faces), frame_faces, strict=True)}
+    frame_keys = np.fromiter(frame_ref.keys(), dtype=np.int64, count=len(frame_ref))
+    n_edit = len(faces) - n_frame
+
+    def tag(f: np.ndarray) -> np.ndarray:
+        return np.isin(face_keys(f), frame_keys)
+
+    def repair(v, n, f):
+        f = remove_non_manifold_faces(f, len(v))  # keeps the lowest indices: the frame first
+        fr = tag(f)
+        f = np.vstack([f[fr], f[~fr]])
+        fr = np.sort(fr)[::-1]
+        v, n, f = _split_keeping_frame(v, n, f, fr)
+        return v, n, f, fr
+
+    vertices, normals, faces, is_frame = repair(vertices, normals, faces)
+    stats["faces_dropped"] = int(n_edit - (~is_frame).sum())
+
+    def close(v, f, fr, rule) -> list[np.ndarray]:
+        opened = _open_vertices(f, fr, len(v))
         chosen = []
-        for loop in boundary_loops(faces):
-            if len(loop) < 3 or np.mean(seam[loop]) < SEAM_LOOP_FRACTION:
+        for loop in boundary_loops(f):
+            if len(loop) < 3 or opened[loop].any():
                 continue
-            ring = vertices[loop] / r0
-            perim = float(np.linalg.norm(ring - np.roll(ring, -1, axis=0), axis=1).sum())
-            if perim <= np.pi * max_hole or (len(loop) >= 4 and loop_width(ring) <= CRACK_WIDTH):
+            if rule(loop):
                 chosen.append(loop)
-        if not chosen:
-            break
-        edge_set = _edges_among(faces, np.concatenate(chosen), len(vertices))
-        new = [zip_loop(vertices, loop[::-1], edge_set) for loop in chosen]
-        if not new:
-            break
-        zipped += len(new)
-        faces = np.vstack([faces, *new])
-        vertices, normals, faces = repair_non_manifold(vertices, normals, faces)
-    faces = orient_consistently(vertices, normals, faces)
-    # orienting drops the faces of one-sided conflicts: repair what that leaves, close the
-    # small holes it opens (the rule of the untiled fit: perimeter <= pi max_hole, or a slit
-    # no wider than CRACK_WIDTH), orient again
-    for _ in range(2):
-        vertices, normals, faces = repair_non_manifold(vertices, normals, faces)
-        small = []
-        for loop in boundary_loops(faces):
-            if len(loop) < 3:
-                continue
-            ring = vertices[loop] / r0
-            perim = float(np.linalg.norm(ring - np.roll(ring, -1, axis=0), axis=1).sum())
-            slit = len(loop) >= 4 and loop_width(ring) <= CRACK_WIDTH
-            if perim <= np.pi * max_hole or (slit and perim <= 3 * np.pi * max_hole):
-                small.append(loop)
-        if small:
-            edge_set = _edges_among(faces, np.concatenate(small), len(vertices))
-            faces = np.vstack([faces, *[zip_loop(vertices, lp[::-1], edge_set) for lp in small]])
-            zipped += len(small)
-            vertices, normals, faces = repair_non_manifold(vertices, normals, faces)
-        faces = orient_consistently(vertices, normals, faces)
-        if not small:
-            break
-    vertices, normals, faces = repair_non_manifold(vertices, normals, faces)
-    vertices, normals, faces = drop_unreferenced(vertices, normals, faces)
-    stats["seam_loops_zipped"] = zipped
-    return vertices, normals, faces, stats
+        return chosen
 
+    def seam_rule(loop):
+        if np.mean(grid.seam_distance(vertices[loop]) <= SEAM_BAND * r0) < SEAM_LOOP_FRACTION:
+            return False
+        ring = vertices[loop] / r0
+        perim = float(np.linalg.norm(ring - np.roll(ring, -1, axis=0), axis=1).sum())
+        return perim <= np.pi * max_hole or (len(loop) >= 4 and loop_width(ring) <= CRACK_WIDTH)
 
-def seam_statistics(
-    grid: TileGrid, vertices: np.ndarray, faces: np.ndarray, owner: np.ndarray, r0: float
-) -> dict:
-    """Edges across tiles (``seam_edges``: their two ends owned by different tiles), the
-    boundary edges among them and within ``SEAM_BAND`` r0 of an inner tile face, and the
-    non-manifold edges of the whole mesh."""
-    edges, counts = count_edge_faces(faces)
-    cross = owner[edges[:, 0]] != owner[edges[:, 1]]
-    mid = vertices[edges].mean(axis=1)
-    near = grid.seam_distance(mid) <= SEAM_BAND * r0
-    boundary = counts == 1
-    return {
-        "seam_edges": int(cross.sum()),
-        "seam_boundary_edges": int((cross & boundary).sum()),
-        "boundary_edges_near_seams": int((near & boundary).sum()),
-        "non_manifold_edges": int((counts > 2).sum()),
-    }
+    def small_rule(loop):
+        ring = vertices[loop] / r0
+        perim = float(np.linalg.norm(ring - np.roll(ring, -1, axis=0), axis=1).sum())
+        slit = len(loop) >= 4 and loop_width(ring) <= CRACK_WIDTH
+        return perim <= np.pi * max_hole or (slit and perim <= 3 * np.pi * max_hole)
+
+    for rule, rounds in ((seam_rule, 3), (small_rule, 2)):
+        for _ in range(rounds):
+            if rule is small_rule:
+                faces, is_frame, _ = _orient_with_frame(
+                    vertices, normals, faces, is_frame, frame_ref
+                )
+                vertices, normals, faces, is_frame = repair(vertices, normals, faces)
+            chosen = close(vertices, faces, is_frame, rule)
+            if not chosen:
+                break
+            edge_set = _edges_among(faces, np.concatenate(chosen), len(vertices))
+            new = [zip_loop(vertices, loop[::-1], edge_set) for loop in chosen]
+            stats["seam_loops_zipped"] += len(new)
+            faces = np.vstack([faces, *new])
+            is_frame = np.concatenate([is_frame, np.zeros(sum(len(x) for x in new), dtype=bool)])
+            vertices, normals, faces, is_frame = repair(vertices, normals, faces)
+    faces, is_frame, left = _orient_with_frame(vertices, normals, faces, is_frame, frame_ref)
+    vertices, normals, faces, is_frame = repair(vertices, normals, faces)
+    stats["cut_orientation_conflicts"] = left
+    return vertices, normals, faces[~is_frame], stats

@@ -21,6 +21,7 @@ from typing import Any
 
 import numpy as np
 
+from .assemble import write_tile_mesh
 from .grid import TileGrid
 from .source import TileStore, read_box, read_tile
 
@@ -109,7 +110,7 @@ def fit_task(job: FitJob) -> dict:
     nrm = np.zeros((0, 3))
     rest = None
     if n_core >= MIN_TILE_POINTS:
-        normals = rows[:, 3:6] if job.store.columns == 6 else None
+        normals = job.store.normals(rows)
         try:
             pf = fit_particles(cloud_from_arrays(rows[:, :3], normals), cfg)
         except InputError as exc:
@@ -128,6 +129,7 @@ def fit_task(job: FitJob) -> dict:
         positions=pos[owned],
         normals=nrm[owned],
         rest=rest[owned] if rest is not None else np.zeros(0),
+        colors=vertex_colors(job.store, rows, pos[owned], job.r0),
     )
     # the particles close to the core's faces, inside and outside: the seam sign comparison
     band = SIGN_BAND * job.r0
@@ -137,6 +139,20 @@ def fit_task(job: FitJob) -> dict:
     result["border_out"] = (pos[near & ~owned], nrm[near & ~owned])
     result["seconds"] = time.perf_counter() - t0
     return result
+
+
+def vertex_colors(store: TileStore, rows: np.ndarray, vertices: np.ndarray, r0: float):
+    """Colours (uint8) of ``vertices`` from the input points ``rows`` of the tile and its halo
+    (:func:`recon.attributes.transfer_attributes`: the distance-weighted mean of the k
+    nearest), or an empty (0, 3) array when the scan has none."""
+    rgb = store.colors(rows)
+    if rgb is None or len(vertices) == 0 or len(rows) == 0:
+        return np.zeros((0, 3), dtype=np.uint8)
+    from ..attributes import transfer_attributes
+    from ..io import cloud_from_arrays
+
+    cloud = cloud_from_arrays(rows[:, :3], colors=rgb, merge_duplicates=False)
+    return transfer_attributes(cloud, vertices, r0, colors=True).colors
 
 
 def _injected_failure(job: FitJob, spec: str) -> None:
@@ -214,8 +230,9 @@ def mesh_task(job: MeshJob) -> dict:
     """Triangulate a tile over its particles and its neighbours' within the halo; keep the
     faces whose centroid lies in the tile's half-open core.
 
-    Returns ``faces`` (F, 3) int64 in global particle ids, where ``-1 - j`` stands for the
-    ``j``-th of ``new_vertices`` (vertices the repair added, absolute) with ``new_normals``.
+    The faces, in global particle ids (``-1 - j``: the ``j``-th vertex the tile's repair
+    added), go to the work folder split into seam zone, rim and interior
+    (:func:`recon.tiling.assemble.write_tile_mesh`); the result holds their counts.
     """
     _quiet_worker()
     from scipy.spatial import cKDTree
@@ -229,21 +246,16 @@ def mesh_task(job: MeshJob) -> dict:
     grid = job.store.grid
     cfg = config_from_dict(job.config)
     pos, nrm, rest, gid = _load_particles(job, grid)
-    empty = {
-        "tile": job.tile,
-        "faces": np.zeros((0, 3), dtype=np.int64),
-        "new_vertices": np.zeros((0, 3)),
-        "new_normals": np.zeros((0, 3)),
-        "seconds": 0.0,
-    }
+    empty = {"tile": job.tile, "faces": 0, "zone_faces": 0, "new_vertices": 0, "seconds": 0.0}
     if len(pos) < 3:
+        write_tile_mesh(job.work, job.tile, grid, job.r0, *_no_mesh())
         return empty
     lo, hi = grid.bounds(job.tile)
     centre = 0.5 * (lo + hi)
     r0 = job.r0
     x = (pos - centre) / r0
-    data = read_box(job.store, job.tile, grid.halo + r0)[:, :3]
-    data = (data - centre) / r0
+    rows = read_box(job.store, job.tile, grid.halo + r0)
+    data = (rows[:, :3] - centre) / r0
     tree = cKDTree(data) if len(data) else None
     tri_cfg = cfg.triangulation
     max_hole = tri_cfg.max_hole if tri_cfg.max_hole is not None else cfg.growth.max_gap
@@ -266,21 +278,49 @@ def mesh_task(job: MeshJob) -> dict:
         )
     faces = tri.faces
     if len(faces) == 0:
+        write_tile_mesh(job.work, job.tile, grid, r0, *_no_mesh())
         return empty
     # result vertices -> input particles (order kept; repair adds shifted copies at the end)
     d, src = cKDTree(x).query(tri.vertices)
     original = d <= 1e-9
-    centroid = tri.vertices[faces].mean(axis=1) * r0 + centre
-    faces = faces[grid.in_core(job.tile, centroid)]
     new_ids = np.flatnonzero(~original)
     code = np.empty(len(tri.vertices), dtype=np.int64)
     code[original] = gid[src[original]]
     code[new_ids] = -1 - np.arange(len(new_ids))
+    # untangle over the whole tile mesh (halo included); only the tile's own particles and its
+    # new vertices move (the neighbours' belong to their tiles); the moves go to the stitch
+    from ..intersections import untangle
+
+    own = ~original | (grid.cell_of(tri.vertices * r0 + centre) == job.tile)
+    fixed = ~own if tri.crease is None else ~own | np.asarray(tri.crease, dtype=bool)
+    moved_x, found, left = untangle(tri.vertices, faces, fixed=fixed)
+    moved = np.flatnonzero(np.any(moved_x != tri.vertices, axis=1) & original)
+    absolute = moved_x * r0 + centre
+    faces = faces[grid.in_core(job.tile, absolute[faces].mean(axis=1))]
+    counts = write_tile_mesh(
+        job.work,
+        job.tile,
+        grid,
+        r0,
+        absolute,
+        faces,
+        code,
+        absolute[new_ids],
+        tri.normals[new_ids],
+        vertex_colors(job.store, rows, absolute[new_ids], r0),
+        moved_ids=code[moved],
+        moved_positions=absolute[moved],
+    )
     return {
         "tile": job.tile,
-        "faces": code[faces],
-        "new_vertices": tri.vertices[new_ids] * r0 + centre,
-        "new_normals": tri.normals[new_ids],
+        **counts,
+        "self_intersections_found": int(found),
+        "self_intersections_left": int(left),
         "seconds": time.perf_counter() - t0,
         "stats": tri.stats,
     }
+
+
+def _no_mesh() -> tuple[np.ndarray, ...]:
+    z3 = np.zeros((0, 3))
+    return z3, np.zeros((0, 3), dtype=np.int64), np.zeros(0, dtype=np.int64), z3, z3

@@ -1,0 +1,197 @@
+"""The stitched mesh of a tiled fit streamed into its file, vertices block by block, then
+faces unit by unit (:func:`write_streamed`), as :func:`recon.io.write_mesh` writes PLY and
+OBJ; the particles likewise (:func:`write_particles_streamed`)."""
+
+from __future__ import annotations
+
+import itertools
+from collections import OrderedDict
+from pathlib import Path
+from typing import Any, BinaryIO
+
+import numpy as np
+
+from .assemble import CACHED_BLOCKS, VertexStore
+
+__all__ = ["coordinate_type", "write_particles_streamed", "write_streamed"]
+
+#: float32 coordinates when they keep this fraction of the extent (as recon.io.ply).
+FLOAT32_TOLERANCE = 1e-7
+_PLY_NAMES = {"f4": "float", "f8": "double", "u1": "uchar"}
+
+
+def _ply_vertex_props(coord_type: str, normals: bool, colors: bool) -> list[tuple[str, str]]:
+    props = [("x", coord_type), ("y", coord_type), ("z", coord_type)]
+    if normals:
+        props += [("nx", "f4"), ("ny", "f4"), ("nz", "f4")]
+    if colors:
+        props += [("red", "u1"), ("green", "u1"), ("blue", "u1")]
+    return props
+
+
+def write_vertex_rows(
+    fh: BinaryIO,
+    fmt: str,
+    pos: np.ndarray,
+    nrm: np.ndarray | None,
+    coord_type: str,
+    ascii: bool,
+    rgb: np.ndarray | None = None,
+) -> None:
+    """Append vertex rows as :func:`recon.io.write_mesh` writes them (OBJ: ``v`` lines, the
+    ``vn`` lines are written apart)."""
+    if fmt == "obj":
+        if rgb is None:
+            np.savetxt(fh, pos, fmt="v %.17g %.17g %.17g")
+        else:
+            data = np.hstack([pos, rgb.astype(np.float64) / 255.0])
+            np.savetxt(fh, data, fmt="v %.17g %.17g %.17g %.6g %.6g %.6g")
+        return
+    if ascii:
+        cols = [pos] + ([nrm] if nrm is not None else []) + ([rgb] if rgb is not None else [])
+        data = np.hstack([np.asarray(c, dtype=np.float64) for c in cols])
+        f = ["%.17g" if coord_type == "f8" else "%.9g"] * 3 + ["%.9g"] * (0 if nrm is None else 3)
+        f += ["%d"] * (0 if rgb is None else 3)
+        np.savetxt(fh, data, fmt=f, delimiter=" ")
+        return
+    props = _ply_vertex_props(coord_type, nrm is not None, rgb is not None)
+    rows = np.zeros(len(pos), dtype=[(n, "<" + t) for n, t in props])
+    for j, c in enumerate("xyz"):
+        rows[c] = pos[:, j]
+    if nrm is not None:
+        for j, c in enumerate(("nx", "ny", "nz")):
+            rows[c] = nrm[:, j]
+    if rgb is not None:
+        for j, c in enumerate(("red", "green", "blue")):
+            rows[c] = rgb[:, j]
+    fh.write(rows.tobytes())
+
+
+def write_face_rows(fh: BinaryIO, fmt: str, faces: np.ndarray, ascii: bool, normals: bool) -> None:
+    if len(faces) == 0:
+        return
+    if fmt == "obj":
+        f1 = faces + 1
+        if normals:
+            np.savetxt(fh, np.repeat(f1, 2, axis=1), fmt="f %d//%d %d//%d %d//%d")
+        else:
+            np.savetxt(fh, f1, fmt="f %d %d %d")
+        return
+    if ascii:
+        np.savetxt(fh, np.hstack([np.full((len(faces), 1), 3), faces]), fmt="%d")
+        return
+    rows = np.zeros(len(faces), dtype=[("n", "u1"), ("v", "<i4", (3,))])
+    rows["n"] = 3
+    rows["v"] = faces
+    fh.write(rows.tobytes())
+
+
+def coordinate_type(lo: np.ndarray, hi: np.ndarray) -> str:
+    """PLY coordinate type for vertices within ``[lo, hi]``: 'f4' when float32 keeps
+    :data:`FLOAT32_TOLERANCE` of the extent at the box's corners (the rule of
+    :mod:`recon.io.ply`), else 'f8'."""
+    xyz = np.array(list(itertools.product(*zip(lo, hi, strict=True))), dtype=np.float64)
+    if not np.isfinite(xyz).all():
+        return "f8"
+    with np.errstate(over="ignore"):
+        err = float(np.max(np.abs(xyz.astype(np.float32).astype(np.float64) - xyz)))
+    extent = float(np.max(xyz.max(axis=0) - xyz.min(axis=0)))
+    return "f4" if np.isfinite(err) and err <= FLOAT32_TOLERANCE * extent else "f8"
+
+
+def ply_header(
+    n_vertices: int,
+    n_faces: int | None,
+    coord_type: str,
+    normals: bool,
+    ascii: bool,
+    colors: bool = False,
+) -> bytes:
+    fmt = "ascii" if ascii else "binary_little_endian"
+    lines = ["ply", f"format {fmt} 1.0", "comment written by oprecon"]
+    lines.append(f"element vertex {n_vertices}")
+    props = _ply_vertex_props(coord_type, normals, colors)
+    lines += [f"property {_PLY_NAMES[t]} {n}" for n, t in props]
+    if n_faces is not None:
+        lines.append(f"element face {n_faces}")
+        lines.append("property list uchar int vertex_indices")
+    lines.append("end_header")
+    return ("\n".join(lines) + "\n").encode("ascii")
+
+
+def write_streamed(
+    path: Path,
+    stitched: dict[str, Any],
+    coord_type: str,
+    normals: bool,
+    ascii: bool,
+    colors: bool = False,
+) -> None:
+    """Write the stitched mesh to ``path`` (an open temporary, see :mod:`recon.io.files`):
+    vertices block by block, then faces unit by unit, renumbered to the used vertices."""
+    store: VertexStore = stitched["store"]
+    used: np.ndarray = stitched["used"]
+    starts = np.asarray(store.starts)
+    blocks = list(zip(store.starts, store.counts, strict=True))
+    prefix = np.concatenate([[0], np.cumsum([int(used[s : s + n].sum()) for s, n in blocks])])
+    fmt = "obj" if path.suffix.lower() == ".obj" else "ply"
+    ranks: OrderedDict[int, np.ndarray] = OrderedDict()
+
+    def new_ids(ids: np.ndarray) -> np.ndarray:
+        b = np.searchsorted(starts, ids, side="right") - 1
+        out = np.empty(len(ids), dtype=np.int64)
+        for k in np.unique(b):
+            k = int(k)
+            if k not in ranks:
+                s, n = store.starts[k], store.counts[k]
+                ranks[k] = np.cumsum(used[s : s + n]) - 1
+                if len(ranks) > CACHED_BLOCKS:
+                    ranks.popitem(last=False)
+            sel = b == k
+            out[sel] = prefix[k] + ranks[k][ids[sel] - store.starts[k]]
+        return out
+
+    with open(path, "wb") as fh:
+        if fmt == "ply":
+            n_used = int(used.sum())
+            fh.write(ply_header(n_used, stitched["n_faces"], coord_type, normals, ascii, colors))
+        else:
+            fh.write(b"# written by oprecon\n")
+        for k, (s, n) in enumerate(zip(store.starts, store.counts, strict=True)):
+            sel = used[s : s + n]
+            if not sel.any():
+                continue
+            p, nr, rgb = store.block(k)
+            if colors and len(rgb) != len(p):
+                rgb = np.zeros((len(p), 3), dtype=np.uint8)
+            write_vertex_rows(
+                fh,
+                fmt,
+                p[sel],
+                nr[sel] if normals else None,
+                coord_type,
+                ascii,
+                rgb[sel] if colors else None,
+            )
+        if fmt == "obj" and normals:
+            for k, (s, n) in enumerate(zip(store.starts, store.counts, strict=True)):
+                sel = used[s : s + n]
+                if sel.any():
+                    np.savetxt(fh, store.block(k)[1][sel], fmt="vn %.9g %.9g %.9g")
+        for unit in stitched["units"]:
+            f = unit()
+            f = f[(f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 0] != f[:, 2])]
+            if len(f):
+                write_face_rows(fh, fmt, new_ids(f.ravel()).reshape(-1, 3), ascii, normals)
+
+
+def write_particles_streamed(
+    path: Path, store: VertexStore, n_blocks: int, coord_type: str, ascii: bool
+) -> None:
+    """The particles (the store's first ``n_blocks`` blocks) as a PLY point cloud."""
+    n = int(sum(store.counts[:n_blocks]))
+    with open(path, "wb") as fh:
+        fh.write(ply_header(n, None, coord_type, True, ascii))
+        for k in range(n_blocks):
+            p, nr, _ = store.block(k)
+            write_vertex_rows(fh, "ply", p, nr, coord_type, ascii)

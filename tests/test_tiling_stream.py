@@ -1,0 +1,132 @@
+"""The coordinator of a tiled fit: seam repair cell by cell, topology unit by unit, the mesh
+streamed to its file (recon.tiling.assemble), on lattice meshes cut into tiles (no fit)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from recon.io import read_mesh
+from recon.tiling import TileGrid
+from recon.tiling.assemble import stitch_streamed, write_tile_mesh
+from recon.tiling.tasks import particles_path
+from recon.tiling.writer import coordinate_type, write_streamed
+from recon.topology import mesh_topology
+
+SIZE = 12.0  # tile side [r0]
+
+
+def lattice(n_tiles: int) -> tuple[np.ndarray, np.ndarray]:
+    """A gently curved square sheet of spacing 1 over n_tiles x n_tiles tiles."""
+    m = int(n_tiles * SIZE)
+    ij = np.stack(np.meshgrid(np.arange(m + 1), np.arange(m + 1), indexing="ij"), -1)
+    ij = ij.reshape(-1, 2)
+    xy = ij.astype(float) + 0.013  # off the tile faces
+    z = 0.3 * np.sin(xy[:, 0] / 7.0) * np.cos(xy[:, 1] / 5.0)
+    v = np.column_stack([xy, z])
+    idx = (ij[:, 0] * (m + 1) + ij[:, 1]).reshape(m + 1, m + 1)
+    a, b = idx[:-1, :-1].ravel(), idx[1:, :-1].ravel()
+    c, d = idx[1:, 1:].ravel(), idx[:-1, 1:].ravel()
+    f = np.vstack([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
+    return v, f
+
+
+def tile_work(tmp_path, n_tiles: int, defects: bool):
+    """Write what the mesh tasks would: each tile's particles and its faces (centroid in its
+    core); with ``defects`` one face across a seam is made twice and one is missing."""
+    v, f = lattice(n_tiles)
+    lo = v.min(axis=0) - 0.013
+    grid = TileGrid.cover(lo, v.max(axis=0), SIZE, 4.0)
+    owner = grid.cell_of(v)
+    order = np.argsort(owner, kind="stable")
+    gid = np.empty(len(v), dtype=np.int64)
+    gid[order] = np.arange(len(v))
+    counts = {}
+    centroid_tile = grid.cell_of(v[f].mean(axis=1))
+    cen = v[f].mean(axis=1)
+    inner = np.all((cen[:, :2] > 3) & (cen[:, :2] < n_tiles * SIZE - 3), axis=1)
+    seam = (grid.seam_distance(cen) < 1.0) & inner
+    extra = {}
+    missing = np.zeros(len(f), dtype=bool)
+    if defects:
+        k = np.flatnonzero(seam)[[0, -1]]  # far apart
+        missing[k[0]] = True  # a crack: one face lost at a seam
+        # a face both tiles made: the other tile of the seam outputs it too
+        neighbour = grid.cell_of(v[f[k[1]]].mean(axis=0, keepdims=True) + [[1.5, 0, 0]])[0]
+        if neighbour == centroid_tile[k[1]]:
+            neighbour = grid.cell_of(v[f[k[1]]].mean(axis=0, keepdims=True) - [[1.5, 0, 0]])[0]
+        extra[int(neighbour)] = f[k[1]][None]
+    results = {}
+    for t in range(grid.count):
+        own = owner == t
+        counts[t] = int(own.sum())
+        np.savez(
+            particles_path(tmp_path, t),
+            positions=v[own][np.argsort(gid[own])],
+            normals=np.tile([0.0, 0.0, 1.0], (int(own.sum()), 1)),
+            rest=np.zeros(0),
+        )
+        ft = f[(centroid_tile == t) & ~missing]
+        if t in extra:
+            ft = np.vstack([ft, extra[t]])
+        none = np.zeros((0, 3))
+        results[t] = write_tile_mesh(tmp_path, t, grid, 1.0, v, ft, gid, none, none)
+    return grid, counts, results, len(f)
+
+
+def stitch(tmp_path, n_tiles: int, defects: bool):
+    grid, counts, results, n_faces = tile_work(tmp_path, n_tiles, defects)
+    out = stitch_streamed(tmp_path, grid, counts, {}, results, 1.0, 3.0, particles_path)
+    return grid, out, n_faces
+
+
+@pytest.mark.parametrize("defects", [False, True])
+def test_streamed_mesh_and_its_topology_match_the_whole_mesh(tmp_path, defects):
+    grid, out, n_faces = stitch(tmp_path, 3, defects)
+    path = tmp_path / "mesh.ply"
+    write_streamed(path, out, coordinate_type(grid.lo, grid.lo + 40), True, False)
+    v, f = read_mesh(path)
+    whole = mesh_topology(v, f)
+    assert whole["boundary_loops"] == 1 and whole["non_manifold_edges"] == 0
+    assert whole["duplicate_faces"] == 0 and whole["non_manifold_vertices"] == 0
+    assert whole["unreferenced_vertices"] == 0 and whole["components"] == 1
+    assert whole["consistently_oriented"]
+    assert len(f) == n_faces  # the crack closed, the doubled face dropped
+    for key, value in out["topology"].items():
+        assert value == pytest.approx(whole[key]), key
+    if defects:
+        assert out["repair"]["faces_dropped"] >= 1 and out["repair"]["seam_loops_zipped"] >= 1
+
+
+def test_the_coordinator_holds_a_tile_not_the_scan(tmp_path):
+    """4x more tiles of the same size: 4x the faces, not a larger unit or seam cell held."""
+    held = {}
+    for n in (2, 4):
+        d = tmp_path / str(n)
+        d.mkdir()
+        _, out, n_faces = stitch(d, n, True)
+        held[n] = (out["memory"], n_faces, out["topology"])
+    small, large = held[2], held[4]
+    assert large[1] == 4 * small[1]
+    assert large[2]["boundary_loops"] == 1 and large[2]["non_manifold_edges"] == 0
+    # a dual cell's sub-mesh is at most the seams around one grid corner; a unit at most a tile
+    for key in ("largest_seam_cell_faces", "largest_unit_faces"):
+        assert large[0][key] <= 1.25 * small[0][key], key
+    assert large[0]["largest_unit_faces"] < 0.2 * large[1]
+
+
+def test_a_failing_write_leaves_nothing(tmp_path, monkeypatch):
+    from recon.io import atomic_output
+
+    grid, out, _ = stitch(tmp_path / ".", 2, False)
+    target = tmp_path / "out" / "mesh.ply"
+    target.parent.mkdir()
+    import recon.tiling.writer as writer
+
+    def boom(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(writer, "write_face_rows", boom)
+    with pytest.raises(KeyboardInterrupt), atomic_output(target) as tmp:
+        write_streamed(tmp, out, "f4", True, False)
+    assert list(target.parent.iterdir()) == []
