@@ -23,6 +23,25 @@ EXIT_BAD_INPUT = 2
 EXIT_INTERRUPTED = 130
 
 
+def format_rows(rows: list[tuple[str, str]], indent: str = "  ") -> list[str]:
+    """``name  value`` lines with the names padded to one column (the summaries' layout)."""
+    width = max(len(k) for k, _ in rows)
+    return [f"{indent}{k:<{width}}  {v}" for k, v in rows]
+
+
+def mesh_output_option(func: Callable[..., Any]) -> Callable[..., Any]:
+    """``-o/--output``: the mesh a command writes, with its report beside it."""
+    return click.option(
+        "-o",
+        "--output",
+        "output_path",
+        required=True,
+        type=click.Path(path_type=Path),
+        help="Mesh to write: .ply (binary unless --ascii) or .obj. A report "
+        "<name>.report.json is written beside it.",
+    )(func)
+
+
 def fail(message: str, code: int = EXIT_BAD_INPUT) -> None:
     """Print ``oprecon: error: message`` on stderr and exit with ``code``."""
     click.echo(f"oprecon: error: {message}", err=True)

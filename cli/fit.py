@@ -16,6 +16,8 @@ from .common import (
     catch_errors,
     common_run_options,
     config_options,
+    format_rows,
+    mesh_output_option,
     parse_viewpoint,
     threads_option,
 )
@@ -166,23 +168,14 @@ def format_summary(report: FitReport) -> str:
         )
     if report.stop_reason:
         rows.append(("growth stopped", report.stop_reason))
-    width = max(len(k) for k, _ in rows)
-    lines = [f"  {k:<{width}}  {v}" for k, v in rows]
+    lines = format_rows(rows)
     lines += [f"  warning: {w}" for w in report.warnings]
     return "\n".join(lines)
 
 
 @click.command("fit")
 @click.argument("input_path", metavar="INPUT", type=click.Path(path_type=Path))
-@click.option(
-    "-o",
-    "--output",
-    "output_path",
-    required=True,
-    type=click.Path(path_type=Path),
-    help="Mesh to write: .ply (binary unless --ascii) or .obj. A report "
-    "<name>.report.json is written beside it.",
-)
+@mesh_output_option
 @click.option(
     "--particles",
     "particles_path",
@@ -551,8 +544,7 @@ def format_tiled_summary(report: dict[str, Any]) -> str:
             f"{tiles['repair']['seam_loops_zipped']} cracks zipped",
         ),
     ]
-    width = max(len(k) for k, _ in rows)
-    lines = [f"  {k:<{width}}  {v}" for k, v in rows]
+    lines = format_rows(rows)
     lines += [f"  warning: {w}" for w in report["warnings"]]
     return "\n".join(lines)
 

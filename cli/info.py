@@ -10,7 +10,7 @@ import click
 
 from recon.serialize import dumps
 
-from .common import catch_errors
+from .common import catch_errors, format_rows
 from .fit import parse_classes
 
 
@@ -145,8 +145,7 @@ def format_table(d: dict[str, Any]) -> str:
             rows.append(("classes kept", ", ".join(map(str, d["classes_kept"]))))
     if any(d["origin"]):
         rows.append(("origin", f"{_vec(d['origin'])} (subtracted internally for precision)"))
-    width = max(len(k) for k, _ in rows)
-    return "\n".join(f"{k.ljust(width)}  {v}" for k, v in rows)
+    return "\n".join(format_rows(rows, indent=""))
 
 
 @click.command("info")

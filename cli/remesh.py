@@ -8,7 +8,14 @@ from typing import Any
 
 import click
 
-from .common import EXIT_CHECK_FAILED, catch_errors, common_run_options, threads_option
+from .common import (
+    EXIT_CHECK_FAILED,
+    catch_errors,
+    common_run_options,
+    format_rows,
+    mesh_output_option,
+    threads_option,
+)
 
 
 def format_summary(report: dict[str, Any]) -> str:
@@ -61,8 +68,7 @@ def format_summary(report: dict[str, Any]) -> str:
     if report.get("spacing_range"):
         lo, hi = report["spacing_range"]
         rows.insert(1, ("adaptive spacing", f"{lo:.4g} to {hi:.4g}"))
-    width = max(len(k) for k, _ in rows)
-    lines = [f"  {k:<{width}}  {v}" for k, v in rows]
+    lines = format_rows(rows)
     lines += [f"  repaired: {r}" for r in report["input"]["repairs"]]
     lines += [f"  warning: {w}" for w in report["warnings"]]
     return "\n".join(lines)
@@ -70,15 +76,7 @@ def format_summary(report: dict[str, Any]) -> str:
 
 @click.command("remesh")
 @click.argument("input_path", metavar="INPUT", type=click.Path(path_type=Path))
-@click.option(
-    "-o",
-    "--output",
-    "output_path",
-    required=True,
-    type=click.Path(path_type=Path),
-    help="Mesh to write: .ply (binary unless --ascii) or .obj. A report <name>.report.json "
-    "is written beside it.",
-)
+@mesh_output_option
 @click.option(
     "--spacing",
     type=click.FloatRange(min=0, min_open=True),
