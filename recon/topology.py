@@ -65,6 +65,18 @@ __all__ = ["count_edge_faces", "mesh_topology", "triangle_quality", "validate_me
 
 #: A face is degenerate when ``2 * area <= DEGENERATE_AREA_RATIO * longest_edge**2``.
 DEGENERATE_AREA_RATIO = 1e-12
+#: The fields of :func:`triangle_quality` (also measured tile by tile by ``recon.tiling``).
+TRIANGLE_QUALITY_KEYS = (
+    "min_angle_mean_deg",
+    "min_angle_p5_deg",
+    "min_angle_min_deg",
+    "max_angle_max_deg",
+    "aspect_ratio_mean",
+    "aspect_ratio_p95",
+    "aspect_ratio_max",
+    "edge_length_mean",
+    "edge_length_cv",
+)
 
 
 def validate_mesh(vertices: Any, faces: Any) -> tuple[np.ndarray, np.ndarray]:
@@ -320,17 +332,7 @@ def triangle_quality(vertices: Any, faces: Any) -> dict[str, Any]:
     v, f = validate_mesh(vertices, faces)
     _, degenerate = _degenerate_mask(v, f)
     f = f[~degenerate]
-    keys = (
-        "min_angle_mean_deg",
-        "min_angle_p5_deg",
-        "min_angle_min_deg",
-        "max_angle_max_deg",
-        "aspect_ratio_mean",
-        "aspect_ratio_p95",
-        "aspect_ratio_max",
-        "edge_length_mean",
-        "edge_length_cv",
-    )
+    keys = TRIANGLE_QUALITY_KEYS
     if len(f) == 0:
         return {"n_measured": 0, **dict.fromkeys(keys)}
 

@@ -76,6 +76,28 @@ def bin_particles(position, cell_size):
             coords[i, c] = k
             if k + 1 > dims[c]:
                 dims[c] = k + 1
+    order, cell_keys, cell_start, particle_cell = sort_into_cells(coords, dims)
+    return order, cell_keys, cell_start, particle_cell, dims, lo
+
+
+@njit(**JIT_OPTIONS)
+def sort_into_cells(coords, dims):
+    """Group items by their integer cell coordinates (the binning shared by every grid).
+
+    The key of cell (x, y, z) is (x n_y + y) n_z + z; items are sorted by key, stably.
+
+    Returns
+    -------
+    order : (n,) int64
+        Item indices sorted by cell key (ascending index within a cell).
+    cell_keys : (m,) int64
+        Sorted keys of the m occupied cells.
+    cell_start : (m + 1,) int64
+        ``order[cell_start[c]:cell_start[c + 1]]`` are the items of occupied cell c.
+    item_cell : (n,) int64
+        Occupied-cell index of every item.
+    """
+    n = coords.shape[0]
     keys = np.zeros(n, dtype=np.int64)
     for i in range(n):
         keys[i] = (coords[i, 0] * dims[1] + coords[i, 1]) * dims[2] + coords[i, 2]
@@ -86,7 +108,7 @@ def bin_particles(position, cell_size):
             m += 1
     cell_keys = np.zeros(m, dtype=np.int64)
     cell_start = np.zeros(m + 1, dtype=np.int64)
-    particle_cell = np.zeros(n, dtype=np.int64)
+    item_cell = np.zeros(n, dtype=np.int64)
     c = -1
     for p in range(n):
         key = keys[order[p]]
@@ -94,13 +116,13 @@ def bin_particles(position, cell_size):
             c += 1
             cell_keys[c] = key
             cell_start[c] = p
-        particle_cell[order[p]] = c
+        item_cell[order[p]] = c
     cell_start[m] = n
-    return order, cell_keys, cell_start, particle_cell, dims, lo
+    return order, cell_keys, cell_start, item_cell
 
 
 @njit(inline="always", **JIT_OPTIONS)
-def _hash(key):
+def cell_hash(key):
     """Mix the bits of a non-negative cell key (for the open-addressing table)."""
     # (31 bits) x (32 bits) < 2**63: no overflow, also without the JIT
     h = (key & 0x7FFFFFFF) * 0x9E3779B1
@@ -150,7 +172,7 @@ def build_neighbor_list_kernel(position, radius, row_capacity):
     slot_key = np.full(size, -1, dtype=np.int64)
     slot_cell = np.zeros(size, dtype=np.int64)
     for c in range(m):
-        h = _hash(cell_keys[c]) & mask
+        h = cell_hash(cell_keys[c]) & mask
         while slot_key[h] != -1:
             h = (h + 1) & mask
         slot_key[h] = cell_keys[c]
@@ -171,7 +193,7 @@ def build_neighbor_list_kernel(position, radius, row_capacity):
                     z = cz + dz
                     if 0 <= x < nx and 0 <= y < ny and 0 <= z < nz:
                         key2 = (x * ny + y) * nz + z
-                        h = _hash(key2) & mask
+                        h = cell_hash(key2) & mask
                         while slot_key[h] != -1:
                             if slot_key[h] == key2:
                                 cell_neighbors[c, k] = slot_cell[h]

@@ -44,6 +44,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
+from .cell_list import cell_hash, sort_into_cells
 from .options import EXACT_JIT_OPTIONS
 
 _PARALLEL = dict(EXACT_JIT_OPTIONS, parallel=True)
@@ -51,14 +52,6 @@ _PARALLEL = dict(EXACT_JIT_OPTIONS, parallel=True)
 #: Shell margin: a point is taken to be at least (R - SHELL_MARGIN) h from a query outside its
 #: shell R, which absorbs the rounding of the cell coordinates.
 SHELL_MARGIN = 1e-6
-
-
-@njit(inline="always", **EXACT_JIT_OPTIONS)
-def _mix(key):
-    """Mix the bits of a non-negative cell key (for the open-addressing table)."""
-    h = (key & 0x7FFFFFFF) * 0x9E3779B1
-    h = h ^ (key >> 31) ^ (h >> 29)
-    return h & 0x7FFFFFFFFFFFFFFF
 
 
 @njit(**EXACT_JIT_OPTIONS)
@@ -98,24 +91,8 @@ def grid_build(points, cell_size):  # pragma: no cover - numba
             coords[i, c] = k
             if k + 1 > dims[c]:
                 dims[c] = k + 1
-    keys = np.zeros(n, dtype=np.int64)
-    for i in range(n):
-        keys[i] = (coords[i, 0] * dims[1] + coords[i, 1]) * dims[2] + coords[i, 2]
-    order = np.argsort(keys, kind="mergesort").astype(np.int64)
-    m = 0
-    for p in range(n):
-        if p == 0 or keys[order[p]] != keys[order[p - 1]]:
-            m += 1
-    cell_keys = np.zeros(m, dtype=np.int64)
-    cell_start = np.zeros(m + 1, dtype=np.int64)
-    c = -1
-    for p in range(n):
-        key = keys[order[p]]
-        if p == 0 or key != keys[order[p - 1]]:
-            c += 1
-            cell_keys[c] = key
-            cell_start[c] = p
-    cell_start[m] = n
+    order, cell_keys, cell_start, _ = sort_into_cells(coords, dims)
+    m = cell_keys.shape[0]
     size = 1
     while size < 4 * m:
         size *= 2
@@ -123,7 +100,7 @@ def grid_build(points, cell_size):  # pragma: no cover - numba
     slot_key = np.full(size, -1, dtype=np.int64)
     slot_cell = np.zeros(size, dtype=np.int64)
     for c in range(m):
-        h = _mix(cell_keys[c]) & mask
+        h = cell_hash(cell_keys[c]) & mask
         while slot_key[h] != -1:
             h = (h + 1) & mask
         slot_key[h] = cell_keys[c]
@@ -142,7 +119,7 @@ def _lookup(x, y, z, dims, slot_key, slot_cell):
         return -1
     key = (x * dims[1] + y) * dims[2] + z
     mask = slot_key.shape[0] - 1
-    h = _mix(key) & mask
+    h = cell_hash(key) & mask
     while slot_key[h] != -1:
         if slot_key[h] == key:
             return slot_cell[h]

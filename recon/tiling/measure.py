@@ -10,6 +10,7 @@ from scipy import sparse
 from scipy.sparse import csgraph
 
 from ..mesh import vertex_fans
+from ..topology import TRIANGLE_QUALITY_KEYS
 from .grid import TileGrid
 from .stitch import face_keys
 
@@ -187,17 +188,7 @@ class TopologyAccumulator:
         return float(0.5 * (bins[i] + bins[i + 1]))
 
     def quality(self) -> dict[str, Any]:
-        keys = (
-            "min_angle_mean_deg",
-            "min_angle_p5_deg",
-            "min_angle_min_deg",
-            "max_angle_max_deg",
-            "aspect_ratio_mean",
-            "aspect_ratio_p95",
-            "aspect_ratio_max",
-            "edge_length_mean",
-            "edge_length_cv",
-        )
+        keys = TRIANGLE_QUALITY_KEYS
         if self.q_n == 0:
             return {"n_measured": 0, **dict.fromkeys(keys)}
         mean_len = self.q_len_sum / self.q_len_n
