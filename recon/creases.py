@@ -60,6 +60,23 @@ COHERENCE = 1.2
 GAP = 0.3
 MIN_CORNER_POINTS = 3
 GROUP_RADIUS = 3.0
+#: A crease line must be at least this many neighbourhood radii long (its crease and corner
+#: points linked within LINK_RADIUS radii, crease points only to parallel ones).
+MIN_LINE_RADII = 5.0
+LINK_RADIUS = 0.5
+LINE_LINK = 1.5
+LINE_OFFSET = 0.25
+LINK_ANGLE_DEG = 20.0
+#: ... and its neighbourhoods must be a fold: two planes fit them at least this many times
+#: better (RMS distance, median over the line) than one quadric.
+FOLD_RATIO = 1.5
+#: ... and the two planes must explain them down to the noise: RMS distance at most
+#: NOISE_RATIO times the noise floor (the NOISE_QUANTILE of the one-quadric RMS residuals of
+#: NOISE_SAMPLE points of the whole cloud: the flat and smooth parts' scatter).
+NOISE_RATIO = 1.5
+NOISE_QUANTILE = 25.0
+NOISE_SAMPLE = 2000
+NOISE_MIN = 1e-3
 
 
 @dataclass(frozen=True)
@@ -149,6 +166,7 @@ def detect_creases(
     h = np.sqrt(np.pi * dist[:, -1] ** 2 / kk)
     label = _reach_line(pts, tree, label, direction, foot, h, kk)
     label = _coherent(pts, label, direction, idx, dist[:, -1])
+    label = _long_folds(pts, label, side, direction, foot, idx, dist[:, -1], h)
     corners, lone = _group_corners(label, corner, float(np.median(h)))
     label[lone] = SMOOTH
     length = _line_length(foot[label == CREASE], h[label == CREASE])
@@ -223,6 +241,133 @@ def _coherent(
     out = label.copy()
     out[sel[t_max - t_min < COHERENCE * radius[sel]]] = SMOOTH
     return out
+
+
+def _long_folds(
+    pts: np.ndarray,
+    label: np.ndarray,
+    side: np.ndarray,
+    direction: np.ndarray,
+    foot: np.ndarray,
+    idx: np.ndarray,
+    radius: np.ndarray,
+    h: np.ndarray,
+) -> np.ndarray:
+    """Keep the feature points of long folds only. Crease and corner points are linked into
+    lines (within ``LINK_RADIUS`` neighbourhood radii; two crease points only when their
+    directions agree to ``LINK_ANGLE_DEG``; corner points link to any), and a line is kept when
+
+    - it is at least ``MIN_LINE_RADII`` neighbourhood radii long (measured along the feet,
+      :func:`_line_length`): a tight bend or a kink of a scan gives short fragments, a
+      machined edge runs on, through its corners, into the next edge;
+    - its neighbourhoods are folds, not bends: the RMS distance of the neighbours to one
+      quadric height field over their plane is at least ``FOLD_RATIO`` times the distance to
+      the nearer of two planes (median over the line's crease points). A quadric fits a smooth
+      bend as well as two planes do, or better; across a sharp crease it misses by a fraction
+      of the radius while the two planes are exact up to the noise.
+    """
+    feat = np.flatnonzero(label != SMOOTH)
+    if len(feat) == 0:
+        return label
+    is_crease = label[feat] == CREASE
+    rad = float(np.median(radius[feat]))
+    # crease points: feet on one line (parallel, the other's foot near the line)
+    cr = feat[is_crease]
+    pos = np.where(is_crease[:, None], np.nan_to_num(foot[feat]), pts[feat])
+    pairs = cKDTree(pos).query_pairs(LINE_LINK * rad, output_type="ndarray")
+    a, b = pairs[:, 0], pairs[:, 1]
+    dirs = direction[feat]
+    cos = np.abs(np.einsum("ij,ij->i", dirs[a], dirs[b]))
+    rel = pos[b] - pos[a]
+    t = np.einsum("ij,ij->i", rel, dirs[a])
+    off = np.linalg.norm(rel - t[:, None] * dirs[a], axis=1)
+    both = is_crease[a] & is_crease[b]
+    line = both & (cos > np.cos(np.radians(LINK_ANGLE_DEG))) & (off < LINE_OFFSET * rad)
+    # corner points: any feature point near them
+    near = ~both & (np.linalg.norm(pts[feat[a]] - pts[feat[b]], axis=1) < LINK_RADIUS * rad)
+    keep = line | near
+    graph = sparse.coo_matrix(
+        (np.ones(int(keep.sum())), (a[keep], b[keep])), shape=(len(feat), len(feat))
+    )
+    n_comp, comp = csgraph.connected_components(graph, directed=False)
+    ratio = np.full(len(feat), np.nan)
+    plane_res = np.full(len(feat), np.nan)
+    if len(cr):
+        res_q, res_p = _fold_residuals(pts, idx[cr], side[cr, :2], foot[cr], radius[cr])
+        ratio[is_crease] = res_q / np.maximum(res_p, 1e-12)
+        plane_res[is_crease] = res_p
+    floor = _noise_floor(pts, idx, radius)
+    out = label.copy()
+    for c in range(n_comp):
+        m = comp == c
+        mc = m & is_crease
+        length = _line_length(foot[feat[mc]], h[feat[mc]]) if mc.any() else 0.0
+        long_enough = length >= MIN_LINE_RADII * float(np.median(radius[feat[m]]))
+        fold = (
+            mc.any()
+            and float(np.median(ratio[mc])) >= FOLD_RATIO
+            and float(np.median(plane_res[mc])) <= NOISE_RATIO * floor
+        )
+        if not (long_enough and fold):
+            out[feat[m]] = SMOOTH
+    return out
+
+
+def _quadric_residual(nb: np.ndarray, scale: np.ndarray) -> np.ndarray:
+    """RMS residual [length] of one quadric height field fitted to each row of points ``nb``
+    (m, k, 3) over their PCA plane (``scale``: (m, 1, 1) lengths for the conditioning)."""
+    rel = (nb - nb.mean(axis=1, keepdims=True)) / scale
+    _, vec = np.linalg.eigh(np.einsum("mki,mkj->mij", rel, rel))
+    x = np.einsum("mki,mi->mk", rel, vec[:, :, 2])
+    y = np.einsum("mki,mi->mk", rel, vec[:, :, 1])
+    z = np.einsum("mki,mi->mk", rel, vec[:, :, 0])
+    basis = np.stack([np.ones_like(x), x, y, x * x, x * y, y * y], axis=-1)
+    gram = np.einsum("mki,mkj->mij", basis, basis) + 1e-9 * np.eye(6)
+    coef = np.linalg.solve(gram, np.einsum("mki,mk->mi", basis, z)[..., None])[..., 0]
+    res = np.sqrt(np.mean((np.einsum("mki,mi->mk", basis, coef) - z) ** 2, axis=1))
+    return res * scale[:, 0, 0]
+
+
+def _noise_floor(pts: np.ndarray, idx: np.ndarray, radius: np.ndarray) -> float:
+    """The data's scatter [length]: the ``NOISE_QUANTILE`` percentile of the one-quadric RMS
+    residuals of ``NOISE_SAMPLE`` evenly spread points (most of a surface is smooth there), at
+    least ``NOISE_MIN`` neighbourhood radii."""
+    step = max(1, len(pts) // NOISE_SAMPLE)
+    s = np.arange(0, len(pts), step)
+    res = _quadric_residual(pts[idx[s]], np.maximum(radius[s], 1e-300)[:, None, None])
+    # exact data: rounding only (float32 input quantises at ~1e-7 of the coordinates)
+    return max(float(np.percentile(res, NOISE_QUANTILE)), NOISE_MIN * float(np.median(radius)))
+
+
+def _fold_residuals(
+    pts: np.ndarray, idx: np.ndarray, side: np.ndarray, foot: np.ndarray, radius: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per crease point: RMS residual [length] of one quadric height field fitted to its
+    neighbours ``idx`` over their PCA plane, and the RMS distance to the nearer of its two side
+    planes (refitted to the neighbours by PCA, each neighbour assigned to the nearer one)."""
+    nb = pts[idx]  # (m, k, 3)
+    scale = np.maximum(radius, 1e-300)[:, None, None]
+    res_quadric = _quadric_residual(nb, scale)
+    local = (nb - foot[:, None]) / scale
+    na, nb_ = side[:, 0].copy(), side[:, 1].copy()
+    ca = np.zeros_like(na)
+    cb = np.zeros_like(nb_)
+    for _ in range(6):
+        da = np.abs(np.einsum("mkj,mj->mk", local - ca[:, None], na))
+        db = np.abs(np.einsum("mkj,mj->mk", local - cb[:, None], nb_))
+        for mask, n, c in ((da <= db, na, ca), (da > db, nb_, cb)):
+            w = mask.astype(np.float64)
+            cnt = w.sum(axis=1)
+            cen = np.einsum("mk,mkj->mj", w, local) / np.maximum(cnt, 1.0)[:, None]
+            r = (local - cen[:, None]) * w[..., None]
+            _, v = np.linalg.eigh(np.einsum("mki,mkj->mij", r, r))
+            ok = cnt >= 3
+            n[ok] = v[ok, :, 0]
+            c[ok] = cen[ok]
+    da = np.abs(np.einsum("mkj,mj->mk", local - ca[:, None], na))
+    db = np.abs(np.einsum("mkj,mj->mk", local - cb[:, None], nb_))
+    res_planes = np.sqrt(np.mean(np.minimum(da, db) ** 2, axis=1)) * scale[:, 0, 0]
+    return res_quadric, res_planes
 
 
 def _pca(pts: np.ndarray, tree: cKDTree, k: int) -> tuple[np.ndarray, np.ndarray]:

@@ -125,6 +125,24 @@ def test_rounded_edge_is_not_a_crease():
     assert (detect_creases(_filleted(0.002)).labels == CREASE).sum() > 50
 
 
+def _short_wedge(length, n=4000, seed=0):
+    """The 90 deg wedge of ``wedge_points`` cut to a crease ``length`` long (same density)."""
+    rng = np.random.default_rng(seed)
+    m = int(n * length)
+    u = rng.uniform(0.0, 1.0, (m, 2)) * [1.0, length] - [0.0, length / 2]
+    v = rng.uniform(0.0, 1.0, (m, 2)) * [1.0, length] - [0.0, length / 2]
+    return np.r_[np.c_[-u[:, 0], u[:, 1], np.zeros(m)], np.c_[np.zeros(m), v[:, 1], v[:, 0]]]
+
+
+def test_a_short_fold_is_not_a_crease_a_long_one_is():
+    # regression: a sharp fold only ~4 neighbourhood radii long (0.25; radius ~0.064) was a
+    # crease, as were the short fragments on tight bends of smooth scans (bunny, face)
+    assert not (detect_creases(_short_wedge(0.25)).labels != SMOOTH).any()
+    found = detect_creases(_short_wedge(0.6))
+    assert (found.labels == CREASE).sum() > 50
+    assert 0.45 < found.length < 0.65
+
+
 def test_threshold_above_the_turn_finds_nothing():
     found = detect_creases(wedge_points(90), angle_deg=100.0)
     assert not (found.labels != SMOOTH).any()
@@ -182,8 +200,8 @@ def test_detection_is_deterministic_and_orientation_free():
 
 
 def test_config_and_cli(tmp_path):
-    # off by default; --crease-angle turns it on, --no-creases off
-    assert not CreasesConfig().enabled and 0 < ReconConfig().creases.angle_deg < 90
+    # on by default; --crease-angle sets the angle, --no-creases turns it off
+    assert CreasesConfig().enabled and 0 < ReconConfig().creases.angle_deg < 90
     src = tmp_path / "lblock.ply"
     write_points(src, _lblock(n=3000))
     runner = CliRunner()
@@ -203,7 +221,8 @@ def test_config_and_cli(tmp_path):
     assert "creases" not in json.loads((tmp_path / "b.report.json").read_text())
     res = runner.invoke(app, ["fit", str(src), "-o", str(tmp_path / "d.ply"), *fast])
     assert res.exit_code == 0, res.output
-    assert "creases" not in json.loads((tmp_path / "d.report.json").read_text())
+    # defaults detect the creases too
+    assert json.loads((tmp_path / "d.report.json").read_text())["creases"]["length"] > 0
     # the creases change the mesh; with creases.fit=false detection only feeds the report
     assert (tmp_path / "a.ply").read_bytes() != (tmp_path / "b.ply").read_bytes()
     report_only = ["--crease-angle", "60", "--set", "creases.fit=false"]
