@@ -63,8 +63,8 @@ GROUP_RADIUS = 3.0
 #: A crease line must be at least this many neighbourhood radii long (its crease and corner
 #: points linked within LINK_RADIUS radii, crease points only to parallel ones).
 MIN_LINE_RADII = 5.0
-LINK_RADIUS = 0.5
-LINE_LINK = 1.5
+LINK_RADIUS = 1.5
+LINE_LINK = 2.5
 LINE_OFFSET = 0.25
 LINK_ANGLE_DEG = 20.0
 #: ... and its neighbourhoods must be a fold: two planes fit them at least this many times
@@ -344,7 +344,9 @@ def _fold_residuals(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Per crease point: RMS residual [length] of one quadric height field fitted to its
     neighbours ``idx`` over their PCA plane, and the RMS distance to the nearer of its two side
-    planes (refitted to the neighbours by PCA, each neighbour assigned to the nearer one)."""
+    planes (refitted to the neighbours by PCA, each neighbour assigned to the nearer one), each
+    side allowed to bend along the crease line (a quadratic in the along-line coordinate: the
+    wall of a hole or boss meets its face along a circle) but not across it."""
     nb = pts[idx]  # (m, k, 3)
     scale = np.maximum(radius, 1e-300)[:, None, None]
     res_quadric = _quadric_residual(nb, scale)
@@ -364,10 +366,24 @@ def _fold_residuals(
             ok = cnt >= 3
             n[ok] = v[ok, :, 0]
             c[ok] = cen[ok]
-    da = np.abs(np.einsum("mkj,mj->mk", local - ca[:, None], na))
-    db = np.abs(np.einsum("mkj,mj->mk", local - cb[:, None], nb_))
-    res_planes = np.sqrt(np.mean(np.minimum(da, db) ** 2, axis=1)) * scale[:, 0, 0]
-    return res_quadric, res_planes
+    sa = np.einsum("mkj,mj->mk", local - ca[:, None], na)
+    sb = np.einsum("mkj,mj->mk", local - cb[:, None], nb_)
+    on_a = np.abs(sa) <= np.abs(sb)
+    d = np.cross(na, nb_)
+    d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-300)
+    t = np.einsum("mkj,mj->mk", local, d)
+    sq = np.zeros(len(idx))
+    for mask, dist, n in ((on_a, sa, na), (~on_a, sb, nb_)):
+        # each side may bend along the line (a hole's or a boss's wall), not across it
+        across = np.cross(d, n)
+        u = np.einsum("mkj,mj->mk", local, across)
+        w = mask.astype(np.float64)
+        basis = np.stack([np.ones_like(t), u, t, t * t], axis=-1) * w[..., None]
+        gram = np.einsum("mki,mkj->mij", basis, basis) + 1e-9 * np.eye(4)
+        coef = np.linalg.solve(gram, np.einsum("mki,mk->mi", basis, dist * w)[..., None])[..., 0]
+        sq += np.sum(w * (np.einsum("mki,mi->mk", basis, coef) - dist * w) ** 2, axis=1)
+    res_sides = np.sqrt(sq / idx.shape[1]) * scale[:, 0, 0]
+    return res_quadric, res_sides
 
 
 def _pca(pts: np.ndarray, tree: cKDTree, k: int) -> tuple[np.ndarray, np.ndarray]:
