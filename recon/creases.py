@@ -69,14 +69,18 @@ LINE_OFFSET = 0.25
 LINK_ANGLE_DEG = 20.0
 #: ... and its neighbourhoods must be a fold: two planes fit them at least this many times
 #: better (RMS distance, median over the line) than one quadric.
-FOLD_RATIO = 1.5
+FOLD_RATIO = 1.25
 #: ... and the two planes must explain them down to the noise: RMS distance at most
 #: NOISE_RATIO times the noise floor (the NOISE_QUANTILE of the one-quadric RMS residuals of
 #: NOISE_SAMPLE points of the whole cloud: the flat and smooth parts' scatter).
 NOISE_RATIO = 1.5
 NOISE_QUANTILE = 25.0
 NOISE_SAMPLE = 2000
-NOISE_MIN = 1e-3
+NOISE_MIN = 0.01
+#: ... and one quadric must miss them (beyond the noise: sqrt(res_quadric**2 - res_sides**2))
+#: by at least SHARPNESS times what it misses on the exact fold of the same two planes (the
+#: neighbours moved onto them): a tight smooth bend of the same turn is easier to fit.
+SHARPNESS = 0.9
 
 
 @dataclass(frozen=True)
@@ -260,11 +264,14 @@ def _long_folds(
     - it is at least ``MIN_LINE_RADII`` neighbourhood radii long (measured along the feet,
       :func:`_line_length`): a tight bend or a kink of a scan gives short fragments, a
       machined edge runs on, through its corners, into the next edge;
-    - its neighbourhoods are folds, not bends: the RMS distance of the neighbours to one
-      quadric height field over their plane is at least ``FOLD_RATIO`` times the distance to
-      the nearer of two planes (median over the line's crease points). A quadric fits a smooth
-      bend as well as two planes do, or better; across a sharp crease it misses by a fraction
-      of the radius while the two planes are exact up to the noise.
+    - its neighbourhoods are folds, not bends (medians over the line's crease points): one
+      quadric height field misses the neighbours by at least ``FOLD_RATIO`` times the RMS
+      distance to the two sides (each a plane that may bend along the line); the sides fit down
+      to the noise floor (:func:`_noise_floor`, ``NOISE_RATIO``); and the quadric's miss beyond
+      the noise is at least ``SHARPNESS`` times its miss on the exact fold of the same two
+      planes. A quadric fits a smooth bend as well as two planes do, or better, and a tight
+      bend of the same turn better than the sharp fold; across a sharp crease it misses by a
+      fraction of the radius while the two planes are exact up to the noise.
     """
     feat = np.flatnonzero(label != SMOOTH)
     if len(feat) == 0:
@@ -292,10 +299,14 @@ def _long_folds(
     n_comp, comp = csgraph.connected_components(graph, directed=False)
     ratio = np.full(len(feat), np.nan)
     plane_res = np.full(len(feat), np.nan)
+    sharpness = np.full(len(feat), np.nan)
     if len(cr):
-        res_q, res_p = _fold_residuals(pts, idx[cr], side[cr, :2], foot[cr], radius[cr])
+        res_q, res_p, res_i = _fold_residuals(pts, idx[cr], side[cr, :2], foot[cr], radius[cr])
         ratio[is_crease] = res_q / np.maximum(res_p, 1e-12)
         plane_res[is_crease] = res_p
+        sharpness[is_crease] = np.sqrt(np.maximum(res_q**2 - res_p**2, 0.0)) / np.maximum(
+            res_i, 1e-300
+        )
     floor = _noise_floor(pts, idx, radius)
     out = label.copy()
     for c in range(n_comp):
@@ -307,6 +318,7 @@ def _long_folds(
             mc.any()
             and float(np.median(ratio[mc])) >= FOLD_RATIO
             and float(np.median(plane_res[mc])) <= NOISE_RATIO * floor
+            and float(np.median(sharpness[mc])) >= SHARPNESS
         )
         if not (long_enough and fold):
             out[feat[m]] = SMOOTH
@@ -383,7 +395,13 @@ def _fold_residuals(
         coef = np.linalg.solve(gram, np.einsum("mki,mk->mi", basis, dist * w)[..., None])[..., 0]
         sq += np.sum(w * (np.einsum("mki,mi->mk", basis, coef) - dist * w) ** 2, axis=1)
     res_sides = np.sqrt(sq / idx.shape[1]) * scale[:, 0, 0]
-    return res_quadric, res_sides
+    # the same neighbours moved onto the sharp fold of the two planes: what one quadric
+    # misses on an exact crease of this turn and extent
+    ideal = local - np.where(
+        on_a[..., None], sa[..., None] * na[:, None], sb[..., None] * nb_[:, None]
+    )
+    res_ideal = _quadric_residual(ideal * scale, scale)
+    return res_quadric, res_sides, res_ideal
 
 
 def _pca(pts: np.ndarray, tree: cKDTree, k: int) -> tuple[np.ndarray, np.ndarray]:
