@@ -143,6 +143,60 @@ def test_a_short_fold_is_not_a_crease_a_long_one_is():
     assert 0.45 < found.length < 0.65
 
 
+def _fold_measures(radius):
+    """Sharpness (the quadric's miss beyond the noise over its miss on the exact fold) and
+    quadric / sides residual ratio at five feet along the 90 deg wedge rounded by ``radius``."""
+    from scipy.spatial import cKDTree
+
+    from recon.creases import _fold_residuals
+
+    p = _filleted(radius)
+    feet = np.c_[np.full(5, radius), np.linspace(-0.2, 0.2, 5), np.zeros(5)]
+    dist, idx = cKDTree(p).query(feet, k=48)
+    side = np.tile(np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0]]), (5, 1, 1))
+    res_q, res_s, res_i = _fold_residuals(p, idx, side, feet, dist[:, -1])
+    return np.sqrt(np.maximum(res_q**2 - res_s**2, 0.0)) / res_i, res_q / res_s
+
+
+def test_a_fold_is_told_from_a_tight_bend():
+    # exact fold: one quadric misses exactly what it misses on the ideal fold; two planes fit
+    sharp, ratio = _fold_measures(1e-9)
+    assert np.allclose(sharp, 1.0, atol=0.02) and np.all(ratio > 1e3)
+    # a fillet of about two spacings (half the neighbourhood radius): the bend is easier
+    sharp, ratio = _fold_measures(0.03)
+    assert np.median(sharp) < 0.6 and np.median(ratio) < 1.5
+
+
+def test_a_noisy_fold_is_still_a_crease():
+    # 0.25 % of the diagonal: the sides fit to the noise floor
+    found = detect_creases(_noisy(wedge_points(90), 0.0025))
+    assert 0.85 < found.length < 1.1
+
+
+def _can(n=12000, r=0.3, height=0.6, seed=0):
+    """A closed cylinder: side wall and two flat caps (two circular 90 deg rims)."""
+    rng = np.random.default_rng(seed)
+    side, cap = 2 * np.pi * r * height, np.pi * r * r
+    m = rng.multinomial(n, np.array([side, cap, cap]) / (side + 2 * cap))
+    t = rng.uniform(0, 2 * np.pi, m[0])
+    out = [np.c_[r * np.cos(t), r * np.sin(t), rng.uniform(0, height, m[0])]]
+    for k, z in ((1, 0.0), (2, height)):
+        rr, tt = r * np.sqrt(rng.uniform(size=m[k])), rng.uniform(0, 2 * np.pi, m[k])
+        out.append(np.c_[rr * np.cos(tt), rr * np.sin(tt), np.full(m[k], z)])
+    return np.concatenate(out)
+
+
+def test_circular_rims_are_creases():
+    # regression: the wall bends along the rim, so two planes missed it by more than the
+    # (exact) data's noise floor and the rims were dropped; a side may bend along the line
+    p = _can()
+    found = detect_creases(p)
+    assert found.length == pytest.approx(2 * 2 * np.pi * 0.3, rel=0.1)
+    assert len(found.corners) == 0
+    z = p[found.labels == CREASE, 2]
+    assert np.all(np.minimum(z, 0.6 - z) < 0.1)
+
+
 def test_threshold_above_the_turn_finds_nothing():
     found = detect_creases(wedge_points(90), angle_deg=100.0)
     assert not (found.labels != SMOOTH).any()
