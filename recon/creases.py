@@ -11,11 +11,16 @@ neighbourhood, 48 by default, about twice the normal-estimation one) and cluster
 - **corner**: three such clusters, pairwise turning by more than ``angle_deg``, the smallest
   holding at least 10 %.
 
-Two filters follow. The data must *reach the line*: some neighbour lies within ``0.3 h`` of the
+Three filters follow. The data must *reach the line*: some neighbour lies within ``0.3 h`` of the
 crease line, which a sharp crease satisfies (median 0.08 h on the clean L-block, 0.15 h with
 0.25 % noise) and a rounded edge does not (a fillet of radius rho stays about 0.4 rho off the
 planes' intersection at 90 deg). And the crease must be *coherent*: feature points near its line
-must span at least 1.2 neighbourhood radii along it.
+must span at least 1.2 neighbourhood radii along it. Last, only *long folds* are kept
+(:func:`_long_folds`): crease points linked into lines at least ``MIN_LINE_RADII``
+neighbourhood radii long whose sides two planes fit down to the data's noise floor while one
+quadric misses them about as much as it misses the exact fold of those planes. This keeps
+smooth shapes untouched: tight bends of scans (bunny, face) gave short or curved-sided
+fragments.
 
 "Tight" is the noise floor: the angle between the two cluster axes must exceed three times the
 sum of their spreads (median angle of members to their axis). A smooth surface splits its
