@@ -155,7 +155,7 @@ def _fold_measures(radius):
     dist, idx = cKDTree(p).query(feet, k=48)
     side = np.tile(np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0]]), (5, 1, 1))
     res_q, res_s, res_i = _fold_residuals(p, idx, side, feet, dist[:, -1])
-    return np.sqrt(np.maximum(res_q**2 - res_s**2, 0.0)) / res_i, res_q / res_s
+    return np.sqrt(np.maximum(res_q**2 - res_s**2, 0.0)) / res_i, res_q / np.maximum(res_s, 1e-300)
 
 
 def test_a_fold_is_told_from_a_tight_bend():
