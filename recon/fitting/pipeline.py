@@ -144,7 +144,10 @@ def _trim(state: ParticleState, surface: DataSurface, cfg: ReconConfig) -> int:
         dist <= TRIM_GAP_FRACTION * cfg.growth.max_gap
     )
     if tri_cfg.project_to_data:
-        state.position = projected
+        # crease particles stay on their crease lines (the data's edge): a quadric's foot
+        # rounds the edge and can sit under a face, with the particle's bisector normal
+        line = ~np.asarray(state.is_oriented, dtype=bool)
+        state.position = np.where(line[:, None], state.position, projected)
     n_trimmed = int((~keep).sum())
     if n_trimmed:
         state.remove(keep)
