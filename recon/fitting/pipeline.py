@@ -38,7 +38,7 @@ from ..cloud import PointCloud
 from ..config import ReconConfig, config_to_dict, with_values
 from ..crease_mesh import corner_normals, split_crease_vertices
 from ..crease_surface import CreaseField
-from ..creases import Creases, detect_creases
+from ..creases import Creases, detect_creases, orient_across_creases
 from ..errors import InputError
 from ..geometry import bbox_diagonal
 from ..intersections import untangle
@@ -364,6 +364,8 @@ def _fit_sheet(cloud: PointCloud, cfg: ReconConfig, on_progress: ProgressFn | No
     clock.lap("normals")
     clock.check()
     found, creases = _detect_creases(points, normals, cfg, bbox_diagonal(points))
+    if found is not None:  # a crease fixes the normals' orientation across it
+        normals, found, _ = orient_across_creases(points, normals, found, k=cfg.creases.k)
 
     r0, d_nn = choose_spacing(points, cfg)
     check_grid_size(points, r0)
