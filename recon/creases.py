@@ -52,6 +52,7 @@ from scipy.spatial import cKDTree
 
 from .geometry import as_points
 from .kernels.gauss_map import gauss_map_kernel
+from .kernels.options import query_workers
 
 __all__ = ["SMOOTH", "CREASE", "CORNER", "Creases", "detect_creases", "orient_across_creases"]
 
@@ -166,9 +167,10 @@ def detect_creases(
     if kk < 8:
         return _empty(n)
     tree = cKDTree(pts)
-    dist, idx = tree.query(pts, k=kk)
+    dist, idx = tree.query(pts, k=kk, workers=query_workers())
     idx = np.ascontiguousarray(idx, dtype=np.int64)
-    own, variation = _pca(pts, tree, min(normals_k, n))
+    # the normal-estimation neighbours are the first of these (sorted by distance)
+    own, variation = _pca(pts, tree, min(normals_k, n), idx if normals_k <= kk else None)
     if normals is None:
         normals = own
     nrm = np.ascontiguousarray(normals, dtype=np.float64)
@@ -421,9 +423,15 @@ def _fold_residuals(
     return res_quadric, res_sides, res_ideal
 
 
-def _pca(pts: np.ndarray, tree: cKDTree, k: int) -> tuple[np.ndarray, np.ndarray]:
-    """PCA normals and surface variation ``l3 / (l1 + l2 + l3)`` of ``k`` neighbours."""
-    _, idx = tree.query(pts, k=k)
+def _pca(
+    pts: np.ndarray, tree: cKDTree, k: int, nearest: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """PCA normals and surface variation ``l3 / (l1 + l2 + l3)`` of ``k`` neighbours (the
+    first ``k`` columns of ``nearest``, the neighbours by distance, when given)."""
+    if nearest is not None:
+        idx = nearest[:, :k]
+    else:
+        _, idx = tree.query(pts, k=k, workers=query_workers())
     nb = pts[idx]
     nb = nb - nb.mean(axis=1, keepdims=True)
     cov = np.einsum("nki,nkj->nij", nb, nb)
