@@ -11,6 +11,10 @@ neighbourhood, 48 by default, about twice the normal-estimation one) and cluster
 - **corner**: three such clusters, pairwise turning by more than ``angle_deg``, the smallest
   holding at least 10 %.
 
+A cheap screen comes first: a point is clustered only when one of its neighbours is as
+curved (PCA surface variation) as half of what the edge point of the weakest counting fold
+shows (:func:`_edge_variation`); on a clean smooth surface most points are not.
+
 Three filters follow. The data must *reach the line*: some neighbour lies within ``0.3 h`` of the
 crease line, which a sharp crease satisfies (median 0.08 h on the clean L-block, 0.15 h with
 0.25 % noise) and a rounded edge does not (a fillet of radius rho stays about 0.4 rho off the
@@ -87,6 +91,10 @@ NOISE_MIN = 0.01
 #: by at least SHARPNESS times what it misses on the exact fold of the same two planes (the
 #: neighbours moved onto them): a tight smooth bend of the same turn is easier to fit.
 SHARPNESS = 0.9
+#: Points whose neighbours are all flatter (PCA surface variation) than this fraction of that
+#: of the sharpest-counting fold's edge point (:func:`_edge_variation`) are smooth without
+#: clustering (a cheap first screen; most of a smooth clean surface).
+SCREEN_FRACTION = 0.5
 #: Orientation across creases (:func:`orient_across_creases`): smooth points farther than a
 #: neighbourhood radius from every feature point are one face with those of their
 #: NORMALS_LINK_K nearest whose normals agree to FACE_LINK_DEG and that lie in their tangent
@@ -174,11 +182,24 @@ def detect_creases(
     if normals is None:
         normals = own
     nrm = np.ascontiguousarray(normals, dtype=np.float64)
-    label, side, direction, turn, _, corner, _, foot = gauss_map_kernel(
+    # screen: a crease within a neighbourhood puts a point of it on the edge, whose PCA
+    # neighbourhood straddles both faces; where every neighbour is flatter than half of that
+    # (the fold of angle_deg), the Gauss map is not clustered (all smooth)
+    cand = np.flatnonzero(
+        variation[idx].max(axis=1) >= SCREEN_FRACTION * _edge_variation(angle_deg)
+    )
+    label = np.zeros(n, np.int8)
+    side = np.zeros((n, 3, 3))
+    direction = np.zeros((n, 3))
+    turn = np.zeros(n)
+    corner = np.full((n, 3), np.nan)
+    foot = np.full((n, 3), np.nan)
+    out = gauss_map_kernel(
         pts,
         nrm,
         variation,
-        idx,
+        np.ascontiguousarray(pts[cand]),
+        np.ascontiguousarray(idx[cand]),
         max(8, int(round(KEEP_FRACTION * kk))),
         np.radians(angle_deg),
         SEPARATION_RATIO,
@@ -186,6 +207,7 @@ def detect_creases(
         CORNER_SHARE,
         CORNER_MIN_DET,
     )
+    label[cand], side[cand], direction[cand], turn[cand], _, corner[cand], _, foot[cand] = out
     h = np.sqrt(np.pi * dist[:, -1] ** 2 / kk)
     label = _reach_line(pts, tree, label, direction, foot, h, kk)
     label = _coherent(pts, label, direction, idx, dist[:, -1])
@@ -202,6 +224,23 @@ def detect_creases(
         length=length,
         foot=foot,
     )
+
+
+def _edge_variation(angle_deg: float) -> float:
+    """Surface variation ``l3 / (l1 + l2 + l3)`` of a disc folded along a diameter, for the
+    folds whose normal axes are at least ``angle_deg`` apart (turns from ``angle_deg`` to
+    ``180 - angle_deg``; the least at either end): each half-disc tilted by ``phi = turn / 2``
+    from the bisector plane has second moments 1/4 along the fold, ``cos(phi)**2 / 4`` across
+    it and ``sin(phi)**2 (1/4 - (4 / (3 pi))**2)`` out of the plane (radius 1)."""
+
+    def fold(turn: float) -> float:
+        phi = np.radians(turn) / 2.0
+        m = sorted(
+            [0.25, np.cos(phi) ** 2 / 4.0, np.sin(phi) ** 2 * (0.25 - (4.0 / (3.0 * np.pi)) ** 2)]
+        )
+        return float(m[0] / sum(m))
+
+    return min(fold(angle_deg), fold(max(180.0 - angle_deg, angle_deg)))
 
 
 def _line_length(foot: np.ndarray, h: np.ndarray) -> float:

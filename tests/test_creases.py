@@ -12,6 +12,7 @@ from click.testing import CliRunner
 from mesh_shapes import wedge_points
 from recon.cli.main import app
 
+from recon import creases as creases_module
 from recon.config import CreasesConfig, ReconConfig
 from recon.creases import CORNER, CREASE, SMOOTH, detect_creases, orient_across_creases
 from recon.fitting.report import FitReport
@@ -314,3 +315,21 @@ def test_orientation_is_made_consistent_across_a_crease(turn):
     found = detect_creases(p, good, angle_deg=45.0)
     out, _, n = orient_across_creases(p, good, found)
     assert n == 0 and out is good
+
+
+@pytest.mark.parametrize("turn", [60, 90, 150])
+@pytest.mark.parametrize("noise", [0.0, 0.003])
+def test_the_flatness_screen_does_not_change_a_detection(turn, noise, monkeypatch):
+    # the screen skips the Gauss-map clustering where every neighbour is flat; on folds from
+    # the threshold to a knife edge, clean or noisy, the detection is the one without it
+    p = wedge_points(turn) + np.random.default_rng(1).normal(scale=noise, size=(8000, 3))
+    screened = detect_creases(p, angle_deg=45.0)
+    monkeypatch.setattr(creases_module, "SCREEN_FRACTION", 0.0)
+    full = detect_creases(p, angle_deg=45.0)
+    assert screened.n_crease_points > 50
+    np.testing.assert_array_equal(screened.labels, full.labels)
+    cr = full.labels != SMOOTH
+    for name in ("side_normals", "direction", "turn_deg", "foot"):
+        np.testing.assert_array_equal(getattr(screened, name)[cr], getattr(full, name)[cr])
+    np.testing.assert_array_equal(screened.corners, full.corners)
+    assert screened.length == full.length
