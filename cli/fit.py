@@ -253,15 +253,15 @@ def format_summary(report: FitReport) -> str:
     "--crease-angle",
     type=float,
     help="Keep sharp creases and corners turning by more than this angle between the two face "
-    "normals [deg] (creases.angle_deg, 50 when creases.enabled is set; 90 = box edge): they "
-    "are detected, reported, and kept sharp in the mesh (--set creases.fit=false: report "
+    "normals [deg] (creases.angle_deg, default 50; 90 = box edge): they are detected, "
+    "reported, and kept sharp in the mesh (on by default; --set creases.fit=false: report "
     "only).",
 )
 @click.option(
     "--no-creases",
     is_flag=True,
     default=None,
-    help="Skip crease detection even when a config enables it (creases.enabled).",
+    help="Skip crease detection (on by default: creases.enabled); smooth fits round every edge.",
 )
 @click.option(
     "--tile-size",

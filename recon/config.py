@@ -371,11 +371,11 @@ class CreasesConfig(Schema):
     PREFIX: ClassVar[str] = "creases."
 
     enabled: bool = option(
-        False,
+        True,
         "Detect sharp creases and corners in the data (Gauss-map clustering, recon.creases), "
-        "report their length and count and keep them sharp in the mesh (creases.fit). Off by "
-        "default: it still finds some rounded edges of smooth scans; --crease-angle turns it "
-        "on.",
+        "report their length and count and keep them sharp in the mesh (creases.fit). Only "
+        "long folds count: crease lines at least 5 neighbourhood radii long whose sides two "
+        "planes fit down to the noise and one quadric does not. --no-creases turns it off.",
     )
     angle_deg: float = option(
         50.0,

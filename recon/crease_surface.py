@@ -289,13 +289,15 @@ class CreaseField:
             t = np.einsum("ij,ij->i", r, self.direction[s])
             line = self.feet[s] + t[:, None] * self.direction[s]
             e = np.linalg.norm(pos[cand] - line, axis=1)
-            ok = agree & (e < self.snap) & (current[cand] | (not settle))
+            # settling puts every crease particle back on its line, however far it drifted
+            near = (e < self.snap) | (settle & current[cand])
+            ok = agree & near & (current[cand] | (not settle))
             cand, line, e, bis = cand[ok], line[ok], e[ok], bis[ok]
             target[cand] = line
             order_key[cand] = e
             new_normal[cand] = bis / np.linalg.norm(bis, axis=1, keepdims=True)
         chosen = np.flatnonzero(np.isfinite(order_key))
-        if len(chosen) == 0:
+        if len(chosen) == 0 and not current.any():
             state.set_oriented(True)
             return crease
         chosen = chosen[np.argsort(order_key[chosen], kind="stable")]
@@ -340,10 +342,21 @@ class CreaseField:
         idx = np.flatnonzero(crease)
         moved = pos.copy()
         moved[idx] = target[idx]
+        # a crease particle that found no room on its line becomes an oriented particle of the
+        # face it is nearest: onto the wedge, with that face's normal (it would otherwise keep
+        # the bisector wherever it drifted, e.g. inside the solid under a face)
+        back = np.flatnonzero(current & ~crease)
+        if len(back):
+            s_back, _ = self.nearest_sample(pos[back], self.reach)
+            back, s_back = back[s_back >= 0], s_back[s_back >= 0]
+            foot_back, normal_back, _ = self.wedge(pos[back], s_back)
+            moved[back] = foot_back
+            new_normal[back] = normal_back
         state.position = moved
-        if len(idx):
+        if len(idx) or len(back):
             nn = state.normal
             nn[idx] = new_normal[idx]
+            nn[back] = new_normal[back]
             state.normal = nn
             # keep only the velocity along the line (a snapped particle moves along it)
             vel = state.velocity.copy()

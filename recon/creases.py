@@ -11,11 +11,20 @@ neighbourhood, 48 by default, about twice the normal-estimation one) and cluster
 - **corner**: three such clusters, pairwise turning by more than ``angle_deg``, the smallest
   holding at least 10 %.
 
-Two filters follow. The data must *reach the line*: some neighbour lies within ``0.3 h`` of the
+A cheap screen comes first: a point is clustered only when one of its neighbours is as
+curved (PCA surface variation) as half of what the edge point of the weakest counting fold
+shows (:func:`_edge_variation`); on a clean smooth surface most points are not.
+
+Three filters follow. The data must *reach the line*: some neighbour lies within ``0.3 h`` of the
 crease line, which a sharp crease satisfies (median 0.08 h on the clean L-block, 0.15 h with
 0.25 % noise) and a rounded edge does not (a fillet of radius rho stays about 0.4 rho off the
 planes' intersection at 90 deg). And the crease must be *coherent*: feature points near its line
-must span at least 1.2 neighbourhood radii along it.
+must span at least 1.2 neighbourhood radii along it. Last, only *long folds* are kept
+(:func:`_long_folds`): crease points linked into lines at least ``MIN_LINE_RADII``
+neighbourhood radii long whose sides two planes fit down to the data's noise floor while one
+quadric misses them about as much as it misses the exact fold of those planes. This keeps
+smooth shapes untouched: tight bends of scans (bunny, face) gave short or curved-sided
+fragments.
 
 "Tight" is the noise floor: the angle between the two cluster axes must exceed three times the
 sum of their spreads (median angle of members to their axis). A smooth surface splits its
@@ -38,7 +47,7 @@ Detection feeds the fit report and, with ``creases.fit``, the fit itself
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy import sparse
@@ -47,8 +56,9 @@ from scipy.spatial import cKDTree
 
 from .geometry import as_points
 from .kernels.gauss_map import gauss_map_kernel
+from .kernels.options import query_workers
 
-__all__ = ["SMOOTH", "CREASE", "CORNER", "Creases", "detect_creases"]
+__all__ = ["SMOOTH", "CREASE", "CORNER", "Creases", "detect_creases", "orient_across_creases"]
 
 SMOOTH, CREASE, CORNER = 0, 1, 2
 CREASE_SHARE = 0.25
@@ -60,6 +70,43 @@ COHERENCE = 1.2
 GAP = 0.3
 MIN_CORNER_POINTS = 3
 GROUP_RADIUS = 3.0
+#: A crease line must be at least this many neighbourhood radii long (its crease and corner
+#: points linked within LINK_RADIUS radii, crease points only to parallel ones).
+MIN_LINE_RADII = 5.0
+LINK_RADIUS = 1.5
+LINE_LINK = 2.5
+LINE_OFFSET = 0.25
+LINK_ANGLE_DEG = 20.0
+#: ... and its neighbourhoods must be a fold: two planes fit them at least this many times
+#: better (RMS distance, median over the line) than one quadric.
+FOLD_RATIO = 1.25
+#: ... and the two planes must explain them down to the noise: RMS distance at most
+#: NOISE_RATIO times the noise floor (the NOISE_QUANTILE of the one-quadric RMS residuals of
+#: NOISE_SAMPLE points of the whole cloud: the flat and smooth parts' scatter).
+NOISE_RATIO = 1.5
+NOISE_QUANTILE = 25.0
+NOISE_SAMPLE = 2000
+NOISE_MIN = 0.01
+#: ... and one quadric must miss them (beyond the noise: sqrt(res_quadric**2 - res_sides**2))
+#: by at least SHARPNESS times what it misses on the exact fold of the same two planes (the
+#: neighbours moved onto them): a tight smooth bend of the same turn is easier to fit.
+SHARPNESS = 0.9
+#: Points whose neighbours are all flatter (PCA surface variation) than this fraction of that
+#: of the sharpest-counting fold's edge point (:func:`_edge_variation`) are smooth without
+#: clustering (a cheap first screen; most of a smooth clean surface).
+SCREEN_FRACTION = 0.5
+#: Orientation across creases (:func:`orient_across_creases`): smooth points farther than a
+#: neighbourhood radius from every feature point are one face with those of their
+#: NORMALS_LINK_K nearest whose normals agree to FACE_LINK_DEG and that lie in their tangent
+#: plane to that angle (tight: near a knife edge the blended normals turn gradually from one
+#: face to the other, 15 deg per step at 150 deg); a pair of faces is decided by at least
+#: MIN_VOTES crease points of which VOTE_MARGIN more agree than disagree. The points between
+#: faces follow their nearest face points weighted by |cos|**ALIGN_POWER.
+NORMALS_LINK_K = 10
+FACE_LINK_DEG = 10.0
+MIN_VOTES = 5
+VOTE_MARGIN = 0.5
+ALIGN_POWER = 8
 
 
 @dataclass(frozen=True)
@@ -128,17 +175,31 @@ def detect_creases(
     if kk < 8:
         return _empty(n)
     tree = cKDTree(pts)
-    dist, idx = tree.query(pts, k=kk)
+    dist, idx = tree.query(pts, k=kk, workers=query_workers())
     idx = np.ascontiguousarray(idx, dtype=np.int64)
-    own, variation = _pca(pts, tree, min(normals_k, n))
+    # the normal-estimation neighbours are the first of these (sorted by distance)
+    own, variation = _pca(pts, tree, min(normals_k, n), idx if normals_k <= kk else None)
     if normals is None:
         normals = own
     nrm = np.ascontiguousarray(normals, dtype=np.float64)
-    label, side, direction, turn, _, corner, _, foot = gauss_map_kernel(
+    # screen: a crease within a neighbourhood puts a point of it on the edge, whose PCA
+    # neighbourhood straddles both faces; where every neighbour is flatter than half of that
+    # (the fold of angle_deg), the Gauss map is not clustered (all smooth)
+    cand = np.flatnonzero(
+        variation[idx].max(axis=1) >= SCREEN_FRACTION * _edge_variation(angle_deg)
+    )
+    label = np.zeros(n, np.int8)
+    side = np.zeros((n, 3, 3))
+    direction = np.zeros((n, 3))
+    turn = np.zeros(n)
+    corner = np.full((n, 3), np.nan)
+    foot = np.full((n, 3), np.nan)
+    out = gauss_map_kernel(
         pts,
         nrm,
         variation,
-        idx,
+        np.ascontiguousarray(pts[cand]),
+        np.ascontiguousarray(idx[cand]),
         max(8, int(round(KEEP_FRACTION * kk))),
         np.radians(angle_deg),
         SEPARATION_RATIO,
@@ -146,9 +207,11 @@ def detect_creases(
         CORNER_SHARE,
         CORNER_MIN_DET,
     )
+    label[cand], side[cand], direction[cand], turn[cand], _, corner[cand], _, foot[cand] = out
     h = np.sqrt(np.pi * dist[:, -1] ** 2 / kk)
     label = _reach_line(pts, tree, label, direction, foot, h, kk)
     label = _coherent(pts, label, direction, idx, dist[:, -1])
+    label = _long_folds(pts, label, side, direction, foot, idx, dist[:, -1], h)
     corners, lone = _group_corners(label, corner, float(np.median(h)))
     label[lone] = SMOOTH
     length = _line_length(foot[label == CREASE], h[label == CREASE])
@@ -161,6 +224,23 @@ def detect_creases(
         length=length,
         foot=foot,
     )
+
+
+def _edge_variation(angle_deg: float) -> float:
+    """Surface variation ``l3 / (l1 + l2 + l3)`` of a disc folded along a diameter, for the
+    folds whose normal axes are at least ``angle_deg`` apart (turns from ``angle_deg`` to
+    ``180 - angle_deg``; the least at either end): each half-disc tilted by ``phi = turn / 2``
+    from the bisector plane has second moments 1/4 along the fold, ``cos(phi)**2 / 4`` across
+    it and ``sin(phi)**2 (1/4 - (4 / (3 pi))**2)`` out of the plane (radius 1)."""
+
+    def fold(turn: float) -> float:
+        phi = np.radians(turn) / 2.0
+        m = sorted(
+            [0.25, np.cos(phi) ** 2 / 4.0, np.sin(phi) ** 2 * (0.25 - (4.0 / (3.0 * np.pi)) ** 2)]
+        )
+        return float(m[0] / sum(m))
+
+    return min(fold(angle_deg), fold(max(180.0 - angle_deg, angle_deg)))
 
 
 def _line_length(foot: np.ndarray, h: np.ndarray) -> float:
@@ -225,9 +305,172 @@ def _coherent(
     return out
 
 
-def _pca(pts: np.ndarray, tree: cKDTree, k: int) -> tuple[np.ndarray, np.ndarray]:
-    """PCA normals and surface variation ``l3 / (l1 + l2 + l3)`` of ``k`` neighbours."""
-    _, idx = tree.query(pts, k=k)
+def _long_folds(
+    pts: np.ndarray,
+    label: np.ndarray,
+    side: np.ndarray,
+    direction: np.ndarray,
+    foot: np.ndarray,
+    idx: np.ndarray,
+    radius: np.ndarray,
+    h: np.ndarray,
+) -> np.ndarray:
+    """Keep the feature points of long folds only. Crease and corner points are linked into
+    lines (within ``LINK_RADIUS`` neighbourhood radii; two crease points only when their
+    directions agree to ``LINK_ANGLE_DEG``; corner points link to any), and a line is kept when
+
+    - it is at least ``MIN_LINE_RADII`` neighbourhood radii long (measured along the feet,
+      :func:`_line_length`): a tight bend or a kink of a scan gives short fragments, a
+      machined edge runs on, through its corners, into the next edge;
+    - its neighbourhoods are folds, not bends (medians over the line's crease points): one
+      quadric height field misses the neighbours by at least ``FOLD_RATIO`` times the RMS
+      distance to the two sides (each a plane that may bend along the line); the sides fit down
+      to the noise floor (:func:`_noise_floor`, ``NOISE_RATIO``); and the quadric's miss beyond
+      the noise is at least ``SHARPNESS`` times its miss on the exact fold of the same two
+      planes. A quadric fits a smooth bend as well as two planes do, or better, and a tight
+      bend of the same turn better than the sharp fold; across a sharp crease it misses by a
+      fraction of the radius while the two planes are exact up to the noise.
+    """
+    feat = np.flatnonzero(label != SMOOTH)
+    if len(feat) == 0:
+        return label
+    is_crease = label[feat] == CREASE
+    rad = float(np.median(radius[feat]))
+    # crease points: feet on one line (parallel, the other's foot near the line)
+    cr = feat[is_crease]
+    pos = np.where(is_crease[:, None], np.nan_to_num(foot[feat]), pts[feat])
+    pairs = cKDTree(pos).query_pairs(LINE_LINK * rad, output_type="ndarray")
+    a, b = pairs[:, 0], pairs[:, 1]
+    dirs = direction[feat]
+    cos = np.abs(np.einsum("ij,ij->i", dirs[a], dirs[b]))
+    rel = pos[b] - pos[a]
+    t = np.einsum("ij,ij->i", rel, dirs[a])
+    off = np.linalg.norm(rel - t[:, None] * dirs[a], axis=1)
+    both = is_crease[a] & is_crease[b]
+    line = both & (cos > np.cos(np.radians(LINK_ANGLE_DEG))) & (off < LINE_OFFSET * rad)
+    # corner points: any feature point near them
+    near = ~both & (np.linalg.norm(pts[feat[a]] - pts[feat[b]], axis=1) < LINK_RADIUS * rad)
+    keep = line | near
+    graph = sparse.coo_matrix(
+        (np.ones(int(keep.sum())), (a[keep], b[keep])), shape=(len(feat), len(feat))
+    )
+    n_comp, comp = csgraph.connected_components(graph, directed=False)
+    ratio = np.full(len(feat), np.nan)
+    plane_res = np.full(len(feat), np.nan)
+    sharpness = np.full(len(feat), np.nan)
+    if len(cr):
+        res_q, res_p, res_i = _fold_residuals(pts, idx[cr], side[cr, :2], foot[cr], radius[cr])
+        ratio[is_crease] = res_q / np.maximum(res_p, 1e-12)
+        plane_res[is_crease] = res_p
+        sharpness[is_crease] = np.sqrt(np.maximum(res_q**2 - res_p**2, 0.0)) / np.maximum(
+            res_i, 1e-300
+        )
+    floor = _noise_floor(pts, idx, radius)
+    out = label.copy()
+    for c in range(n_comp):
+        m = comp == c
+        mc = m & is_crease
+        length = _line_length(foot[feat[mc]], h[feat[mc]]) if mc.any() else 0.0
+        long_enough = length >= MIN_LINE_RADII * float(np.median(radius[feat[m]]))
+        fold = (
+            mc.any()
+            and float(np.median(ratio[mc])) >= FOLD_RATIO
+            and float(np.median(plane_res[mc])) <= NOISE_RATIO * floor
+            and float(np.median(sharpness[mc])) >= SHARPNESS
+        )
+        if not (long_enough and fold):
+            out[feat[m]] = SMOOTH
+    return out
+
+
+def _quadric_residual(nb: np.ndarray, scale: np.ndarray) -> np.ndarray:
+    """RMS residual [length] of one quadric height field fitted to each row of points ``nb``
+    (m, k, 3) over their PCA plane (``scale``: (m, 1, 1) lengths for the conditioning)."""
+    rel = (nb - nb.mean(axis=1, keepdims=True)) / scale
+    _, vec = np.linalg.eigh(np.einsum("mki,mkj->mij", rel, rel))
+    x = np.einsum("mki,mi->mk", rel, vec[:, :, 2])
+    y = np.einsum("mki,mi->mk", rel, vec[:, :, 1])
+    z = np.einsum("mki,mi->mk", rel, vec[:, :, 0])
+    basis = np.stack([np.ones_like(x), x, y, x * x, x * y, y * y], axis=-1)
+    gram = np.einsum("mki,mkj->mij", basis, basis) + 1e-9 * np.eye(6)
+    coef = np.linalg.solve(gram, np.einsum("mki,mk->mi", basis, z)[..., None])[..., 0]
+    res = np.sqrt(np.mean((np.einsum("mki,mi->mk", basis, coef) - z) ** 2, axis=1))
+    return res * scale[:, 0, 0]
+
+
+def _noise_floor(pts: np.ndarray, idx: np.ndarray, radius: np.ndarray) -> float:
+    """The data's scatter [length]: the ``NOISE_QUANTILE`` percentile of the one-quadric RMS
+    residuals of ``NOISE_SAMPLE`` evenly spread points (most of a surface is smooth there), at
+    least ``NOISE_MIN`` neighbourhood radii."""
+    step = max(1, len(pts) // NOISE_SAMPLE)
+    s = np.arange(0, len(pts), step)
+    res = _quadric_residual(pts[idx[s]], np.maximum(radius[s], 1e-300)[:, None, None])
+    # exact data: rounding only (float32 input quantises at ~1e-7 of the coordinates)
+    return max(float(np.percentile(res, NOISE_QUANTILE)), NOISE_MIN * float(np.median(radius)))
+
+
+def _fold_residuals(
+    pts: np.ndarray, idx: np.ndarray, side: np.ndarray, foot: np.ndarray, radius: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per crease point: RMS residual [length] of one quadric height field fitted to its
+    neighbours ``idx`` over their PCA plane, and the RMS distance to the nearer of its two side
+    planes (refitted to the neighbours by PCA, each neighbour assigned to the nearer one), each
+    side allowed to bend along the crease line (a quadratic in the along-line coordinate: the
+    wall of a hole or boss meets its face along a circle) but not across it."""
+    nb = pts[idx]  # (m, k, 3)
+    scale = np.maximum(radius, 1e-300)[:, None, None]
+    res_quadric = _quadric_residual(nb, scale)
+    local = (nb - foot[:, None]) / scale
+    na, nb_ = side[:, 0].copy(), side[:, 1].copy()
+    ca = np.zeros_like(na)
+    cb = np.zeros_like(nb_)
+    for _ in range(6):
+        da = np.abs(np.einsum("mkj,mj->mk", local - ca[:, None], na))
+        db = np.abs(np.einsum("mkj,mj->mk", local - cb[:, None], nb_))
+        for mask, n, c in ((da <= db, na, ca), (da > db, nb_, cb)):
+            w = mask.astype(np.float64)
+            cnt = w.sum(axis=1)
+            cen = np.einsum("mk,mkj->mj", w, local) / np.maximum(cnt, 1.0)[:, None]
+            r = (local - cen[:, None]) * w[..., None]
+            _, v = np.linalg.eigh(np.einsum("mki,mkj->mij", r, r))
+            ok = cnt >= 3
+            n[ok] = v[ok, :, 0]
+            c[ok] = cen[ok]
+    sa = np.einsum("mkj,mj->mk", local - ca[:, None], na)
+    sb = np.einsum("mkj,mj->mk", local - cb[:, None], nb_)
+    on_a = np.abs(sa) <= np.abs(sb)
+    d = np.cross(na, nb_)
+    d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-300)
+    t = np.einsum("mkj,mj->mk", local, d)
+    sq = np.zeros(len(idx))
+    for mask, dist, n in ((on_a, sa, na), (~on_a, sb, nb_)):
+        # each side may bend along the line (a hole's or a boss's wall), not across it
+        across = np.cross(d, n)
+        u = np.einsum("mkj,mj->mk", local, across)
+        w = mask.astype(np.float64)
+        basis = np.stack([np.ones_like(t), u, t, t * t], axis=-1) * w[..., None]
+        gram = np.einsum("mki,mkj->mij", basis, basis) + 1e-9 * np.eye(4)
+        coef = np.linalg.solve(gram, np.einsum("mki,mk->mi", basis, dist * w)[..., None])[..., 0]
+        sq += np.sum(w * (np.einsum("mki,mi->mk", basis, coef) - dist * w) ** 2, axis=1)
+    res_sides = np.sqrt(sq / idx.shape[1]) * scale[:, 0, 0]
+    # the same neighbours moved onto the sharp fold of the two planes: what one quadric
+    # misses on an exact crease of this turn and extent
+    ideal = local - np.where(
+        on_a[..., None], sa[..., None] * na[:, None], sb[..., None] * nb_[:, None]
+    )
+    res_ideal = _quadric_residual(ideal * scale, scale)
+    return res_quadric, res_sides, res_ideal
+
+
+def _pca(
+    pts: np.ndarray, tree: cKDTree, k: int, nearest: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """PCA normals and surface variation ``l3 / (l1 + l2 + l3)`` of ``k`` neighbours (the
+    first ``k`` columns of ``nearest``, the neighbours by distance, when given)."""
+    if nearest is not None:
+        idx = nearest[:, :k]
+    else:
+        _, idx = tree.query(pts, k=k, workers=query_workers())
     nb = pts[idx]
     nb = nb - nb.mean(axis=1, keepdims=True)
     cov = np.einsum("nki,nkj->nij", nb, nb)
@@ -268,3 +511,163 @@ def _empty(n: int) -> Creases:
         length=0.0,
         foot=np.full((n, 3), np.nan),
     )
+
+
+def orient_across_creases(
+    points: np.ndarray, normals: np.ndarray, found: Creases, k: int = 48
+) -> tuple[np.ndarray, Creases, int]:
+    """Make oriented normals consistent across the detected creases.
+
+    Orientation by propagation (:mod:`recon.normals`) crosses a sharp edge where the normals
+    of both faces look alike up to sign: across a knife edge (a 150 deg turn, |cos| = 0.87)
+    it takes the far face's normals flipped. A crease decides it geometrically: with ``d`` the
+    line direction and ``t_a`` (``t_b``) the direction in face a (b) away from the line to its
+    data, consistently oriented side normals have ``sign(n_a . t_b) == sign(n_b . t_a)``
+    (both negative on a convex edge, both positive on a concave one); flipping one side
+    flips one of the two.
+
+    The smooth points are split into faces (neighbours among the ``NORMALS_LINK_K`` nearest
+    whose normals agree to ``FACE_LINK_DEG``), each crease point votes, by that test, whether
+    the faces of its two sides agree, and faces are flipped so that the votes' majorities hold,
+    each linked group keeping the orientation most of its points have. The points between
+    faces side with the normals of their nearest face points; side normals are re-signed by
+    their members.
+
+    Returns the normals, the detection with re-signed side normals, and the number of points
+    flipped (0: the input is returned).
+    """
+    pts = as_points(points)
+    nrm = np.asarray(normals, dtype=np.float64)
+    cr = np.flatnonzero((found.labels == CREASE) & np.isfinite(found.foot).all(axis=1))
+    smooth = np.flatnonzero(found.labels == SMOOTH)
+    if len(cr) == 0 or len(smooth) < 2:
+        return nrm, found, 0
+    tree = cKDTree(pts)
+    # faces: smooth points beyond a neighbourhood radius of every feature point (their normals
+    # do not blend two faces), linked to neighbours with agreeing normals; the points between
+    # take the face of their nearest such point
+    feat = np.flatnonzero(found.labels != SMOOTH)
+    kq = int(min(k, len(pts)))
+    radius = float(np.median(tree.query(pts[cr], k=kq)[0][:, -1]))
+    gap, _ = cKDTree(pts[feat]).query(pts[smooth], k=1)
+    core = smooth[gap > radius]
+    if len(core) < 2:
+        return nrm, found, 0
+    kk = int(min(NORMALS_LINK_K + 1, len(core)))
+    core_tree = cKDTree(pts[core])
+    _, nb = core_tree.query(pts[core], k=kk)
+    a = np.repeat(np.arange(len(core)), kk - 1)
+    b = nb[:, 1:].reshape(-1)
+    # same face: normals agree and the step between them lies in the tangent plane (across a
+    # thin wedge the other face's points are near, but off the plane)
+    step = pts[core[b]] - pts[core[a]]
+    lim = np.sin(np.radians(FACE_LINK_DEG)) * np.linalg.norm(step, axis=1)
+    agree = (
+        np.einsum("ij,ij->i", nrm[core[a]], nrm[core[b]]) > np.cos(np.radians(FACE_LINK_DEG))
+    ) & (np.abs(np.einsum("ij,ij->i", step, nrm[core[a]])) <= lim)
+    graph = sparse.coo_matrix(
+        (np.ones(int(agree.sum())), (a[agree], b[agree])), shape=(len(core), len(core))
+    )
+    n_face, face_of_core = csgraph.connected_components(graph, directed=False)
+    _, nearest_core = core_tree.query(pts, k=1)
+    face = face_of_core[nearest_core]  # for the votes: the points between, their nearest face
+    # each crease point: its two sides' members, their faces and the consistency test
+    _, idx = tree.query(pts[cr], k=kq)
+    idx = idx.reshape(len(cr), kq)
+    foot, d = found.foot[cr], found.direction[cr]
+    na, nb_ = found.side_normals[cr, 0], found.side_normals[cr, 1]
+    rel = pts[idx] - foot[:, None]
+    da = np.abs(np.einsum("mkj,mj->mk", rel, na))
+    db = np.abs(np.einsum("mkj,mj->mk", rel, nb_))
+    on_a = da <= db
+    wa, wb = on_a.astype(np.float64), (~on_a).astype(np.float64)
+    sign_a = np.sign(np.einsum("mk,mkj,mj->m", wa, nrm[idx], na))
+    sign_b = np.sign(np.einsum("mk,mkj,mj->m", wb, nrm[idx], nb_))
+    na, nb_ = na * sign_a[:, None], nb_ * sign_b[:, None]
+    ta, tb = np.cross(d, na), np.cross(d, nb_)
+    ta *= np.sign(np.einsum("mk,mkj,mj->m", wa, rel, ta))[:, None]
+    tb *= np.sign(np.einsum("mk,mkj,mj->m", wb, rel, tb))[:, None]
+    same = np.sign(np.einsum("ij,ij->i", na, tb)) == np.sign(np.einsum("ij,ij->i", nb_, ta))
+    fa, fb = _majority_face(face[idx], on_a), _majority_face(face[idx], ~on_a)
+    ok = (fa >= 0) & (fb >= 0) & (fa != fb) & (sign_a != 0) & (sign_b != 0)
+    if not ok.any():
+        return nrm, found, 0
+    # votes per pair of faces: +1 the sides agree, -1 one of them is flipped
+    pair = np.minimum(fa[ok], fb[ok]) * n_face + np.maximum(fa[ok], fb[ok])
+    keys, inv = np.unique(pair, return_inverse=True)
+    votes = np.bincount(inv, weights=np.where(same[ok], 1.0, -1.0))
+    count = np.bincount(inv)
+    size = np.bincount(face_of_core, minlength=n_face)
+    flip, linked = _solve_flips(keys // n_face, keys % n_face, votes, count, size)
+    if not flip.any():
+        return nrm, found, 0
+    flipped = np.zeros(len(pts), dtype=bool)
+    flipped[core] = flip[face_of_core]
+    out = np.where(flipped[:, None], -nrm, nrm)
+    # every other point (between faces, or on a face no crease decided: noise splits a face
+    # into pieces) sides with its nearest points of decided faces, weighted by how well their
+    # normals align (|cos|**ALIGN_POWER: a point of one face follows that face; a blended
+    # normal near an edge, the bisector of the faces it lies between)
+    anchor = core[linked[face_of_core]]
+    rest = np.setdiff1d(np.arange(len(pts)), anchor)
+    _, near = cKDTree(pts[anchor]).query(pts[rest], k=int(min(kq, len(anchor))))
+    ref = out[anchor[near.reshape(len(rest), -1)]]
+    cos = np.einsum("mkj,mj->mk", ref, out[rest])
+    turn = np.sum(np.abs(cos) ** ALIGN_POWER * np.sign(cos), axis=1) < 0.0
+    flipped[rest[turn]] = True
+    out[rest[turn]] *= -1.0
+    # side normals follow the majority of their members' new normals
+    side = found.side_normals.copy()
+    for j, members in ((0, wa), (1, wb)):
+        s = np.sign(np.einsum("mk,mkj,mj->m", members, out[idx], side[cr, j]))
+        side[cr, j] *= np.where(s == 0, 1.0, s)[:, None]
+    return out, replace(found, side_normals=side), int(flipped.sum())
+
+
+def _majority_face(face: np.ndarray, members: np.ndarray) -> np.ndarray:
+    """Per row, the face most of the smooth ``members`` belong to (-1: none)."""
+    out = np.full(len(face), -1, dtype=np.int64)
+    for i in range(len(face)):
+        f = face[i][members[i] & (face[i] >= 0)]
+        if len(f):
+            vals, cnt = np.unique(f, return_counts=True)
+            out[i] = vals[np.argmax(cnt)]
+    return out
+
+
+def _solve_flips(
+    fa: np.ndarray, fb: np.ndarray, votes: np.ndarray, count: np.ndarray, size: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Faces to flip so that the decided pairs hold (a union-find with parity, the clearest
+    pairs first; a pair is decided when at least ``MIN_VOTES`` crease points voted and
+    ``VOTE_MARGIN`` of them agree). In each linked group the orientation of most points is
+    kept. Returns the flips and whether each face is linked to another."""
+    parent = np.arange(len(size))
+    parity = np.zeros(len(size), dtype=np.int64)  # relative to the parent
+
+    def root(x: int) -> tuple[int, int]:
+        p = 0
+        while parent[x] != x:
+            p ^= int(parity[x])
+            x = int(parent[x])
+        return x, p
+
+    decided = (count >= MIN_VOTES) & (np.abs(votes) >= VOTE_MARGIN * count)
+    for i in np.argsort(-np.abs(votes), kind="stable"):
+        if not decided[i]:
+            continue
+        (ra, pa), (rb, pb) = root(int(fa[i])), root(int(fb[i]))
+        want = 0 if votes[i] > 0 else 1
+        if ra == rb:
+            continue  # already decided by clearer votes
+        parent[rb] = ra
+        parity[rb] = pa ^ pb ^ want
+    roots = np.array([root(x) for x in range(len(size))])
+    flip = roots[:, 1].astype(bool)
+    linked = np.bincount(roots[:, 0], minlength=len(size))[roots[:, 0]] > 1
+    # each group keeps the orientation most of its points have (fewest flipped)
+    for r in np.unique(roots[:, 0]):
+        members = roots[:, 0] == r
+        if 2 * size[members & flip].sum() > size[members].sum():
+            flip[members] = ~flip[members]
+    return flip, linked

@@ -333,3 +333,45 @@ def test_obj_and_ply_outputs_split_normals_at_creases(tmp_path):
     fit_file(SAMPLE, tmp_path / "s.ply", split, write_report=False)
     sv, sf = read_mesh(tmp_path / "s.ply")
     assert len(sv) > len(welded_v) and len(sf) == len(welded_f)
+
+
+def test_settling_leaves_no_crease_particle_off_its_line():
+    # regression (boss-clean, held-out): a crease particle that drifted 0.63 r0 off its line
+    # kept the bisector normal as an oriented particle inside the solid; ball pivoting made a
+    # pleat over it and the mesh split along an orientation seam
+    field = _edge(convex=True)
+    pos = np.array([[0.0, 0.0, 0.0], [-0.45, 2.0, -0.45], [-0.45, 0.3, -0.4], [-2.0, 0.0, 0.0]])
+    bis = np.array([2**-0.5, 0.0, 2**-0.5])
+    state = ParticleState.from_points(pos, np.array([bis, bis, bis, [0.0, 0.0, 1.0]]))
+    state.set_oriented(np.array([False, False, False, True]))
+    crease = field.constrain(state, settle=True)
+    assert crease.tolist() == [True, True, False, False]
+    np.testing.assert_allclose(state.position[1], [0.0, 2.0, 0.0], atol=1e-12)  # back on it
+    # no room on the line: back onto the face it is nearest, with that face's normal
+    np.testing.assert_allclose(state.position[2], [-0.45, 0.3, 0.0], atol=1e-12)
+    np.testing.assert_allclose(state.normal[2], [0.0, 0.0, 1.0], atol=1e-12)
+    np.testing.assert_array_equal(state.position[3], pos[3])
+    assert np.array_equal(state.is_oriented, ~crease)
+
+
+def test_projection_onto_the_data_leaves_crease_particles_on_their_lines():
+    # regression (boss-clean, held-out): the final projection onto the data's quadrics moved
+    # a crease particle 0.63 r0 off its edge, under a face, where it kept its bisector
+    # normal; ball pivoting folded a triangle over it and the mesh split along a seam
+    from recon.fitting.pipeline import _trim
+
+    class Shifted:  # a data surface 0.3 r0 below every particle
+        def project(self, positions, normals=None):
+            n = np.tile([0.0, 0.0, 1.0], (len(positions), 1))
+            return positions - 0.3 * n, n, np.full(len(positions), 0.3)
+
+        def nearest(self, positions):
+            return np.zeros(len(positions)), np.zeros(len(positions), dtype=np.int64)
+
+    pos = np.array([[0.0, 0.0, 0.0], [-1.0, 0.0, 0.0]])
+    state = ParticleState.from_points(pos, np.array([[2**-0.5, 0.0, 2**-0.5], [0.0, 0.0, 1.0]]))
+    state.set_oriented(np.array([False, True]))
+    cfg = apply_overrides(ReconConfig(), {"growth.max_gap": 10.0})
+    assert _trim(state, Shifted(), cfg) == 0
+    np.testing.assert_array_equal(state.position[0], pos[0])  # the crease particle stays
+    np.testing.assert_allclose(state.position[1], [-1.0, 0.0, -0.3])  # the others project

@@ -12,8 +12,9 @@ from click.testing import CliRunner
 from mesh_shapes import wedge_points
 from recon.cli.main import app
 
+from recon import creases as creases_module
 from recon.config import CreasesConfig, ReconConfig
-from recon.creases import CORNER, CREASE, SMOOTH, detect_creases
+from recon.creases import CORNER, CREASE, SMOOTH, detect_creases, orient_across_creases
 from recon.fitting.report import FitReport
 from recon.io import write_points
 
@@ -125,6 +126,78 @@ def test_rounded_edge_is_not_a_crease():
     assert (detect_creases(_filleted(0.002)).labels == CREASE).sum() > 50
 
 
+def _short_wedge(length, n=4000, seed=0):
+    """The 90 deg wedge of ``wedge_points`` cut to a crease ``length`` long (same density)."""
+    rng = np.random.default_rng(seed)
+    m = int(n * length)
+    u = rng.uniform(0.0, 1.0, (m, 2)) * [1.0, length] - [0.0, length / 2]
+    v = rng.uniform(0.0, 1.0, (m, 2)) * [1.0, length] - [0.0, length / 2]
+    return np.r_[np.c_[-u[:, 0], u[:, 1], np.zeros(m)], np.c_[np.zeros(m), v[:, 1], v[:, 0]]]
+
+
+def test_a_short_fold_is_not_a_crease_a_long_one_is():
+    # regression: a sharp fold only ~4 neighbourhood radii long (0.25; radius ~0.064) was a
+    # crease, as were the short fragments on tight bends of smooth scans (bunny, face)
+    assert not (detect_creases(_short_wedge(0.25)).labels != SMOOTH).any()
+    found = detect_creases(_short_wedge(0.6))
+    assert (found.labels == CREASE).sum() > 50
+    assert 0.45 < found.length < 0.65
+
+
+def _fold_measures(radius):
+    """Sharpness (the quadric's miss beyond the noise over its miss on the exact fold) and
+    quadric / sides residual ratio at five feet along the 90 deg wedge rounded by ``radius``."""
+    from scipy.spatial import cKDTree
+
+    from recon.creases import _fold_residuals
+
+    p = _filleted(radius)
+    feet = np.c_[np.full(5, radius), np.linspace(-0.2, 0.2, 5), np.zeros(5)]
+    dist, idx = cKDTree(p).query(feet, k=48)
+    side = np.tile(np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0]]), (5, 1, 1))
+    res_q, res_s, res_i = _fold_residuals(p, idx, side, feet, dist[:, -1])
+    return np.sqrt(np.maximum(res_q**2 - res_s**2, 0.0)) / res_i, res_q / np.maximum(res_s, 1e-300)
+
+
+def test_a_fold_is_told_from_a_tight_bend():
+    # exact fold: one quadric misses exactly what it misses on the ideal fold; two planes fit
+    sharp, ratio = _fold_measures(1e-9)
+    assert np.allclose(sharp, 1.0, atol=0.02) and np.all(ratio > 1e3)
+    # a fillet of about two spacings (half the neighbourhood radius): the bend is easier
+    sharp, ratio = _fold_measures(0.03)
+    assert np.median(sharp) < 0.6 and np.median(ratio) < 1.5
+
+
+def test_a_noisy_fold_is_still_a_crease():
+    # 0.25 % of the diagonal: the sides fit to the noise floor
+    found = detect_creases(_noisy(wedge_points(90), 0.0025))
+    assert 0.85 < found.length < 1.1
+
+
+def _can(n=12000, r=0.3, height=0.6, seed=0):
+    """A closed cylinder: side wall and two flat caps (two circular 90 deg rims)."""
+    rng = np.random.default_rng(seed)
+    side, cap = 2 * np.pi * r * height, np.pi * r * r
+    m = rng.multinomial(n, np.array([side, cap, cap]) / (side + 2 * cap))
+    t = rng.uniform(0, 2 * np.pi, m[0])
+    out = [np.c_[r * np.cos(t), r * np.sin(t), rng.uniform(0, height, m[0])]]
+    for k, z in ((1, 0.0), (2, height)):
+        rr, tt = r * np.sqrt(rng.uniform(size=m[k])), rng.uniform(0, 2 * np.pi, m[k])
+        out.append(np.c_[rr * np.cos(tt), rr * np.sin(tt), np.full(m[k], z)])
+    return np.concatenate(out)
+
+
+def test_circular_rims_are_creases():
+    # regression: the wall bends along the rim, so two planes missed it by more than the
+    # (exact) data's noise floor and the rims were dropped; a side may bend along the line
+    p = _can()
+    found = detect_creases(p)
+    assert found.length == pytest.approx(2 * 2 * np.pi * 0.3, rel=0.1)
+    assert len(found.corners) == 0
+    z = p[found.labels == CREASE, 2]
+    assert np.all(np.minimum(z, 0.6 - z) < 0.1)
+
+
 def test_threshold_above_the_turn_finds_nothing():
     found = detect_creases(wedge_points(90), angle_deg=100.0)
     assert not (found.labels != SMOOTH).any()
@@ -182,8 +255,8 @@ def test_detection_is_deterministic_and_orientation_free():
 
 
 def test_config_and_cli(tmp_path):
-    # off by default; --crease-angle turns it on, --no-creases off
-    assert not CreasesConfig().enabled and 0 < ReconConfig().creases.angle_deg < 90
+    # on by default; --crease-angle sets the angle, --no-creases turns it off
+    assert CreasesConfig().enabled and 0 < ReconConfig().creases.angle_deg < 90
     src = tmp_path / "lblock.ply"
     write_points(src, _lblock(n=3000))
     runner = CliRunner()
@@ -203,7 +276,8 @@ def test_config_and_cli(tmp_path):
     assert "creases" not in json.loads((tmp_path / "b.report.json").read_text())
     res = runner.invoke(app, ["fit", str(src), "-o", str(tmp_path / "d.ply"), *fast])
     assert res.exit_code == 0, res.output
-    assert "creases" not in json.loads((tmp_path / "d.report.json").read_text())
+    # defaults detect the creases too
+    assert json.loads((tmp_path / "d.report.json").read_text())["creases"]["length"] > 0
     # the creases change the mesh; with creases.fit=false detection only feeds the report
     assert (tmp_path / "a.ply").read_bytes() != (tmp_path / "b.ply").read_bytes()
     report_only = ["--crease-angle", "60", "--set", "creases.fit=false"]
@@ -215,3 +289,47 @@ def test_config_and_cli(tmp_path):
         app, ["fit", str(src), "-o", str(tmp_path / "c.ply"), "--crease-angle", "0"]
     )
     assert res.exit_code == 2 and "angle_deg" in res.output
+
+
+@pytest.mark.parametrize("turn", [90, 120])
+def test_orientation_is_made_consistent_across_a_crease(turn):
+    # regression (wedge, held-out): orientation by propagation took a whole face of a
+    # 30-60-90 prism inward (a 150 deg knife edge looks like a 30 deg bend up to sign); the
+    # mesh came out open or of genus 2-3. Face A (z = 0, normal +z) and face B turned up by
+    # `turn`: consistent normals face the same side of the fold, A's +z means B's faces -x.
+    p = wedge_points(turn)[:6000]  # A has 4000 points, B 2000: most points are on A
+    a = np.radians(turn)
+    b_normal = np.array([-np.sin(a), 0.0, np.cos(a)])  # B's normal consistent with A's +z
+    good = np.r_[np.tile([0.0, 0.0, 1.0], (4000, 1)), np.tile(b_normal, (2000, 1))]
+    bad = good * np.r_[np.ones(4000), -np.ones(2000)][:, None]
+    found = detect_creases(p, bad, angle_deg=45.0)
+    out, fixed, n = orient_across_creases(p, bad, found)
+    assert n >= 1800  # B (2000), but for points with normals of both faces near the line
+    assert np.mean(np.einsum("ij,ij->i", out, good) > 0) > 0.99
+    # the side normals follow: both face the same side of the fold
+    cr = fixed.labels == CREASE
+    sides = fixed.side_normals[cr]
+    np.testing.assert_allclose(np.median(sides[:, 0] + sides[:, 1], axis=0)[1], 0.0, atol=1e-6)
+    assert np.median(np.einsum("ij,j->i", sides[:, 0] + sides[:, 1], good[0] + b_normal)) > 0
+    # consistent input is returned as it is
+    found = detect_creases(p, good, angle_deg=45.0)
+    out, _, n = orient_across_creases(p, good, found)
+    assert n == 0 and out is good
+
+
+@pytest.mark.parametrize("turn", [60, 90, 150])
+@pytest.mark.parametrize("noise", [0.0, 0.003])
+def test_the_flatness_screen_does_not_change_a_detection(turn, noise, monkeypatch):
+    # the screen skips the Gauss-map clustering where every neighbour is flat; on folds from
+    # the threshold to a knife edge, clean or noisy, the detection is the one without it
+    p = wedge_points(turn) + np.random.default_rng(1).normal(scale=noise, size=(8000, 3))
+    screened = detect_creases(p, angle_deg=45.0)
+    monkeypatch.setattr(creases_module, "SCREEN_FRACTION", 0.0)
+    full = detect_creases(p, angle_deg=45.0)
+    assert screened.n_crease_points > 50
+    np.testing.assert_array_equal(screened.labels, full.labels)
+    cr = full.labels != SMOOTH
+    for name in ("side_normals", "direction", "turn_deg", "foot"):
+        np.testing.assert_array_equal(getattr(screened, name)[cr], getattr(full, name)[cr])
+    np.testing.assert_array_equal(screened.corners, full.corners)
+    assert screened.length == full.length

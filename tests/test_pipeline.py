@@ -177,7 +177,9 @@ def test_report_round_trips_through_its_json(tmp_path):
     assert text == dumps(res.report.to_dict()) + "\n"
     data = json.loads(text)
     assert list(data)[:3] == ["oprecon_version", "input", "spacing"]
-    assert list(data)[-3:] == ["fidelity", "mesh_to_input", "output"]  # optional ones omitted
+    # optional ones omitted; creases are on by default and a sphere has none
+    assert data["creases"]["length"] == 0.0 and data["creases"]["corners"] == 0
+    assert [k for k in data if k != "creases"][-3:] == ["fidelity", "mesh_to_input", "output"]
     assert data["output"] == {"mesh": str(tmp_path / "m.ply"), "report": str(path)}
     back = FitReport.from_dict(data)
     assert back.to_dict() == data

@@ -38,7 +38,7 @@ from ..cloud import PointCloud
 from ..config import ReconConfig, config_to_dict, with_values
 from ..crease_mesh import corner_normals, split_crease_vertices
 from ..crease_surface import CreaseField
-from ..creases import Creases, detect_creases
+from ..creases import Creases, detect_creases, orient_across_creases
 from ..errors import InputError
 from ..geometry import bbox_diagonal
 from ..intersections import untangle
@@ -144,7 +144,10 @@ def _trim(state: ParticleState, surface: DataSurface, cfg: ReconConfig) -> int:
         dist <= TRIM_GAP_FRACTION * cfg.growth.max_gap
     )
     if tri_cfg.project_to_data:
-        state.position = projected
+        # crease particles stay on their crease lines (the data's edge): a quadric's foot
+        # rounds the edge and can sit under a face, with the particle's bisector normal
+        line = ~np.asarray(state.is_oriented, dtype=bool)
+        state.position = np.where(line[:, None], state.position, projected)
     n_trimmed = int((~keep).sum())
     if n_trimmed:
         state.remove(keep)
@@ -361,6 +364,8 @@ def _fit_sheet(cloud: PointCloud, cfg: ReconConfig, on_progress: ProgressFn | No
     clock.lap("normals")
     clock.check()
     found, creases = _detect_creases(points, normals, cfg, bbox_diagonal(points))
+    if found is not None:  # a crease fixes the normals' orientation across it
+        normals, found, _ = orient_across_creases(points, normals, found, k=cfg.creases.k)
 
     r0, d_nn = choose_spacing(points, cfg)
     check_grid_size(points, r0)

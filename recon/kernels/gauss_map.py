@@ -179,9 +179,20 @@ def _pair(p, na, nb_, ca, cb, out_d, out_x0):  # pragma: no cover - numba
 
 @njit(**_PARALLEL)
 def gauss_map_kernel(
-    points, normals, variation, idx, keep, min_turn, ratio, crease_share, corner_share, min_det
+    points,
+    normals,
+    variation,
+    query,
+    idx,
+    keep,
+    min_turn,
+    ratio,
+    crease_share,
+    corner_share,
+    min_det,
 ):  # pragma: no cover - numba
-    """Classify every point from the normals of its neighbours ``idx`` (n, K).
+    """Classify the points ``query`` (n, 3) from the normals of their neighbours ``idx`` (n, K)
+    among ``points``.
 
     Only the ``keep`` neighbours of least surface ``variation`` (the PCA ratio
     ``l3 / (l1 + l2 + l3)``) are clustered: the normals of points within a normal-estimation
@@ -264,9 +275,7 @@ def gauss_map_kernel(
         d2 = np.zeros(3)
         x2 = np.zeros(3)
         if min(share[0], share[1]) >= crease_share and sep2 > ratio * (spread[0] + spread[1]):
-            t2, _, dist2 = _pair(
-                points[i], centres[0], centres[1], centroid[0], centroid[1], d2, x2
-            )
+            t2, _, dist2 = _pair(query[i], centres[0], centres[1], centroid[0], centroid[1], d2, x2)
             crease_ok = t2 > min_turn
         # three clusters: the 2-means centres plus the worst-explained member
         c3 = centres.copy()
@@ -289,7 +298,7 @@ def gauss_map_kernel(
                 if sep <= ratio * (spread3[a] + spread3[b]):
                     corner_ok = False
                     break
-                t, _, dd = _pair(points[i], plane3[a], plane3[b], centroid3[a], centroid3[b], d, x0)
+                t, _, dd = _pair(query[i], plane3[a], plane3[b], centroid3[a], centroid3[b], d, x0)
                 if t <= min_turn:
                     corner_ok = False
                     break
