@@ -31,9 +31,11 @@ from scipy.spatial import cKDTree
 
 from .config import TriangulationConfig
 from .crease_mesh import flip_straddling_edges
+from .intersections import self_intersections, untangle
 from .kernels.circumsphere import circumsphere_kernel
 from .mesh import (
     boundary_loops,
+    count_edge_faces,
     edge_keys,
     face_area_vectors,
     face_components,
@@ -520,7 +522,9 @@ def fill_small_holes(
 
     A loop whose rim faces point against the patch that would close it is the outer rim of an
     open sheet and stays open. Loops are closed by :func:`zip_loop` (no new vertex), wound
-    opposite to the boundary half-edges so that orientation stays consistent.
+    opposite to the boundary half-edges so that orientation stays consistent. A loop whose
+    zip crosses the mesh and whose rim normals disagree (it wraps round a thin part) is zipped
+    again fold-free (:func:`rezip_crossing_loops`).
 
     ``scale`` (per vertex, default 1) is the local rest spacing: every length limit above is
     multiplied by the mean scale of the loop's rim, and ``is_covered`` is then called as
@@ -547,7 +551,7 @@ def fill_small_holes(
             return np.asarray(is_covered(points))  # type: ignore[misc]
         return np.asarray(is_covered(points, np.full(len(points), s)))  # type: ignore[misc]
 
-    new_faces = []
+    new_faces, zipped = [], []
     for loop in loops:
         if len(loop) < 3:
             continue
@@ -582,8 +586,10 @@ def fill_small_holes(
         if coherent and against and small_sheet:
             continue
         new_faces.append(zip_loop(vertices, rev, edge_set))
+        zipped.append(rev)
     if not new_faces:
         return vertices, normals, faces, 0
+    new_faces = rezip_crossing_loops(vertices, normals, faces, zipped, new_faces, edge_set)
     return vertices, normals, np.vstack([faces, *new_faces]), len(new_faces)
 
 
@@ -617,23 +623,45 @@ def across_points(ring: np.ndarray, min_steps: int = 3) -> np.ndarray:
 
 
 def zip_loop(
-    vertices: np.ndarray, loop: np.ndarray, edges: set[tuple[int, int]] | None = None
+    vertices: np.ndarray,
+    loop: np.ndarray,
+    edges: set[tuple[int, int]] | None = None,
+    normals: np.ndarray | None = None,
 ) -> np.ndarray:
     """Close a loop (in the winding of the new faces) by repeatedly cutting off the corner
     with the shortest diagonal: a zipper along a narrow seam, no new vertices. Diagonals that
     are already ``edges`` (``(lo, hi)`` pairs) of the mesh are avoided. Returns faces.
+
+    With ``normals`` (unit, per vertex), a corner whose triangle faces against the normal at
+    any of its three corners is cut only when every corner does: such a triangle folds the
+    patch back on itself. :func:`fill_small_holes` zips this way a loop whose plain zip
+    crosses the mesh: on a hole that wraps round the rim of a thin part (both faces of an
+    ear on one loop) the shortest diagonals cross the part's thickness and build a membrane
+    through the part that crosses its other face.
     """
     ring = [int(x) for x in loop]
     edges = edges if edges is not None else set()
     out = []
     while len(ring) > 3:
         p = vertices[ring]
-        diag = np.linalg.norm(np.roll(p, 1, axis=0) - np.roll(p, -1, axis=0), axis=1)
+        prev, nxt = np.roll(p, 1, axis=0), np.roll(p, -1, axis=0)
+        diag = np.linalg.norm(prev - nxt, axis=1)
         k = len(ring)
         for i in range(k):
             a, b = ring[(i - 1) % k], ring[(i + 1) % k]
             if (min(a, b), max(a, b)) in edges:
                 diag[i] = np.inf
+        if normals is not None:
+            # corner i's triangle (i - 1, i, i + 1) against the normals at its corners
+            tri_n = np.cross(p - prev, nxt - prev)
+            n = normals[ring]
+            folds = (
+                (np.einsum("ij,ij->i", tri_n, n) < 0)
+                | (np.einsum("ij,ij->i", tri_n, np.roll(n, 1, axis=0)) < 0)
+                | (np.einsum("ij,ij->i", tri_n, np.roll(n, -1, axis=0)) < 0)
+            )
+            if not np.all(folds | ~np.isfinite(diag)):
+                diag[folds] = np.inf
         i = int(np.argmin(diag))
         a, b = ring[(i - 1) % k], ring[(i + 1) % k]
         edges.add((min(a, b), max(a, b)))
@@ -641,6 +669,73 @@ def zip_loop(
         del ring[i]
     out.append(ring)
     return np.asarray(out, dtype=np.int64)
+
+
+def rezip_crossing_loops(
+    vertices: np.ndarray,
+    normals: np.ndarray,
+    faces: np.ndarray,
+    loops: list[np.ndarray],
+    patches: list[np.ndarray],
+    edges: set[tuple[int, int]],
+) -> list[np.ndarray]:
+    """Zip again, fold-free (:func:`zip_loop` with ``normals``), each loop whose patch crosses
+    the mesh or another patch and whose rim normals disagree (the loop wraps round a thin
+    part); the new patch is kept when fewer crossings are left after untangling around it
+    (shallow crossings untangle; a patch through a thin part's other face cannot). ``loops``
+    are in the winding of the patches; ``edges`` holds the mesh's and the patches' edges."""
+    if not patches:
+        return patches
+    owner = np.repeat(np.arange(len(patches)), [len(p) for p in patches])
+    every = np.vstack([faces, *patches])
+    pairs = self_intersections(vertices, every, np.arange(len(faces), len(every)))
+    if not len(pairs):
+        return patches
+    hit = pairs[pairs >= len(faces)] - len(faces)
+    crossings = np.bincount(owner[hit], minlength=len(patches))
+    patches = list(patches)
+    for k in np.flatnonzero(crossings):
+        rim = normals[loops[k]]
+        if np.min(rim @ rim.sum(axis=0)) >= 0:
+            continue  # one sheet: the loop does not wrap round a thin part
+        ring = set(int(x) for x in loops[k])
+        own = {
+            (min(a, b), max(a, b))
+            for a, b in patches[k][:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
+            if not ({int(a), int(b)} <= ring and abs(_ring_step(loops[k], a, b)) == 1)
+        }
+        alt = zip_loop(vertices, loops[k], edges - own, normals)
+        others = np.vstack([faces, *patches[:k], *patches[k + 1 :]])
+        if _left_after_untangle(vertices, others, alt) < _left_after_untangle(
+            vertices, others, patches[k]
+        ):
+            edges -= own
+            edges |= {(min(a, b), max(a, b)) for a, b in alt[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)}
+            patches[k] = alt
+    return patches
+
+
+def _left_after_untangle(vertices: np.ndarray, faces: np.ndarray, patch: np.ndarray) -> int:
+    """Crossings a patch leaves once the mesh around it is untangled (the fit's repair):
+    :func:`recon.intersections.untangle` on the faces near the patch, their rim held."""
+    every = np.vstack([faces, patch])
+    centre = vertices[patch.reshape(-1)]
+    reach = float(np.linalg.norm(centre - centre.mean(axis=0), axis=1).max()) + 3.0
+    near = np.linalg.norm(vertices[every].mean(axis=1) - centre.mean(axis=0), axis=1) <= reach
+    local = every[near]
+    used, inv = np.unique(local, return_inverse=True)
+    sub = inv.reshape(-1, 3)
+    e, c = count_edge_faces(sub)
+    fixed = np.zeros(len(used), dtype=bool)
+    fixed[e[c == 1].reshape(-1)] = True
+    return untangle(vertices[used], sub, fixed=fixed)[2]
+
+
+def _ring_step(loop: np.ndarray, a: int, b: int) -> int:
+    """Steps along the loop from vertex ``a`` to ``b`` (+-1 for a rim edge)."""
+    where = {int(v): i for i, v in enumerate(loop)}
+    d = (where[int(b)] - where[int(a)]) % len(loop)
+    return 1 if d == 1 else -1 if d == len(loop) - 1 else d
 
 
 def remove_small_components(

@@ -10,6 +10,7 @@ from recon.triangulate import (
     orient_faces,
     remove_non_manifold_faces,
     triangulate_particles,
+    zip_loop,
 )
 
 
@@ -243,3 +244,28 @@ def test_seam_between_two_fronts_is_zipped_and_a_real_hole_stays():
     assert t["non_manifold_vertices"] == 0 and t["consistently_oriented"]
     c = res.vertices[res.faces].mean(axis=1)
     assert not (np.linalg.norm(c[:, :2] - [0.0, -10.0], axis=1) < 5.0).any()
+
+
+def notched_loop():
+    """A flat loop (counter-clockwise seen from +z) with a narrow notch down to a reflex corner:
+    that corner has the shortest diagonal, but its triangle faces -z, folded over the patch."""
+    xy = np.array([[0, 0], [4, 0], [4, 3], [2.1, 3], [2.0, 1.0], [1.9, 3], [0, 3]], dtype=float)
+    vertices = np.c_[xy, np.zeros(len(xy))]
+    normals = np.tile([0.0, 0.0, 1.0], (len(xy), 1))
+    area = 0.5 * float(np.sum(xy[:, 0] * np.roll(xy[:, 1], -1) - np.roll(xy[:, 0], -1) * xy[:, 1]))
+    return vertices, normals, np.arange(len(xy)), area
+
+
+def test_zip_never_cuts_a_corner_whose_triangle_folds_against_the_normals():
+    """Regression (bunny-nonuniform, issue 11): on a loop that wraps round the rim of a thin ear
+    the shortest diagonals fold the patch back through the ear's other face (crossing faces
+    untangle cannot separate). With the normals, the zipper cuts only corners whose triangle
+    faces the way the normals do, so the patch covers the hole once."""
+    vertices, normals, loop, area = notched_loop()
+    old = zip_loop(vertices, loop)  # the shortest diagonal first: the reflex corner folds
+    assert (face_area_vectors(vertices, old)[:, 2] < 0).any()
+    faces = zip_loop(vertices, loop, normals=normals)
+    assert len(faces) == len(loop) - 2
+    up = face_area_vectors(vertices, faces)[:, 2]
+    assert (up > 0).all()
+    assert 0.5 * up.sum() == pytest.approx(area)  # no overlap: the areas add up to the hole's
