@@ -74,7 +74,10 @@ def candidate_pairs(
         mark = np.zeros(n, dtype=bool)
         mark[np.asarray(subset, dtype=np.int64)] = True
         pairs = pairs[mark[pairs[:, 0]] | mark[pairs[:, 1]]]
-    key = np.unique(pairs[:, 0] * n + pairs[:, 1])  # a pair may have been found twice
+    key = pairs[:, 0] * n + pairs[:, 1]
+    # a pair may have been found twice (by both its faces, or also as a large face's);
+    # query_pairs alone finds each pair once, and then sorting is all np.unique would do
+    key = np.sort(key) if subset is None and len(big) == 0 else np.unique(key)
     return np.stack([key // n, key % n], axis=1)
 
 

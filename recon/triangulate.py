@@ -538,9 +538,17 @@ def fill_small_holes(
     loops = boundary_loops(faces)
     if not loops:
         return vertices, normals, faces, 0
+    # Only half-edges between rim vertices are ever looked up (the rim's faces; the diagonals
+    # zip_loop tests and adds join rim vertices), so the dict and the set hold only those:
+    # same entries, in the same order (a later duplicate still wins), without a Python loop
+    # over every half-edge.
+    on_rim = np.zeros(len(vertices), dtype=bool)
+    for loop in loops:
+        on_rim[loop] = True
     he = faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
-    rim_face = {(int(a), int(b)): i // 3 for i, (a, b) in enumerate(he)}
-    edge_set = {(min(a, b), max(a, b)) for a, b in rim_face}
+    sel = np.flatnonzero(on_rim[he[:, 0]] & on_rim[he[:, 1]])
+    rim_face = dict(zip(map(tuple, he[sel].tolist()), (sel // 3).tolist(), strict=True))
+    edge_set = set(map(tuple, np.sort(he[sel], axis=1).tolist()))
     _, comp = face_components(faces, len(vertices))
     comp_area = np.bincount(
         comp, weights=0.5 * np.linalg.norm(face_area_vectors(vertices, faces), axis=1)
