@@ -25,7 +25,7 @@ EXIT_INTERRUPTED = 130
 
 def format_rows(rows: list[tuple[str, str]], indent: str = "  ") -> list[str]:
     """``name  value`` lines with the names padded to one column (the summaries' layout)."""
-    width = max(len(k) for k, _ in rows)
+    width = max((len(k) for k, _ in rows), default=0)
     return [f"{indent}{k:<{width}}  {v}" for k, v in rows]
 
 

@@ -338,7 +338,9 @@ def _knn_graph(
     # across when both ends see it so (where only one end's neighbourhood looks two-sided,
     # that is more often noise than a thin part)
     w_rows, w_cols = np.nonzero(across)
-    one_way = np.sort(w_rows * np.int64(n) + wide[w_rows, 1 + w_cols])
+    w_other = wide[w_rows, 1 + w_cols]
+    w_rows, w_other = w_rows[w_rows != w_other], w_other[w_rows != w_other]  # duplicates
+    one_way = np.sort(w_rows * np.int64(n) + w_other)
     seen_back = one_way[np.isin(one_way, (one_way % n) * np.int64(n) + one_way // n)]
     key = np.union1d(rows * np.int64(n) + cols, seen_back)
     rows, cols = key // n, key % n

@@ -73,6 +73,7 @@ def _sheet(k: int = 48) -> ParticleState:
     return ParticleState.from_points(position, normal)
 
 
+@needs_two
 def test_states_do_not_depend_on_the_choices(monkeypatch):
     """A chooser that flips between serial and threaded every call gives the same states as
     serial steps."""
