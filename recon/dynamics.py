@@ -295,7 +295,12 @@ class Simulation:
         self._step_threads.record(parallel, time.perf_counter() - start, self.state.n)
         self.n_threaded_steps += int(parallel)
         half_skin = 0.5 * self.params.skin
-        self._needs_rebuild = not (result.max_displacement2 <= half_skin * half_skin)
+        # the usual rule (no particle moved more than skin/2) or, when a few did, the exact
+        # per-particle test: the list still holds every interacting pair
+        self._needs_rebuild = not (
+            result.max_displacement2 <= half_skin * half_skin
+            or self._neighbors.covers(self.state.position)
+        )
         self.n_steps_done += 1
         return StepStats(
             kinetic=result.kinetic,

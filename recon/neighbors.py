@@ -24,7 +24,12 @@ import numpy as np
 
 from .errors import DivergenceError
 from .geometry import as_points
-from .kernels.cell_list import bin_particles, build_neighbor_list_kernel, max_displacement2
+from .kernels.cell_list import (
+    bin_particles,
+    build_neighbor_list_kernel,
+    list_covers,
+    max_displacement2,
+)
 from .kernels.grid_query import covered_kernel, grid_build, knn_grid_kernel
 from .kernels.options import query_workers, thread_limit
 
@@ -157,6 +162,7 @@ class NeighborList:
         self.indices = np.zeros(0, dtype=np.int32)
         self.reference_position = np.zeros((0, 3))
         self.n_builds = 0
+        self._binning: tuple | None = None
 
     @property
     def radius(self) -> float:
@@ -174,6 +180,39 @@ class NeighborList:
         self.offsets, self.indices = build_neighbor_list(pos, self.radius, parallel=parallel)
         self.reference_position = pos.copy()
         self.n_builds += 1
+        self._binning = None
+
+    def covers(self, position: np.ndarray) -> bool:
+        """Whether every pair closer than ``cutoff`` at ``position`` is in the list (exact).
+
+        True whenever no particle moved more than skin/2 since the build (the usual rule);
+        otherwise the few particles that did are checked against the build-time cell grid
+        (:func:`recon.kernels.cell_list.list_covers`), so that a handful of fast particles do
+        not force a rebuild of the whole list. False when the particle count changed, some
+        particle moved more than the skin, or more than ``FAST_FRACTION`` of them moved
+        more than skin/2.
+        """
+        pos = np.ascontiguousarray(position, dtype=np.float64)
+        if pos.shape != self.reference_position.shape or self.n_builds == 0:
+            return False
+        n = pos.shape[0]
+        if n == 0:
+            return True
+        if self._binning is None:
+            self._binning = bin_particles(self.reference_position, self.radius)
+        max_fast = max(int(FAST_FRACTION * n), 1)
+        return bool(
+            list_covers(
+                pos,
+                self.reference_position,
+                self.offsets,
+                self.indices,
+                self.cutoff,
+                self.skin,
+                self._binning,
+                max_fast,
+            )
+        )
 
     def needs_rebuild(self, position: np.ndarray) -> bool:
         """True if the particle count changed or some particle moved more than skin/2."""
@@ -195,6 +234,11 @@ class NeighborList:
         """Indices of the neighbours of particle ``i`` (a view)."""
         return self.indices[self.offsets[i] : self.offsets[i + 1]]
 
+
+#: :meth:`NeighborList.covers` answers False (rebuild) when more than this fraction of the
+#: particles moved more than half the skin: checking them one by one would then cost about as
+#: much as the rebuild.
+FAST_FRACTION = 0.05
 
 #: Shells searched around a query's cell before :class:`PointGrid` hands the query to a k-d tree.
 GRID_MAX_RING = 3

@@ -78,6 +78,48 @@ def test_list_stays_valid_within_half_skin():
         assert set(row) <= set(nl.neighbors_of(i).tolist())
 
 
+def test_covers_is_exact_for_a_few_fast_particles():
+    """A particle past skin/2 keeps the list valid until it (with a neighbour's own move)
+    closes in on a particle that is not in its row: Δ_a + Δ_b > skin is needed."""
+    position = np.array([[0.0, 0, 0], [2.45, 0, 0], [0.0, 5, 0], [0.0, -5, 0]])
+    nl = NeighborList(cutoff=2.0, skin=0.4)
+    nl.build(position)
+    assert nl.neighbors_of(0).size == 0  # 2.45 > 2.4: not listed
+    moved = position.copy()
+    moved[0] += [0.0, 0.0, 0.3]  # fast, but away from everything
+    assert nl.covers(moved)
+    moved = position.copy()
+    moved[0] += [0.3, 0.0, 0.0]  # 2.15 apart: still outside the cutoff
+    assert nl.covers(moved)
+    moved[1] -= [0.19, 0.0, 0.0]  # 1.96 apart: interacting, not listed
+    assert not nl.covers(moved)
+    moved = position.copy()
+    moved[0] += [0.41, 0.0, 0.0]  # past the full skin
+    assert not nl.covers(moved)
+    assert not nl.covers(position[:3])  # the count changed
+
+
+def test_covers_never_misses_a_pair():
+    """Random builds and moves (a few fast particles, all jittered): whenever covers() says
+    True, every pair within the cutoff is in the list (brute force)."""
+    rng = np.random.default_rng(11)
+    kept = 0
+    for _ in range(60):
+        n = int(rng.integers(40, 300))
+        position = rng.uniform(0, 6, (n, 3)) * [1.0, 1.0, 0.2]
+        nl = NeighborList(cutoff=2.0, skin=0.4)
+        nl.build(position)
+        moved = position + rng.normal(0.0, 0.03, position.shape)
+        fast = rng.choice(n, size=2, replace=False)
+        moved[fast] += rng.normal(0.0, 0.2, (2, 3))
+        if not nl.covers(moved):
+            continue
+        kept += 1
+        for i, row in enumerate(brute_force_neighbors(moved, 2.0)):
+            assert set(row) <= set(nl.neighbors_of(i).tolist())
+    assert kept > 10
+
+
 def test_particle_count_change_forces_rebuild():
     position = np.random.default_rng(3).uniform(0, 5, size=(50, 3))
     nl = NeighborList(cutoff=1.5, skin=0.3)

@@ -262,3 +262,93 @@ def max_displacement2(position, reference_position):
         if d2 > best:
             best = d2
     return best
+
+
+@njit(**JIT_OPTIONS)
+def list_covers(position, reference_position, offsets, indices, cutoff, skin, binning, max_fast):
+    r"""Whether a Verlet list built at ``reference_position`` still holds every pair closer
+    than ``cutoff`` at ``position`` (exact; Allen & Tildesley §5.3 with a per-particle test).
+
+    Let Δ_i = |x_i − x_i⁰|. A pair missing from the list was at least r_l = r_c + s apart at the
+    build, so it can be closer than r_c now only if Δ_i + Δ_j > s. Pairs of two particles with
+    Δ ≤ s/2 are therefore covered (the usual rebuild rule); the "fast" particles with
+    Δ > s/2 are checked one by one: every particle j within r_c of such a particle a now
+    (its build position then lies within r_c + Δ_j ≤ r_l of x_a, so in the 27 cells of the
+    build-time grid of side r_l around x_a) must be in a's row.
+
+    Parameters
+    ----------
+    position, reference_position : (n, 3) float64
+        Current positions and the positions at the build [length].
+    offsets, indices : CSR list (rows ascending, full)
+        Built with radius r_l = ``cutoff + skin`` at ``reference_position``.
+    cutoff, skin : float
+        r_c and s [length].
+    binning : tuple
+        :func:`bin_particles` of ``reference_position`` with cell side r_l.
+    max_fast : int
+        More fast particles than this: answer False (a rebuild is cheaper than the test).
+
+    Returns
+    -------
+    bool
+        False also when some particle moved more than the skin.
+    """
+    n = position.shape[0]
+    half2 = 0.25 * skin * skin
+    skin2 = skin * skin
+    fast = np.zeros(max_fast + 1, dtype=np.int64)
+    n_fast = 0
+    for i in range(n):
+        dx = position[i, 0] - reference_position[i, 0]
+        dy = position[i, 1] - reference_position[i, 1]
+        dz = position[i, 2] - reference_position[i, 2]
+        d2 = dx * dx + dy * dy + dz * dz
+        if d2 > half2:
+            if d2 > skin2 or n_fast == max_fast:
+                return False
+            fast[n_fast] = i
+            n_fast += 1
+    order, cell_keys, cell_start, _, dims, lo = binning
+    inv = 1.0 / (cutoff + skin)
+    cutoff2 = cutoff * cutoff
+    for f in range(n_fast):
+        a = fast[f]
+        xa = position[a, 0]
+        ya = position[a, 1]
+        za = position[a, 2]
+        cx = np.int64(math.floor((xa - lo[0]) * inv))
+        cy = np.int64(math.floor((ya - lo[1]) * inv))
+        cz = np.int64(math.floor((za - lo[2]) * inv))
+        row_lo = offsets[a]
+        row_hi = offsets[a + 1]
+        for ddx in range(-1, 2):
+            x = cx + ddx
+            if x < 0 or x >= dims[0]:
+                continue
+            for ddy in range(-1, 2):
+                y = cy + ddy
+                if y < 0 or y >= dims[1]:
+                    continue
+                for ddz in range(-1, 2):
+                    z = cz + ddz
+                    if z < 0 or z >= dims[2]:
+                        continue
+                    key = (x * dims[1] + y) * dims[2] + z
+                    c = np.searchsorted(cell_keys, key)
+                    if c >= cell_keys.shape[0] or cell_keys[c] != key:
+                        continue
+                    for p in range(cell_start[c], cell_start[c + 1]):
+                        j = order[p]
+                        if j == a:
+                            continue
+                        rx = position[j, 0] - xa
+                        ry = position[j, 1] - ya
+                        rz = position[j, 2] - za
+                        if rx * rx + ry * ry + rz * rz >= cutoff2:
+                            continue
+                        # j interacts with a now: it must be in a's (ascending) row
+                        k = row_lo + np.searchsorted(indices[row_lo:row_hi], j)
+                        if k >= row_hi or indices[k] != j:
+                            return False
+    return True
