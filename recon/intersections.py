@@ -12,10 +12,10 @@ processing approach to fair surface design", with lambda = 1/2): a flap
 folded over its neighbour unfolds, and where two sheets cross, the dent that crosses flattens
 back to its side. Only those vertices move; the rest of the mesh is untouched.
 
-Candidate pairs come from a k-d tree over face centroids (bounding spheres that overlap); the
-exact test is :func:`recon.kernels.tri_intersect.pairs_intersect`. Pairs sharing a vertex are
-not tested, as in Open3D's ``get_self_intersecting_triangles``.
-"""
+Candidate pairs come from a cell grid over face centroids (bounding spheres that overlap,
+:func:`recon.kernels.sphere_pairs.sphere_pairs`; a k-d tree when no grid fits); the exact test
+is :func:`recon.kernels.tri_intersect.pairs_intersect`. Pairs sharing a vertex are not tested,
+as in Open3D's ``get_self_intersecting_triangles``."""
 
 from __future__ import annotations
 
@@ -23,8 +23,10 @@ import numpy as np
 from scipy import sparse
 from scipy.spatial import cKDTree
 
-from .kernels.options import query_workers
+from .kernels.options import query_workers, thread_limit
+from .kernels.sphere_pairs import sphere_pairs
 from .kernels.tri_intersect import pairs_intersect
+from .neighbors import PARALLEL_MIN_PARTICLES
 
 __all__ = ["UNTANGLE_PASSES", "UNTANGLE_STEP", "self_intersections", "untangle"]
 
@@ -54,9 +56,18 @@ def candidate_pairs(
     corners = vertices[faces]
     centroid = corners.mean(axis=1)
     radius = np.linalg.norm(corners - centroid[:, None, :], axis=2).max(axis=1)
-    tree = cKDTree(centroid)
     large = radius > LARGE_FACE * max(float(np.median(radius)), 1e-300)
     r_small = float(radius[~large].max()) if np.any(~large) else 0.0
+    extent = centroid.max(axis=0) - centroid.min(axis=0)
+    if r_small > 0.0 and np.prod(np.floor(3.0 * extent / (2.0 * r_small)) + 1.0) < 2.0**62:
+        mark = np.ones(n, dtype=np.bool_)
+        if subset is not None:
+            mark[:] = False
+            mark[np.asarray(subset, dtype=np.int64)] = True
+        with thread_limit(n >= PARALLEL_MIN_PARTICLES):
+            key = sphere_pairs(centroid, radius, mark, large, r_small)
+        return np.stack([key // n, key % n], axis=1)
+    tree = cKDTree(centroid)
     found = [np.zeros((0, 2), dtype=np.int64)]
     if subset is None:
         found.append(tree.query_pairs(2.0 * r_small, output_type="ndarray").astype(np.int64))

@@ -95,3 +95,27 @@ def test_untangle_counts_the_crossings_it_could_not_move():
     f = np.array([[0, 1, 2], [3, 4, 5]])
     out, found, left = untangle(v.astype(float), f, fixed=np.ones(6, dtype=bool))
     assert (found, left) == (1, 1) and np.array_equal(out, v)
+
+
+def test_candidate_pairs_equal_the_overlapping_bounding_spheres():
+    """The cell-grid broad phase finds exactly the pairs whose bounding spheres overlap (brute
+    force), with and without a subset, with large faces among them, sorted and unique."""
+    rng = np.random.default_rng(5)
+    for trial in range(12):
+        nv = int(rng.integers(20, 300))
+        vertices = rng.uniform(0.0, 10.0, (nv, 3))
+        faces = rng.integers(0, nv, (int(rng.integers(2, 400)), 3))
+        if trial % 3 == 0:
+            vertices[faces[0]] *= 4.0  # a few large faces
+        corners = vertices[faces]
+        centroid = corners.mean(axis=1)
+        radius = np.linalg.norm(corners - centroid[:, None, :], axis=2).max(axis=1)
+        gap = np.linalg.norm(centroid[:, None, :] - centroid[None, :, :], axis=2)
+        overlap = np.triu(gap <= radius[:, None] + radius[None, :], k=1)
+        want = np.argwhere(overlap)
+        np.testing.assert_array_equal(candidate_pairs(vertices, faces), want)
+        subset = rng.choice(len(faces), size=max(1, len(faces) // 4), replace=False)
+        mark = np.zeros(len(faces), dtype=bool)
+        mark[subset] = True
+        want_sub = want[mark[want[:, 0]] | mark[want[:, 1]]]
+        np.testing.assert_array_equal(candidate_pairs(vertices, faces, subset), want_sub)

@@ -1,0 +1,148 @@
+r"""Pairs of overlapping bounding spheres on a cell grid (the broad phase of the crossing test).
+
+Two faces can cross only if their bounding spheres (centroid c, radius r: the farthest corner)
+overlap:
+
+.. math::
+
+    |c_i - c_j| \le r_i + r_j .
+
+:func:`sphere_pairs` returns every such pair ``i < j`` with at least one face marked, as sorted
+keys ``i n + j``. Ordinary faces are binned into cubic cells of side h = 2 r_s (r_s: the largest
+ordinary radius; ``CELL_FACTOR``); an ordinary partner of face i lies within r_i + r_s ≤ h, so
+in the 27 cells around it (the cells of one column are consecutive keys: one binary search per
+column). The few "large" faces (flagged by the caller) are compared with every face. Each pair
+is emitted once (by its marked face of lower index, or by its large face), counted in a first
+pass and written in a second, each face into its own slice, so the result is the same for any
+thread count.
+
+References
+----------
+.. [AT87] M. P. Allen, D. J. Tildesley. "Computer Simulation of Liquids", §5.3 (cell lists).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit, prange
+
+from .cell_list import bin_particles
+from .options import EXACT_JIT_OPTIONS
+
+_PARALLEL = dict(EXACT_JIT_OPTIONS, parallel=True)
+
+#: Cell side of the grid in units of r_s (see the module docstring).
+CELL_FACTOR = 2.0
+
+
+@njit(inline="always", **EXACT_JIT_OPTIONS)
+def _overlap(centroid, radius, i, j):
+    dx = centroid[i, 0] - centroid[j, 0]
+    dy = centroid[i, 1] - centroid[j, 1]
+    dz = centroid[i, 2] - centroid[j, 2]
+    return math.sqrt(dx * dx + dy * dy + dz * dz) <= radius[i] + radius[j]
+
+
+@njit(inline="always", **EXACT_JIT_OPTIONS)
+def _emits(i, j, mark, large):
+    """Whether face i emits the pair (i, j) (so that every pair is emitted exactly once)."""
+    if large[i]:
+        if large[j]:
+            return j > i and (mark[i] or mark[j])
+        return mark[i] or mark[j]
+    if large[j]:
+        return False  # the large face emits it
+    if not mark[i]:
+        return False
+    return j > i or not mark[j]
+
+
+@njit(**_PARALLEL)
+def _scan(centroid, radius, mark, large, binning, cell, r_small, out_keys, offsets, write):
+    """Count (``write`` False) or write the pair keys each face emits."""
+    order, cell_keys, cell_start, _, dims, lo = binning
+    n = centroid.shape[0]
+    inv = 1.0 / cell
+    for i in prange(n):
+        if not (mark[i] or large[i]):
+            continue
+        count = 0
+        base = offsets[i] if write else 0
+        if large[i]:
+            for j in range(n):
+                if j != i and _emits(i, j, mark, large) and _overlap(centroid, radius, i, j):
+                    if write:
+                        out_keys[base + count] = min(i, j) * n + max(i, j)
+                    count += 1
+        else:
+            cx = np.int64(math.floor((centroid[i, 0] - lo[0]) * inv))
+            cy = np.int64(math.floor((centroid[i, 1] - lo[1]) * inv))
+            cz = np.int64(math.floor((centroid[i, 2] - lo[2]) * inv))
+            # an ordinary partner j lies within r_i + r_j <= r_i + r_small
+            ring = np.int64(math.ceil((radius[i] + r_small) * inv))
+            for ddx in range(-ring, ring + 1):
+                x = cx + ddx
+                if x < 0 or x >= dims[0]:
+                    continue
+                for ddy in range(-ring, ring + 1):
+                    y = cy + ddy
+                    if y < 0 or y >= dims[1]:
+                        continue
+                    # cells (x, y, z - ring .. z + ring) have consecutive keys
+                    z_lo = max(cz - ring, 0)
+                    z_hi = min(cz + ring, dims[2] - 1)
+                    if z_lo > z_hi:
+                        continue
+                    key_lo = (x * dims[1] + y) * dims[2] + z_lo
+                    key_hi = key_lo + (z_hi - z_lo)
+                    c = np.searchsorted(cell_keys, key_lo)
+                    while c < cell_keys.shape[0] and cell_keys[c] <= key_hi:
+                        for p in range(cell_start[c], cell_start[c + 1]):
+                            j = order[p]
+                            if j == i or not _emits(i, j, mark, large):
+                                continue
+                            if _overlap(centroid, radius, i, j):
+                                if write:
+                                    out_keys[base + count] = min(i, j) * n + max(i, j)
+                                count += 1
+                        c += 1
+        if not write:
+            offsets[i + 1] = count
+    return 0
+
+
+@njit(**EXACT_JIT_OPTIONS)
+def sphere_pairs(centroid, radius, mark, large, r_small):
+    r"""Sorted keys ``i n + j`` (i < j) of the face pairs whose bounding spheres overlap,
+    :math:`|c_i - c_j| \le r_i + r_j`, with at least one face marked.
+
+    Parameters
+    ----------
+    centroid : (n, 3) float64
+    radius : (n,) float64
+        Bounding radii.
+    mark : (n,) bool
+        Faces whose pairs are wanted (all True for every pair).
+    large : (n,) bool
+        Faces compared with every face.
+    r_small : float
+        The largest radius of the faces that are not large, > 0.
+
+    Returns
+    -------
+    (m,) int64, ascending.
+    """
+    n = centroid.shape[0]
+    cell = CELL_FACTOR * r_small
+    binning = bin_particles(centroid, cell)
+    offsets = np.zeros(n + 1, dtype=np.int64)
+    empty = np.zeros(0, dtype=np.int64)
+    _scan(centroid, radius, mark, large, binning, cell, r_small, empty, offsets, False)
+    for i in range(n):
+        offsets[i + 1] += offsets[i]
+    keys = np.zeros(offsets[n], dtype=np.int64)
+    _scan(centroid, radius, mark, large, binning, cell, r_small, keys, offsets, True)
+    keys.sort()
+    return keys
