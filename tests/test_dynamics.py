@@ -475,3 +475,65 @@ def test_coefficients_are_a_named_tuple_of_floats():
     assert isinstance(c, Coefficients)
     assert all(isinstance(v, float) for v in c)
     assert c.cutoff2 == DEFAULTS.cutoff**2 and c.has_anchors == 0.0
+
+
+# ----------------------------------------------------------------------------- FIRE
+
+
+def _disordered_sheet(k=20, seed=3):
+    rng = np.random.default_rng(seed)
+    position = hex_sheet(k, k) * 1.08 + rng.normal(scale=0.15, size=(k * k, 3))
+    return ParticleState.from_points(position, _tilted_normals(rng, k * k, 20.0))
+
+
+@needs_jit
+def test_fire_relaxes_a_disordered_sheet_faster_than_the_damped_steps():
+    """FIRE (Bitzek et al. 2006) reaches in 80 steps a lower energy than the damped dynamics
+    in 120 (measured: -0.6274 vs -0.6268 per particle; FIRE converges to -0.6278)."""
+    energies = {}
+    for integrator, steps in (("damped", 120), ("fire", 80)):
+        state = _disordered_sheet()
+        sim = Simulation(state, DEFAULTS, integrator=integrator)
+        sim.run(steps)
+        energies[integrator] = sim.current_stats().potential / state.n
+    assert energies["fire"] < energies["damped"] - 2e-4
+
+
+def test_fire_threads_give_the_same_bits():
+    states = []
+    for parallel in (False, True):
+        state = _disordered_sheet(k=8)
+        sim = Simulation(state, DEFAULTS, parallel=parallel, integrator="fire")
+        sim.set_anchors(state.position.copy(), np.tile([0.0, 0.0, 1.0], (state.n, 1)), 1.0, 0.5)
+        sim.run(25)
+        states.append(state)
+    for name in ("position", "orientation", "velocity", "angular_velocity"):
+        np.testing.assert_array_equal(getattr(states[0], name), getattr(states[1], name))
+
+
+def test_fire_adaptation_rules():
+    """Bitzek et al. 2006: the step grows (x1.1, up to the cap) and the mixing decays (x0.99)
+    only after N_min downhill steps; an uphill step halves the step, resets the mixing and
+    stops the particles; a system at rest changes nothing."""
+    from recon import integrate as it
+
+    fire = it.FireState(dt=0.2)
+    assert not fire.adapt(0.0, 0.0, 0.2) and fire.dt == 0.2
+    fire.dt = 0.1
+    for _ in range(it.FIRE_N_MIN):
+        assert fire.adapt(1.0, 1.0, 0.2)
+    assert fire.dt == 0.1 and fire.alpha == it.FIRE_ALPHA_START
+    assert fire.adapt(1.0, 1.0, 0.2)
+    assert fire.dt == pytest.approx(0.1 * it.FIRE_F_INC)
+    assert fire.alpha == pytest.approx(it.FIRE_ALPHA_START * it.FIRE_F_ALPHA)
+    for _ in range(50):
+        fire.adapt(1.0, 1.0, 0.2)
+    assert fire.dt == pytest.approx(it.FIRE_DT_MAX * 0.2)
+    assert not fire.adapt(-1.0, 1.0, 0.2)
+    assert fire.dt == pytest.approx(it.FIRE_DT_MAX * 0.2 * it.FIRE_F_DEC)
+    assert fire.alpha == it.FIRE_ALPHA_START and fire.n_positive == 0
+
+
+def test_unknown_integrator_is_refused():
+    with pytest.raises(ValueError, match="integrator"):
+        Simulation(_patch(), DEFAULTS, integrator="verlet")
