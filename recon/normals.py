@@ -342,7 +342,11 @@ def _knn_graph(
     w_rows, w_other = w_rows[w_rows != w_other], w_other[w_rows != w_other]  # duplicates
     one_way = np.sort(w_rows * np.int64(n) + w_other)
     seen_back = one_way[np.isin(one_way, (one_way % n) * np.int64(n) + one_way // n)]
-    key = np.union1d(rows * np.int64(n) + cols, seen_back)
+    # np.union1d, sort-based: numpy >= 2.3's hash-based np.unique took ~1 s on these ~10^5-10^6
+    # keys where sorting takes milliseconds (numpy issue #28375)
+    key = np.concatenate([rows * np.int64(n) + cols, seen_back])
+    key.sort()
+    key = key[np.r_[True, key[1:] != key[:-1]]]
     rows, cols = key // n, key % n
     both = np.isin(key, seen_back)
     dots = np.einsum("ij,ij->i", normals[rows], normals[cols])
