@@ -19,6 +19,10 @@ Definitions:
 - A vertex's *fans* (:func:`vertex_fans`) are its incident faces grouped by connection through
   edges that contain the vertex; a manifold vertex has one fan, a bow-tie (non-manifold)
   vertex more. Faces joined by an over-shared edge count as connected.
+- Two faces at a vertex *overlap* (:func:`overlapping_faces`) when their corners' angular
+  sectors around the vertex, in the plane of their mean normal, overlap: the surface covers
+  that wedge twice (a manifold mesh can still do so without a crossing the exact test sees,
+  since faces that share a vertex are not tested; it makes a tiny handle).
 - *Components* (:func:`vertex_components`, :func:`face_components`) are the connected
   components of the referenced vertices, two vertices being connected when a face uses both
   (so a bow-tie is one component).
@@ -47,6 +51,7 @@ __all__ = [
     "face_components",
     "face_normals",
     "orientation_flips",
+    "overlapping_faces",
     "vertex_components",
     "vertex_fans",
 ]
@@ -354,3 +359,74 @@ def orientation_flips(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     conflict[fa[bad]] = True
     conflict[fb[bad]] = True
     return flip, conflict
+
+
+#: Two faces at a vertex are compared by :func:`overlapping_faces` when their normals agree this
+#: well (cos 60 deg): faces of one sheet, not the two faces of a fold or a thin part's two sides.
+OVERLAP_NORMAL_AGREEMENT = 0.5
+#: ... and overlap when their sectors there share more than this angle [rad] (about 6 deg).
+OVERLAP_ANGLE = 0.1
+
+
+def overlapping_faces(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Face pairs ``(m, 2)``, ``i < j``, that cover the same wedge around a shared vertex.
+
+    At a vertex ``v`` each face ``(v, a, b)`` (in winding order) spans the angular sector from
+    ``a - v`` to ``b - v``. For two faces at ``v`` whose unit normals agree
+    (``OVERLAP_NORMAL_AGREEMENT``), both sectors are measured counter-clockwise in the plane
+    of their mean normal; in a mesh that covers its surface once the sectors only touch,
+    so an overlap wider than ``OVERLAP_ANGLE`` means the faces lie over each other (e.g. ball
+    pivoting took both diagonals of a nearly co-circular quad). Faces sharing a vertex are
+    not checked by :func:`recon.intersections.self_intersections`; this is that case.
+
+    Examples
+    --------
+    >>> v = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], float)
+    >>> overlapping_faces(v, np.array([[0, 1, 2], [0, 2, 3]])).tolist()  # a quad, one diagonal
+    []
+    >>> overlapping_faces(v, np.array([[0, 1, 2], [0, 2, 3], [0, 1, 3]])).tolist()  # both
+    [[0, 2], [1, 2]]
+    """
+    f = np.asarray(faces, dtype=np.int64)
+    if len(f) < 2:
+        return np.zeros((0, 2), dtype=np.int64)
+    corner_v = f.ravel()
+    corner_f = np.repeat(np.arange(len(f)), 3)
+    ahead = np.roll(f, -1, axis=1).ravel()
+    behind = np.roll(f, -2, axis=1).ravel()
+    order = np.argsort(corner_v, kind="stable")
+    sorted_v = corner_v[order]
+    fn = face_normals(vertices, f)
+    found = [np.zeros((0, 2), dtype=np.int64)]
+    step = 1
+    while step < len(order):  # every pair of corners at one vertex, by rank distance
+        same = sorted_v[step:] == sorted_v[:-step]
+        if not same.any():
+            break
+        a, b = order[:-step][same], order[step:][same]
+        fa, fb = corner_f[a], corner_f[b]
+        m = fn[fa] + fn[fb]
+        agree = np.einsum("ij,ij->i", fn[fa], fn[fb]) > OVERLAP_NORMAL_AGREEMENT
+        a, b, fa, fb, m = a[agree], b[agree], fa[agree], fb[agree], m[agree]
+        m /= np.linalg.norm(m, axis=1, keepdims=True)
+        helper = np.where(np.abs(m[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
+        e1 = np.cross(m, helper)
+        e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
+        e2 = np.cross(m, e1)
+        here = vertices[corner_v[a]]
+
+        def angle(w: np.ndarray, here=here, e1=e1, e2=e2) -> np.ndarray:
+            d = vertices[w] - here
+            return np.arctan2(np.einsum("ij,ij->i", d, e2), np.einsum("ij,ij->i", d, e1))
+
+        start_a, start_b = angle(ahead[a]), angle(ahead[b])
+        width_a = (angle(behind[a]) - start_a) % (2 * np.pi)
+        width_b = (angle(behind[b]) - start_b) % (2 * np.pi)
+        rel = (start_b - start_a) % (2 * np.pi)  # b's sector starts this far into a's turn
+        shared = np.maximum(0.0, np.minimum(width_a - rel, width_b)) + np.maximum(
+            0.0, np.minimum(width_a, rel + width_b - 2 * np.pi)
+        )
+        hit = shared > OVERLAP_ANGLE
+        found.append(np.stack([np.minimum(fa, fb)[hit], np.maximum(fa, fb)[hit]], axis=1))
+        step += 1
+    return np.unique(np.vstack(found), axis=0)

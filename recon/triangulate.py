@@ -41,6 +41,7 @@ from .mesh import (
     face_components,
     face_normals,
     orientation_flips,
+    overlapping_faces,
     vertex_fans,
 )
 from .neighbors import build_neighbor_list
@@ -71,7 +72,7 @@ FILL_PASSES = 4
 CIRCUMSPHERE_CAPACITY = 64
 #: Rounds of dropping faces on over-shared edges (each round settles the worst edges).
 NON_MANIFOLD_EDGE_ROUNDS = 10
-#: Rounds of dropping extra fans at bow-tie vertices (dropping a fan can leave a new bow-tie).
+#: Rounds of dropping extra fans at bow-tie vertices (``repair_non_manifold(split=False)``).
 NON_MANIFOLD_VERTEX_ROUNDS = 5
 #: A bow-tie vertex is split into one copy per fan; each extra copy moves this fraction of the
 #: way to its fan's centroid, so the copies do not coincide (coincident vertices of different
@@ -148,6 +149,7 @@ def triangulate_particles(
         faces = circumsphere_triangles(positions, normals, radius=max(cfg.radii))
     stats: dict = {"method": cfg.method, "faces_raw": int(len(faces))}
     faces = orient_faces(positions, normals, faces)
+    faces = drop_overlaps(positions, faces)
     vertices, vnormals, faces = repair_non_manifold(positions, normals, faces)
     faces = orient_consistently(vertices, vnormals, faces)
     stats["faces_manifold"] = int(len(faces))
@@ -271,6 +273,22 @@ def orient_faces(vertices: np.ndarray, normals: np.ndarray, faces: np.ndarray) -
     return faces
 
 
+def drop_overlaps(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Drop the later face of every pair that covers the same wedge at a shared vertex
+    (:func:`recon.mesh.overlapping_faces`; faces oriented by their vertex normals first).
+
+    Ball pivoting can take both diagonals of a nearly co-circular quad: every edge stays
+    manifold, but the faces lie over each other and the mesh gains a tiny handle (a second
+    sheet over one wedge). Faces come in ball order (smallest ball first), so the face a
+    smaller ball found is kept; hole filling closes what the drop opens.
+    """
+    pairs = overlapping_faces(vertices, faces)
+    drop = np.zeros(len(faces), dtype=bool)
+    for i, j in pairs[np.lexsort((pairs[:, 0], pairs[:, 1]))].tolist():
+        drop[j] |= not drop[i]
+    return faces[~drop]
+
+
 def orient_consistently(vertices: np.ndarray, normals: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """One winding per component, facing the side its vertex normals face (outward).
 
@@ -338,17 +356,6 @@ def remove_non_manifold_faces(faces: np.ndarray, n_vertices: int) -> np.ndarray:
         rank = np.arange(len(e_inv)) - np.searchsorted(e_inv, e_inv)
         drop[e_face[rank >= 2]] = True
         faces = faces[~drop]
-    return faces
-
-
-def make_manifold(faces: np.ndarray, n_vertices: int) -> np.ndarray:
-    """Drop faces until no edge has more than two faces and every vertex has one fan."""
-    faces = remove_non_manifold_faces(faces, n_vertices)
-    for _ in range(NON_MANIFOLD_VERTEX_ROUNDS):
-        bad = non_manifold_vertex_faces(faces, n_vertices)
-        if not bad.any():
-            break
-        faces = remove_non_manifold_faces(faces[~bad], n_vertices)
     return faces
 
 
@@ -446,58 +453,6 @@ def repair_non_manifold(
             faces = remove_non_manifold_faces(faces[~bad], len(vertices))
     vertices, normals, faces, _ = split_non_manifold_vertices(vertices, normals, faces)
     return vertices, normals, faces
-
-
-def _find(parent: dict[int, int], x: int) -> int:
-    """Union-find root with path halving."""
-    while parent[x] != x:
-        parent[x] = parent[parent[x]]
-        x = parent[x]
-    return x
-
-
-def non_manifold_vertex_faces(faces: np.ndarray, n_vertices: int) -> np.ndarray:
-    """Faces to drop so that every vertex keeps a single fan (its largest one).
-
-    Expects no non-manifold edges. A vertex with several fans of faces (a "bow-tie") is
-    found by counting: around a manifold vertex the number of distinct incident edges exceeds
-    the number of incident faces by at most one. Returns a boolean mask over faces.
-    """
-    drop = np.zeros(len(faces), dtype=bool)
-    if len(faces) == 0:
-        return drop
-    n_faces_at = np.bincount(faces.reshape(-1), minlength=n_vertices)
-    e = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
-    e = np.unique(e, axis=0)
-    n_edges_at = np.bincount(e.reshape(-1), minlength=n_vertices)
-    suspects = np.flatnonzero(n_edges_at - n_faces_at >= 2)
-    if len(suspects) == 0:
-        return drop
-    vf_order = np.argsort(faces.reshape(-1), kind="stable")
-    vf_face = vf_order // 3
-    starts = np.searchsorted(faces.reshape(-1)[vf_order], np.arange(n_vertices + 1))
-    for v in suspects:
-        inc = vf_face[starts[v] : starts[v + 1]]
-        inc = inc[~drop[inc]]
-        parent = {int(f): int(f) for f in inc}
-        by_other: dict[int, int] = {}
-        for f in inc:
-            for w in faces[f]:
-                if w == v:
-                    continue
-                if int(w) in by_other:
-                    a, b = _find(parent, int(f)), _find(parent, by_other[int(w)])
-                    if a != b:
-                        parent[max(a, b)] = min(a, b)
-                else:
-                    by_other[int(w)] = int(f)
-        roots = np.array([_find(parent, int(f)) for f in inc])
-        labels, counts = np.unique(roots, return_counts=True)
-        if len(labels) < 2:
-            continue
-        keep = labels[np.argmax(counts)]
-        drop[inc[roots != keep]] = True
-    return drop
 
 
 def fill_small_holes(
