@@ -11,7 +11,7 @@ import pytest
 from mesh_shapes import wedge_points
 
 from recon import fit
-from recon.config import ReconConfig, apply_overrides
+from recon.config import ReconConfig, TriangulationConfig, apply_overrides
 from recon.crease_mesh import (
     corner_normals,
     flip_straddling_edges,
@@ -26,6 +26,7 @@ from recon.mesh import count_edge_faces, orientation_flips
 from recon.metrics import point_to_mesh_distance
 from recon.state import ParticleState
 from recon.topology import mesh_topology
+from recon.triangulate import triangulate_particles
 from tests.kernels.term_checks import term_params
 
 SAMPLE = Path(__file__).resolve().parent.parent / "sample_data" / "lblock-sparse.ply"
@@ -202,6 +203,52 @@ def test_a_straddling_diagonal_flips_onto_the_crease():
     assert not flip.any() and not conflict.any()
     # nothing to flip without crease vertices
     assert flip_straddling_edges(faces, n, np.zeros(4, dtype=bool))[1] == 0
+
+
+def _concave_edge(seed: int, first: float, n_line: int = 16, rows: int = 6):
+    """Particles of a concave 90 deg edge as a fit leaves them (r0 = 1): crease particles on
+    the z axis every 1.0 (normal: the bisector), and hexagonal rows every 0.866 on the faces
+    x = 0 (y > 0, normal +x) and y = 0 (x > 0, normal +y), the first row ``first`` from the
+    line, jittered in-plane by 0.05. The air is the wedge x > 0, y > 0."""
+    rng = np.random.default_rng(seed)
+    z = np.arange(n_line, dtype=float)
+    pos = [np.c_[np.zeros(n_line), np.zeros(n_line), z]]
+    nrm = [np.tile([np.sqrt(0.5), np.sqrt(0.5), 0.0], (n_line, 1))]
+    for face in (0, 1):
+        for j in range(rows):
+            zz = z + 0.5 * ((j + 1) % 2)
+            zz = zz[zz <= z[-1]]
+            p = np.zeros((len(zz), 3))
+            p[:, 2] = zz
+            p[:, 1 - face] = first + 0.866 * j
+            p += rng.normal(scale=0.05, size=p.shape) * (np.arange(3) != face)
+            n = np.zeros((len(zz), 3))
+            n[:, face] = 1.0
+            pos.append(p)
+            nrm.append(n)
+    crease = np.zeros(sum(len(p) for p in pos), dtype=bool)
+    crease[:n_line] = True
+    return np.vstack(pos), np.vstack(nrm), crease
+
+
+@pytest.mark.parametrize("seed", range(4))
+@pytest.mark.parametrize("first", [0.8, 1.0])
+def test_a_concave_edge_is_meshed_along_its_line_not_bridged(seed, first):
+    """Regression (issue 12): ball pivoting bridged the air wedge of a concave edge (a triangle
+    from face to face across the line) and left line edges out."""
+    pos, nrm, crease = _concave_edge(seed, first)
+    res = triangulate_particles(pos, nrm, TriangulationConfig(), 2.0, crease=crease)
+    v, f = res.vertices, res.faces
+    edges = set(map(tuple, np.sort(count_edge_faces(f)[0], axis=1).tolist()))
+    line = np.flatnonzero(res.crease)
+    line = line[np.argsort(v[line, 2])]
+    assert np.allclose(v[line, 2], np.arange(16))
+    assert all((min(a, b), max(a, b)) in edges for a, b in zip(line[:-1], line[1:], strict=True))
+    # no triangle spans both faces (away from the strip's open ends)
+    c = v[f]
+    middle = (c[:, :, 2].min(axis=1) > 1.5) & (c[:, :, 2].max(axis=1) < 13.5)
+    both = (c[:, :, 0].max(axis=1) > 0.2) & (c[:, :, 1].max(axis=1) > 0.2)
+    assert not np.any(middle & both)
 
 
 def test_straddling_triangles_have_both_faces_and_no_crease_corner():
