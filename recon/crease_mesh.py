@@ -1,5 +1,15 @@
 """Creases in the mesh (issue 12, step 3): edges along crease lines and split normals.
 
+* :func:`insert_crease_edges`: every *line edge* (two crease vertices next to each other on a
+  crease line, :func:`crease_line_edges`) becomes a mesh edge. Ball pivoting bridges a concave
+  edge (a ball rolling in the 90 deg air wedge cannot reach the line: it rests on both faces a
+  ball radius away and cuts across), and at a corner it may lay a triangle on the plane of a
+  third face over the notch. The missing edge is inserted by edge flips as in a constrained
+  Delaunay triangulation (Sloan 1993), in the *unfolded* neighbourhood of the edge: each
+  vertex near the line ``a-b`` goes to ``(t, +-e)``, its coordinate along the line and its
+  distance from it, signed by the face (of the two around the line) it lies on. Edges whose
+  ends lie on different faces and that pass the line between ``a`` and ``b`` cross it; they
+  are flipped while their quad is convex until ``a-b`` is an edge (else the flips are undone).
 * :func:`flip_straddling_edges`: ball pivoting sometimes joins a particle of one face to one of
   the other face across a crease, beside two crease particles (the quad ``u, a, w, b`` with ``a``
   and ``b`` on the crease took the diagonal ``u-w``). Such a triangle straddles the crease: its
@@ -17,16 +27,47 @@
 from __future__ import annotations
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from .mesh import face_area_vectors
 
-__all__ = ["corner_normals", "flip_straddling_edges", "split_crease_vertices", "straddling"]
+__all__ = [
+    "corner_normals",
+    "crease_line_edges",
+    "flip_straddling_edges",
+    "insert_crease_edges",
+    "split_crease_vertices",
+    "straddling",
+]
 
 #: Two non-crease vertices whose normals differ by more than this lie on different faces of
 #: a crease [deg].
 SIDE_ANGLE_DEG = 30.0
 #: Passes of :func:`flip_straddling_edges` (a face flips at most once per pass).
 FLIP_PASSES = 3
+
+
+#: Two crease vertices are a line edge when no crease vertex is nearer to both of them (the
+#: relative neighbourhood graph) and they are at most LINE_EDGE_RATIO times the median mesh
+#: edge length around them apart.
+LINE_EDGE_RATIO = 1.8
+#: The unfolded neighbourhood of a line edge of length L: vertices within INSERT_RADIUS * L of
+#: its midpoint.
+INSERT_RADIUS = 2.5
+#: Vertices within SIDE_MIN_OFFSET * L of the line lie on it (no side).
+SIDE_MIN_OFFSET = 0.15
+#: The faces beside a line edge are found from the vertices between its ends (SIDE_WINDOW_END
+#: in from a corner or a line's end) and beyond a line's inner end (up to SIDE_WINDOW).
+SIDE_WINDOW = 1.5
+SIDE_WINDOW_END = 0.1
+#: A vertex whose direction from the line is farther than this from both faces' lies on a
+#: third face (at a corner) and is left out of the unfolding [deg].
+OFF_FACE_DEG = 60.0
+#: An edge passing the line within CROSS_TOLERANCE * L beyond an end still crosses (at a
+#: corner, the triangle over the notch lies in a third face's plane: its edge passes the end).
+CROSS_TOLERANCE = 0.1
+#: Rounds of flips per line edge.
+INSERT_ROUNDS = 8
 
 
 def _edge_map(faces: np.ndarray) -> dict[tuple[int, int], list[int]]:
@@ -166,3 +207,268 @@ def split_crease_vertices(
     source = np.r_[np.arange(len(vertices)), np.asarray(extra_src, dtype=np.int64)]
     normals = np.vstack([normals, np.asarray(extra_n, dtype=np.float64).reshape(-1, 3)])
     return flat.reshape(-1, 3), normals, source
+
+
+def crease_line_edges(vertices: np.ndarray, faces: np.ndarray, crease: np.ndarray) -> np.ndarray:
+    """Pairs ``(m, 2)`` of crease vertices next to each other on a crease line: the relative
+    neighbourhood graph of the crease vertices (no crease vertex nearer to both), pairs at most
+    ``LINE_EDGE_RATIO`` times the median length of the mesh edges at either end apart (on a
+    line this links consecutive particles; at a corner, each line to the corner particle and
+    not to the other lines' particles, which the corner is nearer to)."""
+    cv = np.flatnonzero(crease)
+    if len(cv) < 2 or len(faces) == 0:
+        return np.zeros((0, 2), dtype=np.int64)
+    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    length = np.linalg.norm(vertices[e[:, 0]] - vertices[e[:, 1]], axis=1)
+    # median edge length per vertex (every edge appears at both ends over the faces' cycles)
+    ends = np.concatenate([e[:, 0], e[:, 1]])
+    lens = np.concatenate([length, length])
+    order = np.lexsort((lens, ends))
+    ends, lens = ends[order], lens[order]
+    start = np.searchsorted(ends, np.arange(len(vertices)))
+    stop = np.searchsorted(ends, np.arange(len(vertices)), side="right")
+    mid = (start + stop) // 2
+    spacing = np.where(stop > start, lens[np.minimum(mid, len(lens) - 1)], np.inf)
+    pos = vertices[cv]
+    tree = cKDTree(pos)
+    reach = LINE_EDGE_RATIO * float(np.median(spacing[cv][np.isfinite(spacing[cv])]))
+    pairs = tree.query_pairs(reach, output_type="ndarray")
+    if len(pairs) == 0:
+        return np.zeros((0, 2), dtype=np.int64)
+    d = np.linalg.norm(pos[pairs[:, 0]] - pos[pairs[:, 1]], axis=1)
+    limit = LINE_EDGE_RATIO * np.minimum(spacing[cv[pairs[:, 0]]], spacing[cv[pairs[:, 1]]])
+    keep = d <= limit
+    pairs, d = pairs[keep], d[keep]
+    out = []
+    for (i, j), dij in zip(pairs.tolist(), d.tolist(), strict=True):
+        near = tree.query_ball_point(0.5 * (pos[i] + pos[j]), 0.5 * dij * 1.2)
+        blocked = False
+        for k in near:
+            if k != i and k != j:
+                if max(np.linalg.norm(pos[k] - pos[i]), np.linalg.norm(pos[k] - pos[j])) < dij:
+                    blocked = True
+                    break
+        if not blocked:
+            out.append((cv[i], cv[j]))
+    return np.asarray(out, dtype=np.int64).reshape(-1, 2)
+
+
+def _orient2d(p: np.ndarray, q: np.ndarray, r: np.ndarray) -> float:
+    return float((q[0] - p[0]) * (r[1] - p[1]) - (q[1] - p[1]) * (r[0] - p[0]))
+
+
+def _unfold(
+    vertices: np.ndarray, a: int, b: int, near: np.ndarray, a_end: bool, b_end: bool
+) -> dict[int, np.ndarray] | None:
+    """2-D coordinates ``(t, s)`` of the vertices ``near`` the line edge ``a-b`` (unit: its
+    length): ``t`` along the line from ``a``, ``s`` the distance from the line signed by the
+    face the vertex lies on. The two faces are a 2-means of the directions from the line to
+    the vertices beside the edge (``t`` between the ends; beyond an end too unless it is a
+    corner or the end of its line, ``a_end``/``b_end``: there a third face meets, which the
+    line does not lie in). Vertices farther than ``OFF_FACE_DEG`` from both faces' directions
+    (on the third face) are left out. None when the vertices do not lie on two faces."""
+    p, q = vertices[a], vertices[b]
+    length = float(np.linalg.norm(q - p))
+    d = (q - p) / length
+    rel = vertices[near] - p
+    t = (rel @ d) / length
+    perp = rel - (t * length)[:, None] * d
+    e = np.linalg.norm(perp, axis=1) / length
+    off = e > SIDE_MIN_OFFSET
+    u = perp / np.maximum(e * length, 1e-300)[:, None]
+    lo = SIDE_WINDOW_END if a_end else -SIDE_WINDOW
+    hi = 1.0 - SIDE_WINDOW_END if b_end else 1.0 + SIDE_WINDOW
+    beside = off & (t > lo) & (t < hi)
+    if np.count_nonzero(beside) < 2:
+        return None
+    w = u[beside]
+    c1 = w[0]
+    c2 = w[int(np.argmin(w @ c1))]
+    for _ in range(10):  # 2-means on the directions about the line
+        first = (w @ c1) >= (w @ c2)
+        if first.all() or not first.any():
+            return None
+        c1 = w[first].sum(axis=0)
+        c2 = w[~first].sum(axis=0)
+        c1 /= np.linalg.norm(c1)
+        c2 /= np.linalg.norm(c2)
+    if c1 @ c2 > np.cos(np.radians(SIDE_ANGLE_DEG)):
+        return None  # one face: no crease here
+    cos1, cos2 = u @ c1, u @ c2
+    keep = ~off | (np.maximum(cos1, cos2) >= np.cos(np.radians(OFF_FACE_DEG)))
+    s = np.where(off, np.where(cos1 >= cos2, 1.0, -1.0) * e, 0.0)
+    return {int(v): np.array([t[i], s[i]]) for i, v in enumerate(near) if keep[i]}
+
+
+def insert_crease_edges(
+    vertices: np.ndarray, faces: np.ndarray, crease: np.ndarray
+) -> tuple[np.ndarray, int, int]:
+    """Make every line edge (:func:`crease_line_edges`) a mesh edge by flips in its unfolded
+    neighbourhood (see the module docstring). Flips keep the outer edges of their quads, so the
+    mesh stays manifold and consistently oriented. Returns the faces, the number of line edges
+    inserted and the number that could not be (left as they were)."""
+    faces = np.array(faces, dtype=np.int64, copy=True)
+    crease = np.asarray(crease, dtype=bool)
+    if len(faces) == 0 or np.count_nonzero(crease) < 2:
+        return faces, 0, 0
+    wanted = crease_line_edges(vertices, faces, crease)
+    edges = _edge_map(faces)
+    missing = [(int(a), int(b)) for a, b in wanted.tolist() if (min(a, b), max(a, b)) not in edges]
+    if not missing:
+        return faces, 0, 0
+    tree = cKDTree(vertices)
+    incident: dict[int, set[int]] = {}
+    for t, f in enumerate(faces.tolist()):
+        for v in f:
+            incident.setdefault(v, set()).add(t)
+    degree = np.bincount(wanted.reshape(-1), minlength=len(vertices))
+    done = failed = 0
+    for a, b in missing:
+        if (min(a, b), max(a, b)) in edges:
+            done += 1
+            continue
+        length = float(np.linalg.norm(vertices[b] - vertices[a]))
+        near = np.asarray(
+            tree.query_ball_point(0.5 * (vertices[a] + vertices[b]), INSERT_RADIUS * length),
+            dtype=np.int64,
+        )
+        coords = _unfold(vertices, a, b, near, degree[a] != 2, degree[b] != 2)
+        if coords is None:
+            failed += 1
+            continue
+        log: list[tuple[int, list[int], int, list[int]]] = []
+        ok = _insert_one(faces, edges, incident, coords, a, b, log)
+        if ok:
+            done += 1
+        else:
+            failed += 1
+            for t1, f1, t2, f2 in reversed(log):  # undo
+                _set_face(faces, edges, incident, t1, f1)
+                _set_face(faces, edges, incident, t2, f2)
+    return faces, done, failed
+
+
+def _set_face(
+    faces: np.ndarray,
+    edges: dict[tuple[int, int], list[int]],
+    incident: dict[int, set[int]],
+    t: int,
+    new: list[int],
+) -> None:
+    old = faces[t].tolist()
+    for u, w in ((old[0], old[1]), (old[1], old[2]), (old[2], old[0])):
+        key = (min(u, w), max(u, w))
+        edges[key].remove(t)
+        if not edges[key]:
+            del edges[key]
+    for v in old:
+        incident[v].discard(t)
+    faces[t] = new
+    for u, w in ((new[0], new[1]), (new[1], new[2]), (new[2], new[0])):
+        edges.setdefault((min(u, w), max(u, w)), []).append(t)
+    for v in new:
+        incident.setdefault(v, set()).add(t)
+
+
+def _crosses(coords: dict[int, np.ndarray], u: int, w: int) -> bool:
+    """Does the unfolded edge ``u-w`` pass the line edge (from t = 0 to t = 1, s = 0)?"""
+    pu, pw = coords[u], coords[w]
+    if pu[1] * pw[1] >= 0.0:
+        return False
+    tc = pu[0] + (pw[0] - pu[0]) * pu[1] / (pu[1] - pw[1])
+    return -CROSS_TOLERANCE < tc < 1.0 + CROSS_TOLERANCE
+
+
+def _insert_one(
+    faces: np.ndarray,
+    edges: dict[tuple[int, int], list[int]],
+    incident: dict[int, set[int]],
+    coords: dict[int, np.ndarray],
+    a: int,
+    b: int,
+    log: list,
+) -> bool:
+    """Flip the edges crossing the line edge ``a-b`` until it is a mesh edge (True)."""
+    local = set(coords)
+    for _ in range(INSERT_ROUNDS):
+        if (min(a, b), max(a, b)) in edges:
+            return True
+        tris: set[int] = set()
+        for v in local:
+            tris |= incident.get(v, set())
+        crossing = set()
+        for t in tris:
+            f = faces[t].tolist()
+            if not all(v in local for v in f):
+                continue
+            for u, w in ((f[0], f[1]), (f[1], f[2]), (f[2], f[0])):
+                if a in (u, w) or b in (u, w):
+                    continue
+                if _crosses(coords, u, w):
+                    crossing.add((min(u, w), max(u, w)))
+        if not crossing:
+            return False
+        flipped = False
+        for key in sorted(crossing):
+            owners = edges.get(key)
+            if owners is None or len(owners) != 2:
+                continue
+            u, w = key
+            t1, t2 = owners
+            f1, f2 = faces[t1].tolist(), faces[t2].tolist()
+            x = next(v for v in f1 if v != u and v != w)
+            y = next(v for v in f2 if v != u and v != w)
+            if x == y or (min(x, y), max(x, y)) in edges:
+                continue
+            if not all(v in coords for v in (x, y)):
+                continue
+            pu, pw, px, py = coords[u], coords[w], coords[x], coords[y]
+            # the quad u, x, w, y is convex: u and w on both sides of x-y (strictly), x and y
+            # not on the same side of u-w (one may lie on it: the corner case)
+            if _orient2d(px, py, pu) * _orient2d(px, py, pw) >= 0.0:
+                continue
+            if _orient2d(pu, pw, px) * _orient2d(pu, pw, py) > 0.0:
+                continue
+            i = f1.index(u)
+            if f1[(i + 1) % 3] != w:
+                u, w = w, u
+            # t1 = (u, w, x), t2 = (w, u, y) -> (x, u, y), (y, w, x): same outer edges
+            log.append((t1, list(f1), t2, list(f2)))
+            _set_face(faces, edges, incident, t1, [x, u, y])
+            _set_face(faces, edges, incident, t2, [y, w, x])
+            flipped = True
+            if (min(a, b), max(a, b)) in edges:
+                return True
+        if not flipped:
+            return False
+    return (min(a, b), max(a, b)) in edges
+
+
+#: Concave crease particles are lifted this many spacings off their line, along their normal
+#: (into the air wedge), while ball pivoting runs (:func:`pivot_positions`).
+CONCAVE_LIFT = 0.5
+
+
+def pivot_positions(
+    positions: np.ndarray, normals: np.ndarray, crease: np.ndarray, spacing: float = 1.0
+) -> np.ndarray:
+    """Positions for ball pivoting: concave crease particles lifted by ``CONCAVE_LIFT``
+    spacings along their normal (the bisector, into the air). In the air wedge of a concave
+    edge a ball resting on both faces cannot reach the line and lays a triangle from face to
+    face across it; lifted, the line particle lies inside that ball, so the ball pivots over
+    the line particles instead. A crease particle is concave when the particles around it lie
+    on its normal's side."""
+    out = np.array(positions, dtype=np.float64, copy=True)
+    idx = np.flatnonzero(crease)
+    if len(idx) == 0:
+        return out
+    tree = cKDTree(positions)
+    near = tree.query_ball_point(positions[idx], 1.6 * spacing)
+    for i, nb in zip(idx.tolist(), near, strict=True):
+        nb = [j for j in nb if not crease[j]]
+        if len(nb) < 2:
+            continue
+        h = (positions[nb] - positions[i]) @ normals[i]
+        if np.mean(h) > 0.1 * spacing:
+            out[i] = positions[i] + CONCAVE_LIFT * spacing * normals[i]
+    return out

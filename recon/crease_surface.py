@@ -62,6 +62,10 @@ DROP_DISTANCE = 0.3
 #: The particle nearest to a corner is snapped onto it when within this many spacings (a
 #: corner is a point: its nearest particle may be up to one spacing away).
 CORNER_SNAP = 0.5
+#: After the dynamics, a corner with no particle within CORNER_TOUCH spacings gets one: its
+#: nearest particle when within CORNER_MERGE spacings, else a new one (:meth:`_occupy_corners`).
+CORNER_TOUCH = 0.05
+CORNER_MERGE = 0.3
 #: Neighbours of a crease sample's foot: their centroid decides whether it is convex, and they
 #: refit its two side planes (about 2.5 r0 around the foot at the default spacing of 2.5 data
 #: spacings: the fit averages sensor noise over a few spacings of line; 32 left the line
@@ -74,6 +78,14 @@ EXTEND_RADIUS = 6.0
 EXTEND_OFFSET = 0.5
 EXTEND_STEP = 0.5
 EXTEND_SAME_LINE_DEG = 10.0
+#: Corners are moved to the point nearest (least squares) to the lines of the crease samples
+#: within EXTEND_RADIUS of them that pass within EXTEND_OFFSET of them and lie at least
+#: CORNER_LINE_MIN [r0] from them along their line (nearer, the third face bends the fit);
+#: when those lines run in at least two directions (the smallest eigenvalue of the normal
+#: matrix at least CORNER_MIN_EIGEN per line) and the move is at most CORNER_MAX_MOVE [r0].
+CORNER_LINE_MIN = 1.0
+CORNER_MIN_EIGEN = 0.1
+CORNER_MAX_MOVE = 1.5
 #: A refit side plane needs this many member points; samples with fewer are dropped.
 REFINE_MIN_MEMBERS = 6
 #: Rounds of the two-plane refit (assign to the nearer plane, refit by PCA).
@@ -151,7 +163,7 @@ class CreaseField:
             feet, side, direction, good = _refine_planes(points, sel, idx, feet, side)
             feet, side, direction, convex = feet[good], side[good], direction[good], convex[good]
         corners = np.ascontiguousarray(np.asarray(found.corners, dtype=np.float64).reshape(-1, 3))
-        corners = corners / scale
+        corners = _refine_corners(feet, direction, corners / scale)
         feet, direction, side, convex = _extend_to_corners(feet, direction, side, convex, corners)
         return cls(feet, direction, side, convex, corners, reach, snap)
 
@@ -370,6 +382,54 @@ class CreaseField:
         if drop.any():
             state.remove(~drop)
             crease = crease[~drop]
+        if settle:
+            crease = self._occupy_corners(state, crease)
+        return crease
+
+    def _occupy_corners(self, state: ParticleState, crease: np.ndarray) -> np.ndarray:
+        """Put a crease particle on every corner that has none (the last touch of
+        :meth:`constrain`): a corner snaps only its nearest particle within ``CORNER_SNAP``
+        spacings while the dynamics run, so a corner whose particles settled farther stays
+        empty, and the mesh cuts it. The nearest particle within ``CORNER_MERGE`` spacings is
+        moved onto it; otherwise a new particle is added there (normal: the bisector of the
+        nearest crease sample's sides). Returns the crease mask over the particles now."""
+        if self._corner_tree is None or state.n == 0:
+            return crease
+        dist, near = cKDTree(state.position).query(self.corners, k=1)
+        rest = np.asarray(state.rest, dtype=np.float64)
+        empty = dist > CORNER_TOUCH * rest[near]
+        if not empty.any():
+            return crease
+        if self._tree is not None:
+            _, s = self._tree.query(self.corners[empty], k=1)
+            bis = self.side[s, 0] + self.side[s, 1]
+            bis /= np.maximum(np.linalg.norm(bis, axis=1, keepdims=True), 1e-300)
+        else:
+            bis = state.normal[near[empty]]
+        merge = dist[empty] <= CORNER_MERGE * rest[near[empty]]
+        idx = near[empty][merge]
+        if len(idx):
+            pos, nrm = state.position.copy(), state.normal.copy()
+            pos[idx] = self.corners[empty][merge]
+            nrm[idx] = bis[merge]
+            state.position, state.normal = pos, nrm
+            vel = state.velocity.copy()
+            vel[idx] = 0.0
+            state.velocity = vel
+            crease = crease.copy()
+            crease[idx] = True
+            oriented = np.asarray(state.is_oriented, dtype=bool).copy()
+            oriented[idx] = False
+            state.set_oriented(oriented)
+        add = ~merge
+        if add.any():
+            state.add(
+                self.corners[empty][add],
+                bis[add],
+                oriented=False,
+                rest=rest[near[empty][add]],
+            )
+            crease = np.concatenate([crease, np.ones(int(add.sum()), dtype=bool)])
         return crease
 
 
@@ -478,3 +538,35 @@ def _extend_to_corners(
         np.ascontiguousarray(np.concatenate([side, side[idx]])),
         np.concatenate([convex, convex[idx]]),
     )
+
+
+def _refine_corners(feet: np.ndarray, direction: np.ndarray, corners: np.ndarray) -> np.ndarray:
+    """Each corner moved to the least-squares intersection of the crease lines running into it
+    (``x`` minimising ``sum |(I - d d^T)(x - x0)|^2`` over their samples ``(x0, d)``). The
+    detection's corner is the median of three-plane intersections of single neighbourhoods,
+    which can sit half a spacing off; the lines are refitted over 128 neighbours each and
+    meet at the corner to a small fraction of that. Corners without two line directions near
+    them stay."""
+    if len(corners) == 0 or len(feet) == 0:
+        return corners
+    out = corners.copy()
+    tree = cKDTree(feet)
+    for c, near in enumerate(tree.query_ball_point(corners, EXTEND_RADIUS)):
+        near = np.asarray(near, dtype=np.int64)
+        if len(near) < 2:
+            continue
+        d = direction[near]
+        rel = corners[c] - feet[near]
+        t = np.einsum("ij,ij->i", rel, d)
+        off = np.linalg.norm(rel - t[:, None] * d, axis=1)
+        m = (off < EXTEND_OFFSET) & (np.abs(t) >= CORNER_LINE_MIN)
+        if np.count_nonzero(m) < 2:
+            continue
+        proj = np.eye(3)[None] - np.einsum("mi,mj->mij", d[m], d[m])
+        a = proj.sum(axis=0)
+        if np.linalg.eigvalsh(a)[0] < CORNER_MIN_EIGEN * np.count_nonzero(m):
+            continue  # one direction: the lines do not meet in a point
+        x = np.linalg.solve(a, np.einsum("mij,mj->i", proj, feet[near[m]]))
+        if np.linalg.norm(x - corners[c]) <= CORNER_MAX_MOVE:
+            out[c] = x
+    return out

@@ -30,7 +30,7 @@ import open3d as o3d
 from scipy.spatial import cKDTree
 
 from .config import TriangulationConfig
-from .crease_mesh import flip_straddling_edges
+from .crease_mesh import flip_straddling_edges, insert_crease_edges, pivot_positions
 from .intersections import self_intersections, untangle
 from .kernels.circumsphere import circumsphere_kernel
 from .mesh import (
@@ -140,7 +140,8 @@ def triangulate_particles(
             positions, np.zeros((0, 3), dtype=np.int64), normals, {"method": cfg.method}
         )
     if cfg.method == "ball_pivoting":
-        faces = ball_pivoting(positions, normals, ball_radii(cfg.radii, scale))
+        pivot = positions if crease is None else pivot_positions(positions, normals, crease)
+        faces = ball_pivoting(pivot, normals, ball_radii(cfg.radii, scale))
         if scale is not None:
             # a face must fit the largest ball of its region (at its sparsest corner)
             fits = circumradius(positions, faces) <= max(cfg.radii) * scale[faces].max(axis=1)
@@ -179,8 +180,9 @@ def triangulate_particles(
     if crease is not None:  # crease hook: edges along the crease lines (split copies are not)
         on_crease = np.zeros(len(vertices), dtype=bool)
         on_crease[: len(crease)] = np.asarray(crease, dtype=bool)
+        faces, n_in, n_left = insert_crease_edges(vertices, faces, on_crease)
         faces, n_flips = flip_straddling_edges(faces, vnormals, on_crease)
-        log.debug("crease: %d edges flipped onto crease lines", n_flips)
+        log.debug("crease: %d line edges inserted (%d not), %d flips", n_in, n_left, n_flips)
         used = np.zeros(len(vertices), dtype=bool)
         used[faces.reshape(-1)] = True
         on_crease = on_crease[used]
