@@ -46,6 +46,7 @@ __all__ = [
     "dual_neighbours",
     "dual_shape",
     "mesh_path",
+    "proper_faces",
     "stitch_streamed",
     "write_tile_mesh",
 ]
@@ -220,6 +221,13 @@ class VertexStore:
 # --- the coordinator's stitch ------------------------------------------------------------
 
 
+def proper_faces(faces: np.ndarray) -> np.ndarray:
+    """The faces with three distinct vertices: the only ones written (so the vertices that
+    only faces with a repeated vertex use are not written either)."""
+    f = np.asarray(faces)
+    return f[(f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 0] != f[:, 2])]
+
+
 def _load_faces(paths: list[Path]) -> np.ndarray:
     parts = [np.load(p) for p in paths]
     return np.vstack(parts) if parts else np.zeros((0, 3), dtype=np.int64)
@@ -245,8 +253,9 @@ def stitch_streamed(
 
     Returns a dict with ``store`` (:class:`VertexStore`), ``units`` (a list of callables
     each returning one unit's final faces in global ids), ``used`` (vertices the mesh uses),
-    ``topology``, ``quality``, ``seams``, ``repair`` and ``memory`` (the largest sub-meshes
-    held, for the report and the tests).
+    ``topology``, ``quality``, ``seams``, ``repair``, ``coordinate_type`` (the PLY coordinate
+    type of the written vertices, :class:`recon.tiling.measure.CoordinateRange`) and ``memory``
+    (the largest sub-meshes held, for the report and the tests).
     """
     from .stitch import SEAM_BAND
 
@@ -361,7 +370,7 @@ def stitch_streamed(
         cand_u = np.concatenate(units) if units else np.zeros(0, dtype=np.int64)
         touch = _touching(cand_f, faces)
         acc.add(t, faces, cand_f[touch], cand_u[touch], store)
-        used[faces.ravel()] = True
+        used[proper_faces(faces).ravel()] = True
     for c in sorted(done):
         faces = np.load(out_path(c))
         cand, units = [], []
@@ -378,7 +387,7 @@ def stitch_streamed(
         cand_u = np.concatenate(units) if units else np.zeros(0, dtype=np.int64)
         touch = _touching(cand_f, faces)
         acc.add(n_tiles + c, faces, cand_f[touch], cand_u[touch], store)
-        used[faces.ravel()] = True
+        used[proper_faces(faces).ravel()] = True
     units_out: list[Callable[[], np.ndarray]] = [
         (lambda t=t: tile_faces(t)) for t in sorted(mesh_results)
     ] + [(lambda c=c: np.load(out_path(c))) for c in sorted(done)]
@@ -389,6 +398,7 @@ def stitch_streamed(
         "used": used,
         "n_faces": acc.f,
         "topology": acc.topology(n_used),
+        "coordinate_type": acc.coordinates.type(),
         "quality": acc.quality(),
         "seams": acc.seams(),
         "repair": repair,

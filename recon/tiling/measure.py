@@ -14,7 +14,45 @@ from ..topology import TRIANGLE_QUALITY_KEYS
 from .grid import TileGrid
 from .stitch import face_keys
 
-__all__ = ["TopologyAccumulator"]
+__all__ = ["CoordinateRange", "TopologyAccumulator"]
+
+#: float32 coordinates when they keep this fraction of the extent (as recon.io.ply).
+FLOAT32_TOLERANCE = 1e-7
+
+
+class CoordinateRange:
+    """The PLY coordinate type of vertices seen block by block: 'f4' when float32 keeps
+    :data:`FLOAT32_TOLERANCE` of their extent at every vertex, else 'f8' (the rule
+    :func:`recon.io.write_mesh` applies to a whole mesh, so that a tiled mesh is written
+    with the type its untiled twin would get)."""
+
+    def __init__(self) -> None:
+        self.lo = np.full(3, np.inf)
+        self.hi = np.full(3, -np.inf)
+        self.err = 0.0
+        self.n = 0
+
+    def add(self, xyz: np.ndarray) -> None:
+        xyz = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
+        if len(xyz) == 0:
+            return
+        self.n += len(xyz)
+        if not np.isfinite(xyz).all():
+            self.err = np.inf
+            return
+        self.lo = np.minimum(self.lo, xyz.min(axis=0))
+        self.hi = np.maximum(self.hi, xyz.max(axis=0))
+        with np.errstate(over="ignore"):
+            err = float(np.max(np.abs(xyz.astype(np.float32).astype(np.float64) - xyz)))
+        self.err = max(self.err, err if np.isfinite(err) else np.inf)
+
+    def type(self) -> str:
+        if self.n == 0:
+            return "f4"
+        if not np.isfinite(self.err):
+            return "f8"
+        extent = float(np.max(self.hi - self.lo))
+        return "f4" if self.err <= FLOAT32_TOLERANCE * extent else "f8"
 
 
 class TopologyAccumulator:
@@ -55,6 +93,7 @@ class TopologyAccumulator:
         self.angle_hist = np.zeros(len(self.ANGLE_BINS) - 1, dtype=np.int64)
         self.ratio_hist = np.zeros(len(self.RATIO_BINS) - 1, dtype=np.int64)
         self.max_faces_held = 0
+        self.coordinates = CoordinateRange()  # of the vertices of the (written) own faces
 
     def add(self, unit: int, faces: np.ndarray, frame: np.ndarray, frame_unit: np.ndarray, store):
         """Count the unit's faces (global ids); ``frame`` are the other units' faces that share
@@ -82,6 +121,7 @@ class TopologyAccumulator:
         local, units, own = local[keep], units[keep], own[keep]
         self.f += int(own.sum())
         nv = len(ids)
+        self.coordinates.add(pos[np.unique(local[own])])
         # duplicates: a face is one when a face of a lower unit (or the same, earlier) has
         # the same three vertices
         key = face_keys(local)

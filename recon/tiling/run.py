@@ -47,7 +47,7 @@ from .grid import TileGrid, choose_auto_tile_size
 from .source import ScanHeader, scan_header, split_input
 from .stitch import agree_signs
 from .tasks import FitJob, MeshJob, fit_task, mesh_task, particles_path, spacing_task
-from .writer import coordinate_type, write_particles_streamed, write_streamed
+from .writer import write_particles_streamed, write_streamed
 
 __all__ = ["TiledResult", "fit_tiled", "plan_tile_size"]
 
@@ -340,23 +340,19 @@ def fit_tiled(
                 "report": None if report_path is None else str(report_path),
             },
         }
-        halo = np.full(3, grid.halo + r0)
-        coord_type = coordinate_type(header.lo - halo, header.hi + halo)
         with atomic_outputs() as outputs:
             with atomic_output(output_path, outputs) as tmp:
                 write_streamed(
                     tmp,
                     stitched,
-                    coord_type,
+                    stitched["coordinate_type"],
                     cfg.output.vertex_normals,
                     cfg.io.ascii,
                     colors=store.has_colors and output_path.suffix.lower() == ".ply",
                 )
             if particles_path_out is not None:
                 with atomic_output(Path(particles_path_out), outputs) as tmp:
-                    write_particles_streamed(
-                        tmp, stitched["store"], len(offsets), coord_type, cfg.io.ascii
-                    )
+                    write_particles_streamed(tmp, stitched["store"], len(offsets), cfg.io.ascii)
             if report_path is not None:
                 with atomic_output(report_path, outputs) as tmp:
                     tmp.write_text(dumps(report) + "\n")

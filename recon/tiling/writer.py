@@ -4,7 +4,6 @@ OBJ; the particles likewise (:func:`write_particles_streamed`)."""
 
 from __future__ import annotations
 
-import itertools
 from collections import OrderedDict
 from pathlib import Path
 from typing import Any, BinaryIO
@@ -12,11 +11,10 @@ from typing import Any, BinaryIO
 import numpy as np
 
 from .assemble import CACHED_BLOCKS, VertexStore
+from .measure import CoordinateRange
 
-__all__ = ["coordinate_type", "write_particles_streamed", "write_streamed"]
+__all__ = ["write_particles_streamed", "write_streamed"]
 
-#: float32 coordinates when they keep this fraction of the extent (as recon.io.ply).
-FLOAT32_TOLERANCE = 1e-7
 _PLY_NAMES = {"f4": "float", "f8": "double", "u1": "uchar"}
 
 
@@ -84,19 +82,6 @@ def write_face_rows(fh: BinaryIO, fmt: str, faces: np.ndarray, ascii: bool, norm
     rows["n"] = 3
     rows["v"] = faces
     fh.write(rows.tobytes())
-
-
-def coordinate_type(lo: np.ndarray, hi: np.ndarray) -> str:
-    """PLY coordinate type for vertices within ``[lo, hi]``: 'f4' when float32 keeps
-    :data:`FLOAT32_TOLERANCE` of the extent at the box's corners (the rule of
-    :mod:`recon.io.ply`), else 'f8'."""
-    xyz = np.array(list(itertools.product(*zip(lo, hi, strict=True))), dtype=np.float64)
-    if not np.isfinite(xyz).all():
-        return "f8"
-    with np.errstate(over="ignore"):
-        err = float(np.max(np.abs(xyz.astype(np.float32).astype(np.float64) - xyz)))
-    extent = float(np.max(xyz.max(axis=0) - xyz.min(axis=0)))
-    return "f4" if np.isfinite(err) and err <= FLOAT32_TOLERANCE * extent else "f8"
 
 
 def ply_header(
@@ -185,11 +170,14 @@ def write_streamed(
                 write_face_rows(fh, fmt, new_ids(f.ravel()).reshape(-1, 3), ascii, normals)
 
 
-def write_particles_streamed(
-    path: Path, store: VertexStore, n_blocks: int, coord_type: str, ascii: bool
-) -> None:
-    """The particles (the store's first ``n_blocks`` blocks) as a PLY point cloud."""
+def write_particles_streamed(path: Path, store: VertexStore, n_blocks: int, ascii: bool) -> None:
+    """The particles (the store's first ``n_blocks`` blocks) as a PLY point cloud, with the
+    coordinate type of their positions (:class:`CoordinateRange`)."""
     n = int(sum(store.counts[:n_blocks]))
+    coords = CoordinateRange()
+    for k in range(n_blocks):
+        coords.add(store.block(k)[0])
+    coord_type = coords.type()
     with open(path, "wb") as fh:
         fh.write(ply_header(n, None, coord_type, True, ascii))
         for k in range(n_blocks):
