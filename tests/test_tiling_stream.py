@@ -210,3 +210,36 @@ def test_the_coordinate_type_follows_the_written_vertices(tmp_path, offset, stra
     write_streamed(path, out, out["coordinate_type"], True, False)
     v, _ = read_mesh(path)
     assert np.abs(np.sort(v, axis=0) - np.sort(xyz, axis=0)).max() <= 1e-7 * np.ptp(xyz, 0).max()
+
+
+def test_the_preview_draws_the_stitched_mesh_without_holding_it(tmp_path):
+    """The clustered drawing covers the sheet (area within 10 %: clusters on the rim pull it
+    in by half a cell) with about the faces asked for, and marks the full mesh's boundary
+    edges (one loop round the sheet)."""
+    from recon.tiling.preview import preview_mesh
+
+    _, out, n_faces = stitch(tmp_path, 3, True)
+    v, f, marks = preview_mesh(out, max_faces=2000)
+    assert 600 <= len(f) <= 4000 and marks["faces"] == n_faces
+    t = v[f]
+    area = 0.5 * np.linalg.norm(np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]), axis=1).sum()
+    side = 3 * SIZE
+    assert area == pytest.approx(side * side, rel=0.1)
+    b = marks["boundary"]
+    assert len(b) == 4 * side  # the rim of the lattice, edge by edge
+    rim = v[b].reshape(-1, 3)
+    lo, hi = rim.min(axis=0), rim.max(axis=0)
+    assert np.allclose(hi[:2] - lo[:2], side)
+    assert len(marks["non_manifold"]) == 0 and len(marks["bow_ties"]) == 0
+    from recon.render import render_mesh_png
+
+    render_mesh_png(tmp_path / "p.png", v, f, marks=marks)
+    assert (tmp_path / "p.png").stat().st_size > 1000
+
+
+def test_a_small_stitched_mesh_is_drawn_as_it_is(tmp_path):
+    from recon.tiling.preview import preview_mesh
+
+    _, out, n_faces = stitch(tmp_path, 2, False)
+    v, f, marks = preview_mesh(out, max_faces=n_faces)
+    assert len(f) == n_faces == marks["faces"]

@@ -76,6 +76,8 @@ class TopologyAccumulator:
         self.inconsistent = 0
         self.seam_edges = self.seam_boundary = self.near_boundary = 0
         self.boundary: list[np.ndarray] = []
+        self.non_manifold: list[np.ndarray] = []  # (k, 2) edges, global ids
+        self.bow_ties: list[np.ndarray] = []  # non-manifold vertices, global ids
         self.boundary_len: list[np.ndarray] = []
         self.node_counts: list[np.ndarray] = []  # (k, 3): V, E, F per local component
         self.links: list[np.ndarray] = []  # (vertex id, node) for vertices shared with others
@@ -149,7 +151,10 @@ class TopologyAccumulator:
         owned_e = e_in_own & (e_owner == unit)
         e_lo, e_hi = uk // nv, uk % nv
         self.e += int(owned_e.sum())
-        self.nm_edges += int((owned_e & (cnt > 2)).sum())
+        nm = owned_e & (cnt > 2)
+        self.nm_edges += int(nm.sum())
+        if nm.any():
+            self.non_manifold.append(np.stack([ids[e_lo[nm]], ids[e_hi[nm]]], axis=1))
         # orientation on manifold edges: the two half-edges must run opposite ways
         fwd = (he_from < he_to).astype(np.int64)
         fwd_sum = np.bincount(inv, weights=fwd, minlength=len(uk))
@@ -171,7 +176,10 @@ class TopologyAccumulator:
         span = np.int64(3 * len(local))
         fan_keys = np.unique(local.ravel() * span + fan)
         fans = np.bincount(fan_keys // span, minlength=nv)
-        self.nm_vertices += int((owned_v & (fans > 1)).sum())
+        bow = owned_v & (fans > 1)
+        self.nm_vertices += int(bow.sum())
+        if bow.any():
+            self.bow_ties.append(ids[bow])
         self.v += int(owned_v.sum())
         # components of the unit's own faces, linked to the others through shared vertices
         of = local[own]
@@ -307,6 +315,15 @@ class TopologyAccumulator:
             "duplicate_faces": int(self.duplicates),
             "unreferenced_vertices": 0,
             "largest_hole_perimeter": largest,
+        }
+
+    def defects(self) -> dict[str, np.ndarray]:
+        """Boundary and non-manifold edges ((k, 2) global ids) and non-manifold vertices."""
+        z2 = np.zeros((0, 2), dtype=np.int64)
+        return {
+            "boundary": np.vstack(self.boundary) if self.boundary else z2,
+            "non_manifold": np.vstack(self.non_manifold) if self.non_manifold else z2,
+            "bow_ties": np.concatenate(self.bow_ties) if self.bow_ties else np.zeros(0, np.int64),
         }
 
     def degenerate_repeated_faces(self) -> int:
