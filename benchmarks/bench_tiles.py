@@ -8,8 +8,8 @@ for both.
 ``scale``: writes an N-point LAZ scene per size (a larger N is a larger area at the same
 density), fits it in tiles of a fixed side on a 2-worker Dask LocalCluster
 (``--executor dask --jobs 2``), and prints wall time, points/s, tiles, and the peak RSS of the
-coordinating process and of each worker (sampled every 0.2 s over the process tree), then the
-slope of log(time) against log(points).
+coordinating process and of each worker (sampled every 0.2 s over the process tree), every
+boundary loop of the mesh (as ``seams``), then the slope of log(time) against log(points).
 
 Examples::
 
@@ -276,6 +276,9 @@ def scale(ns: argparse.Namespace) -> int:
             }
             rows.append(row)
             print(json.dumps(row), flush=True)
+            lo = np.asarray(report["tiles"]["per_tile"][0]["bounds"][0])
+            for loop in loop_table(out, lo, ns.tile_size):
+                print(f"  loop {json.dumps(loop)}", flush=True)
     print()
     print("| points | tiles | wall s | points/s | coordinator peak GiB | worker peak GiB |")
     print("|---|---|---|---|---|---|")

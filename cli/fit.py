@@ -570,12 +570,6 @@ def _fit_tiles(
 
     from .common import fail
 
-    if preview_path is not None:
-        raise click.UsageError("--preview is not available for tiled fits (yet)")
-    if cfg.output.transfer or cfg.output.quality or cfg.output.obj_colors:
-        raise click.UsageError(
-            "--transfer, --quality and --obj-colors are not available for tiled fits (yet)"
-        )
     progress = TileProgress(enabled=not quiet)
     try:
         result = fit_tiled(
@@ -586,6 +580,7 @@ def _fit_tiles(
             executor=executor,
             scheduler=scheduler,
             particles_path_out=particles_path,
+            preview_path=preview_path,
             write_report=False if no_report else None,
             mkdir=mkdir,
             on_event=progress,

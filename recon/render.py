@@ -231,6 +231,7 @@ def render_mesh_png(
     max_faces: int = 60_000,
     outputs: AtomicOutputs | None = None,
     crease_vertices: Any = None,
+    marks: Mapping[str, Any] | None = None,
 ) -> None:
     """Write a PNG of a mesh from three sides, defects marked, plus an optional convergence plot.
 
@@ -259,6 +260,10 @@ def render_mesh_png(
     crease_vertices : (V,) array_like of bool, optional
         Vertices on detected crease lines and corners: the mesh edges between two of them are
         drawn in blue (``CREASE_COLOR``).
+    marks : mapping, optional
+        When ``faces`` only draw a larger mesh (a tiled fit's, never held whole): that mesh's
+        ``boundary`` and ``non_manifold`` (E, 2) edges and ``bow_ties`` vertices as indices
+        into ``vertices``, and its face count ``faces``; they replace those of ``faces``.
 
     Raises
     ------
@@ -276,10 +281,21 @@ def render_mesh_png(
         raise InputError(f"image size must be at least 100 x 100 pixels, got {width} x {height}")
     hist = None if history is None else _check_history(history)
 
-    edges, counts = count_edge_faces(f)
-    boundary, non_manifold = edges[counts == 1], edges[counts > 2]
-    bow_ties = v[non_manifold_vertex_ids(f)]
+    if marks is None:
+        edges, counts = count_edge_faces(f)
+        boundary, non_manifold = edges[counts == 1], edges[counts > 2]
+        bow_ties = v[non_manifold_vertex_ids(f)]
+        n_faces = len(f)
+    else:
+        boundary, non_manifold = (
+            np.asarray(marks[k], dtype=np.int64).reshape(-1, 2)
+            for k in ("boundary", "non_manifold")
+        )
+        bow_ties = v[np.asarray(marks.get("bow_ties", []), dtype=np.int64)]
+        n_faces = int(marks["faces"])
     used = v[np.unique(f)] if len(f) else (v if len(v) else np.zeros((1, 3)))
+    if marks is not None and len(v):
+        used = v  # the marked edges index every vertex (the drawing's and the marked ones)
     draw_v, draw_f = _simplify_for_drawing(v, f, max_faces)
 
     fig = Figure(figsize=(width / _DPI, height / _DPI), dpi=_DPI, facecolor="white")
@@ -303,8 +319,8 @@ def render_mesh_png(
         _draw_history(fig, (panel[0, 0], panel[1, 0]), hist)
 
     summary = (
-        f"{len(f):,} faces"
-        + (f" (drawn: {len(draw_f):,})" if len(draw_f) != len(f) else "")
+        f"{n_faces:,} faces"
+        + (f" (drawn: {len(draw_f):,})" if len(draw_f) != n_faces else "")
         + f"   boundary edges (red): {len(boundary):,}"
         + f"   non-manifold edges (magenta): {len(non_manifold):,}"
         + f"   non-manifold vertices (magenta circles): {len(bow_ties):,}"

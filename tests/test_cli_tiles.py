@@ -97,13 +97,14 @@ def test_a_tile_failing_twice_exits_1_with_its_bounds_and_writes_nothing(sheet_f
         (["--tile-size", "4", "--tiles", "auto"], "--tile-size and --tiles auto are exclusive"),
         (["--tiles", "some"], "'--tiles'"),
         (["--tile-size", "4", "--scheduler", "tcp://x:1"], "--scheduler needs --executor dask"),
-        (["--tile-size", "4", "--preview", "m.png"], "--preview is not available"),
-        (["--tile-size", "4", "--quality"], "not available for tiled fits"),
+        (["--tile-size", "4", "--transfer", "intensity"], "the input has no intensity"),
+        (["--tile-size", "4", "--quality", "-o", "m.obj"], "OBJ has no vertex properties"),
         (["--set", "tiling.size=-1"], "tiling.size"),
         (["--set", "tiling.memory=lots", "--tiles", "auto"], "tiling.memory"),
     ],
 )
-def test_bad_tiling_options_exit_2(sheet_file, tmp_path, extra, message):
+def test_bad_tiling_options_exit_2(sheet_file, tmp_path, extra, message, monkeypatch):
+    monkeypatch.chdir(tmp_path)
     res = _run(["fit", str(sheet_file), "-o", str(tmp_path / "m.ply"), *extra])
     assert res.exit_code == 2, res.output
     assert message in res.output
@@ -272,3 +273,74 @@ def test_las_colours_end_up_on_the_tiled_mesh(tmp_path):
     assert left.sum() > 100 and right.sum() > 100
     assert np.all(rgb[left] == [255, 0, 0]) and np.all(rgb[right] == [0, 0, 255])
     assert np.all(rgb[:, 1] == 0)
+
+
+def _las_two_halves(tmp_path, offset=(0.0, 0.0, 0.0)) -> Path:
+    """A LAS sheet whose halves differ: x < 4 red, intensity 100, class 2; beyond blue,
+    intensity 1000, class 6."""
+    laspy = pytest.importorskip("laspy")
+    pts = _sheet(2500, offset)
+    header = laspy.LasHeader(point_format=3, version="1.2")
+    header.scales = np.array([0.0001] * 3)
+    header.offsets = np.asarray(offset, dtype=np.float64)
+    las = laspy.LasData(header)
+    las.x, las.y, las.z = pts[:, 0], pts[:, 1], pts[:, 2]
+    left = pts[:, 0] - offset[0] < 4.0
+    las.red = np.where(left, 65535, 0).astype(np.uint16)
+    las.green = np.zeros(len(pts), dtype=np.uint16)
+    las.blue = np.where(left, 0, 65535).astype(np.uint16)
+    las.intensity = np.where(left, 100, 1000).astype(np.uint16)
+    las.classification = np.where(left, 2, 6).astype(np.uint8)
+    src = tmp_path / "sheet.las"
+    las.write(str(src))
+    return src
+
+
+def test_transfer_quality_and_preview_on_a_tiled_fit(tmp_path):
+    """--transfer intensity,classification --quality --preview on a 2 x 2 tiled fit: every
+    vertex gets its side's intensity and class, quality is the distance to the nearest input
+    point in r0 (checked against the whole cloud), and the preview is a PNG."""
+    from PIL import Image
+    from plyfile import PlyData
+    from scipy.spatial import cKDTree
+
+    from recon.io import read_points
+
+    src = _las_two_halves(tmp_path)
+    out, png = tmp_path / "m.ply", tmp_path / "m.png"
+    args = ["fit", str(src), "-o", str(out), "--tile-size", "4", "--jobs", "2", "-q"]
+    args += ["--transfer", "intensity,classification", "--quality", "--preview", str(png)]
+    res = _run(args)
+    assert res.exit_code == 0, res.output
+    v = PlyData.read(str(out))["vertex"]
+    names = [p.name for p in v.properties]
+    assert names[-6:] == ["red", "green", "blue", "intensity", "classification", "quality"]
+    assert v["classification"].dtype == np.uint8 and v["quality"].dtype == np.float32
+    xyz = np.column_stack([v["x"], v["y"], v["z"]]).astype(np.float64)
+    assert len(xyz) == len(read_mesh(out)[0])
+    left, right = xyz[:, 0] < 3.5, xyz[:, 0] > 4.5
+    assert left.sum() > 100 and right.sum() > 100
+    assert np.all(v["classification"][left] == 2) and np.all(v["classification"][right] == 6)
+    assert np.allclose(v["intensity"][left], 100) and np.allclose(v["intensity"][right], 1000)
+    assert set(np.unique(v["classification"])) == {2, 6}
+    r0 = json.loads(out.with_suffix(".report.json").read_text())["spacing"]
+    data = read_points(src).absolute_points()
+    expected = cKDTree(data).query(xyz)[0] / r0
+    assert np.allclose(np.asarray(v["quality"]), expected, rtol=1e-5, atol=1e-5)
+    with Image.open(png) as im:
+        assert im.format == "PNG" and im.size[0] >= 100
+    report = json.loads(out.with_suffix(".report.json").read_text())
+    assert report["output"]["preview"] == str(png)
+
+
+def test_a_tiled_obj_gets_colours_when_asked(tmp_path):
+    src = _las_two_halves(tmp_path)
+    out = tmp_path / "m.obj"
+    args = ["fit", str(src), "-o", str(out), "--tile-size", "4", "--jobs", "2", "-q"]
+    res = _run([*args, "--obj-colors"])
+    assert res.exit_code == 0, res.output
+    rows = [ln.split() for ln in out.read_text().splitlines() if ln.startswith("v ")]
+    assert rows and all(len(r) == 7 for r in rows)
+    v = np.array([[float(x) for x in r[1:]] for r in rows])
+    left, right = v[:, 0] < 3.5, v[:, 0] > 4.5
+    assert np.allclose(v[left, 3:], [1, 0, 0]) and np.allclose(v[right, 3:], [0, 0, 1])

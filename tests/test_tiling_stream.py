@@ -10,7 +10,7 @@ from recon.io import read_mesh
 from recon.tiling import TileGrid
 from recon.tiling.assemble import stitch_streamed, write_tile_mesh
 from recon.tiling.tasks import particles_path
-from recon.tiling.writer import coordinate_type, write_streamed
+from recon.tiling.writer import write_streamed
 from recon.topology import mesh_topology
 
 SIZE = 12.0  # tile side [r0]
@@ -31,10 +31,24 @@ def lattice(n_tiles: int) -> tuple[np.ndarray, np.ndarray]:
     return v, f
 
 
-def tile_work(tmp_path, n_tiles: int, defects: bool):
+def tile_work(
+    tmp_path,
+    n_tiles: int,
+    defects: bool,
+    degenerate: str | None = None,
+    offset: tuple[float, float, float] = (0.0, 0.0, 0.0),
+    stray: float = 0.0,
+):
     """Write what the mesh tasks would: each tile's particles and its faces (centroid in its
-    core); with ``defects`` one face across a seam is made twice and one is missing."""
+    core); with ``defects`` one face across a seam is made twice and one is missing.
+
+    ``degenerate`` ('interior' or 'zone'): tile 0 also outputs a face with a repeated vertex
+    whose third vertex is a new vertex that no other face uses (it must not be written).
+    ``offset`` shifts the sheet; ``stray`` (> 0) adds a face on the sheet's outer rim whose
+    new vertex lies ``stray`` beyond the sheet (outside the input's bounds).
+    """
     v, f = lattice(n_tiles)
+    v = v + np.asarray(offset)
     lo = v.min(axis=0) - 0.013
     grid = TileGrid.cover(lo, v.max(axis=0), SIZE, 4.0)
     owner = grid.cell_of(v)
@@ -70,12 +84,32 @@ def tile_work(tmp_path, n_tiles: int, defects: bool):
         if t in extra:
             ft = np.vstack([ft, extra[t]])
         none = np.zeros((0, 3))
-        results[t] = write_tile_mesh(tmp_path, t, grid, 1.0, v, ft, gid, none, none)
-    return grid, counts, results, len(f)
+        vt, codes, new_v = v, gid, none
+        if t == 0 and (degenerate or stray):
+            # one new vertex (code -1), used by one added face
+            lo_t = grid.bounds(0)[0]
+            if stray:
+                a = int(np.argmin(np.linalg.norm(v - lo_t - [6.0, 0.0, 0.0], axis=1)))
+                b = int(np.argmin(np.linalg.norm(v - lo_t - [7.0, 0.0, 0.0], axis=1)))
+                new_v = v[[a]] + [[0.5, -stray, 0.0]]
+                added = [[a, len(v), b]]  # below the rim, wound as the sheet
+            else:
+                at = [6.0, 6.0, 0.0] if degenerate == "interior" else [11.0, 6.0, 0.0]
+                a = int(np.argmin(np.linalg.norm(v[:, :2] - (lo_t + at)[:2], axis=1)))
+                new_v = v[[a]] + [[0.0, 0.0, 0.25]]
+                added = [[a, a, len(v)]]
+            vt = np.vstack([v, new_v])
+            codes = np.concatenate([gid, [-1]])
+            ft = np.vstack([ft, added])
+            new_v = np.asarray(new_v)
+        results[t] = write_tile_mesh(
+            tmp_path, t, grid, 1.0, vt, ft, codes, new_v, np.zeros((len(new_v), 3))
+        )
+    return grid, counts, results, len(f) + (1 if stray else 0)
 
 
-def stitch(tmp_path, n_tiles: int, defects: bool):
-    grid, counts, results, n_faces = tile_work(tmp_path, n_tiles, defects)
+def stitch(tmp_path, n_tiles: int, defects: bool, **kw):
+    grid, counts, results, n_faces = tile_work(tmp_path, n_tiles, defects, **kw)
     out = stitch_streamed(tmp_path, grid, counts, {}, results, 1.0, 3.0, particles_path)
     return grid, out, n_faces
 
@@ -84,7 +118,7 @@ def stitch(tmp_path, n_tiles: int, defects: bool):
 def test_streamed_mesh_and_its_topology_match_the_whole_mesh(tmp_path, defects):
     grid, out, n_faces = stitch(tmp_path, 3, defects)
     path = tmp_path / "mesh.ply"
-    write_streamed(path, out, coordinate_type(grid.lo, grid.lo + 40), True, False)
+    write_streamed(path, out, out["coordinate_type"], True, False)
     v, f = read_mesh(path)
     whole = mesh_topology(v, f)
     assert whole["boundary_loops"] == 1 and whole["non_manifold_edges"] == 0
@@ -130,3 +164,82 @@ def test_a_failing_write_leaves_nothing(tmp_path, monkeypatch):
     with pytest.raises(KeyboardInterrupt), atomic_output(target) as tmp:
         write_streamed(tmp, out, "f4", True, False)
     assert list(target.parent.iterdir()) == []
+
+
+@pytest.mark.parametrize("where", ["interior", "zone"])
+def test_a_face_with_a_repeated_vertex_leaves_no_unreferenced_vertex(tmp_path, where):
+    """Faces with a repeated vertex are not written, so the vertices only they use are not
+    written either (the header's vertex count is the report's)."""
+    _, out, n_faces = stitch(tmp_path, 2, False, degenerate=where)
+    path = tmp_path / "mesh.ply"
+    write_streamed(path, out, out["coordinate_type"], True, False)
+    v, f = read_mesh(path)
+    whole = mesh_topology(v, f)
+    assert whole["unreferenced_vertices"] == 0
+    assert len(f) == n_faces and whole["degenerate_faces"] == 0
+    assert out["topology"]["n_vertices"] == len(v)
+    assert out["topology"]["n_faces"] == len(f)
+
+
+def _f32_keeps(xyz: np.ndarray) -> bool:
+    """recon.io.ply's rule: float32 keeps 1e-7 of the extent at every vertex."""
+    err = np.abs(xyz.astype(np.float32).astype(np.float64) - xyz).max()
+    return bool(err <= 1e-7 * np.ptp(xyz, axis=0).max())
+
+
+@pytest.mark.parametrize(
+    ("offset", "stray"),
+    [
+        ((0.0, 0.0, 0.0), 0.0),  # near the origin: float is enough
+        ((3.0e5, 7.0e5, 150.0), 0.0),  # georeferenced: double
+        ((1.0, 1.0, 0.0), 30.0),  # a vertex outside the input's bounds
+    ],
+)
+def test_the_coordinate_type_follows_the_written_vertices(tmp_path, offset, stray):
+    """The stitched mesh's PLY coordinate type is the one recon.io.write_mesh would choose for
+    the same vertices (not one guessed from the input's bounds), and the written coordinates
+    keep 1e-7 of the extent."""
+    _, out, _ = stitch(tmp_path, 2, False, offset=offset, stray=stray)
+    used = np.flatnonzero(out["used"])
+    xyz, _ = out["store"].get(used)
+    if stray:
+        assert xyz[:, 1].min() < offset[1] - 20.0  # the stray vertex is written
+    want = "f4" if _f32_keeps(xyz) else "f8"
+    assert out["coordinate_type"] == want
+    path = tmp_path / "mesh.ply"
+    write_streamed(path, out, out["coordinate_type"], True, False)
+    v, _ = read_mesh(path)
+    assert np.abs(np.sort(v, axis=0) - np.sort(xyz, axis=0)).max() <= 1e-7 * np.ptp(xyz, 0).max()
+
+
+def test_the_preview_draws_the_stitched_mesh_without_holding_it(tmp_path):
+    """The clustered drawing covers the sheet (area within 10 %: clusters on the rim pull it
+    in by half a cell) with about the faces asked for, and marks the full mesh's boundary
+    edges (one loop round the sheet)."""
+    from recon.tiling.preview import preview_mesh
+
+    _, out, n_faces = stitch(tmp_path, 3, True)
+    v, f, marks = preview_mesh(out, max_faces=2000)
+    assert 600 <= len(f) <= 4000 and marks["faces"] == n_faces
+    t = v[f]
+    area = 0.5 * np.linalg.norm(np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]), axis=1).sum()
+    side = 3 * SIZE
+    assert area == pytest.approx(side * side, rel=0.1)
+    b = marks["boundary"]
+    assert len(b) == 4 * side  # the rim of the lattice, edge by edge
+    rim = v[b].reshape(-1, 3)
+    lo, hi = rim.min(axis=0), rim.max(axis=0)
+    assert np.allclose(hi[:2] - lo[:2], side)
+    assert len(marks["non_manifold"]) == 0 and len(marks["bow_ties"]) == 0
+    from recon.render import render_mesh_png
+
+    render_mesh_png(tmp_path / "p.png", v, f, marks=marks)
+    assert (tmp_path / "p.png").stat().st_size > 1000
+
+
+def test_a_small_stitched_mesh_is_drawn_as_it_is(tmp_path):
+    from recon.tiling.preview import preview_mesh
+
+    _, out, n_faces = stitch(tmp_path, 2, False)
+    v, f, marks = preview_mesh(out, max_faces=n_faces)
+    assert len(f) == n_faces == marks["faces"]

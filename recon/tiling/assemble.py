@@ -46,6 +46,7 @@ __all__ = [
     "dual_neighbours",
     "dual_shape",
     "mesh_path",
+    "proper_faces",
     "stitch_streamed",
     "write_tile_mesh",
 ]
@@ -107,14 +108,19 @@ def write_tile_mesh(
     new_vertices: np.ndarray,
     new_normals: np.ndarray,
     new_colors: np.ndarray | None = None,
+    new_properties: np.ndarray | None = None,
     moved_ids: np.ndarray | None = None,
     moved_positions: np.ndarray | None = None,
+    moved_attributes: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> dict:
     """File a tile's faces as zone, rim and interior faces (see the module docstring).
 
     ``vertices`` are the absolute positions of the faces' vertices, ``faces`` index them and
     ``codes`` maps them to global particle ids (``-1 - j``: the tile's ``j``-th new vertex).
-    ``moved_ids`` / ``moved_positions``: the tile's own particles that untangling moved.
+    ``new_colors`` / ``new_properties``: the new vertices' colours and properties
+    (:func:`recon.tiling.tasks.vertex_attributes`).
+    ``moved_ids`` / ``moved_positions``: the tile's own particles that untangling moved;
+    ``moved_attributes``: their colours and properties where they moved to.
     Returns the counts.
     """
     dist = grid.seam_distance(vertices)
@@ -134,8 +140,15 @@ def write_tile_mesh(
         new_vertices=np.asarray(new_vertices, dtype=np.float64).reshape(-1, 3),
         new_normals=np.asarray(new_normals, dtype=np.float64).reshape(-1, 3),
         new_colors=np.zeros((0, 3), np.uint8) if new_colors is None else new_colors,
+        new_properties=(
+            np.zeros((len(new_vertices), 0)) if new_properties is None else new_properties
+        ),
         moved_ids=np.zeros(0, np.int64) if moved_ids is None else moved_ids,
         moved_positions=np.zeros((0, 3)) if moved_positions is None else moved_positions,
+        moved_colors=np.zeros((0, 3), np.uint8)
+        if moved_attributes is None
+        else moved_attributes[0],
+        moved_properties=np.zeros((0, 0)) if moved_attributes is None else moved_attributes[1],
     )
     return {
         "faces": int(len(faces)),
@@ -145,7 +158,8 @@ def write_tile_mesh(
 
 
 class VertexStore:
-    """Positions and normals by global vertex id, from blocks loaded on demand.
+    """Positions, normals, colours and properties by global vertex id, from blocks loaded on
+    demand.
 
     A block is a contiguous id range with a loader (a tile's particles, a tile's new vertices)
     or arrays held in memory (vertices the seam repair added). At most
@@ -161,8 +175,10 @@ class VertexStore:
         self.max_cached = 0
 
     def add(self, count: int, loader: Callable[[], tuple]) -> int:
-        """A block of ``count`` vertices; ``loader()`` returns (positions, normals, colours),
-        colours a (count, 3) uint8 array or empty when the scan has none."""
+        """A block of ``count`` vertices; ``loader()`` returns (positions, normals, colours,
+        properties): colours a (count, 3) uint8 array or empty when the scan has none,
+        properties a (count, m) float64 array (m: the names of
+        :func:`recon.tiling.tasks.property_names`)."""
         start = self.total
         self.starts.append(start)
         self.counts.append(int(count))
@@ -170,10 +186,17 @@ class VertexStore:
         self.total += int(count)
         return start
 
-    def add_arrays(self, pos: np.ndarray, nrm: np.ndarray, rgb: np.ndarray | None = None) -> int:
+    def add_arrays(
+        self,
+        pos: np.ndarray,
+        nrm: np.ndarray,
+        rgb: np.ndarray | None = None,
+        props: np.ndarray | None = None,
+    ) -> int:
         pos, nrm = np.asarray(pos, dtype=np.float64), np.asarray(nrm, dtype=np.float64)
         rgb = np.zeros((0, 3), np.uint8) if rgb is None else rgb
-        return self.add(len(pos), lambda: (pos, nrm, rgb))
+        props = np.zeros((len(pos), 0)) if props is None else props
+        return self.add(len(pos), lambda: (pos, nrm, rgb, props))
 
     def block(self, b: int) -> tuple:
         if b in self.cache:
@@ -198,7 +221,7 @@ class VertexStore:
         b = self.block_of(ids)
         for k in np.unique(b):
             sel = b == k
-            p, n, _ = self.block(int(k))
+            p, n = self.block(int(k))[:2]
             j = ids[sel] - self.starts[k]
             pos[sel] = p[j]
             nrm[sel] = n[j]
@@ -216,8 +239,27 @@ class VertexStore:
                 rgb[sel] = c[ids[sel] - self.starts[k]]
         return rgb
 
+    def get_properties(self, ids: np.ndarray, m: int) -> np.ndarray:
+        """The ``m`` properties by global id (0 where a block has none)."""
+        ids = np.asarray(ids, dtype=np.int64)
+        out = np.zeros((len(ids), m))
+        b = self.block_of(ids) if len(ids) else ids
+        for k in np.unique(b):
+            q = self.block(int(k))[3]
+            if q.shape[1] == m and len(q):
+                sel = b == k
+                out[sel] = q[ids[sel] - self.starts[k]]
+        return out
+
 
 # --- the coordinator's stitch ------------------------------------------------------------
+
+
+def proper_faces(faces: np.ndarray) -> np.ndarray:
+    """The faces with three distinct vertices: the only ones written (so the vertices that
+    only faces with a repeated vertex use are not written either)."""
+    f = np.asarray(faces)
+    return f[(f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 0] != f[:, 2])]
 
 
 def _load_faces(paths: list[Path]) -> np.ndarray:
@@ -240,13 +282,16 @@ def stitch_streamed(
     r0: float,
     max_hole: float,
     particles_path: Callable[[Path, int], Path],
+    n_properties: int = 0,
 ) -> dict[str, Any]:
     """Repair the seam zone cell by cell and measure the mesh unit by unit.
 
     Returns a dict with ``store`` (:class:`VertexStore`), ``units`` (a list of callables
     each returning one unit's final faces in global ids), ``used`` (vertices the mesh uses),
-    ``topology``, ``quality``, ``seams``, ``repair`` and ``memory`` (the largest sub-meshes
-    held, for the report and the tests).
+    ``topology``, ``quality``, ``seams``, ``repair``, ``coordinate_type`` (the PLY coordinate
+    type of the written vertices, :class:`recon.tiling.measure.CoordinateRange`) and ``memory``
+    (the largest sub-meshes held, for the report and the tests). ``n_properties``: per-vertex
+    properties the tiles wrote (copies of bow-tie vertices take their source's).
     """
     from .stitch import SEAM_BAND
 
@@ -258,12 +303,21 @@ def stitch_streamed(
             with np.load(particles_path(work, t)) as z:
                 rgb = z["colors"] if "colors" in z.files else np.zeros((0, 3), np.uint8)
                 pos, nrm = z["positions"], z["normals"] * flips.get(t, 1.0)
+                props = z["properties"] if "properties" in z.files else np.zeros((len(pos), 0))
             if t in mesh_results:  # the moves of the tile's untangling
                 with np.load(mesh_path(work, t)) as z:
                     if "moved_ids" in z.files and len(z["moved_ids"]):
+                        j = z["moved_ids"] - store.starts[index[t]]
                         pos = pos.copy()
-                        pos[z["moved_ids"] - store.starts[index[t]]] = z["moved_positions"]
-            return pos, nrm, rgb
+                        pos[j] = z["moved_positions"]
+                        # their colours and properties where they moved to
+                        if len(rgb) and len(z["moved_colors"]) == len(j):
+                            rgb = rgb.copy()
+                            rgb[j] = z["moved_colors"]
+                        if props.shape[1] and len(z["moved_properties"]) == len(j):
+                            props = props.copy()
+                            props[j] = z["moved_properties"]
+            return pos, nrm, rgb, props
 
         return load
 
@@ -274,7 +328,7 @@ def stitch_streamed(
     def new_loader(t: int):
         def load():
             with np.load(mesh_path(work, t)) as z:
-                return z["new_vertices"], z["new_normals"], z["new_colors"]
+                return z["new_vertices"], z["new_normals"], z["new_colors"], z["new_properties"]
 
         return load
 
@@ -336,7 +390,12 @@ def stitch_streamed(
             from scipy.spatial import cKDTree
 
             src = cKDTree(pos).query(v2[extra])[1]
-            start = store.add_arrays(v2[extra], n2[extra], store.get_colors(ids[src]))
+            start = store.add_arrays(
+                v2[extra],
+                n2[extra],
+                store.get_colors(ids[src]),
+                store.get_properties(ids[src], n_properties),
+            )
             gmap[extra] = start + np.arange(len(extra))
         np.save(out_path(c), gmap[fl])
         done.add(c)
@@ -361,7 +420,7 @@ def stitch_streamed(
         cand_u = np.concatenate(units) if units else np.zeros(0, dtype=np.int64)
         touch = _touching(cand_f, faces)
         acc.add(t, faces, cand_f[touch], cand_u[touch], store)
-        used[faces.ravel()] = True
+        used[proper_faces(faces).ravel()] = True
     for c in sorted(done):
         faces = np.load(out_path(c))
         cand, units = [], []
@@ -378,7 +437,7 @@ def stitch_streamed(
         cand_u = np.concatenate(units) if units else np.zeros(0, dtype=np.int64)
         touch = _touching(cand_f, faces)
         acc.add(n_tiles + c, faces, cand_f[touch], cand_u[touch], store)
-        used[faces.ravel()] = True
+        used[proper_faces(faces).ravel()] = True
     units_out: list[Callable[[], np.ndarray]] = [
         (lambda t=t: tile_faces(t)) for t in sorted(mesh_results)
     ] + [(lambda c=c: np.load(out_path(c))) for c in sorted(done)]
@@ -389,6 +448,9 @@ def stitch_streamed(
         "used": used,
         "n_faces": acc.f,
         "topology": acc.topology(n_used),
+        "coordinate_type": acc.coordinates.type(),
+        "bounds": (acc.coordinates.lo, acc.coordinates.hi),
+        "defects": acc.defects(),
         "quality": acc.quality(),
         "seams": acc.seams(),
         "repair": repair,

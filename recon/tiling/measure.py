@@ -14,7 +14,45 @@ from ..topology import TRIANGLE_QUALITY_KEYS
 from .grid import TileGrid
 from .stitch import face_keys
 
-__all__ = ["TopologyAccumulator"]
+__all__ = ["CoordinateRange", "TopologyAccumulator"]
+
+#: float32 coordinates when they keep this fraction of the extent (as recon.io.ply).
+FLOAT32_TOLERANCE = 1e-7
+
+
+class CoordinateRange:
+    """The PLY coordinate type of vertices seen block by block: 'f4' when float32 keeps
+    :data:`FLOAT32_TOLERANCE` of their extent at every vertex, else 'f8' (the rule
+    :func:`recon.io.write_mesh` applies to a whole mesh, so that a tiled mesh is written
+    with the type its untiled twin would get)."""
+
+    def __init__(self) -> None:
+        self.lo = np.full(3, np.inf)
+        self.hi = np.full(3, -np.inf)
+        self.err = 0.0
+        self.n = 0
+
+    def add(self, xyz: np.ndarray) -> None:
+        xyz = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
+        if len(xyz) == 0:
+            return
+        self.n += len(xyz)
+        if not np.isfinite(xyz).all():
+            self.err = np.inf
+            return
+        self.lo = np.minimum(self.lo, xyz.min(axis=0))
+        self.hi = np.maximum(self.hi, xyz.max(axis=0))
+        with np.errstate(over="ignore"):
+            err = float(np.max(np.abs(xyz.astype(np.float32).astype(np.float64) - xyz)))
+        self.err = max(self.err, err if np.isfinite(err) else np.inf)
+
+    def type(self) -> str:
+        if self.n == 0:
+            return "f4"
+        if not np.isfinite(self.err):
+            return "f8"
+        extent = float(np.max(self.hi - self.lo))
+        return "f4" if self.err <= FLOAT32_TOLERANCE * extent else "f8"
 
 
 class TopologyAccumulator:
@@ -38,6 +76,8 @@ class TopologyAccumulator:
         self.inconsistent = 0
         self.seam_edges = self.seam_boundary = self.near_boundary = 0
         self.boundary: list[np.ndarray] = []
+        self.non_manifold: list[np.ndarray] = []  # (k, 2) edges, global ids
+        self.bow_ties: list[np.ndarray] = []  # non-manifold vertices, global ids
         self.boundary_len: list[np.ndarray] = []
         self.node_counts: list[np.ndarray] = []  # (k, 3): V, E, F per local component
         self.links: list[np.ndarray] = []  # (vertex id, node) for vertices shared with others
@@ -55,6 +95,7 @@ class TopologyAccumulator:
         self.angle_hist = np.zeros(len(self.ANGLE_BINS) - 1, dtype=np.int64)
         self.ratio_hist = np.zeros(len(self.RATIO_BINS) - 1, dtype=np.int64)
         self.max_faces_held = 0
+        self.coordinates = CoordinateRange()  # of the vertices of the (written) own faces
 
     def add(self, unit: int, faces: np.ndarray, frame: np.ndarray, frame_unit: np.ndarray, store):
         """Count the unit's faces (global ids); ``frame`` are the other units' faces that share
@@ -82,6 +123,7 @@ class TopologyAccumulator:
         local, units, own = local[keep], units[keep], own[keep]
         self.f += int(own.sum())
         nv = len(ids)
+        self.coordinates.add(pos[np.unique(local[own])])
         # duplicates: a face is one when a face of a lower unit (or the same, earlier) has
         # the same three vertices
         key = face_keys(local)
@@ -109,7 +151,10 @@ class TopologyAccumulator:
         owned_e = e_in_own & (e_owner == unit)
         e_lo, e_hi = uk // nv, uk % nv
         self.e += int(owned_e.sum())
-        self.nm_edges += int((owned_e & (cnt > 2)).sum())
+        nm = owned_e & (cnt > 2)
+        self.nm_edges += int(nm.sum())
+        if nm.any():
+            self.non_manifold.append(np.stack([ids[e_lo[nm]], ids[e_hi[nm]]], axis=1))
         # orientation on manifold edges: the two half-edges must run opposite ways
         fwd = (he_from < he_to).astype(np.int64)
         fwd_sum = np.bincount(inv, weights=fwd, minlength=len(uk))
@@ -131,7 +176,10 @@ class TopologyAccumulator:
         span = np.int64(3 * len(local))
         fan_keys = np.unique(local.ravel() * span + fan)
         fans = np.bincount(fan_keys // span, minlength=nv)
-        self.nm_vertices += int((owned_v & (fans > 1)).sum())
+        bow = owned_v & (fans > 1)
+        self.nm_vertices += int(bow.sum())
+        if bow.any():
+            self.bow_ties.append(ids[bow])
         self.v += int(owned_v.sum())
         # components of the unit's own faces, linked to the others through shared vertices
         of = local[own]
@@ -267,6 +315,15 @@ class TopologyAccumulator:
             "duplicate_faces": int(self.duplicates),
             "unreferenced_vertices": 0,
             "largest_hole_perimeter": largest,
+        }
+
+    def defects(self) -> dict[str, np.ndarray]:
+        """Boundary and non-manifold edges ((k, 2) global ids) and non-manifold vertices."""
+        z2 = np.zeros((0, 2), dtype=np.int64)
+        return {
+            "boundary": np.vstack(self.boundary) if self.boundary else z2,
+            "non_manifold": np.vstack(self.non_manifold) if self.non_manifold else z2,
+            "bow_ties": np.concatenate(self.bow_ties) if self.bow_ties else np.zeros(0, np.int64),
         }
 
     def degenerate_repeated_faces(self) -> int:

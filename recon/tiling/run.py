@@ -46,8 +46,16 @@ from .executors import TileEvent, run_tasks, tile_runner
 from .grid import TileGrid, choose_auto_tile_size
 from .source import ScanHeader, scan_header, split_input
 from .stitch import agree_signs
-from .tasks import FitJob, MeshJob, fit_task, mesh_task, particles_path, spacing_task
-from .writer import coordinate_type, write_particles_streamed, write_streamed
+from .tasks import (
+    FitJob,
+    MeshJob,
+    fit_task,
+    mesh_task,
+    particles_path,
+    property_names,
+    spacing_task,
+)
+from .writer import write_particles_streamed, write_streamed
 
 __all__ = ["TiledResult", "fit_tiled", "plan_tile_size"]
 
@@ -152,6 +160,7 @@ def fit_tiled(
     executor: str = "local",
     scheduler: str | None = None,
     particles_path_out: str | Path | None = None,
+    preview_path: str | Path | None = None,
     write_report: bool | None = None,
     mkdir: bool = False,
     on_event: Callable[[TileEvent], None] | None = None,
@@ -176,10 +185,15 @@ def fit_tiled(
     output_path = check_output_path(Path(output_path), inputs=[input_path], mkdir=mkdir)
     want_report = cfg.output.write_report if write_report is None else write_report
     report_path = report_path_for(output_path) if want_report else None
-    for p in (particles_path_out, report_path):
+    for p in (particles_path_out, preview_path, report_path):
         if p is not None:
             check_output_path(Path(p), inputs=[input_path, output_path], mkdir=mkdir)
+    from ..attributes import check_attribute_output, check_transfer
+
+    check_attribute_output(output_path, cfg.output)  # OBJ: no --transfer, --quality
     header = scan_header(input_path, cfg)
+    if header.cloud is not None:  # LAS/LAZ points always have intensity and classification
+        check_transfer(header.cloud, cfg.output.transfer)
     size = plan_tile_size(header, cfg)
     if size is None:
         return None
@@ -269,6 +283,7 @@ def fit_tiled(
             r0,
             max_hole,
             particles_path,
+            len(property_names(cfg.output)),
         )
         if stitched["n_faces"] == 0:
             raise InputError(
@@ -337,26 +352,29 @@ def fit_tiled(
             "output": {
                 "mesh": str(output_path),
                 "particles": None if particles_path_out is None else str(particles_path_out),
+                "preview": None if preview_path is None else str(preview_path),
                 "report": None if report_path is None else str(report_path),
             },
         }
-        halo = np.full(3, grid.halo + r0)
-        coord_type = coordinate_type(header.lo - halo, header.hi + halo)
+        is_obj = output_path.suffix.lower() == ".obj"
         with atomic_outputs() as outputs:
             with atomic_output(output_path, outputs) as tmp:
                 write_streamed(
                     tmp,
                     stitched,
-                    coord_type,
+                    stitched["coordinate_type"],
                     cfg.output.vertex_normals,
                     cfg.io.ascii,
-                    colors=store.has_colors and output_path.suffix.lower() == ".ply",
+                    colors=store.has_colors and (cfg.output.obj_colors or not is_obj),
+                    properties=property_names(cfg.output),
                 )
             if particles_path_out is not None:
                 with atomic_output(Path(particles_path_out), outputs) as tmp:
-                    write_particles_streamed(
-                        tmp, stitched["store"], len(offsets), coord_type, cfg.io.ascii
-                    )
+                    write_particles_streamed(tmp, stitched["store"], len(offsets), cfg.io.ascii)
+            if preview_path is not None:
+                from .preview import write_preview
+
+                write_preview(Path(preview_path), stitched, input_path.name, outputs)
             if report_path is not None:
                 with atomic_output(report_path, outputs) as tmp:
                     tmp.write_text(dumps(report) + "\n")

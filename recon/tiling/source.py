@@ -52,10 +52,11 @@ class TileStore:
     directory: Path
     grid: TileGrid
     counts: dict[int, int]
-    columns: int  # x y z, then nx ny nz (has_normals), then r g b (has_colors)
+    columns: int  # x y z, nx ny nz (has_normals), r g b (has_colors), then the attributes
     has_normals: bool = False
     has_colors: bool = False
     color_scale: float = 1.0  # stored colour values times this are in [0, 1]
+    attributes: tuple[str, ...] = ()  # per-point scalars (--transfer), one column each
 
     def path(self, tile: int) -> Path:
         return self.directory / f"points-{tile}.f64"
@@ -67,7 +68,13 @@ class TileStore:
         """Colours in [0, 1] of a tile's rows, or None."""
         if not self.has_colors:
             return None
-        return np.clip(rows[:, self.columns - 3 :] * self.color_scale, 0.0, 1.0)
+        c = 3 + 3 * self.has_normals
+        return np.clip(rows[:, c : c + 3] * self.color_scale, 0.0, 1.0)
+
+    def point_attributes(self, rows: np.ndarray) -> dict[str, np.ndarray]:
+        """The per-point scalars of a tile's rows (name -> (n,) float64)."""
+        c = 3 + 3 * self.has_normals + 3 * self.has_colors
+        return {name: rows[:, c + j] for j, name in enumerate(self.attributes)}
 
     def tiles(self) -> list[int]:
         """The tiles that hold points, in index order."""
@@ -114,11 +121,16 @@ def scan_header(path: Path, cfg: Any) -> ScanHeader:
 
 
 def _las_chunks(
-    path: Path, classes: Sequence[int] | None, max_points: int, colors: bool = False
+    path: Path,
+    classes: Sequence[int] | None,
+    max_points: int,
+    colors: bool = False,
+    attributes: Sequence[str] = (),
 ) -> Iterator[np.ndarray]:
     """Absolute xyz of a LAS/LAZ file, chunk by chunk, filtered by class; with ``colors``
     (and a point format that has them) the raw red, green, blue values follow as 3 more
-    columns."""
+    columns, then one column per name of ``attributes`` (``intensity``, ``classification``:
+    every LAS point format has both)."""
     import laspy
 
     from ..io.las import CHUNK_POINTS
@@ -143,6 +155,11 @@ def _las_chunks(
                             np.asarray(chunk[c], dtype=np.float64)[:, None]
                             for c in ("red", "green", "blue")
                         ]
+                    )
+                if attributes:
+                    xyz = np.hstack(
+                        [xyz]
+                        + [np.asarray(chunk[a], dtype=np.float64)[:, None] for a in attributes]
                     )
                 if keep is not None:
                     xyz = xyz[np.isin(np.asarray(chunk.classification), keep)]
@@ -190,13 +207,14 @@ def split_input(header: ScanHeader, grid: TileGrid, directory: Path, cfg: Any) -
     directory.mkdir(parents=True, exist_ok=True)
     counts: dict[int, int] = {}
     want_colors = bool(cfg.output.colors)
+    attributes = tuple(cfg.output.transfer)
     use_normals = has_colors = False
     if header.kind == "las":
         chunks: Iterator[np.ndarray] = _las_chunks(
-            header.path, cfg.io.classes, cfg.io.max_points, want_colors
+            header.path, cfg.io.classes, cfg.io.max_points, want_colors, attributes
         )
-        first = next(chunks, np.zeros((0, 3)))
-        has_colors = first.shape[1] == 6
+        first = next(chunks, np.zeros((0, 3 + len(attributes))))
+        has_colors = first.shape[1] == 6 + len(attributes)
         chunks = itertools.chain([first], chunks)
     else:
         cloud = header.cloud
@@ -208,13 +226,20 @@ def split_input(header: ScanHeader, grid: TileGrid, directory: Path, cfg: Any) -
         has_colors = want_colors and cloud.colors is not None
         if has_colors:
             rows = np.hstack([rows, np.asarray(cloud.colors, dtype=np.float64)])
+        if attributes:
+            from ..attributes import check_transfer
+
+            check_transfer(cloud, attributes)
+            cols = [np.asarray(cloud.attributes[a], dtype=np.float64) for a in attributes]
+            rows = np.hstack([rows, np.column_stack(cols)])
         chunks = iter([rows])
-    columns = 3 + 3 * use_normals + 3 * has_colors
-    store = TileStore(directory, grid, counts, columns, use_normals, has_colors)
+    columns = 3 + 3 * use_normals + 3 * has_colors + len(attributes)
+    store = TileStore(directory, grid, counts, columns, use_normals, has_colors, 1.0, attributes)
     top = 0.0
+    c_rgb = 3 + 3 * use_normals
     for rows in chunks:
         if has_colors and len(rows):
-            top = max(top, float(rows[:, -3:].max()))
+            top = max(top, float(rows[:, c_rgb : c_rgb + 3].max()))
         if len(rows) == 0:
             continue
         cell = grid.cell_of(rows[:, :3])

@@ -124,12 +124,14 @@ def fit_task(job: FitJob) -> dict:
             result["warnings"] = pf.warnings
             result["trimmed"] = pf.n_trimmed
     owned = grid.in_core(job.tile, pos) if len(pos) else np.zeros(0, dtype=bool)
+    rgb, props = vertex_attributes(job.store, rows, pos[owned], job.r0, cfg.output)
     np.savez(
         particles_path(job.work, job.tile),
         positions=pos[owned],
         normals=nrm[owned],
         rest=rest[owned] if rest is not None else np.zeros(0),
-        colors=vertex_colors(job.store, rows, pos[owned], job.r0),
+        colors=rgb,
+        properties=props,
     )
     # the particles close to the core's faces, inside and outside: the seam sign comparison
     band = SIGN_BAND * job.r0
@@ -141,18 +143,58 @@ def fit_task(job: FitJob) -> dict:
     return result
 
 
-def vertex_colors(store: TileStore, rows: np.ndarray, vertices: np.ndarray, r0: float):
-    """Colours (uint8) of ``vertices`` from the input points ``rows`` of the tile and its halo
-    (:func:`recon.attributes.transfer_attributes`: the distance-weighted mean of the k
-    nearest), or an empty (0, 3) array when the scan has none."""
+def property_names(output: Any) -> list[str]:
+    """The per-vertex properties the ``output`` section asks for, in the order they are
+    written (as :func:`recon.attributes.transfer_attributes`: the transferred names, then
+    ``quality``)."""
+    return [*output.transfer, *(["quality"] if output.quality else [])]
+
+
+def vertex_attributes(
+    store: TileStore, rows: np.ndarray, vertices: np.ndarray, r0: float, output: Any
+) -> tuple[np.ndarray, np.ndarray]:
+    """Colours and properties of ``vertices`` from the input points ``rows`` of the tile and
+    its halo (:func:`recon.attributes.transfer_attributes`: the distance-weighted mean of the
+    k nearest for colours and intensity, their majority for the classification, the distance
+    to the nearest in r0 for ``quality``).
+
+    Returns (colours (n, 3) uint8, or (0, 3) when the scan has none; properties (n, m)
+    float64, one column per name of :func:`property_names`). ``quality`` is exact wherever
+    the data lies within the rows' margin (the halo); farther from any point it is at least
+    that margin.
+    """
+    names = property_names(output)
     rgb = store.colors(rows)
-    if rgb is None or len(vertices) == 0 or len(rows) == 0:
-        return np.zeros((0, 3), dtype=np.uint8)
+    n = len(vertices)
+    no_rgb = np.zeros((0, 3), dtype=np.uint8)
+    props = np.zeros((n, len(names)))
+    if n == 0 or (rgb is None and not names):
+        return no_rgb, props
+    if len(rows) == 0:  # no data around (a tile's vertices always have some)
+        if "quality" in names:
+            props[:, names.index("quality")] = np.inf
+        return (no_rgb if rgb is None else np.zeros((n, 3), np.uint8)), props
     from ..attributes import transfer_attributes
     from ..io import cloud_from_arrays
 
-    cloud = cloud_from_arrays(rows[:, :3], colors=rgb, merge_duplicates=False)
-    return transfer_attributes(cloud, vertices, r0, colors=True).colors
+    cloud = cloud_from_arrays(
+        rows[:, :3],
+        colors=rgb,
+        attributes={k: np.asarray(v) for k, v in store.point_attributes(rows).items()},
+        merge_duplicates=False,
+    )
+    out = transfer_attributes(
+        cloud,
+        vertices,
+        r0,
+        colors=rgb is not None,
+        transfer=list(output.transfer),
+        quality=bool(output.quality),
+        k=output.attribute_neighbors,
+    )
+    for j, name in enumerate(names):
+        props[:, j] = out.properties[name]
+    return (no_rgb if out.colors is None else out.colors), props
 
 
 def _injected_failure(job: FitJob, spec: str) -> None:
@@ -307,9 +349,10 @@ def mesh_task(job: MeshJob) -> dict:
         code,
         absolute[new_ids],
         tri.normals[new_ids],
-        vertex_colors(job.store, rows, absolute[new_ids], r0),
+        *vertex_attributes(job.store, rows, absolute[new_ids], r0, cfg.output),
         moved_ids=code[moved],
         moved_positions=absolute[moved],
+        moved_attributes=vertex_attributes(job.store, rows, absolute[moved], r0, cfg.output),
     )
     return {
         "tile": job.tile,

@@ -4,28 +4,33 @@ OBJ; the particles likewise (:func:`write_particles_streamed`)."""
 
 from __future__ import annotations
 
-import itertools
 from collections import OrderedDict
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, BinaryIO
 
 import numpy as np
 
 from .assemble import CACHED_BLOCKS, VertexStore
+from .measure import CoordinateRange
 
-__all__ = ["coordinate_type", "write_particles_streamed", "write_streamed"]
+__all__ = ["write_particles_streamed", "write_streamed"]
 
-#: float32 coordinates when they keep this fraction of the extent (as recon.io.ply).
-FLOAT32_TOLERANCE = 1e-7
 _PLY_NAMES = {"f4": "float", "f8": "double", "u1": "uchar"}
+#: PLY types of the vertex properties (as recon.attributes makes them: classification uint8,
+#: intensity and quality float32).
+PROPERTY_TYPES = {"classification": "u1", "intensity": "f4", "quality": "f4"}
 
 
-def _ply_vertex_props(coord_type: str, normals: bool, colors: bool) -> list[tuple[str, str]]:
+def _ply_vertex_props(
+    coord_type: str, normals: bool, colors: bool, properties: Sequence[str] = ()
+) -> list[tuple[str, str]]:
     props = [("x", coord_type), ("y", coord_type), ("z", coord_type)]
     if normals:
         props += [("nx", "f4"), ("ny", "f4"), ("nz", "f4")]
     if colors:
         props += [("red", "u1"), ("green", "u1"), ("blue", "u1")]
+    props += [(name, PROPERTY_TYPES[name]) for name in properties]
     return props
 
 
@@ -37,9 +42,11 @@ def write_vertex_rows(
     coord_type: str,
     ascii: bool,
     rgb: np.ndarray | None = None,
+    properties: Sequence[str] = (),
+    values: np.ndarray | None = None,
 ) -> None:
     """Append vertex rows as :func:`recon.io.write_mesh` writes them (OBJ: ``v`` lines, the
-    ``vn`` lines are written apart)."""
+    ``vn`` lines are written apart); PLY: then the ``properties`` (columns of ``values``)."""
     if fmt == "obj":
         if rgb is None:
             np.savetxt(fh, pos, fmt="v %.17g %.17g %.17g")
@@ -49,12 +56,15 @@ def write_vertex_rows(
         return
     if ascii:
         cols = [pos] + ([nrm] if nrm is not None else []) + ([rgb] if rgb is not None else [])
+        if properties:
+            cols.append(_cast_properties(properties, values))
         data = np.hstack([np.asarray(c, dtype=np.float64) for c in cols])
         f = ["%.17g" if coord_type == "f8" else "%.9g"] * 3 + ["%.9g"] * (0 if nrm is None else 3)
         f += ["%d"] * (0 if rgb is None else 3)
+        f += ["%d" if PROPERTY_TYPES[n][0] == "u" else "%.9g" for n in properties]
         np.savetxt(fh, data, fmt=f, delimiter=" ")
         return
-    props = _ply_vertex_props(coord_type, nrm is not None, rgb is not None)
+    props = _ply_vertex_props(coord_type, nrm is not None, rgb is not None, properties)
     rows = np.zeros(len(pos), dtype=[(n, "<" + t) for n, t in props])
     for j, c in enumerate("xyz"):
         rows[c] = pos[:, j]
@@ -64,7 +74,20 @@ def write_vertex_rows(
     if rgb is not None:
         for j, c in enumerate(("red", "green", "blue")):
             rows[c] = rgb[:, j]
+    if properties:
+        cast = _cast_properties(properties, values)
+        for j, name in enumerate(properties):
+            rows[name] = cast[:, j]
     fh.write(rows.tobytes())
+
+
+def _cast_properties(properties: Sequence[str], values: np.ndarray | None) -> np.ndarray:
+    """The property columns rounded to their written types (as float64 columns)."""
+    assert values is not None and values.shape[1] == len(properties)
+    out = np.empty(values.shape)
+    for j, name in enumerate(properties):
+        out[:, j] = values[:, j].astype("<" + PROPERTY_TYPES[name])
+    return out
 
 
 def write_face_rows(fh: BinaryIO, fmt: str, faces: np.ndarray, ascii: bool, normals: bool) -> None:
@@ -86,19 +109,6 @@ def write_face_rows(fh: BinaryIO, fmt: str, faces: np.ndarray, ascii: bool, norm
     fh.write(rows.tobytes())
 
 
-def coordinate_type(lo: np.ndarray, hi: np.ndarray) -> str:
-    """PLY coordinate type for vertices within ``[lo, hi]``: 'f4' when float32 keeps
-    :data:`FLOAT32_TOLERANCE` of the extent at the box's corners (the rule of
-    :mod:`recon.io.ply`), else 'f8'."""
-    xyz = np.array(list(itertools.product(*zip(lo, hi, strict=True))), dtype=np.float64)
-    if not np.isfinite(xyz).all():
-        return "f8"
-    with np.errstate(over="ignore"):
-        err = float(np.max(np.abs(xyz.astype(np.float32).astype(np.float64) - xyz)))
-    extent = float(np.max(xyz.max(axis=0) - xyz.min(axis=0)))
-    return "f4" if np.isfinite(err) and err <= FLOAT32_TOLERANCE * extent else "f8"
-
-
 def ply_header(
     n_vertices: int,
     n_faces: int | None,
@@ -106,11 +116,12 @@ def ply_header(
     normals: bool,
     ascii: bool,
     colors: bool = False,
+    properties: Sequence[str] = (),
 ) -> bytes:
     fmt = "ascii" if ascii else "binary_little_endian"
     lines = ["ply", f"format {fmt} 1.0", "comment written by oprecon"]
     lines.append(f"element vertex {n_vertices}")
-    props = _ply_vertex_props(coord_type, normals, colors)
+    props = _ply_vertex_props(coord_type, normals, colors, properties)
     lines += [f"property {_PLY_NAMES[t]} {n}" for n, t in props]
     if n_faces is not None:
         lines.append(f"element face {n_faces}")
@@ -126,9 +137,15 @@ def write_streamed(
     normals: bool,
     ascii: bool,
     colors: bool = False,
+    properties: Sequence[str] = (),
 ) -> None:
     """Write the stitched mesh to ``path`` (an open temporary, see :mod:`recon.io.files`):
-    vertices block by block, then faces unit by unit, renumbered to the used vertices."""
+    vertices block by block, then faces unit by unit, renumbered to the used vertices.
+
+    ``colors``: write the vertex colours (PLY ``red green blue``, OBJ ``v x y z r g b``);
+    ``properties``: PLY vertex properties (the store's property columns, in this order)."""
+    if properties and path.suffix.lower() == ".obj":
+        raise ValueError("OBJ has no vertex properties")
     store: VertexStore = stitched["store"]
     used: np.ndarray = stitched["used"]
     starts = np.asarray(store.starts)
@@ -154,16 +171,22 @@ def write_streamed(
     with open(path, "wb") as fh:
         if fmt == "ply":
             n_used = int(used.sum())
-            fh.write(ply_header(n_used, stitched["n_faces"], coord_type, normals, ascii, colors))
+            fh.write(
+                ply_header(
+                    n_used, stitched["n_faces"], coord_type, normals, ascii, colors, properties
+                )
+            )
         else:
             fh.write(b"# written by oprecon\n")
         for k, (s, n) in enumerate(zip(store.starts, store.counts, strict=True)):
             sel = used[s : s + n]
             if not sel.any():
                 continue
-            p, nr, rgb = store.block(k)
+            p, nr, rgb, vals = store.block(k)
             if colors and len(rgb) != len(p):
                 rgb = np.zeros((len(p), 3), dtype=np.uint8)
+            if properties and vals.shape != (len(p), len(properties)):
+                vals = np.zeros((len(p), len(properties)))
             write_vertex_rows(
                 fh,
                 fmt,
@@ -172,6 +195,8 @@ def write_streamed(
                 coord_type,
                 ascii,
                 rgb[sel] if colors else None,
+                properties,
+                vals[sel] if properties else None,
             )
         if fmt == "obj" and normals:
             for k, (s, n) in enumerate(zip(store.starts, store.counts, strict=True)):
@@ -185,13 +210,16 @@ def write_streamed(
                 write_face_rows(fh, fmt, new_ids(f.ravel()).reshape(-1, 3), ascii, normals)
 
 
-def write_particles_streamed(
-    path: Path, store: VertexStore, n_blocks: int, coord_type: str, ascii: bool
-) -> None:
-    """The particles (the store's first ``n_blocks`` blocks) as a PLY point cloud."""
+def write_particles_streamed(path: Path, store: VertexStore, n_blocks: int, ascii: bool) -> None:
+    """The particles (the store's first ``n_blocks`` blocks) as a PLY point cloud, with the
+    coordinate type of their positions (:class:`CoordinateRange`)."""
     n = int(sum(store.counts[:n_blocks]))
+    coords = CoordinateRange()
+    for k in range(n_blocks):
+        coords.add(store.block(k)[0])
+    coord_type = coords.type()
     with open(path, "wb") as fh:
         fh.write(ply_header(n, None, coord_type, True, ascii))
         for k in range(n_blocks):
-            p, nr, _ = store.block(k)
+            p, nr = store.block(k)[:2]
             write_vertex_rows(fh, "ply", p, nr, coord_type, ascii)
