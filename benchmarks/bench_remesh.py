@@ -180,20 +180,22 @@ def adaptive_saving(name, v, f) -> None:
         key: np.polyfit(np.log([u[i] for u in uniform]), logf, 1)
         for key, i in (("h95", 1), ("h", 2))
     }
-    for k in (1.0, 1.5):
+    for k in (1.0, 1.5, 2.0):
         V, F, _ = run_ours(v, f, k * h, adaptive=True)
         m = measure(v, f, V, F)
         text = []
-        for key, name in (("h", "Hausdorff"), ("h95", "H95")):
+        for key, i, label in (("h", 2, "Hausdorff"), ("h95", 1, "H95")):
             slope, icpt = fits[key]
             need = float(np.exp(icpt + slope * np.log(m[key])))
+            seen = [u[i] for u in uniform]
+            note = "" if min(seen) <= m[key] <= max(seen) else " (extrapolated)"
             text.append(
-                f"at equal {name} ({m[key]:.2e}) uniform needs ~{need:,.0f}: "
+                f"at equal {label} ({m[key]:.2e}) uniform needs ~{need:,.0f}{note}: "
                 f"{100 * (1 - m['faces'] / need):.0f} % fewer"
             )
         print(
             f"  adaptive spacing {k:.2f} h: {m['faces']:,} faces, worst {m['worst']:.1f} mean "
-            f"{m['mean']:.1f} deg; " + "; ".join(text)
+            f"{m['mean']:.1f} deg, topology {m['topo']}; " + "; ".join(text)
         )
 
 

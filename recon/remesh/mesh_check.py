@@ -89,7 +89,13 @@ def check_mesh(
         repairs.append(f"dropped {int(drop.sum()):,} degenerate faces (zero area)")
         f = f[~drop]
     key = np.sort(f, axis=1)
-    _, first = np.unique(key, axis=0, return_index=True)
+    # first face of each distinct vertex triple (a stable lexsort: np.unique(axis=0) was a
+    # quarter of this check's time)
+    order = np.lexsort((key[:, 2], key[:, 1], key[:, 0]))
+    ks = key[order]
+    new = np.ones(len(ks), dtype=bool)
+    new[1:] = np.any(ks[1:] != ks[:-1], axis=1)
+    first = order[new]
     if len(first) < len(f):
         repairs.append(f"dropped {len(f) - len(first):,} duplicate faces")
         f = f[np.sort(first)]

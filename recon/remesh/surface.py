@@ -29,10 +29,21 @@ __all__ = [
 
 #: Points are projected onto a feature line in blocks of this many point-segment pairs.
 PROJECT_BLOCK = 2_000_000
+#: Closest-point grid: cell side in mean input edges ...
+GRID_CELL_EDGES = 2.0
+#: ... grown by half until the triangles are registered in at most this many cells on average
+#: (a large triangle is registered in every cell its plane crosses within its bounding box).
+GRID_MAX_CELLS_PER_TRIANGLE = 8.0
+#: Queries farther than about this many cells from the surface go to Embree instead.
+GRID_MAX_RING = 2
 
 
 class MeshSurface:
     """Closest points, normals and areas of a triangle mesh (any consistent unit).
+
+    Closest points come from a cell grid over the triangles, exact in float64
+    (:mod:`recon.kernels.closest_point`; built at the first query), points far from the surface
+    and ray casts from Open3D's ``RaycastingScene`` (Embree).
 
     Parameters
     ----------
@@ -58,6 +69,23 @@ class MeshSurface:
             o3d.core.Tensor(np.ascontiguousarray(self.vertices - self.centre, dtype=np.float32)),
             o3d.core.Tensor(np.ascontiguousarray(self.faces, dtype=np.uint32)),
         )
+        self._grid: tuple | None = None
+        self._cell = 0.0
+
+    def _triangle_grid(self) -> tuple:
+        from ..kernels.closest_point import registrations, triangle_grid_build
+
+        if self._grid is None:
+            v, f = self.vertices, self.faces
+            edge = np.linalg.norm(v[f] - v[np.roll(f, -1, axis=1)], axis=2)
+            extent = float(np.max(v.max(axis=0) - v.min(axis=0)))
+            cell = max(GRID_CELL_EDGES * float(edge.mean()), 1e-9 * max(extent, 1e-300))
+            budget = GRID_MAX_CELLS_PER_TRIANGLE * len(f) + 1000
+            while registrations(v, f, cell) > budget:
+                cell *= 1.5
+            self._cell = cell
+            self._grid = triangle_grid_build(v, f, cell)
+        return self._grid
 
     @property
     def area(self) -> float:
@@ -73,18 +101,30 @@ class MeshSurface:
         face : (n,) int64
         normal : (n, 3) float64
         """
-        import open3d as o3d
+        from ..kernels.closest_point import closest_points_kernel
 
-        pts = np.asarray(points, dtype=np.float64)
+        pts = np.ascontiguousarray(points, dtype=np.float64)
         if len(pts) == 0:
             return np.zeros((0, 3)), np.zeros(0, dtype=np.int64), np.zeros((0, 3))
+        grid = self._triangle_grid()
+        foot = np.empty((len(pts), 3))
+        face = np.zeros(len(pts), dtype=np.int64)
+        ok = np.zeros(len(pts), dtype=bool)
+        closest_points_kernel(pts, grid, self._cell, GRID_MAX_RING, foot, face, ok)
+        far = np.flatnonzero(~ok)
+        if len(far):
+            foot[far], face[far] = self._closest_embree(pts[far])
+        return foot, face, self.face_normal[face]
+
+    def _closest_embree(self, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Closest points by Embree (float32), refined in float64 on the face it found."""
+        import open3d as o3d
+
         query = o3d.core.Tensor(np.ascontiguousarray(pts - self.centre, dtype=np.float32))
         ans = self._scene.compute_closest_points(query)
         foot = ans["points"].numpy().astype(np.float64) + self.centre
         face = ans["primitive_ids"].numpy().astype(np.int64)
-        # refine in float64 on the face Embree found (exact foot of the point on that triangle)
-        foot = closest_on_triangles(pts, self.vertices[self.faces[face]], foot)
-        return foot, face, self.face_normal[face]
+        return closest_on_triangles(pts, self.vertices[self.faces[face]], foot), face
 
     def sample(self, n: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
         """``n`` area-uniform random points and their face indices (Osada et al. 2002)."""
