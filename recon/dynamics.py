@@ -29,24 +29,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from .forces import Anchors, accumulate_forces, evaluate_pair, kernel_extras, pack_coefficients
-from .integrate import FireState, StepBuffers, fire_step, integrate_step
+from .integrate import StepBuffers, integrate_step
 from .kernels.options import ThreadChooser
-from .kernels.pair_loop import S_FORCE, S_TORQUE
 from .neighbors import PARALLEL_MIN_PARTICLES, NeighborList, sort_order_by_cell
 from .params import PhysicsParams
 from .state import ParticleState
 
-__all__ = [
-    "ALWAYS_THREADED",
-    "INTEGRATORS",
-    "PhysicsParams",
-    "Simulation",
-    "StepStats",
-    "warmup",
-]
-
-#: The integrators of :class:`Simulation`.
-INTEGRATORS = ("damped", "fire")
+__all__ = ["ALWAYS_THREADED", "PhysicsParams", "Simulation", "StepStats", "warmup"]
 
 #: Steps and list builds of this many particles always run threaded; None: the
 #: :class:`~recon.kernels.options.ThreadChooser` times both ways at every size (under load the
@@ -98,12 +87,6 @@ class Simulation:
         the two was faster lately (:class:`recon.kernels.options.ThreadChooser`, by the
         machine's load; the states are bit-identical either way), threaded from
         :data:`ALWAYS_THREADED` particles if that is set.
-    integrator : {"damped", "fire"}
-        ``"damped"``: the damped semi-implicit Euler step (T-thesis eqs. 4.9-4.10);
-        ``"fire"``: FIRE relaxation (Bitzek et al. 2006, :mod:`recon.kernels.fire`), a
-        minimiser for reaching rest fast (no damping; the caps stay). Settable later
-        (:attr:`integrator`); FIRE's adaptive step restarts at ``params.dt`` whenever the
-        particle count changes or :meth:`reset_fire` is called.
 
     Attributes
     ----------
@@ -121,12 +104,7 @@ class Simulation:
     """
 
     def __init__(
-        self,
-        state: ParticleState,
-        params: PhysicsParams,
-        *,
-        parallel: bool | None = None,
-        integrator: str = "damped",
+        self, state: ParticleState, params: PhysicsParams, *, parallel: bool | None = None
     ) -> None:
         if not isinstance(params, PhysicsParams):
             raise TypeError(f"params: expected PhysicsParams, got {type(params).__name__}")
@@ -145,40 +123,6 @@ class Simulation:
         self.n_steps_done = 0
         self.n_threaded_steps = 0
         self.n_rebuilds = 0
-        self.integrator = integrator
-        self._fire: FireState | None = None
-        self._fire_n = 0
-
-    @property
-    def integrator(self) -> str:
-        """``"damped"`` or ``"fire"`` (see the class parameters)."""
-        return self._integrator
-
-    @integrator.setter
-    def integrator(self, value: str) -> None:
-        if value not in INTEGRATORS:
-            raise ValueError(f"integrator: expected one of {INTEGRATORS}, got {value!r}")
-        self._integrator = value
-
-    def reset_fire(self) -> None:
-        """Restart FIRE's adaptation (time step ``params.dt``, initial mixing) at the next step."""
-        self._fire = None
-
-    def force_rms(self) -> float:
-        """Root mean square generalised force of the free particles at the start of the last
-        step, in reduced units (sqrt of the mean of r0²|f|² + |τ|²; 0 before any step)."""
-        n = self.state.n
-        stats = self._buffers.stats
-        if self.n_steps_done == 0 or stats.shape[0] < n or n == 0:
-            return 0.0
-        free = ~self.state.is_pinned
-        if not np.any(free):
-            return 0.0
-        s = stats[:n][free]
-        f = s[:, S_FORCE : S_FORCE + 3] * self.params.spacing
-        t = s[:, S_TORQUE : S_TORQUE + 3] * self.state.is_oriented[free][:, None]
-        total = np.einsum("ij,ij->", f, f) + np.einsum("ij,ij->", t, t)
-        return float(np.sqrt(total / int(np.count_nonzero(free))))
 
     # ------------------------------------------------------------------ external terms
     def set_anchors(
@@ -337,7 +281,7 @@ class Simulation:
             rebuilt = True
         parallel = self._choose(self._step_threads)
         start = time.perf_counter()
-        args = (
+        result = integrate_step(
             self.state,
             self._coefficients,
             self._mode,
@@ -345,13 +289,9 @@ class Simulation:
             self._neighbors.reference_position,
             kernel_extras(self._anchors, self._external_force),
             self._buffers,
+            parallel=parallel,
+            step_index=self.n_steps_done,
         )
-        if self._integrator == "fire":
-            if self._fire is None or self._fire_n != self.state.n:
-                self._fire, self._fire_n = FireState(self.params.dt), self.state.n
-            result = fire_step(*args, self._fire, parallel=parallel, step_index=self.n_steps_done)
-        else:
-            result = integrate_step(*args, parallel=parallel, step_index=self.n_steps_done)
         self._step_threads.record(parallel, time.perf_counter() - start, self.state.n)
         self.n_threaded_steps += int(parallel)
         half_skin = 0.5 * self.params.skin
@@ -447,9 +387,6 @@ def warmup() -> None:
         sim.step()
         sim.set_anchors(position, normal, 1.0, 0.5)
         sim.external_force = np.zeros((7, 3))
-        sim.step()
-        sim.integrator = "fire"
-        sim.step()
         sim.step()
         sim.current_stats()
         sim.sort_particles()

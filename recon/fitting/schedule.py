@@ -85,13 +85,6 @@ RELEASE_CHUNK = 20
 #: Growth rounds run during the release phase: unpinning the seeds lets the sheet relax, which
 #: opens small gaps; refilling them keeps ball pivoting from bridging them with long edges.
 RELEASE_REFILLS = 3
-#: Integrator of the release phase (:class:`recon.dynamics.Simulation`): ``"damped"``, the
-#: damped dynamics of the growth phase, or ``"fire"`` (Bitzek et al. 2006). Measured on
-#: bunny-clean, FIRE reaches after 80 release steps the energy the damped steps reach after 100
-#: (-0.5690 per particle), but its kinetic energy stays high while it descends (inertia), so
-#: the kinetic rest test no longer ends the release early (a 1,500-point sphere then runs the
-#: full 100 steps instead of 80): FIRE needs a force-based rest test first.
-RELEASE_INTEGRATOR = "damped"
 #: Growth also stops on a plateau: after round PLATEAU_AFTER_ROUND (0-based), a round that adds
 #: at least as many particles as the previous one, but fewer than PLATEAU_ADD_FRACTION of the
 #: sheet, is taken as the rules re-filling their own churn rather than covering new data.
@@ -544,7 +537,6 @@ class _Schedule:
         """Unpin the seeds and smooth; the first chunks also refill gaps the release opens."""
         state.set_pinned(False)
         sim.notify_changed()
-        sim.integrator = RELEASE_INTEGRATOR
         dyn = self.cfg.dynamics
         remaining = dyn.release_steps
         refills = RELEASE_REFILLS if self.cfg.growth.enabled else 0
