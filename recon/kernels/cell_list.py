@@ -28,7 +28,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from .options import JIT_OPTIONS
+from .options import EXACT_JIT_OPTIONS, JIT_OPTIONS
 
 _PARALLEL = dict(JIT_OPTIONS, parallel=True)
 
@@ -130,6 +130,70 @@ def cell_hash(key):
     return h & 0x7FFFFFFFFFFFFFFF
 
 
+@njit(**JIT_OPTIONS)
+def cell_table(cell_keys):
+    """Open-addressing hash table of the occupied cells: ``slot_key``, ``slot_cell`` (a power
+    of two, at least four slots per cell; empty slots hold key -1), so that
+    :func:`cell_lookup` finds a cell key's index into ``cell_keys`` in O(1). Serial, O(m)."""
+    m = cell_keys.shape[0]
+    size = 1
+    while size < 4 * m:
+        size *= 2
+    mask = size - 1
+    slot_key = np.full(size, -1, dtype=np.int64)
+    slot_cell = np.zeros(size, dtype=np.int64)
+    for c in range(m):
+        h = cell_hash(cell_keys[c]) & mask
+        while slot_key[h] != -1:
+            h = (h + 1) & mask
+        slot_key[h] = cell_keys[c]
+        slot_cell[h] = c
+    return slot_key, slot_cell
+
+
+@njit(inline="always", **JIT_OPTIONS)
+def cell_lookup(x, y, z, dims, slot_key, slot_cell):
+    """Occupied-cell index of grid cell (x, y, z) in a :func:`cell_table`, or -1."""
+    if x < 0 or y < 0 or z < 0 or x >= dims[0] or y >= dims[1] or z >= dims[2]:
+        return -1
+    key = (x * dims[1] + y) * dims[2] + z
+    mask = slot_key.shape[0] - 1
+    h = cell_hash(key) & mask
+    while slot_key[h] != -1:
+        if slot_key[h] == key:
+            return slot_cell[h]
+        h = (h + 1) & mask
+    return -1
+
+
+@njit(inline="always", **EXACT_JIT_OPTIONS)
+def home_cell(q0, q1, q2, dims, lo, cell_size):
+    """The grid cell of a query point, clamped into the grid (shell bounds stay valid)."""
+    x = np.int64(math.floor((q0 - lo[0]) / cell_size))
+    y = np.int64(math.floor((q1 - lo[1]) / cell_size))
+    z = np.int64(math.floor((q2 - lo[2]) / cell_size))
+    x = min(max(x, 0), dims[0] - 1)
+    y = min(max(y, 0), dims[1] - 1)
+    z = min(max(z, 0), dims[2] - 1)
+    return x, y, z
+
+
+@njit(inline="always", **EXACT_JIT_OPTIONS)
+def block_bound(q0, q1, q2, hx, hy, hz, r, dims, lo, cell_size):
+    """Distance from a query to the nearest face of the block of cells within ``r`` shells of
+    its home cell (hx, hy, hz) that has cells beyond it: every item not yet visited lies at
+    least this far away. ``inf`` when the block covers the whole grid."""
+    bound = np.inf
+    for ax in range(3):
+        home = hx if ax == 0 else (hy if ax == 1 else hz)
+        qa = q0 if ax == 0 else (q1 if ax == 1 else q2)
+        if home - r > 0:
+            bound = min(bound, qa - (lo[ax] + (home - r) * cell_size))
+        if home + r < dims[ax] - 1:
+            bound = min(bound, lo[ax] + (home + r + 1) * cell_size - qa)
+    return bound
+
+
 @njit(**_PARALLEL)
 def build_neighbor_list_kernel(position, radius, row_capacity):
     """Full CSR neighbour list of all pairs closer than ``radius``.
@@ -165,18 +229,8 @@ def build_neighbor_list_kernel(position, radius, row_capacity):
     ny = dims[1]
     nz = dims[2]
     # open-addressing hash table: cell key -> index into cell_keys (serial, O(m))
-    size = 1
-    while size < 4 * m:
-        size *= 2
-    mask = size - 1
-    slot_key = np.full(size, -1, dtype=np.int64)
-    slot_cell = np.zeros(size, dtype=np.int64)
-    for c in range(m):
-        h = cell_hash(cell_keys[c]) & mask
-        while slot_key[h] != -1:
-            h = (h + 1) & mask
-        slot_key[h] = cell_keys[c]
-        slot_cell[h] = c
+    slot_key, slot_cell = cell_table(cell_keys)
+    mask = slot_key.shape[0] - 1
     # the (up to) 27 occupied cells around every occupied cell, -1 where empty
     cell_neighbors = np.full((m, 27), -1, dtype=np.int64)
     for c in prange(m):

@@ -32,7 +32,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from .cell_list import cell_hash, sort_into_cells
+from .cell_list import block_bound, cell_lookup, cell_table, home_cell, sort_into_cells
 from .options import EXACT_JIT_OPTIONS
 
 _PARALLEL = dict(EXACT_JIT_OPTIONS, parallel=True)
@@ -162,35 +162,8 @@ def triangle_grid_build(vertices, faces, cell_size):  # pragma: no cover - numba
                 d2 += (corners[e, 3 * j + ax] - spheres[e, ax]) ** 2
             r2 = max(r2, d2)
         spheres[e, 3] = math.sqrt(r2) * (1.0 + 1e-12)
-    m = cell_keys.shape[0]
-    size = 1
-    while size < 4 * m:
-        size *= 2
-    mask = size - 1
-    slot_key = np.full(size, -1, dtype=np.int64)
-    slot_cell = np.zeros(size, dtype=np.int64)
-    for c in range(m):
-        h = cell_hash(cell_keys[c]) & mask
-        while slot_key[h] != -1:
-            h = (h + 1) & mask
-        slot_key[h] = cell_keys[c]
-        slot_cell[h] = c
+    slot_key, slot_cell = cell_table(cell_keys)
     return tri, corners, spheres, cell_start, slot_key, slot_cell, dims, lo
-
-
-@njit(inline="always", **EXACT_JIT_OPTIONS)
-def _lookup(x, y, z, dims, slot_key, slot_cell):
-    """Occupied-cell index of grid cell (x, y, z), or -1."""
-    if x < 0 or y < 0 or z < 0 or x >= dims[0] or y >= dims[1] or z >= dims[2]:
-        return -1
-    key = (x * dims[1] + y) * dims[2] + z
-    mask = slot_key.shape[0] - 1
-    h = cell_hash(key) & mask
-    while slot_key[h] != -1:
-        if slot_key[h] == key:
-            return slot_cell[h]
-        h = (h + 1) & mask
-    return -1
 
 
 @njit(inline="always", **EXACT_JIT_OPTIONS)
@@ -249,9 +222,7 @@ def closest_points_kernel(
     m = query.shape[0]
     for i in prange(m):
         q0, q1, q2 = query[i, 0], query[i, 1], query[i, 2]
-        hx = min(max(np.int64(math.floor((q0 - lo[0]) / cell_size)), 0), dims[0] - 1)
-        hy = min(max(np.int64(math.floor((q1 - lo[1]) / cell_size)), 0), dims[1] - 1)
-        hz = min(max(np.int64(math.floor((q2 - lo[2]) / cell_size)), 0), dims[2] - 1)
+        hx, hy, hz = home_cell(q0, q1, q2, dims, lo, cell_size)
         best = np.inf
         bf = -1
         f0 = 0.0
@@ -276,7 +247,7 @@ def closest_points_kernel(
                             elif qa > b0 + cell_size:
                                 g += (qa - b0 - cell_size) * (qa - b0 - cell_size)
                         if g <= best:
-                            cc = _lookup(x, y, z, dims, slot_key, slot_cell)
+                            cc = cell_lookup(x, y, z, dims, slot_key, slot_cell)
                             if cc >= 0:
                                 for e in range(cell_start[cc], cell_start[cc + 1]):
                                     t = tri[e]
@@ -304,14 +275,7 @@ def closest_points_kernel(
                             dz += 1
             # unvisited triangles lie beyond the faces of the visited block (faces with no
             # cells beyond them bound nothing)
-            bound = np.inf
-            for ax in range(3):
-                home = hx if ax == 0 else (hy if ax == 1 else hz)
-                qa = q0 if ax == 0 else (q1 if ax == 1 else q2)
-                if home - r > 0:
-                    bound = min(bound, qa - (lo[ax] + (home - r) * cell_size))
-                if home + r < dims[ax] - 1:
-                    bound = min(bound, lo[ax] + (home + r + 1) * cell_size - qa)
+            bound = block_bound(q0, q1, q2, hx, hy, hz, r, dims, lo, cell_size)
             if bound == np.inf:
                 ok = bf >= 0
                 break

@@ -44,7 +44,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from .cell_list import cell_hash, sort_into_cells
+from .cell_list import block_bound, cell_lookup, cell_table, home_cell, sort_into_cells
 from .options import EXACT_JIT_OPTIONS
 
 _PARALLEL = dict(EXACT_JIT_OPTIONS, parallel=True)
@@ -92,51 +92,12 @@ def grid_build(points, cell_size):  # pragma: no cover - numba
             if k + 1 > dims[c]:
                 dims[c] = k + 1
     order, cell_keys, cell_start, _ = sort_into_cells(coords, dims)
-    m = cell_keys.shape[0]
-    size = 1
-    while size < 4 * m:
-        size *= 2
-    mask = size - 1
-    slot_key = np.full(size, -1, dtype=np.int64)
-    slot_cell = np.zeros(size, dtype=np.int64)
-    for c in range(m):
-        h = cell_hash(cell_keys[c]) & mask
-        while slot_key[h] != -1:
-            h = (h + 1) & mask
-        slot_key[h] = cell_keys[c]
-        slot_cell[h] = c
+    slot_key, slot_cell = cell_table(cell_keys)
     sorted_points = np.empty((n, 3))
     for p in range(n):
         for c in range(3):
             sorted_points[p, c] = points[order[p], c]
     return order, cell_start, slot_key, slot_cell, dims, lo, sorted_points
-
-
-@njit(inline="always", **EXACT_JIT_OPTIONS)
-def _lookup(x, y, z, dims, slot_key, slot_cell):
-    """Occupied-cell index of grid cell (x, y, z), or -1."""
-    if x < 0 or y < 0 or z < 0 or x >= dims[0] or y >= dims[1] or z >= dims[2]:
-        return -1
-    key = (x * dims[1] + y) * dims[2] + z
-    mask = slot_key.shape[0] - 1
-    h = cell_hash(key) & mask
-    while slot_key[h] != -1:
-        if slot_key[h] == key:
-            return slot_cell[h]
-        h = (h + 1) & mask
-    return -1
-
-
-@njit(inline="always", **EXACT_JIT_OPTIONS)
-def _home(q0, q1, q2, dims, lo, cell_size):
-    """The grid cell of a query, clamped into the grid (the shell bound stays valid)."""
-    x = np.int64(math.floor((q0 - lo[0]) / cell_size))
-    y = np.int64(math.floor((q1 - lo[1]) / cell_size))
-    z = np.int64(math.floor((q2 - lo[2]) / cell_size))
-    x = min(max(x, 0), dims[0] - 1)
-    y = min(max(y, 0), dims[1] - 1)
-    z = min(max(z, 0), dims[2] - 1)
-    return x, y, z
 
 
 @njit(inline="always", **EXACT_JIT_OPTIONS)
@@ -151,14 +112,14 @@ def _knn_one(q0, q1, q2, grid, cell_size, k, max_ring, best_d2, best_i):
         best_d2[a] = np.inf
         best_i[a] = -1
     found = 0
-    hx, hy, hz = _home(q0, q1, q2, dims, lo, cell_size)
+    hx, hy, hz = home_cell(q0, q1, q2, dims, lo, cell_size)
     for r in range(max_ring + 1):
         for dx in range(-r, r + 1):
             for dy in range(-r, r + 1):
                 edge = dx == -r or dx == r or dy == -r or dy == r
                 dz = -r
                 while dz <= r:
-                    c = _lookup(hx + dx, hy + dy, hz + dz, dims, slot_key, slot_cell)
+                    c = cell_lookup(hx + dx, hy + dy, hz + dz, dims, slot_key, slot_cell)
                     if c >= 0:
                         for p in range(cell_start[c], cell_start[c + 1]):
                             ex = points[p, 0] - q0
@@ -190,14 +151,7 @@ def _knn_one(q0, q1, q2, grid, cell_size, k, max_ring, best_d2, best_i):
                         dz += 1
         # unvisited points lie beyond the faces of the visited block of cells (faces with no
         # cells beyond them bound nothing); stop once the k-th best is within that distance
-        bound = np.inf
-        for c in range(3):
-            home = hx if c == 0 else (hy if c == 1 else hz)
-            qc = q0 if c == 0 else (q1 if c == 1 else q2)
-            if home - r > 0:
-                bound = min(bound, qc - (lo[c] + (home - r) * cell_size))
-            if home + r < dims[c] - 1:
-                bound = min(bound, lo[c] + (home + r + 1) * cell_size - qc)
+        bound = block_bound(q0, q1, q2, hx, hy, hz, r, dims, lo, cell_size)
         if bound == np.inf:
             return found, True
         if found == k:
@@ -366,7 +320,7 @@ def covered_kernel(query, grid, cell_size, radius, out):  # pragma: no cover - n
                 for dz in range(-1, 2):
                     if hit:
                         break
-                    c = _lookup(x + dx, y + dy, z + dz, dims, slot_key, slot_cell)
+                    c = cell_lookup(x + dx, y + dy, z + dz, dims, slot_key, slot_cell)
                     if c < 0:
                         continue
                     for p in range(cell_start[c], cell_start[c + 1]):
