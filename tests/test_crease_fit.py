@@ -621,3 +621,29 @@ def test_open3d_reports_two_disjoint_coplanar_triangles_with_1e_19_scatter():
     wider[:, 2] *= 1e3
     assert open3d_pairs(wider) == 0
 
+
+def test_a_concave_line_edge_is_inserted_at_a_corner_lying_a_rounding_error_past_the_diagonal():
+    """lblock-clean's concave corner (0.4, 0.4, 0.5): the lid triangle ``a, w, u`` over the notch
+    (``u``, ``w`` on the two walls at the corner's height) and ``u, w, b`` below it; flipping
+    ``u-w`` makes the concave line edge ``a-b``. In the unfolded plane the corner ``a`` lies on
+    the diagonal ``u-w``, here 1e-5 of an edge past it on ``b``'s side (as in the fit): the
+    convexity test took that as a concave quad, left the lid, and the mesh cut the corner
+    (lblock-clean's 2 GT crease points farther than 0.25 % of the diagonal)."""
+    v = np.array(
+        [
+            [0.0, 0.0, 0.0],  # 0 a: the corner
+            [0.0, 0.0, -1.0],  # 1 b: on the concave line
+            [0.0, 0.0, -2.0],  # 2 c: on the concave line
+            [0.0, 1.1, 1.4e-5],  # 3 u: wall x = 0
+            [1.1, 0.0, 0.0],  # 4 w: wall y = 0
+            [0.0, 1.0, -1.5],  # 5 wall x = 0
+            [1.0, 0.0, -1.5],  # 6 wall y = 0
+        ]
+    )
+    f = np.array([[0, 4, 3], [3, 4, 1], [3, 1, 5], [1, 2, 5], [4, 6, 1], [1, 6, 2]])
+    crease = np.array([True, True, True, False, False, False, False])
+    out, done, failed = insert_crease_edges(v, f, crease)
+    assert (done, failed) == (1, 0)
+    edges = {tuple(sorted(e)) for t in out.tolist() for e in zip(t, t[1:] + t[:1], strict=True)}
+    assert (0, 1) in edges and (3, 4) not in edges
+    assert count_edge_faces(out)[1].max() <= 2
