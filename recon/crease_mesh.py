@@ -68,6 +68,10 @@ OFF_FACE_DEG = 60.0
 CROSS_TOLERANCE = 0.1
 #: Rounds of flips per line edge.
 INSERT_ROUNDS = 8
+#: A vertex whose signed area with a diagonal is below this fraction of the other vertex's
+#: lies on the diagonal (a corner on the diagonal of the lid over a concave corner's notch,
+#: a rounding error off it).
+ORIENT_TOLERANCE = 1e-3
 
 
 def _edge_map(faces: np.ndarray) -> dict[tuple[int, int], list[int]]:
@@ -427,7 +431,10 @@ def _insert_one(
             # not on the same side of u-w (one may lie on it: the corner case)
             if _orient2d(px, py, pu) * _orient2d(px, py, pw) >= 0.0:
                 continue
-            if _orient2d(pu, pw, px) * _orient2d(pu, pw, py) > 0.0:
+            # (on it within a rounding error: ORIENT_TOLERANCE of the area of the quad)
+            ox, oy = _orient2d(pu, pw, px), _orient2d(pu, pw, py)
+            tol = ORIENT_TOLERANCE * max(abs(ox), abs(oy))
+            if (ox > tol and oy > tol) or (ox < -tol and oy < -tol):
                 continue
             i = f1.index(u)
             if f1[(i + 1) % 3] != w:
