@@ -20,7 +20,8 @@ machine). Run the timing part without ``nice``.
 
 Then: ``--adaptive`` face saving at equal Hausdorff-95 on the bunny, the marching-cubes bunny
 and a generated blob (an ellipsoid with a sharp bump and waves; uniform runs at several
-spacings, interpolated in log-log), ``--faces N`` accuracy, and the crease deviation on
+spacings, interpolated in log-log) and the bound on that saving for any spacing that is a
+function of the curvature (:func:`band_bound`), ``--faces N`` accuracy, and the crease deviation on
 ``gt/lblock.ply``.
 
     .venv/bin/python benchmarks/bench_remesh.py --skip adaptive faces      # timings
@@ -30,6 +31,7 @@ spacings, interpolated in log-log), ``--faces N`` accuracy, and the crease devia
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import statistics
 import time
@@ -40,6 +42,8 @@ import numpy as np
 from recon.io import read_mesh
 from recon.metrics import compare_meshes, sample_surface
 from recon.remesh import RemeshOptions, remesh
+from recon.remesh.pipeline import spacing_field
+from recon.remesh.surface import MeshSurface
 from recon.topology import mesh_topology, triangle_quality
 
 ITERATIONS = 10
@@ -163,14 +167,78 @@ def compare_tools(name, v, f, runs, tools) -> None:
         )
 
 
+BOUND_BANDS = 12
+BOUND_SAMPLES = 100_000
+
+
+def band_errors(v, f, V, F, rng) -> tuple[np.ndarray, np.ndarray]:
+    """Distances of area samples both ways (output -> input, input -> output) and the input
+    face under each sample."""
+    surf_in, surf_out = MeshSurface(v, f), MeshSurface(V, F)
+    p_out, _ = surf_out.sample(BOUND_SAMPLES, rng)
+    foot, face_out, _ = surf_in.closest(p_out)
+    p_in, face_in = surf_in.sample(BOUND_SAMPLES, rng)
+    d = np.concatenate([np.linalg.norm(p_out - foot, axis=1), surf_out.distance(p_in)])
+    return d, np.concatenate([face_out, face_in])
+
+
+def band_bound(v, f, runs, target: float, lo: float = 0.5, hi: float = 3.0) -> tuple:
+    """The largest face saving at the uniform run's Hausdorff-95 (``target`` x mean edge) that
+    any spacing that is a function of the curvature field can reach, if every region's error
+    at a spacing is that of a uniform mesh there.
+
+    The input is cut into :data:`BOUND_BANDS` bands of equal area by the spacing field (i.e.
+    by curvature); the uniform runs give each band's distance samples at their spacings (in
+    between: the nearest run's samples scaled by (h / k)^p, p the band's measured order of the
+    error in h). Faces go as sum A_b / h_b^2, and the pooled 95th percentile must stay at the
+    target's: a Lagrange multiplier on the pooled exceedance picks every band's h_b in
+    [lo, hi] x mean edge. Returns (saving, h per band, p per band)."""
+    h = mean_edge(v, f)
+    centre = 0.5 * (v.min(axis=0) + v.max(axis=0))
+    surf = MeshSurface((v - centre) / h, f)
+    x = spacing_field(surf, 1.0, 0.01, 100.0)[f].mean(axis=1)
+    order = np.argsort(x)
+    cum = np.cumsum(surf.face_area[order]) / surf.face_area.sum()
+    band = np.empty(len(f), dtype=np.int64)
+    band[order] = np.minimum((cum * BOUND_BANDS).astype(np.int64), BOUND_BANDS - 1)
+    area = np.bincount(band, surf.face_area, BOUND_BANDS) / surf.face_area.sum()
+    ks = np.array([k for k, _, _ in runs])
+    by = {k: [np.sort(d[band[fc] == b]) for b in range(BOUND_BANDS)] for k, d, fc in runs}
+    limit = np.percentile(next(d for k, d, _ in runs if k == target), 95)
+    hs = np.exp(np.linspace(np.log(lo), np.log(hi), 120))
+    exceed = np.zeros((BOUND_BANDS, len(hs)))
+    p = np.zeros(BOUND_BANDS)
+    for b in range(BOUND_BANDS):
+        q95 = [np.percentile(by[k][b], 95) for k in ks]
+        p[b] = np.polyfit(np.log(ks), np.log(q95), 1)[0]
+        for j, hh in enumerate(hs):
+            k = ks[np.argmin(np.abs(np.log(ks / hh)))]
+            d = by[k][b] * (hh / k) ** p[b]
+            exceed[b, j] = 1.0 - np.searchsorted(d, limit, side="right") / len(d)
+
+    def pick(lam: float) -> tuple[np.ndarray, float]:
+        j = ((1.0 / hs**2)[None, :] + lam * exceed).argmin(axis=1)
+        return hs[j], float((area * exceed[np.arange(BOUND_BANDS), j]).sum())
+
+    a, b_ = 1e-3, 1e7
+    for _ in range(80):
+        mid = math.sqrt(a * b_)
+        a, b_ = (mid, b_) if pick(mid)[1] > 0.05 else (a, mid)
+    hb, _ = pick(b_)
+    return 1.0 - float((area / hb**2).sum()) * target**2, hb, p
+
+
 def adaptive_saving(name, v, f) -> None:
     h = mean_edge(v, f)
     print(f"\n## --adaptive on the {name}: faces at equal Hausdorff and Hausdorff-95")
     uniform = []
+    runs = []
+    rng = np.random.default_rng(0)
     for k in (0.8, 1.0, 1.25, 1.6, 2.0):
         V, F, _ = run_ours(v, f, k * h)
         m = measure(v, f, V, F)
         uniform.append((m["faces"], m["h95"], m["h"]))
+        runs.append((k, *band_errors(v, f, V, F, rng)))
         print(
             f"  uniform spacing {k:.2f} h: {m['faces']:,} faces, Hausdorff {m['h']:.2e}, "
             f"H95 {m['h95']:.2e}"
@@ -196,6 +264,14 @@ def adaptive_saving(name, v, f) -> None:
         print(
             f"  adaptive spacing {k:.2f} h: {m['faces']:,} faces, worst {m['worst']:.1f} mean "
             f"{m['mean']:.1f} deg, topology {m['topo']}; " + "; ".join(text)
+        )
+    for target in (1.0, 1.6):
+        saving, hb, p = band_bound(v, f, runs, target)
+        print(
+            f"  bound at the uniform {target:.2f} h run's H95, spacing any function of the "
+            f"curvature ({BOUND_BANDS} bands, 0.5-3 h): {100 * saving:.0f} % fewer; h per band "
+            f"{np.round(hb, 2).tolist()}; order of the error in h per band "
+            f"{np.round(p, 2).tolist()}"
         )
 
 

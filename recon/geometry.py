@@ -18,7 +18,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from .kernels.options import query_workers
-from .kernels.poisson_disk import poisson_disk_kernel
+from .kernels.poisson_disk import poisson_disk_graded_kernel, poisson_disk_kernel
 
 #: Seed of the subsample the median point spacing is measured on (inputs of more than 20,000
 #: points): ``fit`` and ``info`` pass ``np.random.default_rng(SPACING_SAMPLE_SEED)``. Fixed, not
@@ -31,6 +31,7 @@ __all__ = [
     "fit_plane",
     "median_nearest_neighbor_distance",
     "poisson_disk_thin",
+    "poisson_disk_thin_graded",
     "unit_vectors",
 ]
 
@@ -227,4 +228,40 @@ def poisson_disk_thin(
         raise ValueError(f"radius must be > 0, got {radius}")
     return poisson_disk_kernel(
         points, np.ascontiguousarray(order, dtype=np.int64), float(radius), int(keep_first)
+    )
+
+
+def poisson_disk_thin_graded(
+    points: np.ndarray, radius: np.ndarray, order: np.ndarray | None = None, keep_first: int = 0
+) -> np.ndarray:
+    """Greedy Poisson-disk selection with a radius per point: keep point i unless a kept point
+    j lies within (r_i + r_j) / 2 (the kept density goes as 1 / r²).
+
+    Parameters
+    ----------
+    points : (n, 3) float64 [length]
+    radius : (n,) float64 [length], > 0
+    order, keep_first
+        As for :func:`poisson_disk_thin`.
+
+    Returns
+    -------
+    keep : (n,) bool
+
+    Examples
+    --------
+    >>> pts = np.array([[0.0, 0, 0], [0.5, 0, 0], [2, 0, 0], [2.5, 0, 0]])
+    >>> poisson_disk_thin_graded(pts, np.array([1.0, 1.0, 0.2, 0.2])).tolist()
+    [True, False, True, True]
+    """
+    points = np.ascontiguousarray(points, dtype=np.float64)
+    radius = np.ascontiguousarray(radius, dtype=np.float64)
+    if radius.shape != (len(points),):
+        raise ValueError(f"radius must have shape ({len(points)},), got {radius.shape}")
+    if len(radius) and not np.all(radius > 0):
+        raise ValueError("radius must be > 0")
+    if order is None:
+        order = np.arange(len(points), dtype=np.int64)
+    return poisson_disk_graded_kernel(
+        points, np.ascontiguousarray(order, dtype=np.int64), radius, int(keep_first)
     )

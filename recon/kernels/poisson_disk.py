@@ -112,3 +112,77 @@ def poisson_disk_kernel(points, order, radius, keep_first):  # pragma: no cover 
             nxt[i] = head[key]
             head[key] = i
     return keep
+
+
+@njit(**EXACT_JIT_OPTIONS)
+def poisson_disk_graded_kernel(points, order, radius, keep_first):  # pragma: no cover - numba
+    """Greedy Poisson-disk selection with a radius per point [B07]: point i is kept unless a
+    kept point j lies closer than (r_i + r_j) / 2, so the kept density follows 1 / r².
+
+    Kept points are binned into cells of side max(r) (every conflicting pair lies in
+    neighbouring cells), on a hashed grid as in :func:`poisson_disk_kernel`.
+
+    Parameters
+    ----------
+    points : (n, 3) float64
+    order : (n,) int64
+        Visiting order (a permutation); earlier points win.
+    radius : (n,) float64
+        Radius per point [length], > 0.
+    keep_first : int
+        The first ``keep_first`` points of ``order`` are kept unconditionally.
+
+    Returns
+    -------
+    keep : (n,) bool
+    """
+    n = points.shape[0]
+    keep = np.zeros(n, dtype=np.bool_)
+    if n == 0:
+        return keep
+    lo = points[0].copy()
+    cell = radius[0]
+    for i in range(n):
+        cell = max(cell, radius[i])
+        for d in range(3):
+            lo[d] = min(lo[d], points[i, d])
+    table_size = 1
+    while table_size < 2 * n:
+        table_size *= 2
+    head = np.full(table_size, -1, dtype=np.int64)
+    nxt = np.full(n, -1, dtype=np.int64)
+    for a in range(n):
+        i = order[a]
+        cx = int((points[i, 0] - lo[0]) / cell)
+        cy = int((points[i, 1] - lo[1]) / cell)
+        cz = int((points[i, 2] - lo[2]) / cell)
+        ok = True
+        if not (keep_first > 0 and a < keep_first):
+            for dx in range(-1, 2):
+                if not ok:
+                    break
+                for dy in range(-1, 2):
+                    if not ok:
+                        break
+                    for dz in range(-1, 2):
+                        key = (((cx + dx) * 73856093) ^ ((cy + dy) * 19349663)) ^ (
+                            (cz + dz) * 83492791
+                        )
+                        j = head[key & (table_size - 1)]
+                        while j >= 0:
+                            r = 0.5 * (radius[i] + radius[j])
+                            if (points[j, 0] - points[i, 0]) ** 2 + (
+                                points[j, 1] - points[i, 1]
+                            ) ** 2 + (points[j, 2] - points[i, 2]) ** 2 < r * r:
+                                ok = False
+                                break
+                            j = nxt[j]
+                        if not ok:
+                            break
+        if ok:
+            keep[i] = True
+            key = ((cx * 73856093) ^ (cy * 19349663)) ^ (cz * 83492791)
+            key = key & (table_size - 1)
+            nxt[i] = head[key]
+            head[key] = i
+    return keep
