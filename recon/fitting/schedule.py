@@ -339,6 +339,17 @@ class _Schedule:
             self._anchor_ref[moved] = pos[moved]
         return self._anchor_pts, self._anchor_nrm
 
+    def reorder_anchors(self, added: int, order: np.ndarray) -> None:
+        """``added`` particles were appended and then all reordered by ``order`` (new i = old
+        ``order[i]``): the kept anchors follow their particles and the new particles get theirs
+        at the next refresh (the others keep theirs until they move, as between rounds)."""
+        if self._anchor_ref is None:
+            return
+        pad = np.full((added, 3), np.inf)  # never equal to a position: refreshed next
+        self._anchor_ref = np.vstack([self._anchor_ref, pad])[order]
+        self._anchor_pts = np.vstack([self._anchor_pts, np.zeros((added, 3))])[order]
+        self._anchor_nrm = np.vstack([self._anchor_nrm, np.zeros((added, 3))])[order]
+
     def forget_anchors(self) -> None:
         """The particles changed (added, reordered, restored): refresh every anchor next."""
         self._anchor_ref = self._anchor_pts = self._anchor_nrm = None
@@ -482,8 +493,8 @@ class _Schedule:
                 rest=1.0 if new_rest is None else new_rest,
             )
             sim.notify_changed()
-            sim.sort_particles()  # the new particles were appended at the end
-            self.forget_anchors()
+            order = sim.sort_particles()  # the new particles were appended at the end
+            self.reorder_anchors(added, order)
         log.debug(
             "growth: %d candidates, %d added (%d close, %d unsupported, %d off-plane), "
             "%d particles",
