@@ -96,9 +96,9 @@ def test_anchors_follow_their_particles_through_a_growth_round():
     queried = []
     anchors = surface.anchors
 
-    def spy(positions, normals=None):
+    def spy(positions, normals=None, **kw):
         queried.append(len(positions))
-        return anchors(positions, normals)
+        return anchors(positions, normals, **kw)
 
     surface.anchors = spy
     pts, nrm = sched.refresh_anchors(state)

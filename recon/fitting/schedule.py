@@ -328,15 +328,19 @@ class _Schedule:
         :meth:`forget_anchors`)."""
         pos = state.position
         if self._anchor_ref is None or len(self._anchor_ref) != state.n:
-            pts, nrm, _ = self.surface.anchors(pos, state.normal)
+            pts, nrm, _, idx = self.surface.anchors(pos, state.normal, with_index=True)
             self._anchor_ref, self._anchor_pts, self._anchor_nrm = pos.copy(), pts, nrm
+            self._anchor_idx = idx
             return pts, nrm
         d = pos - self._anchor_ref
         moved = np.flatnonzero(np.einsum("ij,ij->i", d, d) > ANCHOR_MOVE * ANCHOR_MOVE)
         if len(moved):
-            pts, nrm, _ = self.surface.anchors(pos[moved], state.normal[moved])
+            # the previous anchors' data points start the search (same anchors, found sooner)
+            pts, nrm, _, idx = self.surface.anchors(
+                pos[moved], state.normal[moved], hint=self._anchor_idx[moved], with_index=True
+            )
             self._anchor_pts[moved], self._anchor_nrm[moved] = pts, nrm
-            self._anchor_ref[moved] = pos[moved]
+            self._anchor_ref[moved], self._anchor_idx[moved] = pos[moved], idx
         return self._anchor_pts, self._anchor_nrm
 
     def reorder_anchors(self, added: int, order: np.ndarray) -> None:
@@ -349,10 +353,11 @@ class _Schedule:
         self._anchor_ref = np.vstack([self._anchor_ref, pad])[order]
         self._anchor_pts = np.vstack([self._anchor_pts, np.zeros((added, 3))])[order]
         self._anchor_nrm = np.vstack([self._anchor_nrm, np.zeros((added, 3))])[order]
+        self._anchor_idx = np.concatenate([self._anchor_idx, np.full(added, -1)])[order]
 
     def forget_anchors(self) -> None:
         """The particles changed (added, reordered, restored): refresh every anchor next."""
-        self._anchor_ref = self._anchor_pts = self._anchor_nrm = None
+        self._anchor_ref = self._anchor_pts = self._anchor_nrm = self._anchor_idx = None
 
     def at_rest(self, kinetic: float) -> bool:
         """Whether the kinetic energy per particle is below ``dynamics.kinetic_tolerance``."""
