@@ -212,3 +212,29 @@ def test_adaptive_spacing_uses_larger_particles_on_flat_data_and_reports_the_ran
     assert adaptive.report.particles < 0.9 * uniform.report.particles  # ... fewer of them
     back = FitReport.from_dict(json.loads(dumps(adaptive.report.to_dict())))
     assert back.spacing_range == adaptive.report.spacing_range
+
+
+def test_density_scale_reuses_the_data_spacing():
+    """_triangulate queries the data's k-NN once: local_density_scale given the spacings
+    gives the same scales without querying the tree for them."""
+    from scipy.spatial import cKDTree
+
+    from recon.fitting.pipeline import DENSITY_NEIGHBOURS, local_density_scale
+
+    rng = np.random.default_rng(5)
+    pts = rng.uniform(0, 10, (600, 3)) * [1.0, 1.0, 0.0]
+    pts[:100] *= 0.2  # a denser corner
+    tree = cKDTree(pts)
+    q = rng.uniform(0, 10, (50, 3)) * [1.0, 1.0, 0.0]
+    local = tree.query(pts, DENSITY_NEIGHBOURS + 1)[0][:, -1]
+    expected = local_density_scale(tree, pts, q, 4.0)
+    calls = []
+
+    class Spy:
+        def query(self, x, *args, **kw):
+            calls.append(len(x))
+            return tree.query(x, *args, **kw)
+
+    got = local_density_scale(Spy(), pts, q, 4.0, local=local)
+    np.testing.assert_array_equal(got, expected)
+    assert calls == [len(q)] and expected.max() > 1.0

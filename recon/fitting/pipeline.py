@@ -163,15 +163,20 @@ def data_spacing(surface: DataSurface) -> np.ndarray:
     return dk[:, -1]
 
 
-def density_spacing(surface: DataSurface, positions: np.ndarray, max_scale: float) -> np.ndarray:
+def density_spacing(
+    surface: DataSurface,
+    positions: np.ndarray,
+    max_scale: float,
+    local: np.ndarray | None = None,
+) -> np.ndarray:
     """Per-particle spacing [r0] from the local data density: 1 where the data is less than
     ``DENSITY_TOLERANCE`` times sparser than its median, up to ``max_scale`` where it is sparser.
 
     The local point spacing is each data point's distance to its ``DENSITY_NEIGHBOURS``-th
     neighbour; a particle takes that of its nearest data point, divided by the median and by
-    ``DENSITY_TOLERANCE``.
+    ``DENSITY_TOLERANCE``. ``local``: :func:`data_spacing` of ``surface`` when already known.
     """
-    return local_density_scale(surface.tree, surface.points, positions, max_scale)
+    return local_density_scale(surface.tree, surface.points, positions, max_scale, local=local)
 
 
 def local_density_scale(
@@ -180,14 +185,17 @@ def local_density_scale(
     positions: np.ndarray,
     max_scale: float,
     median: float | None = None,
+    local: np.ndarray | None = None,
 ) -> np.ndarray:
     """:func:`density_spacing` over a k-d ``tree`` of the data ``points`` [r0]; ``median`` is
     the median local spacing [r0] (default: that of ``points``; a tile of a tiled fit passes
-    the whole scan's)."""
+    the whole scan's); ``local``: each point's spacing (:func:`data_spacing`), queried here
+    when None."""
     if max_scale <= 1.0 or len(points) <= DENSITY_NEIGHBOURS:
         return np.ones(len(positions))
-    dk, _ = tree.query(points, DENSITY_NEIGHBOURS + 1, workers=query_workers())
-    local = dk[:, -1]
+    if local is None:
+        dk, _ = tree.query(points, DENSITY_NEIGHBOURS + 1, workers=query_workers())
+        local = dk[:, -1]
     _, nearest = tree.query(positions, workers=query_workers())
     if median is None:
         median = float(np.median(local))
@@ -207,14 +215,16 @@ def _triangulate(
     tri_cfg = cfg.triangulation
     max_hole = tri_cfg.max_hole if tri_cfg.max_hole is not None else cfg.growth.max_gap
     spacing = None
+    sampling = data_spacing(surface)  # one k-NN query of the data serves both uses
     if tri_cfg.max_density_scale > 1.0:
-        spacing = density_spacing(surface, state.position, tri_cfg.max_density_scale)
+        spacing = density_spacing(
+            surface, state.position, tri_cfg.max_density_scale, local=sampling
+        )
     if cfg.seeds.adaptive and state.n:
         rest = np.array(state.rest, dtype=float)
         spacing = rest if spacing is None else np.maximum(spacing, rest)
     # a sample k times sparser than the median covers k times farther, up to the same limit
     # as the ball radii (max_density_scale; 1 when that is off)
-    sampling = data_spacing(surface)
     sparser = np.clip(
         sampling / max(float(np.median(sampling)), 1e-12) if len(sampling) else sampling,
         1.0,
