@@ -100,15 +100,28 @@ class DataSurface:
     _grid: PointGrid | None = field(default=None, repr=False, compare=False)
 
     @classmethod
-    def build(cls, points: np.ndarray, normals: np.ndarray, k: int = 20) -> DataSurface:
-        """Fit local planes to ``points`` (normalised units) with oriented ``normals``."""
+    def build(
+        cls,
+        points: np.ndarray,
+        normals: np.ndarray,
+        k: int = 20,
+        neighbors: tuple[np.ndarray, np.ndarray] | None = None,
+    ) -> DataSurface:
+        """Fit local planes to ``points`` (normalised units) with oriented ``normals``.
+
+        ``neighbors``: each point's m nearest points, nearest first, as (distances [r0],
+        indices) (a shared k-d tree query); used when m >= 2 k, else queried here.
+        """
         points = np.ascontiguousarray(points, dtype=np.float64)
         normals = np.ascontiguousarray(normals, dtype=np.float64)
         tree = cKDTree(points)
         k = int(min(max(k, 3), len(points)))
         # twice the neighbours, of which the first k on the same sheet (normals agreeing) fit
         k_query = int(min(2 * k, len(points)))
-        dist, idx = tree.query(points, k=k_query, workers=query_workers())
+        if neighbors is not None and neighbors[1].shape[1] >= k_query:
+            dist, idx = neighbors[0][:, :k_query], neighbors[1][:, :k_query]
+        else:
+            dist, idx = tree.query(points, k=k_query, workers=query_workers())
         dist = dist.reshape(len(points), -1)
         idx = np.ascontiguousarray(idx.reshape(len(points), -1))
         walk = min(WALK_K, idx.shape[1])

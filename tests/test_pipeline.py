@@ -238,3 +238,39 @@ def test_density_scale_reuses_the_data_spacing():
     got = local_density_scale(Spy(), pts, q, 4.0, local=local)
     np.testing.assert_array_equal(got, expected)
     assert calls == [len(q)] and expected.max() > 1.0
+
+
+def test_stages_share_one_neighbor_query():
+    """The normals, the crease detection and the local surfaces take their neighbours from one
+    k-d tree query (shared_neighbors) and give what their own queries give."""
+    from recon.cloud import PointCloud
+    from recon.creases import detect_creases
+    from recon.fitting.pipeline import SHARED_NEIGHBORS_MAX, shared_neighbors
+    from recon.normals import compute_normals
+    from recon.surface import DataSurface
+
+    rng = np.random.default_rng(6)
+    p = rng.normal(size=(3000, 3))
+    p /= np.linalg.norm(p, axis=1, keepdims=True)
+    p[:, 2] = np.minimum(p[:, 2], 0.4)  # a cap cut off: a crease
+    p += rng.normal(0.0, 0.002, p.shape)
+    cfg = ReconConfig()
+    knn = shared_neighbors(p, cfg)
+    assert knn is not None and knn[1].shape == (len(p), SHARED_NEIGHBORS_MAX)
+    cloud = PointCloud(points=p, origin=np.zeros(3))
+    own, _ = compute_normals(cloud, cfg.normals)
+    shared, _ = compute_normals(cloud, cfg.normals, neighbors=knn)
+    np.testing.assert_array_equal(shared, own)
+    a = detect_creases(p, own, angle_deg=cfg.creases.angle_deg, k=cfg.creases.k)
+    b = detect_creases(p, own, angle_deg=cfg.creases.angle_deg, k=cfg.creases.k, neighbors=knn)
+    assert a.n_crease_points > 0
+    np.testing.assert_array_equal(a.labels, b.labels)
+    np.testing.assert_array_equal(a.side_normals, b.side_normals)
+    r0 = 0.05
+    s1 = DataSurface.build(p / r0, own, k=cfg.normals.k)
+    s2 = DataSurface.build(p / r0, own, k=cfg.normals.k, neighbors=(knn[0] / r0, knn[1]))
+    for name in ("plane_points", "plane_normals", "quadrics", "walk_neighbors"):
+        np.testing.assert_array_equal(getattr(s1, name), getattr(s2, name))
+    # noisy data raise normals.k: the widest use no longer fits, each stage queries its own
+    wide = load_config(overrides=["normals.k=40", "normals.auto_scale=false"])
+    assert shared_neighbors(p, wide) is None

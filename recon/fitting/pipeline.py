@@ -32,6 +32,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from ..attributes import check_attribute_output, check_transfer, transfer_for_output
 from ..cloud import PointCloud
@@ -43,7 +44,7 @@ from ..errors import InputError
 from ..geometry import bbox_diagonal
 from ..intersections import untangle
 from ..kernels.options import query_workers, thread_count
-from ..normals import compute_normals
+from ..normals import compute_normals, neighbors_needed
 from ..serialize import dumps
 from ..state import ParticleState
 from ..surface import DataSurface
@@ -76,6 +77,7 @@ __all__ = [
     "fit_file",
     "fit_particles",
     "local_density_scale",
+    "shared_neighbors",
     "reconstruct",
 ]
 
@@ -273,13 +275,40 @@ def _crease_normals(
     return v, f, normals, None
 
 
+#: The stages before the dynamics (normal estimate and orientation graph, crease detection,
+#: local surfaces) share one k-nearest query of the data when together they need at most this
+#: many neighbours per point (16 bytes each while it is held; wider: each queries its own).
+SHARED_NEIGHBORS_MAX = 48
+
+
+def shared_neighbors(points: np.ndarray, cfg: ReconConfig) -> tuple[np.ndarray, np.ndarray] | None:
+    """One k-d tree query of the data for every stage before the dynamics: (distances,
+    indices) of each point's nearest points, nearest first; None when the widest use exceeds
+    ``SHARED_NEIGHBORS_MAX`` (noisy data with a raised ``normals.k``) or the data is tiny."""
+    n = len(points)
+    widest = [2 * cfg.normals.k, neighbors_needed(cfg.normals)]  # local surfaces, normals
+    if cfg.creases.enabled:
+        widest.append(cfg.creases.k)
+    m = max(widest)
+    if m > SHARED_NEIGHBORS_MAX or m >= n:
+        return None
+    dist, idx = cKDTree(points).query(points, k=m, workers=query_workers())
+    return dist, idx
+
+
 def _detect_creases(
-    points: np.ndarray, normals: np.ndarray, cfg: ReconConfig, diag: float
+    points: np.ndarray,
+    normals: np.ndarray,
+    cfg: ReconConfig,
+    diag: float,
+    neighbors: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> tuple[Creases | None, CreaseStats | None]:
     """Sharp creases and corners of the data: the detection and the report's section."""
     if not cfg.creases.enabled:
         return None, None
-    found = detect_creases(points, normals, angle_deg=cfg.creases.angle_deg, k=cfg.creases.k)
+    found = detect_creases(
+        points, normals, angle_deg=cfg.creases.angle_deg, k=cfg.creases.k, neighbors=neighbors
+    )
     return found, CreaseStats(
         angle_deg=cfg.creases.angle_deg,
         length=found.length,
@@ -370,17 +399,24 @@ def _fit_sheet(cloud: PointCloud, cfg: ReconConfig, on_progress: ProgressFn | No
     points = np.asarray(cloud.points, dtype=np.float64)
 
     cfg = with_neighborhood_size(points, cfg)
-    normals, normals_info = compute_normals(cloud, cfg.normals)
+    knn = shared_neighbors(points, cfg)
+    normals, normals_info = compute_normals(cloud, cfg.normals, neighbors=knn)
     clock.lap("normals")
     clock.check()
-    found, creases = _detect_creases(points, normals, cfg, bbox_diagonal(points))
+    found, creases = _detect_creases(points, normals, cfg, bbox_diagonal(points), knn)
     if found is not None:  # a crease fixes the normals' orientation across it
         normals, found, _ = orient_across_creases(points, normals, found, k=cfg.creases.k)
 
     r0, d_nn = choose_spacing(points, cfg)
     check_grid_size(points, r0)
     cfg = with_max_gap(cfg, r0, d_nn)
-    surface = DataSurface.build(points / r0, normals, k=cfg.normals.k)
+    surface = DataSurface.build(
+        points / r0,
+        normals,
+        k=cfg.normals.k,
+        neighbors=None if knn is None else (knn[0] / r0, knn[1]),
+    )
+    del knn
     if found is not None and cfg.creases.fit:  # per-side planes and crease particles
         surface.creases = CreaseField.build(found, surface.points, r0)
     clock.lap("setup")
