@@ -123,7 +123,7 @@ class DataSurface:
         else:
             dist, idx = tree.query(points, k=k_query, workers=query_workers())
         dist = dist.reshape(len(points), -1)
-        idx = np.ascontiguousarray(idx.reshape(len(points), -1))
+        idx = idx.reshape(len(points), -1)  # a view of a shared query: not copied
         walk = min(WALK_K, idx.shape[1])
         walk_neighbors = np.ascontiguousarray(idx[:, :walk], dtype=np.int32)
         walk_reach = np.ascontiguousarray(dist[:, walk - 1])

@@ -410,12 +410,9 @@ def _fit_sheet(cloud: PointCloud, cfg: ReconConfig, on_progress: ProgressFn | No
     r0, d_nn = choose_spacing(points, cfg)
     check_grid_size(points, r0)
     cfg = with_max_gap(cfg, r0, d_nn)
-    surface = DataSurface.build(
-        points / r0,
-        normals,
-        k=cfg.normals.k,
-        neighbors=None if knn is None else (knn[0] / r0, knn[1]),
-    )
+    if knn is not None:
+        knn[0][...] /= r0  # in place: the distances in r0 (no copy of the query is made)
+    surface = DataSurface.build(points / r0, normals, k=cfg.normals.k, neighbors=knn)
     del knn
     if found is not None and cfg.creases.fit:  # per-side planes and crease particles
         surface.creases = CreaseField.build(found, surface.points, r0)
