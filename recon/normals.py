@@ -175,8 +175,8 @@ def estimate_normals(
         Only neighbours closer than this (at most ``k``), as Open3D's hybrid search; points
         with fewer than 3 neighbours inside the radius use the plain k nearest.
     neighbors : (distances (n, m), indices (n, m)), optional
-        Each point's m >= k nearest points, nearest first (a k-d tree query of ``points``
-        itself, shared with other stages); queried here when None.
+        Each point's m nearest points, nearest first (a k-d tree query of ``points``
+        itself, shared with other stages); queried here when None or m < k.
 
     Returns
     -------
@@ -198,6 +198,8 @@ def estimate_normals(
     if radius is not None and not radius > 0:
         raise ValueError(f"radius: expected a positive length or None, got {radius}")
     k_eff = int(min(k, n))
+    if neighbors is not None and neighbors[1].shape[1] < k_eff:
+        neighbors = None  # too narrow: query
     tree = cKDTree(pts) if neighbors is None else None
     normals = np.zeros((n, 3))
     for start in range(0, n, _CHUNK):

@@ -261,6 +261,12 @@ def test_stages_share_one_neighbor_query():
     own, _ = compute_normals(cloud, cfg.normals)
     shared, _ = compute_normals(cloud, cfg.normals, neighbors=knn)
     np.testing.assert_array_equal(shared, own)
+    from recon.normals import estimate_normals
+
+    narrow = (knn[0][:, :5], knn[1][:, :5])  # fewer than k columns: queried instead
+    np.testing.assert_array_equal(
+        estimate_normals(p, k=20, neighbors=narrow), estimate_normals(p, k=20)
+    )
     a = detect_creases(p, own, angle_deg=cfg.creases.angle_deg, k=cfg.creases.k)
     b = detect_creases(p, own, angle_deg=cfg.creases.angle_deg, k=cfg.creases.k, neighbors=knn)
     assert a.n_crease_points > 0
