@@ -156,6 +156,7 @@ def detect_creases(
     angle_deg: float = 40.0,
     k: int = 48,
     normals_k: int = 20,
+    neighbors: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> Creases:
     """Label every point smooth, crease or corner (see the module docstring).
 
@@ -168,6 +169,9 @@ def detect_creases(
         Smallest angle between the two side normals that counts as a crease.
     k : int
         Neighbourhood size of the clustering (capped at n).
+    neighbors : (distances (n, m), indices (n, m)), optional
+        Each point's m >= k nearest points, nearest first (a shared k-d tree query of
+        ``points``); queried here when None or narrower.
     """
     pts = as_points(points)
     n = len(pts)
@@ -175,7 +179,10 @@ def detect_creases(
     if kk < 8:
         return _empty(n)
     tree = cKDTree(pts)
-    dist, idx = tree.query(pts, k=kk, workers=query_workers())
+    if neighbors is not None and neighbors[1].shape[1] >= kk:
+        dist, idx = neighbors[0][:, :kk], neighbors[1][:, :kk]
+    else:
+        dist, idx = tree.query(pts, k=kk, workers=query_workers())
     idx = np.ascontiguousarray(idx, dtype=np.int64)
     # the normal-estimation neighbours are the first of these (sorted by distance)
     own, variation = _pca(pts, tree, min(normals_k, n), idx if normals_k <= kk else None)

@@ -52,7 +52,9 @@ class StepStats:
     kinetic : float
         Kinetic energy after the step, ½ Σ (m |v|²/r0² + I |ω|²) [dimensionless].
     potential : float
-        Potential energy at the positions the step started from [dimensionless].
+        Potential energy at the positions the step started from [dimensionless]: the shares
+        ½ Σ_j E_ij + E^A_i of the particles that are not pinned (a pinned particle does not
+        move, so the step skips its terms; with none pinned this is the total energy).
     max_speed : float
         Largest particle speed after the step [length/time].
     rebuilt : bool

@@ -154,7 +154,12 @@ class OrientationInfo:
 # estimation
 
 
-def estimate_normals(points: np.ndarray, k: int = 20, radius: float | None = None) -> np.ndarray:
+def estimate_normals(
+    points: np.ndarray,
+    k: int = 20,
+    radius: float | None = None,
+    neighbors: tuple[np.ndarray, np.ndarray] | None = None,
+) -> np.ndarray:
     """Unoriented normals by principal component analysis of each point's neighbourhood.
 
     The normal is the eigenvector of the smallest eigenvalue of the covariance of the point's
@@ -169,6 +174,9 @@ def estimate_normals(points: np.ndarray, k: int = 20, radius: float | None = Non
     radius : float or None [length]
         Only neighbours closer than this (at most ``k``), as Open3D's hybrid search; points
         with fewer than 3 neighbours inside the radius use the plain k nearest.
+    neighbors : (distances (n, m), indices (n, m)), optional
+        Each point's m nearest points, nearest first (a k-d tree query of ``points``
+        itself, shared with other stages); queried here when None or m < k.
 
     Returns
     -------
@@ -190,11 +198,17 @@ def estimate_normals(points: np.ndarray, k: int = 20, radius: float | None = Non
     if radius is not None and not radius > 0:
         raise ValueError(f"radius: expected a positive length or None, got {radius}")
     k_eff = int(min(k, n))
-    tree = cKDTree(pts)
+    if neighbors is not None and neighbors[1].shape[1] < k_eff:
+        neighbors = None  # too narrow: query
+    tree = cKDTree(pts) if neighbors is None else None
     normals = np.zeros((n, 3))
     for start in range(0, n, _CHUNK):
         query = pts[start : start + _CHUNK]
-        dist, idx = tree.query(query, k=k_eff, workers=query_workers())
+        if tree is None:
+            dist = neighbors[0][start : start + _CHUNK, :k_eff]
+            idx = neighbors[1][start : start + _CHUNK, :k_eff]
+        else:
+            dist, idx = tree.query(query, k=k_eff, workers=query_workers())
         idx = idx.reshape(len(query), k_eff)
         if radius is not None:
             dist = dist.reshape(len(query), k_eff)
@@ -296,7 +310,11 @@ def _across_neighbours(
 
 
 def _knn_graph(
-    points: np.ndarray, normals: np.ndarray, k: int, across_cost: float = 0.0
+    points: np.ndarray,
+    normals: np.ndarray,
+    k: int,
+    across_cost: float = 0.0,
+    neighbors: np.ndarray | None = None,
 ) -> tuple[sparse.csr_matrix, sparse.csr_matrix | None, np.ndarray | None]:
     """Symmetric k-NN graph with Hoppe's cost ``1 - |n_i . n_j| + eps``.
 
@@ -317,7 +335,10 @@ def _knn_graph(
     n = points.shape[0]
     k_eff = int(min(k, n - 1))
     k_wide = int(min(max(k, _SIDES_K), n - 1)) if across_cost > 0.0 else k_eff
-    _, wide = cKDTree(points).query(points, k=k_wide + 1, workers=query_workers())
+    if neighbors is not None and neighbors.shape[1] >= k_wide + 1:
+        wide = neighbors[:, : k_wide + 1]
+    else:
+        _, wide = cKDTree(points).query(points, k=k_wide + 1, workers=query_workers())
     wide = wide.reshape(n, k_wide + 1)
     idx = wide[:, : k_eff + 1]
     rows = np.repeat(np.arange(n), k_eff)
@@ -513,6 +534,7 @@ def orient_normals(
     orientation: str = "auto",
     viewpoint: np.ndarray | None = None,
     across_cost: float = 0.0,
+    neighbors: np.ndarray | None = None,
 ) -> tuple[np.ndarray, OrientationInfo]:
     """Consistently orient normals (Hoppe et al. 1992 MST propagation, then a global sign).
 
@@ -533,6 +555,9 @@ def orient_normals(
     viewpoint : (3,) float64 [length], optional
         Sensor position in the same coordinates as ``points``. Required by ``'viewpoint'``;
         with ``'auto'`` it selects ``'viewpoint'``.
+    neighbors : (n, m) int, optional
+        Each point's m nearest points, nearest first (itself among them); used for the graph
+        when m covers its neighbourhood, else a query is made.
 
     Returns
     -------
@@ -566,7 +591,7 @@ def orient_normals(
     if n < 2:
         return nrm.copy(), OrientationInfo(orientation, n, n, {"none": n}, 0.0)
 
-    graph, flip, _ = _knn_graph(pts, nrm, k, across_cost)
+    graph, flip, _ = _knn_graph(pts, nrm, k, across_cost, neighbors)
     sign, labels, n_comp = _propagate_signs(nrm, graph, _REGION_TAU, flip)
     oriented = nrm * sign[:, None]
     sizes = np.bincount(labels, minlength=n_comp)
@@ -657,7 +682,20 @@ def choose_neighborhood_size(points: np.ndarray, k: int, sample: int = 4000) -> 
     return int(chosen)
 
 
-def compute_normals(cloud: PointCloud, cfg: NormalsConfig) -> tuple[np.ndarray, dict[str, Any]]:
+def neighbors_needed(cfg: NormalsConfig, has_input: bool = False) -> int:
+    """Nearest points per point (itself included) that :func:`compute_normals` queries: the
+    estimate's ``k`` and the orientation graph's (0 when the file's normals are used)."""
+    if has_input and cfg.mode in ("auto", "input"):
+        return 0
+    graph = max(cfg.orient_k, _SIDES_K) if cfg.thin_parts > 0.0 else cfg.orient_k
+    return max(cfg.k, graph + 1)
+
+
+def compute_normals(
+    cloud: PointCloud,
+    cfg: NormalsConfig,
+    neighbors: tuple[np.ndarray, np.ndarray] | None = None,
+) -> tuple[np.ndarray, dict[str, Any]]:
     """Normals for a point cloud as the ``normals`` configuration section asks.
 
     Parameters
@@ -668,6 +706,9 @@ def compute_normals(cloud: PointCloud, cfg: NormalsConfig) -> tuple[np.ndarray, 
         ``mode`` (auto: the file's normals when present, else estimated; estimate; input),
         ``k`` (raised on noisy data when ``auto_scale``), ``radius``, ``orient_k``,
         ``orientation``, ``viewpoint`` (file coordinates).
+    neighbors : (distances (n, m), indices (n, m)), optional
+        The points' m nearest points, nearest first (a shared k-d tree query); the estimate
+        and the orientation graph take their neighbours from it where m covers them.
 
     Returns
     -------
@@ -711,7 +752,8 @@ def compute_normals(cloud: PointCloud, cfg: NormalsConfig) -> tuple[np.ndarray, 
         info = {"source": "input", "n_filled": n_bad}
     else:
         k = choose_neighborhood_size(pts, cfg.k) if cfg.auto_scale else cfg.k
-        normals = estimate_normals(pts, k=k, radius=cfg.radius)
+        shared = neighbors if neighbors is not None and neighbors[1].shape[1] >= k else None
+        normals = estimate_normals(pts, k=k, radius=cfg.radius, neighbors=shared)
         viewpoint = None
         if cfg.viewpoint is not None:
             viewpoint = np.asarray(cfg.viewpoint, dtype=np.float64) - cloud.origin
@@ -722,6 +764,7 @@ def compute_normals(cloud: PointCloud, cfg: NormalsConfig) -> tuple[np.ndarray, 
             orientation=cfg.orientation,
             viewpoint=viewpoint,
             across_cost=cfg.thin_parts,
+            neighbors=None if neighbors is None else neighbors[1],
         )
         info = {"source": "estimated", "n_filled": 0, "k": k, "radius": cfg.radius}
         odict = oinfo.as_dict()

@@ -51,6 +51,13 @@ _ANCHOR_THREADS = ThreadChooser()
 GRID_CELL_FACTOR = 1.5
 #: Data points sampled (evenly by index) to estimate that distance.
 GRID_CELL_SAMPLE = 2000
+#: Entries per data point of the anchor walk's neighbour table (:attr:`DataSurface.
+#: walk_neighbors`, int32: 48 bytes per point). The walk proves its result when the particle
+#: is nearer to its nearest data point than half the distance to that point's 12th nearest
+#: (about 0.9 data spacings): nearly always for a particle on the sheet.
+WALK_K = 16
+#: Empty walk table (no hints given).
+_NO_WALK = (np.zeros((0, 1), dtype=np.int32), np.zeros(0))
 
 
 @dataclass
@@ -85,21 +92,55 @@ class DataSurface:
     #: Crease lines in the data (issue 12; set by the pipeline when creases are on): anchors
     #: near a crease use its per-side planes (:meth:`recon.crease_surface.CreaseField.adjust`).
     creases: CreaseField | None = None
+    #: Each point's ``WALK_K`` nearest data points (itself among them) by distance, and the
+    #: distance of the last: the table the anchor refresh walks on from a previous anchor
+    #: (:func:`recon.kernels.grid_query.anchor_feet_kernel`); None: the grid answers alone.
+    walk_neighbors: np.ndarray | None = field(default=None, repr=False, compare=False)
+    walk_reach: np.ndarray | None = field(default=None, repr=False, compare=False)
     _grid: PointGrid | None = field(default=None, repr=False, compare=False)
 
     @classmethod
-    def build(cls, points: np.ndarray, normals: np.ndarray, k: int = 20) -> DataSurface:
-        """Fit local planes to ``points`` (normalised units) with oriented ``normals``."""
+    def build(
+        cls,
+        points: np.ndarray,
+        normals: np.ndarray,
+        k: int = 20,
+        neighbors: tuple[np.ndarray, np.ndarray] | None = None,
+    ) -> DataSurface:
+        """Fit local planes to ``points`` (normalised units) with oriented ``normals``.
+
+        ``neighbors``: each point's m nearest points, nearest first, as (distances [r0],
+        indices) (a shared k-d tree query); used when m >= 2 k, else queried here.
+        """
         points = np.ascontiguousarray(points, dtype=np.float64)
         normals = np.ascontiguousarray(normals, dtype=np.float64)
         tree = cKDTree(points)
         k = int(min(max(k, 3), len(points)))
         # twice the neighbours, of which the first k on the same sheet (normals agreeing) fit
         k_query = int(min(2 * k, len(points)))
-        _, idx = tree.query(points, k=k_query, workers=query_workers())
-        idx = select_agreeing(normals, np.ascontiguousarray(idx.reshape(len(points), -1)), k)
+        if neighbors is not None and neighbors[1].shape[1] >= k_query:
+            dist, idx = neighbors[0][:, :k_query], neighbors[1][:, :k_query]
+        else:
+            dist, idx = tree.query(points, k=k_query, workers=query_workers())
+        dist = dist.reshape(len(points), -1)
+        idx = idx.reshape(len(points), -1)  # a view of a shared query: not copied
+        walk = min(WALK_K, idx.shape[1])
+        walk_neighbors = np.ascontiguousarray(idx[:, :walk], dtype=np.int32)
+        walk_reach = np.ascontiguousarray(dist[:, walk - 1])
+        idx = select_agreeing(normals, idx, k)
         pp, pn, tangents, quadrics, residual = fit_local_quadrics(points, normals, idx)
-        return cls(points, normals, pp, pn, tangents, quadrics, float(np.median(residual)), tree)
+        return cls(
+            points,
+            normals,
+            pp,
+            pn,
+            tangents,
+            quadrics,
+            float(np.median(residual)),
+            tree,
+            walk_neighbors=walk_neighbors,
+            walk_reach=walk_reach,
+        )
 
     @property
     def n_points(self) -> int:
@@ -143,10 +184,20 @@ class DataSurface:
         return dist[rows, first], idx[rows, first]
 
     def anchors(
-        self, positions: np.ndarray, normals: np.ndarray | None = None
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        self,
+        positions: np.ndarray,
+        normals: np.ndarray | None = None,
+        hint: np.ndarray | None = None,
+        with_index: bool = False,
+    ) -> tuple[np.ndarray, ...]:
         """Foot point and normal on the local surface nearest to each position, and the
-        distance to the nearest data point [r0].
+        distance to the nearest data point [r0] (and, ``with_index``, the index of the data
+        point whose quadric was used).
+
+        ``hint`` (m,) int: a data point near each position (-1: none), e.g. the index of its
+        previous anchor: the nearest data point is then found by a short walk on
+        :attr:`walk_neighbors` (the grid answers where the walk cannot prove its result, so
+        the answers do not depend on the hints).
 
         The local surface is the quadric height field of the nearest data point (with
         ``normals``: the nearest whose normal agrees, so that a particle on one side of a thin
@@ -165,6 +216,12 @@ class DataSurface:
         if m and grid.grid is not None:
             qn = q if normals is None else np.ascontiguousarray(normals, dtype=np.float64)
             frames = (self.plane_points, self.plane_normals, self.tangents, self.quadrics)
+            if hint is None or self.walk_neighbors is None:
+                hint = np.full(m, -1, dtype=np.int64)
+                walk_nbr, walk_reach = _NO_WALK
+            else:
+                hint = np.ascontiguousarray(hint, dtype=np.int64).reshape(m)
+                walk_nbr, walk_reach = self.walk_neighbors, self.walk_reach
             with timed_threads(_ANCHOR_THREADS, m):
                 anchor_feet_kernel(
                     q,
@@ -181,6 +238,10 @@ class DataSurface:
                     dist,
                     idx,
                     ok,
+                    hint,
+                    self.points,
+                    walk_nbr,
+                    walk_reach,
                 )
         rest = np.flatnonzero(~ok)
         if len(rest):  # far from the data: the k-d tree answers
@@ -188,6 +249,8 @@ class DataSurface:
             foot[rest], nrm[rest], dist[rest], idx[rest] = f, n_, d, i
         if self.creases is not None:  # crease hook: per-side planes near creases
             foot, nrm = self.creases.adjust(q, normals, foot, nrm)
+        if with_index:
+            return foot, nrm, dist, idx
         return foot, nrm, dist
 
     def _anchors_tree(

@@ -12,6 +12,7 @@ import pytest
 from recon.config import ReconConfig
 from recon.dynamics import Simulation, StepStats, warmup
 from recon.errors import ConfigError, DivergenceError
+from recon.forces import accumulate_forces
 from recon.params import PhysicsParams
 from recon.state import ParticleState
 from tests.reference import (
@@ -245,6 +246,23 @@ def test_pinned_particles_do_not_move_or_rotate():
     np.testing.assert_array_equal(state.orientation[pinned], q0[pinned])
     assert np.all(state.velocity[pinned] == 0) and np.all(state.angular_velocity[pinned] == 0)
     assert np.max(np.abs(state.position[~pinned] - x0[~pinned])) > 1e-3
+
+
+def test_step_skips_pinned_particles_terms():
+    """A step evaluates only the particles that move: its potential is the mobile particles'
+    shares of the full evaluation, and the mobile particles follow the same path."""
+    state = _patch(6)
+    pinned = np.zeros(state.n, dtype=bool)
+    pinned[::3] = True
+    state.set_pinned(pinned)
+    sim = Simulation(state, DEFAULTS)
+    sim.set_anchors(state.position + 0.05, state.normal, 1.0, 0.5)
+    full = accumulate_forces(
+        state, DEFAULTS, neighbors=sim.neighbors, anchors=sim.anchors, parallel=False
+    )
+    shares = full.energy_per_particle
+    assert sim.step().potential == pytest.approx(float(np.sum(shares[~pinned])), rel=1e-12)
+    assert float(np.sum(shares[pinned])) != 0.0  # the skipped shares were not zero
 
 
 def test_unoriented_particles_keep_their_frame():

@@ -69,3 +69,39 @@ def test_anchors_are_refreshed_only_for_the_particles_that_moved():
     sched.forget_anchors()
     pts, nrm = sched.refresh_anchors(state)
     assert np.array_equal(pts, exact) and np.array_equal(nrm, exact_n)
+
+
+def test_anchors_follow_their_particles_through_a_growth_round():
+    """Appending particles and sorting them keeps the others' anchors: the next refresh
+    queries only the new particles, and gives what a full refresh would."""
+    from recon.config import ReconConfig
+    from recon.fitting.schedule import Clock, _Schedule
+    from recon.state import ParticleState
+    from recon.surface import DataSurface
+
+    rng = np.random.default_rng(3)
+    xy = rng.uniform(-10, 10, (3000, 2))
+    data = np.column_stack([xy, 0.02 * (xy**2).sum(axis=1)])
+    surface = DataSurface.build(data, np.tile([0.0, 0.0, 1.0], (len(data), 1)), k=16)
+    sched = _Schedule(surface, ReconConfig(), np.random.default_rng(0), Clock(None), None)
+    up = np.tile([0.0, 0.0, 1.0], (40, 1))
+    state = ParticleState.from_points(
+        np.column_stack([rng.uniform(-5, 5, (40, 2)), np.full(40, 0.3)]), up
+    )
+    sched.refresh_anchors(state)
+    state.add(np.column_stack([rng.uniform(-5, 5, (7, 2)), np.full(7, -0.2)]), up[:7])
+    order = rng.permutation(state.n)
+    state.reorder(order)
+    sched.reorder_anchors(7, order)
+    queried = []
+    anchors = surface.anchors
+
+    def spy(positions, normals=None, **kw):
+        queried.append(len(positions))
+        return anchors(positions, normals, **kw)
+
+    surface.anchors = spy
+    pts, nrm = sched.refresh_anchors(state)
+    exact, exact_n, _ = anchors(state.position, state.normal)
+    assert queried == [7]
+    assert np.array_equal(pts, exact) and np.array_equal(nrm, exact_n)

@@ -212,3 +212,71 @@ def test_adaptive_spacing_uses_larger_particles_on_flat_data_and_reports_the_ran
     assert adaptive.report.particles < 0.9 * uniform.report.particles  # ... fewer of them
     back = FitReport.from_dict(json.loads(dumps(adaptive.report.to_dict())))
     assert back.spacing_range == adaptive.report.spacing_range
+
+
+def test_density_scale_reuses_the_data_spacing():
+    """_triangulate queries the data's k-NN once: local_density_scale given the spacings
+    gives the same scales without querying the tree for them."""
+    from scipy.spatial import cKDTree
+
+    from recon.fitting.pipeline import DENSITY_NEIGHBOURS, local_density_scale
+
+    rng = np.random.default_rng(5)
+    pts = rng.uniform(0, 10, (600, 3)) * [1.0, 1.0, 0.0]
+    pts[:100] *= 0.2  # a denser corner
+    tree = cKDTree(pts)
+    q = rng.uniform(0, 10, (50, 3)) * [1.0, 1.0, 0.0]
+    local = tree.query(pts, DENSITY_NEIGHBOURS + 1)[0][:, -1]
+    expected = local_density_scale(tree, pts, q, 4.0)
+    calls = []
+
+    class Spy:
+        def query(self, x, *args, **kw):
+            calls.append(len(x))
+            return tree.query(x, *args, **kw)
+
+    got = local_density_scale(Spy(), pts, q, 4.0, local=local)
+    np.testing.assert_array_equal(got, expected)
+    assert calls == [len(q)] and expected.max() > 1.0
+
+
+def test_stages_share_one_neighbor_query():
+    """The normals, the crease detection and the local surfaces take their neighbours from one
+    k-d tree query (shared_neighbors) and give what their own queries give."""
+    from recon.cloud import PointCloud
+    from recon.creases import detect_creases
+    from recon.fitting.pipeline import SHARED_NEIGHBORS_MAX, shared_neighbors
+    from recon.normals import compute_normals
+    from recon.surface import DataSurface
+
+    rng = np.random.default_rng(6)
+    p = rng.normal(size=(3000, 3))
+    p /= np.linalg.norm(p, axis=1, keepdims=True)
+    p[:, 2] = np.minimum(p[:, 2], 0.4)  # a cap cut off: a crease
+    p += rng.normal(0.0, 0.002, p.shape)
+    cfg = ReconConfig()
+    knn = shared_neighbors(p, cfg)
+    assert knn is not None and knn[1].shape == (len(p), SHARED_NEIGHBORS_MAX)
+    cloud = PointCloud(points=p, origin=np.zeros(3))
+    own, _ = compute_normals(cloud, cfg.normals)
+    shared, _ = compute_normals(cloud, cfg.normals, neighbors=knn)
+    np.testing.assert_array_equal(shared, own)
+    from recon.normals import estimate_normals
+
+    narrow = (knn[0][:, :5], knn[1][:, :5])  # fewer than k columns: queried instead
+    np.testing.assert_array_equal(
+        estimate_normals(p, k=20, neighbors=narrow), estimate_normals(p, k=20)
+    )
+    a = detect_creases(p, own, angle_deg=cfg.creases.angle_deg, k=cfg.creases.k)
+    b = detect_creases(p, own, angle_deg=cfg.creases.angle_deg, k=cfg.creases.k, neighbors=knn)
+    assert a.n_crease_points > 0
+    np.testing.assert_array_equal(a.labels, b.labels)
+    np.testing.assert_array_equal(a.side_normals, b.side_normals)
+    r0 = 0.05
+    s1 = DataSurface.build(p / r0, own, k=cfg.normals.k)
+    s2 = DataSurface.build(p / r0, own, k=cfg.normals.k, neighbors=(knn[0] / r0, knn[1]))
+    for name in ("plane_points", "plane_normals", "quadrics", "walk_neighbors"):
+        np.testing.assert_array_equal(getattr(s1, name), getattr(s2, name))
+    # noisy data raise normals.k: the widest use no longer fits, each stage queries its own
+    wide = load_config(overrides=["normals.k=40", "normals.auto_scale=false"])
+    assert shared_neighbors(p, wide) is None

@@ -89,3 +89,38 @@ def test_feature_spacing_small_on_thin_parts_large_on_flat_ones():
     assert np.allclose(thin[inner], 0.5)
     assert np.all((flat >= 0.5) & (flat <= 1.5))
     assert np.median(flat) == pytest.approx(1.5)
+
+
+def test_anchor_hints_give_the_same_anchors():
+    """A walk from a hint (near, far, or a duplicate's twin) ends on the exact nearest data
+    point, ties by index, or hands the query to the grid: the anchors never change."""
+    rng = np.random.default_rng(4)
+    xy = rng.uniform(-10, 10, (4000, 2))
+    p = np.column_stack([xy, 0.03 * (xy**2).sum(axis=1) + rng.normal(0, 0.05, len(xy))])
+    p[::50] = p[1::50]  # duplicates: ties broken by index
+    nrm = np.tile([0.0, 0.0, 1.0], (len(p), 1))
+    s = DataSurface.build(p, nrm, k=20)
+    q = p[rng.integers(0, len(p), 3000)] + rng.normal(0, 0.3, (3000, 3))
+    q[:10] += [0.0, 0.0, 5.0]  # far off the data: the walk cannot prove its result
+    qn = np.tile([0.0, 0.0, 1.0], (len(q), 1))
+    qn[::7] *= -1.0  # disagreeing normals: the k nearest are searched
+    exact = s.anchors(q, qn, with_index=True)
+    _, near = cKDTree(p).query(q)
+    for hint in (near, rng.integers(0, len(p), len(q)), np.full(len(q), -1)):
+        got = s.anchors(q, qn, hint=hint, with_index=True)
+        for a, b in zip(got, exact, strict=True):
+            np.testing.assert_array_equal(a, b)
+
+
+def test_walk_certifies_only_what_its_table_covers():
+    from recon.kernels.grid_query import _walk_nearest
+
+    g = np.stack(np.meshgrid(np.arange(10.0), np.arange(10.0)), -1).reshape(-1, 2)
+    pts = np.column_stack([g, np.zeros(len(g))])
+    _, nbr = cKDTree(pts).query(pts, k=9)
+    nbr = nbr.astype(np.int32)
+    reach = np.full(len(pts), np.sqrt(2.0))  # the 8 around a point and itself
+    j, d2, ok = _walk_nearest(7.2, 6.9, 0.1, 0, pts, nbr, reach)
+    assert (j, ok) == (7 * 10 + 7, True) and d2 == pytest.approx(0.04 + 0.01 + 0.01)
+    # 0.8 off the grid: a point as near could lie beyond the table (2 d > its reach)
+    assert _walk_nearest(7.2, 6.9, 0.8, 0, pts, nbr, reach)[2] is False

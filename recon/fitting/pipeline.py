@@ -32,6 +32,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from ..attributes import check_attribute_output, check_transfer, transfer_for_output
 from ..cloud import PointCloud
@@ -43,7 +44,7 @@ from ..errors import InputError
 from ..geometry import bbox_diagonal
 from ..intersections import untangle
 from ..kernels.options import query_workers, thread_count
-from ..normals import compute_normals
+from ..normals import compute_normals, neighbors_needed
 from ..serialize import dumps
 from ..state import ParticleState
 from ..surface import DataSurface
@@ -76,6 +77,7 @@ __all__ = [
     "fit_file",
     "fit_particles",
     "local_density_scale",
+    "shared_neighbors",
     "reconstruct",
 ]
 
@@ -163,15 +165,20 @@ def data_spacing(surface: DataSurface) -> np.ndarray:
     return dk[:, -1]
 
 
-def density_spacing(surface: DataSurface, positions: np.ndarray, max_scale: float) -> np.ndarray:
+def density_spacing(
+    surface: DataSurface,
+    positions: np.ndarray,
+    max_scale: float,
+    local: np.ndarray | None = None,
+) -> np.ndarray:
     """Per-particle spacing [r0] from the local data density: 1 where the data is less than
     ``DENSITY_TOLERANCE`` times sparser than its median, up to ``max_scale`` where it is sparser.
 
     The local point spacing is each data point's distance to its ``DENSITY_NEIGHBOURS``-th
     neighbour; a particle takes that of its nearest data point, divided by the median and by
-    ``DENSITY_TOLERANCE``.
+    ``DENSITY_TOLERANCE``. ``local``: :func:`data_spacing` of ``surface`` when already known.
     """
-    return local_density_scale(surface.tree, surface.points, positions, max_scale)
+    return local_density_scale(surface.tree, surface.points, positions, max_scale, local=local)
 
 
 def local_density_scale(
@@ -180,14 +187,17 @@ def local_density_scale(
     positions: np.ndarray,
     max_scale: float,
     median: float | None = None,
+    local: np.ndarray | None = None,
 ) -> np.ndarray:
     """:func:`density_spacing` over a k-d ``tree`` of the data ``points`` [r0]; ``median`` is
     the median local spacing [r0] (default: that of ``points``; a tile of a tiled fit passes
-    the whole scan's)."""
+    the whole scan's); ``local``: each point's spacing (:func:`data_spacing`), queried here
+    when None."""
     if max_scale <= 1.0 or len(points) <= DENSITY_NEIGHBOURS:
         return np.ones(len(positions))
-    dk, _ = tree.query(points, DENSITY_NEIGHBOURS + 1, workers=query_workers())
-    local = dk[:, -1]
+    if local is None:
+        dk, _ = tree.query(points, DENSITY_NEIGHBOURS + 1, workers=query_workers())
+        local = dk[:, -1]
     _, nearest = tree.query(positions, workers=query_workers())
     if median is None:
         median = float(np.median(local))
@@ -207,14 +217,16 @@ def _triangulate(
     tri_cfg = cfg.triangulation
     max_hole = tri_cfg.max_hole if tri_cfg.max_hole is not None else cfg.growth.max_gap
     spacing = None
+    sampling = data_spacing(surface)  # one k-NN query of the data serves both uses
     if tri_cfg.max_density_scale > 1.0:
-        spacing = density_spacing(surface, state.position, tri_cfg.max_density_scale)
+        spacing = density_spacing(
+            surface, state.position, tri_cfg.max_density_scale, local=sampling
+        )
     if cfg.seeds.adaptive and state.n:
         rest = np.array(state.rest, dtype=float)
         spacing = rest if spacing is None else np.maximum(spacing, rest)
     # a sample k times sparser than the median covers k times farther, up to the same limit
     # as the ball radii (max_density_scale; 1 when that is off)
-    sampling = data_spacing(surface)
     sparser = np.clip(
         sampling / max(float(np.median(sampling)), 1e-12) if len(sampling) else sampling,
         1.0,
@@ -263,13 +275,40 @@ def _crease_normals(
     return v, f, normals, None
 
 
+#: The stages before the dynamics (normal estimate and orientation graph, crease detection,
+#: local surfaces) share one k-nearest query of the data when together they need at most this
+#: many neighbours per point (16 bytes each while it is held; wider: each queries its own).
+SHARED_NEIGHBORS_MAX = 48
+
+
+def shared_neighbors(points: np.ndarray, cfg: ReconConfig) -> tuple[np.ndarray, np.ndarray] | None:
+    """One k-d tree query of the data for every stage before the dynamics: (distances,
+    indices) of each point's nearest points, nearest first; None when the widest use exceeds
+    ``SHARED_NEIGHBORS_MAX`` (noisy data with a raised ``normals.k``) or the data is tiny."""
+    n = len(points)
+    widest = [2 * cfg.normals.k, neighbors_needed(cfg.normals)]  # local surfaces, normals
+    if cfg.creases.enabled:
+        widest.append(cfg.creases.k)
+    m = max(widest)
+    if m > SHARED_NEIGHBORS_MAX or m >= n:
+        return None
+    dist, idx = cKDTree(points).query(points, k=m, workers=query_workers())
+    return dist, idx
+
+
 def _detect_creases(
-    points: np.ndarray, normals: np.ndarray, cfg: ReconConfig, diag: float
+    points: np.ndarray,
+    normals: np.ndarray,
+    cfg: ReconConfig,
+    diag: float,
+    neighbors: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> tuple[Creases | None, CreaseStats | None]:
     """Sharp creases and corners of the data: the detection and the report's section."""
     if not cfg.creases.enabled:
         return None, None
-    found = detect_creases(points, normals, angle_deg=cfg.creases.angle_deg, k=cfg.creases.k)
+    found = detect_creases(
+        points, normals, angle_deg=cfg.creases.angle_deg, k=cfg.creases.k, neighbors=neighbors
+    )
     return found, CreaseStats(
         angle_deg=cfg.creases.angle_deg,
         length=found.length,
@@ -360,17 +399,21 @@ def _fit_sheet(cloud: PointCloud, cfg: ReconConfig, on_progress: ProgressFn | No
     points = np.asarray(cloud.points, dtype=np.float64)
 
     cfg = with_neighborhood_size(points, cfg)
-    normals, normals_info = compute_normals(cloud, cfg.normals)
+    knn = shared_neighbors(points, cfg)
+    normals, normals_info = compute_normals(cloud, cfg.normals, neighbors=knn)
     clock.lap("normals")
     clock.check()
-    found, creases = _detect_creases(points, normals, cfg, bbox_diagonal(points))
+    found, creases = _detect_creases(points, normals, cfg, bbox_diagonal(points), knn)
     if found is not None:  # a crease fixes the normals' orientation across it
         normals, found, _ = orient_across_creases(points, normals, found, k=cfg.creases.k)
 
     r0, d_nn = choose_spacing(points, cfg)
     check_grid_size(points, r0)
     cfg = with_max_gap(cfg, r0, d_nn)
-    surface = DataSurface.build(points / r0, normals, k=cfg.normals.k)
+    if knn is not None:
+        knn[0][...] /= r0  # in place: the distances in r0 (no copy of the query is made)
+    surface = DataSurface.build(points / r0, normals, k=cfg.normals.k, neighbors=knn)
+    del knn
     if found is not None and cfg.creases.fit:  # per-side planes and crease particles
         surface.creases = CreaseField.build(found, surface.points, r0)
     clock.lap("setup")

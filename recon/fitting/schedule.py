@@ -328,20 +328,36 @@ class _Schedule:
         :meth:`forget_anchors`)."""
         pos = state.position
         if self._anchor_ref is None or len(self._anchor_ref) != state.n:
-            pts, nrm, _ = self.surface.anchors(pos, state.normal)
+            pts, nrm, _, idx = self.surface.anchors(pos, state.normal, with_index=True)
             self._anchor_ref, self._anchor_pts, self._anchor_nrm = pos.copy(), pts, nrm
+            self._anchor_idx = idx
             return pts, nrm
         d = pos - self._anchor_ref
         moved = np.flatnonzero(np.einsum("ij,ij->i", d, d) > ANCHOR_MOVE * ANCHOR_MOVE)
         if len(moved):
-            pts, nrm, _ = self.surface.anchors(pos[moved], state.normal[moved])
+            # the previous anchors' data points start the search (same anchors, found sooner)
+            pts, nrm, _, idx = self.surface.anchors(
+                pos[moved], state.normal[moved], hint=self._anchor_idx[moved], with_index=True
+            )
             self._anchor_pts[moved], self._anchor_nrm[moved] = pts, nrm
-            self._anchor_ref[moved] = pos[moved]
+            self._anchor_ref[moved], self._anchor_idx[moved] = pos[moved], idx
         return self._anchor_pts, self._anchor_nrm
+
+    def reorder_anchors(self, added: int, order: np.ndarray) -> None:
+        """``added`` particles were appended and then all reordered by ``order`` (new i = old
+        ``order[i]``): the kept anchors follow their particles and the new particles get theirs
+        at the next refresh (the others keep theirs until they move, as between rounds)."""
+        if self._anchor_ref is None:
+            return
+        pad = np.full((added, 3), np.inf)  # never equal to a position: refreshed next
+        self._anchor_ref = np.vstack([self._anchor_ref, pad])[order]
+        self._anchor_pts = np.vstack([self._anchor_pts, np.zeros((added, 3))])[order]
+        self._anchor_nrm = np.vstack([self._anchor_nrm, np.zeros((added, 3))])[order]
+        self._anchor_idx = np.concatenate([self._anchor_idx, np.full(added, -1)])[order]
 
     def forget_anchors(self) -> None:
         """The particles changed (added, reordered, restored): refresh every anchor next."""
-        self._anchor_ref = self._anchor_pts = self._anchor_nrm = None
+        self._anchor_ref = self._anchor_pts = self._anchor_nrm = self._anchor_idx = None
 
     def at_rest(self, kinetic: float) -> bool:
         """Whether the kinetic energy per particle is below ``dynamics.kinetic_tolerance``."""
@@ -482,8 +498,8 @@ class _Schedule:
                 rest=1.0 if new_rest is None else new_rest,
             )
             sim.notify_changed()
-            sim.sort_particles()  # the new particles were appended at the end
-            self.forget_anchors()
+            order = sim.sort_particles()  # the new particles were appended at the end
+            self.reorder_anchors(added, order)
         log.debug(
             "growth: %d candidates, %d added (%d close, %d unsupported, %d off-plane), "
             "%d particles",

@@ -189,6 +189,52 @@ def knn_grid_kernel(
             out_i[i, a] = best_i[a]
 
 
+#: Relative margin of the walk's certificate (absorbs the rounding of the distances).
+WALK_MARGIN = 1e-9
+#: Hops after which a walk gives up (the grid answers the query).
+WALK_MAX_HOPS = 64
+
+
+@njit(inline="always", **EXACT_JIT_OPTIONS)
+def _walk_nearest(q0, q1, q2, start, points, walk_nbr, walk_reach):
+    r"""Nearest data point to q by descent on the data's neighbour table, with a certificate.
+
+    From ``start``, move to the best of the current point's table entries (least squared
+    distance, ties by index, the order of :func:`_knn_one`) while that improves. At the end
+    point j with distance d, every data point p at least as near to q has
+    \|p - p_j\| <= 2 d (triangle inequality); if 2 d < ``walk_reach[j]`` (the distance of j's
+    last table entry, so every point nearer than it is in the table) p was compared, and j is
+    the exact nearest.
+
+    Returns
+    -------
+    (j, d2, certified) : the end point, its squared distance, and whether it is exact.
+    """
+    cur = start
+    e0 = points[cur, 0] - q0
+    e1 = points[cur, 1] - q1
+    e2 = points[cur, 2] - q2
+    cur_d2 = e0 * e0 + e1 * e1 + e2 * e2
+    for _ in range(WALK_MAX_HOPS):
+        nxt = cur
+        nxt_d2 = cur_d2
+        for a in range(walk_nbr.shape[1]):
+            j = walk_nbr[cur, a]
+            e0 = points[j, 0] - q0
+            e1 = points[j, 1] - q1
+            e2 = points[j, 2] - q2
+            d2 = e0 * e0 + e1 * e1 + e2 * e2
+            if d2 < nxt_d2 or (d2 == nxt_d2 and j < nxt):
+                nxt = j
+                nxt_d2 = d2
+        if nxt == cur:
+            bound = 2.0 * math.sqrt(cur_d2) * (1.0 + WALK_MARGIN)
+            return cur, cur_d2, bound < walk_reach[cur] * (1.0 - WALK_MARGIN)
+        cur = nxt
+        cur_d2 = nxt_d2
+    return cur, cur_d2, False
+
+
 @njit(**_PARALLEL)
 def anchor_feet_kernel(
     query,
@@ -205,6 +251,10 @@ def anchor_feet_kernel(
     out_dist,
     out_idx,
     out_ok,
+    hint,
+    points,
+    walk_nbr,
+    walk_reach,
 ):  # pragma: no cover - numba
     """Nearest agreeing data point and the foot point on its local quadric, per query.
 
@@ -216,17 +266,40 @@ def anchor_feet_kernel(
     the row is not written.
 
     The nearest point is searched first (a 1-nearest search ends after fewer cells); only when
-    it disagrees are the ``k`` nearest searched, which gives the same choice.
+    it disagrees are the ``k`` nearest searched, which gives the same choice. Where
+    ``hint[i] >= 0`` (a data point near the query, e.g. its previous anchor) the nearest point
+    is first found by :func:`_walk_nearest` on the data ``points`` and their neighbour table
+    (``walk_nbr`` (n, K) with the distances ``walk_reach`` (n,) of the last entries); the grid
+    answers when the walk cannot certify its result, so the answer is the same.
     """
     plane_points, plane_normals, tangents, quadrics = frames
     m = query.shape[0]
     for i in prange(m):
         best_d2 = np.empty(k)
         best_i = np.empty(k, dtype=np.int64)
-        # fast path: the nearest point alone (the shells end sooner) when it agrees
-        found, ok = _knn_one(
-            query[i, 0], query[i, 1], query[i, 2], grid, cell_size, 1, max_ring, best_d2, best_i
-        )
+        certified = False
+        if hint[i] >= 0:
+            j0, d0, certified = _walk_nearest(
+                query[i, 0], query[i, 1], query[i, 2], hint[i], points, walk_nbr, walk_reach
+            )
+            best_i[0] = j0
+            best_d2[0] = d0
+        if certified:
+            found = 1
+            ok = True
+        else:
+            # fast path: the nearest point alone (the shells end sooner) when it agrees
+            found, ok = _knn_one(
+                query[i, 0],
+                query[i, 1],
+                query[i, 2],
+                grid,
+                cell_size,
+                1,
+                max_ring,
+                best_d2,
+                best_i,
+            )
         if ok and found == 1:
             j = best_i[0]
             agrees = (

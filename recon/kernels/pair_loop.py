@@ -385,7 +385,8 @@ def step_particles(
     stats : (n, N_STATS) float64
         Per-particle output (written): energy share ½Σ_j E_ij + E^A_i, kinetic energy after and
         before, squared displacement since the list build, squared speed, status bits, force
-        (3) [1/length] and torque (3).
+        (3) [1/length] and torque (3). With ``integrate``, pinned particles skip their pair and
+        anchor terms (they do not move): their energy share, force and torque are 0.
 
     Returns
     -------
@@ -466,7 +467,11 @@ def step_particles(
         sw0 = 0.0
         sw1 = 0.0
         sw2 = 0.0
-        for k in range(offsets[i], offsets[i + 1]):
+        # a pinned particle does not move: its pair and anchor terms are not needed when
+        # stepping (its energy share counts as 0; force-only calls evaluate every particle)
+        active = not (integrate and is_pinned[i])
+        row_end = offsets[i + 1] if active else offsets[i]
+        for k in range(offsets[i], row_end):
             j = indices[k]
             rx = position[j, 0] - x0
             ry = position[j, 1] - x1
@@ -503,7 +508,7 @@ def step_particles(
                 sw2 += w2 - angular_velocity[j, 2]
 
         # ---- anchors (data pull) and external force
-        if has_anchors:
+        if has_anchors and active:
             a = anchor_interaction(
                 x0,
                 x1,
