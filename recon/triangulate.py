@@ -27,6 +27,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import open3d as o3d
+from scipy import sparse
+from scipy.sparse import csgraph
 from scipy.spatial import cKDTree
 
 from .config import TriangulationConfig
@@ -45,6 +47,7 @@ from .mesh import (
     vertex_fans,
 )
 from .neighbors import build_neighbor_list
+from .normals import orient_normals
 
 log = logging.getLogger(__name__)
 
@@ -85,6 +88,12 @@ SHEET_AREA_FACTOR = 4.0
 SEAM_SUPPORT = 0.9
 #: Rounds of dropping faces on orientation conflicts (a dropped face can expose another).
 ORIENTATION_ROUNDS = 5
+#: Particle normals are re-signed (:func:`consistent_normals`) over this many nearest
+#: particles: the first ring of an evenly spaced sheet.
+PARTICLE_ORIENT_K = 6
+#: ... with this extra cost on edges that cross the surface (``normals.thin_parts``' default),
+#: so the two faces of a thin part are not joined across the gap.
+PARTICLE_ACROSS_COST = 0.3
 
 
 def triangulate_particles(
@@ -140,6 +149,7 @@ def triangulate_particles(
             positions, np.zeros((0, 3), dtype=np.int64), normals, {"method": cfg.method}
         )
     if cfg.method == "ball_pivoting":
+        normals = consistent_normals(positions, normals)
         pivot = positions if crease is None else pivot_positions(positions, normals, crease)
         faces = ball_pivoting(pivot, normals, ball_radii(cfg.radii, scale))
         if scale is not None:
@@ -189,6 +199,35 @@ def triangulate_particles(
     vertices, vnormals, faces = drop_unreferenced(vertices, vnormals, faces)
     faces = orient_consistently(vertices, vnormals, faces)
     return TriangulationResult(vertices, faces, vnormals, stats, on_crease)
+
+
+def consistent_normals(positions: np.ndarray, normals: np.ndarray) -> np.ndarray:
+    """The particles' normals, re-signed consistently over the particle sheet.
+
+    Ball pivoting needs consistently oriented normals: it does not join a patch whose normals
+    point the other way, which is left as a separate one-sided sheet with a loop round it.
+    The particles take their signs from the data normals, whose orientation can fail where a
+    sparse neighbourhood holds both faces of a thin part (bunny-sparse's ear tips). The
+    particle sheet is evenly spaced at about r0, so its neighbourhoods are narrower than the
+    data's: Hoppe's propagation (:func:`recon.normals.orient_normals`) over its
+    ``PARTICLE_ORIENT_K`` nearest particles, with thin-part edges asking for opposed signs
+    (``PARTICLE_ACROSS_COST``), re-signs it. Each connected part of that neighbour graph then
+    keeps the global sign most of its fitted normals agree with. Directions never change,
+    only signs.
+    """
+    n = len(positions)
+    if n <= PARTICLE_ORIENT_K:
+        return normals
+    signed, _ = orient_normals(
+        positions, normals, k=PARTICLE_ORIENT_K, orientation="none",
+        across_cost=PARTICLE_ACROSS_COST,
+    )  # fmt: skip
+    _, idx = cKDTree(positions).query(positions, PARTICLE_ORIENT_K + 1)
+    rows = np.repeat(np.arange(n), PARTICLE_ORIENT_K)
+    graph = sparse.coo_matrix((np.ones(len(rows)), (rows, idx[:, 1:].ravel())), shape=(n, n))
+    n_parts, part = csgraph.connected_components(graph, directed=False)
+    vote = np.bincount(part, weights=np.einsum("ij,ij->i", signed, normals), minlength=n_parts)
+    return signed * np.where(vote[part] < 0, -1.0, 1.0)[:, None]
 
 
 def ball_radii(radii: list[float], scale: np.ndarray | None = None) -> list[float]:

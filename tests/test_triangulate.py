@@ -400,3 +400,52 @@ def test_orientation_conflict_is_cut_where_the_normals_turn_over():
     # every face left agrees with its vertex normals: the cut is at the seam
     agree = np.einsum("ij,ij->i", face_area_vectors(p, kept), nrm[kept].sum(axis=1))
     assert np.all(agree > 0)
+
+
+def _fibonacci_sphere(n=1200):
+    """``n`` particles on a sphere about 0.9 r0 apart, and their outward normals."""
+    i = np.arange(n) + 0.5
+    z = 1 - 2 * i / n
+    phi = np.pi * (1 + 5**0.5) * i
+    u = np.stack([np.sqrt(1 - z * z) * np.cos(phi), np.sqrt(1 - z * z) * np.sin(phi), z], 1)
+    return u * np.sqrt(n * np.sqrt(3) / 2 / (4 * np.pi)), u
+
+
+def test_a_patch_of_flipped_particle_normals_is_re_signed_before_meshing():
+    """bunny-sparse: the data normals at the ear tips came out with the wrong sign (two sides
+    of a thin part inside one sparse neighbourhood), the particles followed them, and ball
+    pivoting (which needs consistent normals) left the patch as a separate one-sided
+    component with a loop round it. Signs propagated over the evenly spaced particle sheet
+    repair it."""
+    from recon.triangulate import consistent_normals
+
+    p, u = _fibonacci_sphere()
+    n = u.copy()
+    cap = u @ (np.array([0.3, 0.5, 0.81]) / np.linalg.norm([0.3, 0.5, 0.81])) > 0.93
+    n[cap] *= -1
+    assert 30 < cap.sum() < 60
+    fixed = consistent_normals(p, n)
+    assert np.all(np.einsum("ij,ij->i", fixed, u) > 0.99)
+    res = triangulate_particles(p, n, TriangulationConfig(), max_hole=4.0)
+    t = mesh_topology(res.vertices, res.faces)
+    assert t["components"] == 1 and t["watertight"] and t["genus"] == 0
+
+
+def test_re_signing_keeps_the_two_faces_of_a_thin_plate_opposed():
+    """Two sheets 2 r0 apart (a thin plate's faces): the top sheet has a wrong patch, which is
+    re-signed; no sign crosses the gap (the bottom keeps facing down)."""
+    from recon.triangulate import consistent_normals
+
+    top, _ = _hex_sheet(16)
+    bottom = top + [0.0, 0.0, -2.0]
+    p = np.vstack([top, bottom])
+    want = np.vstack(
+        [np.tile([0.0, 0.0, 1.0], (len(top), 1)), np.tile([0, 0, -1.0], (len(top), 1))]
+    )
+    n = want.copy()
+    patch = np.linalg.norm(p[:, :2] - [2.0, 1.0], axis=1) < 2.5
+    patch[len(top) :] = False
+    n[patch] *= -1
+    assert patch.sum() >= 15
+    fixed = consistent_normals(p, n)
+    assert np.array_equal(fixed, want)
