@@ -449,3 +449,22 @@ def test_re_signing_keeps_the_two_faces_of_a_thin_plate_opposed():
     assert patch.sum() >= 15
     fixed = consistent_normals(p, n)
     assert np.array_equal(fixed, want)
+
+
+def test_re_signing_refuses_to_turn_over_a_patch_its_neighbours_agree_with(monkeypatch):
+    """face-scan+n (exact input normals): the propagation over the particles crossed the
+    sheet's edge wrongly and proposed turning a correct strip of 374 particles over, which
+    split the mesh into 3 components. A proposed patch is flipped only when more of its
+    tangential edges to the rest disagree in sign than agree."""
+    import recon.triangulate as tri
+
+    p, n = _hex_sheet(16)
+    strip = p[:, 0] > 3.0
+    wrong = n.copy()
+    wrong[strip] *= -1  # what a propagation gone wrong proposes
+
+    monkeypatch.setattr(tri, "orient_normals", lambda *a, **k: (wrong, None))
+    assert np.array_equal(tri.consistent_normals(p, n), n)  # the fitted signs were right
+    # ... while a patch that does disagree with its neighbours is still turned over
+    monkeypatch.setattr(tri, "orient_normals", lambda *a, **k: (n, None))
+    assert np.array_equal(tri.consistent_normals(p, wrong), n)
