@@ -417,7 +417,7 @@ def test_a_patch_of_flipped_particle_normals_is_re_signed_before_meshing():
     pivoting (which needs consistent normals) left the patch as a separate one-sided
     component with a loop round it. Signs propagated over the evenly spaced particle sheet
     repair it."""
-    from recon.triangulate import consistent_normals
+    from recon.particle_signs import consistent_normals
 
     p, u = _fibonacci_sphere()
     n = u.copy()
@@ -434,7 +434,7 @@ def test_a_patch_of_flipped_particle_normals_is_re_signed_before_meshing():
 def test_re_signing_keeps_the_two_faces_of_a_thin_plate_opposed():
     """Two sheets 2 r0 apart (a thin plate's faces): the top sheet has a wrong patch, which is
     re-signed; no sign crosses the gap (the bottom keeps facing down)."""
-    from recon.triangulate import consistent_normals
+    from recon.particle_signs import consistent_normals
 
     top, _ = _hex_sheet(16)
     bottom = top + [0.0, 0.0, -2.0]
@@ -456,7 +456,7 @@ def test_re_signing_refuses_to_turn_over_a_patch_its_neighbours_agree_with(monke
     sheet's edge wrongly and proposed turning a correct strip of 374 particles over, which
     split the mesh into 3 components. A proposed patch is flipped only when more of its
     tangential edges to the rest disagree in sign than agree."""
-    import recon.triangulate as tri
+    import recon.particle_signs as tri
 
     p, n = _hex_sheet(16)
     strip = p[:, 0] > 3.0
@@ -468,3 +468,20 @@ def test_re_signing_refuses_to_turn_over_a_patch_its_neighbours_agree_with(monke
     # ... while a patch that does disagree with its neighbours is still turned over
     monkeypatch.setattr(tri, "orient_normals", lambda *a, **k: (n, None))
     assert np.array_equal(tri.consistent_normals(p, wrong), n)
+
+
+def test_re_signing_takes_no_vote_across_a_crease(monkeypatch):
+    """lblock-gt remeshed to 2,000 faces: crease particles carry one side's normal, so their
+    neighbours on the other side see it near perpendicular; an almost-zero dot product of
+    the wrong sign turned a whole face (207 particles) over and split the mesh. Near
+    perpendicular neighbours say nothing about the sign."""
+    import recon.particle_signs as tri
+
+    p, n = _hex_sheet(16)
+    side = p[:, 0] > 3.0
+    tilt = np.deg2rad(91.0)  # the other side's normals, just past perpendicular to +z
+    n[side] = [np.sin(tilt), 0.0, np.cos(tilt)]
+    proposal = n.copy()
+    proposal[side] *= -1
+    monkeypatch.setattr(tri, "orient_normals", lambda *a, **k: (proposal, None))
+    assert np.array_equal(tri.consistent_normals(p, n), n)
