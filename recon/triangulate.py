@@ -45,6 +45,7 @@ from .mesh import (
     vertex_fans,
 )
 from .neighbors import build_neighbor_list
+from .particle_signs import consistent_normals
 
 log = logging.getLogger(__name__)
 
@@ -140,6 +141,7 @@ def triangulate_particles(
             positions, np.zeros((0, 3), dtype=np.int64), normals, {"method": cfg.method}
         )
     if cfg.method == "ball_pivoting":
+        normals = consistent_normals(positions, normals)
         pivot = positions if crease is None else pivot_positions(positions, normals, crease)
         faces = ball_pivoting(pivot, normals, ball_radii(cfg.radii, scale))
         if scale is not None:
@@ -291,12 +293,43 @@ def drop_overlaps(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return faces[~drop]
 
 
+def twisted_faces(vertices: np.ndarray, normals: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Faces on the manifold edges where the surface turns over: each face wound to agree with
+    its vertex normals (:func:`orient_faces`), the two faces of the edge run it the same way.
+    A boolean mask over faces.
+
+    On an orientable mesh with consistent vertex normals there are none; where a fold or a
+    twist joins a sheet to itself one-sidedly, these are the faces that join it.
+    """
+    twist = np.zeros(len(faces), dtype=bool)
+    if len(faces) == 0:
+        return twist
+    wound = orient_faces(vertices, normals, faces)
+    keys = edge_keys(wound, len(vertices))
+    forward = (wound < np.roll(wound, -1, axis=1)).ravel()  # edge k runs from lo to hi
+    order = np.argsort(keys, kind="stable")
+    k = keys[order]
+    first = np.ones(len(k), dtype=bool)
+    first[1:] = k[1:] != k[:-1]
+    start = np.flatnonzero(first)
+    count = np.diff(np.append(start, len(k)))
+    pair = start[count == 2]
+    a, b = order[pair], order[pair + 1]
+    same = forward[a] == forward[b]
+    twist[a[same] // 3] = True
+    twist[b[same] // 3] = True
+    return twist
+
+
 def orient_consistently(vertices: np.ndarray, normals: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """One winding per component, facing the side its vertex normals face (outward).
 
     Flips propagate across manifold edges (:func:`recon.mesh.orientation_flips`); where they
     conflict (a one-sided, Moebius-like seam, e.g. two sheets of a thin part glued crosswise)
-    the faces on the conflicting edges are dropped, which opens a small hole for hole filling.
+    faces are dropped, which opens a small hole for hole filling: the faces where the surface
+    turns over (:func:`twisted_faces`) when dropping them makes the mesh orientable and drops
+    no more faces than the conflicts, else the faces on the conflicting edges (which lie
+    where the search's fronts met, possibly far from the cause).
     Each component then keeps the winding that agrees with its vertex normals (area-weighted),
     and a closed component whose signed volume is negative is turned inside out.
     """
@@ -305,6 +338,14 @@ def orient_consistently(vertices: np.ndarray, normals: np.ndarray, faces: np.nda
     faces = faces.copy()
     for _ in range(ORIENTATION_ROUNDS):
         flip, conflict = orientation_flips(faces)
+        if conflict.any():
+            # cut where the surface turns over, if that is a smaller cut that works: the
+            # search's conflicts lie where its fronts happened to meet
+            twist = twisted_faces(vertices, normals, faces)
+            if 0 < twist.sum() <= conflict.sum():
+                cut_flip, cut_conflict = orientation_flips(faces[~twist])
+                if not cut_conflict.any():
+                    faces, flip, conflict = faces[~twist], cut_flip, cut_conflict
         faces[flip] = faces[flip][:, [0, 2, 1]]
         if not conflict.any():
             break

@@ -349,3 +349,139 @@ def test_single_covers_have_no_overlapping_faces():
     plate = np.vstack([grid, grid + [0.0, 0.0, 0.1]])
     both = np.vstack([top[:, ::-1], top + 16])  # the lower face wound downward
     assert len(overlapping_faces(plate, both)) == 0
+
+
+def _moebius(n=48, rows=3, radius=8.0, width=2.0, root_at=12):
+    """A Moebius strip, ``n`` columns of ``rows`` vertices, with its analytic normals (which
+    turn over across the seam between the last column and the first); faces numbered from
+    column ``root_at`` on, so the face-graph search of the orientation starts there."""
+    u = 2 * np.pi * np.arange(n) / n
+    s = np.linspace(-width / 2, width / 2, rows)
+    uu, ss = np.meshgrid(u, s, indexing="ij")
+    c, h = np.cos(uu / 2), np.sin(uu / 2)
+    p = np.stack(
+        [(radius + ss * c) * np.cos(uu), (radius + ss * c) * np.sin(uu), ss * h], axis=-1
+    ).reshape(-1, 3)
+    du = np.stack(  # d/du and d/ds of the surface, at s = 0 (the normal's direction there)
+        [-radius * np.sin(u), radius * np.cos(u), np.zeros(n)], axis=-1
+    )
+    ds = np.stack([np.cos(u / 2) * np.cos(u), np.cos(u / 2) * np.sin(u), np.sin(u / 2)], axis=-1)
+    nrm = np.cross(du, ds)
+    nrm = np.repeat(nrm / np.linalg.norm(nrm, axis=1, keepdims=True), rows, axis=0)
+    faces = []
+    for k in range(root_at, root_at + n):
+        i, j = k % n, (k + 1) % n
+        for r in range(rows - 1):
+            # across the seam the strip comes back turned over: row r meets row rows-1-r
+            rj, rj1 = (r, r + 1) if j > i else (rows - 1 - r, rows - 2 - r)
+            a, b, cc, d = i * rows + r, i * rows + r + 1, j * rows + rj, j * rows + rj1
+            faces += [[a, cc, d], [a, d, b]]
+    return p, nrm, orient_faces(p, nrm, np.array(faces))
+
+
+def test_orientation_conflict_is_cut_where_the_normals_turn_over():
+    """A one-sided (Moebius-like) connection is cut where the surface's normals turn over
+    against the winding, not where the face-graph search happens to close its cycle (on
+    bunny-sparse fitted with exact normals that cut ran across the head and opened a hole of
+    234 r0 perimeter, far from the one folded edge that made the mesh one-sided)."""
+    from recon.mesh import orientation_flips
+    from recon.triangulate import orient_consistently, twisted_faces
+
+    p, nrm, f = _moebius()
+    assert orientation_flips(f)[1].any()  # not orientable as it stands
+    twist = twisted_faces(p, nrm, f)
+    # the edges where the windings meet wrong lie on the seam (column 47 to column 0) only
+    col = f // 3
+    seam = ((col == 47) | (col == 0)).any(axis=1)
+    assert twist.any() and not (twist & ~seam).any()
+    kept = orient_consistently(p, nrm, f)
+    assert not orientation_flips(kept)[1].any()
+    assert len(kept) >= len(f) - 2 * 2 * 2  # at most the seam's faces (2 quads x 2 columns)
+    # every face left agrees with its vertex normals: the cut is at the seam
+    agree = np.einsum("ij,ij->i", face_area_vectors(p, kept), nrm[kept].sum(axis=1))
+    assert np.all(agree > 0)
+
+
+def _fibonacci_sphere(n=1200):
+    """``n`` particles on a sphere about 0.9 r0 apart, and their outward normals."""
+    i = np.arange(n) + 0.5
+    z = 1 - 2 * i / n
+    phi = np.pi * (1 + 5**0.5) * i
+    u = np.stack([np.sqrt(1 - z * z) * np.cos(phi), np.sqrt(1 - z * z) * np.sin(phi), z], 1)
+    return u * np.sqrt(n * np.sqrt(3) / 2 / (4 * np.pi)), u
+
+
+def test_a_patch_of_flipped_particle_normals_is_re_signed_before_meshing():
+    """bunny-sparse: the data normals at the ear tips came out with the wrong sign (two sides
+    of a thin part inside one sparse neighbourhood), the particles followed them, and ball
+    pivoting (which needs consistent normals) left the patch as a separate one-sided
+    component with a loop round it. Signs propagated over the evenly spaced particle sheet
+    repair it."""
+    from recon.particle_signs import consistent_normals
+
+    p, u = _fibonacci_sphere()
+    n = u.copy()
+    cap = u @ (np.array([0.3, 0.5, 0.81]) / np.linalg.norm([0.3, 0.5, 0.81])) > 0.93
+    n[cap] *= -1
+    assert 30 < cap.sum() < 60
+    fixed = consistent_normals(p, n)
+    assert np.all(np.einsum("ij,ij->i", fixed, u) > 0.99)
+    res = triangulate_particles(p, n, TriangulationConfig(), max_hole=4.0)
+    t = mesh_topology(res.vertices, res.faces)
+    assert t["components"] == 1 and t["watertight"] and t["genus"] == 0
+
+
+def test_re_signing_keeps_the_two_faces_of_a_thin_plate_opposed():
+    """Two sheets 2 r0 apart (a thin plate's faces): the top sheet has a wrong patch, which is
+    re-signed; no sign crosses the gap (the bottom keeps facing down)."""
+    from recon.particle_signs import consistent_normals
+
+    top, _ = _hex_sheet(16)
+    bottom = top + [0.0, 0.0, -2.0]
+    p = np.vstack([top, bottom])
+    want = np.vstack(
+        [np.tile([0.0, 0.0, 1.0], (len(top), 1)), np.tile([0, 0, -1.0], (len(top), 1))]
+    )
+    n = want.copy()
+    patch = np.linalg.norm(p[:, :2] - [2.0, 1.0], axis=1) < 2.5
+    patch[len(top) :] = False
+    n[patch] *= -1
+    assert patch.sum() >= 15
+    fixed = consistent_normals(p, n)
+    assert np.array_equal(fixed, want)
+
+
+def test_re_signing_refuses_to_turn_over_a_patch_its_neighbours_agree_with(monkeypatch):
+    """face-scan+n (exact input normals): the propagation over the particles crossed the
+    sheet's edge wrongly and proposed turning a correct strip of 374 particles over, which
+    split the mesh into 3 components. A proposed patch is flipped only when more of its
+    tangential edges to the rest disagree in sign than agree."""
+    import recon.particle_signs as tri
+
+    p, n = _hex_sheet(16)
+    strip = p[:, 0] > 3.0
+    wrong = n.copy()
+    wrong[strip] *= -1  # what a propagation gone wrong proposes
+
+    monkeypatch.setattr(tri, "orient_normals", lambda *a, **k: (wrong, None))
+    assert np.array_equal(tri.consistent_normals(p, n), n)  # the fitted signs were right
+    # ... while a patch that does disagree with its neighbours is still turned over
+    monkeypatch.setattr(tri, "orient_normals", lambda *a, **k: (n, None))
+    assert np.array_equal(tri.consistent_normals(p, wrong), n)
+
+
+def test_re_signing_takes_no_vote_across_a_crease(monkeypatch):
+    """lblock-gt remeshed to 2,000 faces: crease particles carry one side's normal, so their
+    neighbours on the other side see it near perpendicular; an almost-zero dot product of
+    the wrong sign turned a whole face (207 particles) over and split the mesh. Near
+    perpendicular neighbours say nothing about the sign."""
+    import recon.particle_signs as tri
+
+    p, n = _hex_sheet(16)
+    side = p[:, 0] > 3.0
+    tilt = np.deg2rad(91.0)  # the other side's normals, just past perpendicular to +z
+    n[side] = [np.sin(tilt), 0.0, np.cos(tilt)]
+    proposal = n.copy()
+    proposal[side] *= -1
+    monkeypatch.setattr(tri, "orient_normals", lambda *a, **k: (proposal, None))
+    assert np.array_equal(tri.consistent_normals(p, n), n)
