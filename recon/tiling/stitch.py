@@ -211,16 +211,17 @@ def repair_cell(
     n_frame: int,
     r0: float,
     max_hole: float,
+    cut: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict]:
     """Repair the seam zone of one dual cell: ``faces[n_frame:]`` may change, the first
-    ``n_frame`` (the frame: neighbouring cells' and tile interiors' faces that share a vertex
-    with them) may not.
+    ``n_frame`` (the frame: neighbouring cells' and tile interiors' faces around them) may not.
 
     The rules of the untiled fit: faces on over-shared edges
     dropped (the frame's kept first), bow-ties split, seam cracks (loops along a seam, small or
     narrow) zipped, the winding made consistent (and agreeing with the frame), then the small
-    holes orienting opened closed. Loops through a vertex only the frame uses (the sub-mesh's
-    cut-off edge) are never zipped.
+    holes orienting opened closed. Only loops through a vertex of an editable face are zipped,
+    never one through a vertex whose star the sub-mesh cuts off: ``cut`` marks those (one
+    flag per vertex); without it, the vertices only the frame uses.
 
     Returns the vertices (with copies appended), normals, the editable faces after the repair,
     and counts.
@@ -248,10 +249,16 @@ def repair_cell(
     stats["faces_dropped"] = int(n_edit - (~is_frame).sum())
 
     def close(v, f, fr, rule) -> list[np.ndarray]:
-        opened = _open_vertices(f, fr, len(v))
+        if cut is None:
+            opened = _open_vertices(f, fr, len(v))
+        else:  # bow-tie copies (appended) are where their sources were
+            opened = np.zeros(len(v), dtype=bool)
+            opened[: len(cut)] = cut
+        edited = np.zeros(len(v), dtype=bool)
+        edited[f[~fr].ravel()] = True
         chosen = []
         for loop in boundary_loops(f):
-            if len(loop) < 3 or opened[loop].any():
+            if len(loop) < 3 or opened[loop].any() or not edited[loop].any():
                 continue
             if rule(loop):
                 chosen.append(loop)
