@@ -324,6 +324,10 @@ class ParticleFit:
     steps : dict
     warnings : list of str
     stop_reason : str or None
+    crease : (n,) bool or None
+        The crease particles (unoriented, on a crease line or corner) when creases were
+        fitted, else None: the triangulation pivots and flips around them
+        (:func:`recon.triangulate.triangulate_particles`), as the untiled fit's does.
     """
 
     positions: np.ndarray
@@ -335,6 +339,7 @@ class ParticleFit:
     steps: dict
     warnings: list
     stop_reason: str | None
+    crease: np.ndarray | None = None
 
 
 @dataclass
@@ -404,6 +409,9 @@ def fit_particles(
         steps=dict(sheet.sched.steps),
         warnings=list(sheet.sched.warnings),
         stop_reason=sheet.sched.stop_reason,
+        crease=None
+        if sheet.surface.creases is None
+        else ~np.asarray(state.is_oriented, dtype=bool).copy(),
     )
 
 
