@@ -39,6 +39,7 @@ def tile_work(
     offset: tuple[float, float, float] = (0.0, 0.0, 0.0),
     stray: float = 0.0,
     crack: tuple[float, float] | None = None,
+    reversed_tile: int | None = None,
 ):
     """Write what the mesh tasks would: each tile's particles and its faces (centroid in its
     core); with ``defects`` one face across a seam is made twice and one is missing.
@@ -49,6 +50,7 @@ def tile_work(
     new vertex lies ``stray`` beyond the sheet (outside the input's bounds).
     ``crack`` (y0, y1): the faces of the one column of quads that straddles the seam x = 12
     are missing between y0 and y1 (a narrow crack along the seam).
+    ``reversed_tile``: that tile outputs its faces wound the other way.
     """
     v, f = lattice(n_tiles)
     v = v + np.asarray(offset)
@@ -86,6 +88,8 @@ def tile_work(
             rest=np.zeros(0),
         )
         ft = f[(centroid_tile == t) & ~missing]
+        if t == reversed_tile:
+            ft = ft[:, [0, 2, 1]]
         if t in extra:
             ft = np.vstack([ft, extra[t]])
         none = np.zeros((0, 3))
@@ -154,6 +158,18 @@ def test_a_seam_crack_running_into_the_next_dual_cell_is_zipped(tmp_path, crack)
     assert topo["duplicate_faces"] == 0 and topo["consistently_oriented"]
     assert len(f) == n_faces  # the crack's faces, made again
     assert out["topology"]["boundary_loops"] == 1
+
+
+def test_the_repair_orients_against_the_frame_next_to_the_zone_only(tmp_path):
+    """Each dual cell sees the zone and rim faces of the cells around it (to find cracks that
+    run on), but orients its zone against the frame faces that touch it, as before: with the
+    middle tile's faces wound the wrong way (its interior, which the stitch never changes),
+    the frame faces left disagreeing are those next to the repaired zones (84 here), not every
+    face of that tile each cell around it sees (894 when the whole frame voted)."""
+    grid, counts, results, n_faces = tile_work(tmp_path, 3, False, reversed_tile=4)
+    out = stitch_streamed(tmp_path, grid, counts, {}, results, 1.0, 3.0, particles_path)
+    assert out["repair"]["faces_dropped"] == 0
+    assert 0 < out["repair"]["cut_orientation_conflicts"] <= n_faces / grid.count
 
 
 def test_the_coordinator_holds_a_tile_not_the_scan(tmp_path):

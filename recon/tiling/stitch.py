@@ -224,7 +224,8 @@ def repair_cell(
     flag per vertex); without it, the vertices only the frame uses.
 
     Returns the vertices (with copies appended), normals, the editable faces after the repair,
-    and counts.
+    and counts (``cut_orientation_conflicts``: frame faces next to the editable ones whose
+    winding disagrees with the repaired zone's).
     """
 
     stats = {"faces_dropped": 0, "seam_loops_zipped": 0, "cut_orientation_conflicts": 0}
@@ -237,13 +238,33 @@ def repair_cell(
     def tag(f: np.ndarray) -> np.ndarray:
         return np.isin(face_keys(f), frame_keys)
 
+    def near(f, fr, n_v):
+        """The editable faces and the frame faces that share a vertex with them: the only
+        faces the repair and the orientation look at (the rest of the frame, unrepaired
+        zones of cells not yet done among it, only shows the loops whole)."""
+        ed = np.zeros(n_v, dtype=bool)
+        ed[f[~fr].ravel()] = True
+        return ~fr | ed[f].any(axis=1)
+
     def repair(v, n, f):
+        fr = tag(f)
+        keep = near(f, fr, len(v))
+        far, f = f[~keep], f[keep]  # far: frame faces only
         f = remove_non_manifold_faces(f, len(v))  # keeps the lowest indices: the frame first
         fr = tag(f)
         f = np.vstack([f[fr], f[~fr]])
         fr = np.sort(fr)[::-1]
         v, n, f = _split_keeping_frame(v, n, f, fr)
-        return v, n, f, fr
+        return v, n, np.vstack([far, f]), np.concatenate([np.ones(len(far), bool), fr])
+
+    def orient(v, n, f, fr):
+        keep = near(f, fr, len(v))
+        g, gr, left = _orient_with_frame(v, n, f[keep], fr[keep], frame_ref)
+        return (
+            np.vstack([f[~keep], g]),
+            np.concatenate([np.ones(int((~keep).sum()), bool), gr]),
+            left,
+        )
 
     vertices, normals, faces, is_frame = repair(vertices, normals, faces)
     stats["faces_dropped"] = int(n_edit - (~is_frame).sum())
@@ -280,9 +301,7 @@ def repair_cell(
     for rule, rounds in ((seam_rule, 3), (small_rule, 2)):
         for _ in range(rounds):
             if rule is small_rule:
-                faces, is_frame, _ = _orient_with_frame(
-                    vertices, normals, faces, is_frame, frame_ref
-                )
+                faces, is_frame, _ = orient(vertices, normals, faces, is_frame)
                 vertices, normals, faces, is_frame = repair(vertices, normals, faces)
             chosen = close(vertices, faces, is_frame, rule)
             if not chosen:
@@ -293,7 +312,7 @@ def repair_cell(
             faces = np.vstack([faces, *new])
             is_frame = np.concatenate([is_frame, np.zeros(sum(len(x) for x in new), dtype=bool)])
             vertices, normals, faces, is_frame = repair(vertices, normals, faces)
-    faces, is_frame, left = _orient_with_frame(vertices, normals, faces, is_frame, frame_ref)
+    faces, is_frame, left = orient(vertices, normals, faces, is_frame)
     vertices, normals, faces, is_frame = repair(vertices, normals, faces)
     stats["cut_orientation_conflicts"] = left
     return vertices, normals, faces[~is_frame], stats
