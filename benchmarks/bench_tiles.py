@@ -14,6 +14,8 @@ boundary loop of the mesh (as ``seams``), then the slope of log(time) against lo
 Examples::
 
     python benchmarks/bench_tiles.py seams --points 1000000
+    python benchmarks/bench_tiles.py seams --points 1000000 --only untiled --keep out/
+    python benchmarks/bench_tiles.py seams --points 1000000 --only tiled --keep out/
     python benchmarks/bench_tiles.py scale --points 250000 500000 1000000
     python benchmarks/bench_tiles.py scale --points 10000000 --tile-size 100
 """
@@ -172,19 +174,19 @@ def seams(ns: argparse.Namespace) -> int:
     truth = scene.ground_truth(ns.truth)
     tiles_per_side = ns.tiles_per_side
     size = scene.side / tiles_per_side * 1.0001
+    tiled_name = f"tiled {tiles_per_side}x{tiles_per_side}"
+    runs = [("untiled", []), (tiled_name, ["--tile-size", f"{size:.6f}", "--jobs", str(ns.jobs)])]
+    runs = [r for r in runs if ns.only is None or r[0].split()[0] == ns.only]
+    keep = Path(ns.keep) if ns.keep else None
+    tag = f"seams-{n}-s{ns.seed}-t{tiles_per_side}"
     with tempfile.TemporaryDirectory(prefix="bench_tiles_", dir=ns.workdir) as tmp:
-        d = Path(tmp)
-        src = d / "scene.laz"
+        d = keep if keep is not None else Path(tmp)
+        d.mkdir(parents=True, exist_ok=True)
+        src = Path(tmp) / "scene.laz"
         write_laz(src, pts, cls)
         rows = {}
-        for name, extra in (
-            ("untiled", []),
-            (
-                f"tiled {tiles_per_side}x{tiles_per_side}",
-                ["--tile-size", f"{size:.6f}", "--jobs", str(ns.jobs)],
-            ),
-        ):
-            out = d / f"{name.split()[0]}.ply"
+        for name, extra in runs:
+            out = d / f"{tag}-{name.split()[0]}.ply"
             wall, root, workers, code = run_fit([str(src), "-o", str(out), *extra, *ns.fit_args])
             if code != 0:
                 return code
@@ -195,12 +197,24 @@ def seams(ns: argparse.Namespace) -> int:
                 tiles=report.get("tiles", {}).get("count", 1),
                 peak_rss_gib=max([root, *workers]) / 2**30,
             )
-            rows[name] = row
             print(f"{name}: {json.dumps(row)}", flush=True)
             tiles = report.get("tiles")
             lo = np.asarray(tiles["per_tile"][0]["bounds"][0]) if tiles else pts.min(axis=0)
-            for loop in loop_table(out, lo, size):
-                print(f"  loop {json.dumps(loop)}")
+            row["loops"] = loop_table(out, lo, size)
+            for loop in row["loops"]:
+                print(f"  loop {json.dumps(loop)}", flush=True)
+            rows[name] = row
+            if keep is not None:
+                out.with_suffix(".row.json").write_text(json.dumps(row))
+    if keep is not None:  # the other run of an earlier --only invocation, same scene
+        for name in ("untiled", tiled_name):
+            saved = keep / f"{tag}-{name.split()[0]}.row.json"
+            if name not in rows and saved.exists():
+                rows[name] = json.loads(saved.read_text())
+                print(f"{name} (from {saved.name}): {json.dumps(rows[name])}")
+    rows = {k: rows[k] for k in ("untiled", tiled_name) if k in rows}
+    if len(rows) < 2:
+        return 0
     base = rows["untiled"]
     tiled = rows[next(k for k in rows if k != "untiled")]
     print()
@@ -305,6 +319,17 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--executor", default="dask", choices=["local", "dask"])
     ap.add_argument("--workdir", default=None, help="folder for the scenes and meshes")
+    ap.add_argument(
+        "--only",
+        choices=["untiled", "tiled"],
+        default=None,
+        help="seams: run one of the two fits (with --keep, compared with the other's saved row)",
+    )
+    ap.add_argument(
+        "--keep",
+        default=None,
+        help="seams: folder that keeps the meshes, reports and each run's row (JSON)",
+    )
     ap.add_argument(
         "--fit-arg",
         dest="fit_args",

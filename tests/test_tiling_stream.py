@@ -38,6 +38,8 @@ def tile_work(
     degenerate: str | None = None,
     offset: tuple[float, float, float] = (0.0, 0.0, 0.0),
     stray: float = 0.0,
+    crack: tuple[float, float] | None = None,
+    reversed_tile: int | None = None,
 ):
     """Write what the mesh tasks would: each tile's particles and its faces (centroid in its
     core); with ``defects`` one face across a seam is made twice and one is missing.
@@ -46,6 +48,9 @@ def tile_work(
     whose third vertex is a new vertex that no other face uses (it must not be written).
     ``offset`` shifts the sheet; ``stray`` (> 0) adds a face on the sheet's outer rim whose
     new vertex lies ``stray`` beyond the sheet (outside the input's bounds).
+    ``crack`` (y0, y1): the faces of the one column of quads that straddles the seam x = 12
+    are missing between y0 and y1 (a narrow crack along the seam).
+    ``reversed_tile``: that tile outputs its faces wound the other way.
     """
     v, f = lattice(n_tiles)
     v = v + np.asarray(offset)
@@ -62,6 +67,8 @@ def tile_work(
     seam = (grid.seam_distance(cen) < 1.0) & inner
     extra = {}
     missing = np.zeros(len(f), dtype=bool)
+    if crack is not None:
+        missing = (np.abs(cen[:, 0] - 11.5) < 0.5) & (cen[:, 1] > crack[0]) & (cen[:, 1] < crack[1])
     if defects:
         k = np.flatnonzero(seam)[[0, -1]]  # far apart
         missing[k[0]] = True  # a crack: one face lost at a seam
@@ -81,6 +88,8 @@ def tile_work(
             rest=np.zeros(0),
         )
         ft = f[(centroid_tile == t) & ~missing]
+        if t == reversed_tile:
+            ft = ft[:, [0, 2, 1]]
         if t in extra:
             ft = np.vstack([ft, extra[t]])
         none = np.zeros((0, 3))
@@ -132,18 +141,51 @@ def test_streamed_mesh_and_its_topology_match_the_whole_mesh(tmp_path, defects):
         assert out["repair"]["faces_dropped"] >= 1 and out["repair"]["seam_loops_zipped"] >= 1
 
 
+@pytest.mark.parametrize("crack", [(13.0, 17.0), (15.0, 21.0), (16.0, 29.0)])
+def test_a_seam_crack_running_into_the_next_dual_cell_is_zipped(tmp_path, crack):
+    """A narrow crack along a seam is zipped also when it runs from one dual cell into the
+    next (across y = 18, midway between the grid corners (12, 12) and (12, 24)): each cell's
+    repair sees the zone of the cells around it whole, not only the faces touching its own,
+    so the crack is one loop there. Before, only the first crack (inside one cell) closed."""
+    grid, counts, results, n_faces = tile_work(tmp_path, 3, False, crack=crack)
+    out = stitch_streamed(tmp_path, grid, counts, {}, results, 1.0, 3.0, particles_path)
+    path = tmp_path / "mesh.ply"
+    write_streamed(path, out, out["coordinate_type"], True, False)
+    v, f = read_mesh(path)
+    topo = mesh_topology(v, f)
+    assert out["repair"]["seam_loops_zipped"] == 1
+    assert topo["boundary_loops"] == 1 and topo["non_manifold_edges"] == 0
+    assert topo["duplicate_faces"] == 0 and topo["consistently_oriented"]
+    assert len(f) == n_faces  # the crack's faces, made again
+    assert out["topology"]["boundary_loops"] == 1
+
+
+def test_the_repair_orients_against_the_frame_next_to_the_zone_only(tmp_path):
+    """Each dual cell sees the zone and rim faces of the cells around it (to find cracks that
+    run on), but orients its zone against the frame faces that touch it, as before: with the
+    middle tile's faces wound the wrong way (its interior, which the stitch never changes),
+    the frame faces left disagreeing are those next to the repaired zones (84 here), not every
+    face of that tile each cell around it sees (894 when the whole frame voted)."""
+    grid, counts, results, n_faces = tile_work(tmp_path, 3, False, reversed_tile=4)
+    out = stitch_streamed(tmp_path, grid, counts, {}, results, 1.0, 3.0, particles_path)
+    assert out["repair"]["faces_dropped"] == 0
+    assert 0 < out["repair"]["cut_orientation_conflicts"] <= n_faces / grid.count
+
+
 def test_the_coordinator_holds_a_tile_not_the_scan(tmp_path):
-    """4x more tiles of the same size: 4x the faces, not a larger unit or seam cell held."""
+    """2.25x more tiles of the same size: 2.25x the faces, not a larger unit or seam cell
+    held (from 4 x 4 tiles on, an inner dual cell has all its neighbours)."""
     held = {}
-    for n in (2, 4):
+    for n in (4, 6):
         d = tmp_path / str(n)
         d.mkdir()
         _, out, n_faces = stitch(d, n, True)
         held[n] = (out["memory"], n_faces, out["topology"])
-    small, large = held[2], held[4]
-    assert large[1] == 4 * small[1]
+    small, large = held[4], held[6]
+    assert large[1] == 2.25 * small[1]
     assert large[2]["boundary_loops"] == 1 and large[2]["non_manifold_edges"] == 0
-    # a dual cell's sub-mesh is at most the seams around one grid corner; a unit at most a tile
+    # a dual cell's sub-mesh is at most the seams around 3 x 3 grid corners; a unit at most a
+    # tile
     for key in ("largest_seam_cell_faces", "largest_unit_faces"):
         assert large[0][key] <= 1.25 * small[0][key], key
     assert large[0]["largest_unit_faces"] < 0.2 * large[1]

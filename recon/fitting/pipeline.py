@@ -363,6 +363,10 @@ class ParticleFit:
     steps : dict
     warnings : list of str
     stop_reason : str or None
+    crease : (n,) bool or None
+        The crease particles (unoriented, on a crease line or corner) when creases were
+        fitted, else None: the triangulation pivots and flips around them
+        (:func:`recon.triangulate.triangulate_particles`), as the untiled fit's does.
     """
 
     positions: np.ndarray
@@ -374,6 +378,7 @@ class ParticleFit:
     steps: dict
     warnings: list
     stop_reason: str | None
+    crease: np.ndarray | None = None
 
 
 @dataclass
@@ -447,6 +452,9 @@ def fit_particles(
         steps=dict(sheet.sched.steps),
         warnings=list(sheet.sched.warnings),
         stop_reason=sheet.sched.stop_reason,
+        crease=None
+        if sheet.surface.creases is None
+        else ~np.asarray(state.is_oriented, dtype=bool).copy(),
     )
 
 

@@ -14,12 +14,15 @@ nearest inner tile face (a *seam*):
 Zone and rim faces are filed by the *dual cell* of their centroid: the cell of side
 ``tile size`` centred on a corner of the tile grid (:func:`dual_cell_of`), so one dual cell
 holds the seams around one grid corner. The coordinator repairs the zone one dual cell at a
-time (:func:`~recon.tiling.stitch.repair_cell`), seeing the faces of the neighbouring cells
-that touch it as a fixed frame; then measures the topology one unit (a tile's interior or a
-cell's zone) at a time with the same frame (:class:`recon.tiling.measure.TopologyAccumulator`);
-then the mesh is streamed into the output file tile by tile
-(:func:`recon.tiling.writer.write_streamed`). What it holds at any moment is one unit's faces,
-the vertices they use (:class:`VertexStore` keeps a few tiles' vertices loaded), one byte per
+time (:func:`~recon.tiling.stitch.repair_cell`), seeing the zone and rim faces of the cells
+around it (3 x 3 in a 2-D grid) as a fixed frame, so that a crack along a seam that runs on
+into the next cell is one loop there (:func:`cut_stars` marks the vertices whose star this
+sub-mesh cuts off; no loop through them is closed). Then it measures the topology one unit
+(a tile's interior or a cell's zone) at a time, with the faces of other units that touch it
+(:class:`recon.tiling.measure.TopologyAccumulator`), and streams the mesh into the output
+file tile by tile (:func:`recon.tiling.writer.write_streamed`). What it holds at any moment
+is one unit's faces, or the zone and rim faces of 3 x 3 dual cells during the repair, the
+vertices they use (:class:`VertexStore` keeps a few tiles' vertices loaded), one byte per
 vertex of the scan (which vertices the mesh uses), and the boundary edges of the whole mesh
 (for the loop count).
 """
@@ -42,6 +45,7 @@ __all__ = [
     "RIM_BAND",
     "ZONE_BAND",
     "VertexStore",
+    "cut_stars",
     "dual_cell_of",
     "dual_neighbours",
     "dual_shape",
@@ -255,6 +259,36 @@ class VertexStore:
 # --- the coordinator's stitch ------------------------------------------------------------
 
 
+def cut_stars(
+    grid: TileGrid,
+    cell: int,
+    positions: np.ndarray,
+    faces: np.ndarray,
+    zone_rows: np.ndarray,
+    margin: float,
+) -> np.ndarray:
+    """The vertices of a dual cell's sub-mesh (the zone and rim faces of the cell and of the
+    cells around it) whose star the sub-mesh may cut off: those no zone face uses (a rim
+    face's far vertices also belong to interior faces, not loaded), and those within
+    ``margin`` of the outer edge of the cells around (their faces may lie beyond). Every zone
+    face's vertex has its whole star among zone and rim faces (see the module docstring)."""
+    cut = np.ones(len(positions), dtype=bool)
+    cut[np.asarray(faces)[zone_rows].ravel()] = False
+    shape = np.asarray(dual_shape(grid))
+    ijk = np.asarray(np.unravel_index(int(cell), tuple(shape)))
+    u = (np.asarray(positions, dtype=np.float64) - grid.lo) / grid.size + 0.5
+    m = margin / grid.size
+    for axis in range(3):
+        if shape[axis] == 1:
+            continue
+        lo_open, hi_open = ijk[axis] - 1 <= 0, ijk[axis] + 1 >= shape[axis] - 1
+        if not lo_open:
+            cut |= u[:, axis] < ijk[axis] - 1 + m
+        if not hi_open:
+            cut |= u[:, axis] > ijk[axis] + 2 - m
+    return cut
+
+
 def proper_faces(faces: np.ndarray) -> np.ndarray:
     """The faces with three distinct vertices: the only ones written (so the vertices that
     only faces with a repeated vertex use are not written either)."""
@@ -365,22 +399,27 @@ def stitch_streamed(
     for c in sorted(zone_files):
         edit = _load_faces(zone_files[c])
         repair["faces_merged"] += len(edit)
-        cand = []
+        zone_like, rims = [], []
         for c2 in dual_neighbours(grid, c):
             if c2 != c:
                 if c2 in done:
-                    cand.append(np.load(out_path(c2)))
+                    zone_like.append(np.load(out_path(c2)))
                 elif c2 in zone_files:
-                    cand.append(_load_faces(zone_files[c2]))
-            cand += [np.load(p) for _, p in rim_files.get(c2, [])]
-        cand_f = np.vstack(cand) if cand else np.zeros((0, 3), dtype=np.int64)
-        frame = cand_f[_touching(cand_f, edit)]
-        both = np.vstack([frame, edit])
+                    zone_like.append(_load_faces(zone_files[c2]))
+            rims += [np.load(p) for _, p in rim_files.get(c2, [])]
+        # the frame: the zone and rim faces of the cells around (not only those touching the
+        # cell's), so that a crack running from this cell into the next is seen whole
+        frame = np.vstack([*zone_like, *rims]) if zone_like or rims else np.zeros((0, 3), int)
+        both = np.vstack([frame, edit]).astype(np.int64)
         ids, local = np.unique(both, return_inverse=True)
         local = local.reshape(-1, 3)
         max_cell_faces = max(max_cell_faces, len(both))
         pos, nrm = store.get(ids)
-        v2, n2, fl, st = repair_cell(grid, pos, nrm, local, len(frame), r0, max_hole)
+        n_rim = sum(len(f) for f in rims)
+        zone_rows = np.ones(len(both), dtype=bool)
+        zone_rows[len(frame) - n_rim : len(frame)] = False
+        cut = cut_stars(grid, c, pos, local, zone_rows, RIM_BAND * r0)
+        v2, n2, fl, st = repair_cell(grid, pos, nrm, local, len(frame), r0, max_hole, cut)
         for k in ("faces_dropped", "seam_loops_zipped", "cut_orientation_conflicts"):
             repair[k] += st[k]
         gmap = np.concatenate([ids, np.full(len(v2) - len(ids), -1, dtype=np.int64)])

@@ -306,6 +306,7 @@ def fit_tiled(
                     "particles": fits[t]["particles"],
                     "fit_s": fits[t]["seconds"],
                     "mesh_s": meshes[t]["seconds"] if t in meshes else 0.0,
+                    "crease_particles": meshes[t].get("crease_particles", 0) if t in meshes else 0,
                     "sign_flipped": flips.get(t, 1.0) < 0,
                 }
             )

@@ -211,19 +211,21 @@ def repair_cell(
     n_frame: int,
     r0: float,
     max_hole: float,
+    cut: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict]:
     """Repair the seam zone of one dual cell: ``faces[n_frame:]`` may change, the first
-    ``n_frame`` (the frame: neighbouring cells' and tile interiors' faces that share a vertex
-    with them) may not.
+    ``n_frame`` (the frame: neighbouring cells' and tile interiors' faces around them) may not.
 
     The rules of the untiled fit: faces on over-shared edges
     dropped (the frame's kept first), bow-ties split, seam cracks (loops along a seam, small or
     narrow) zipped, the winding made consistent (and agreeing with the frame), then the small
-    holes orienting opened closed. Loops through a vertex only the frame uses (the sub-mesh's
-    cut-off edge) are never zipped.
+    holes orienting opened closed. Only loops through a vertex of an editable face are zipped,
+    never one through a vertex whose star the sub-mesh cuts off: ``cut`` marks those (one
+    flag per vertex); without it, the vertices only the frame uses.
 
     Returns the vertices (with copies appended), normals, the editable faces after the repair,
-    and counts.
+    and counts (``cut_orientation_conflicts``: frame faces next to the editable ones whose
+    winding disagrees with the repaired zone's).
     """
 
     stats = {"faces_dropped": 0, "seam_loops_zipped": 0, "cut_orientation_conflicts": 0}
@@ -236,22 +238,48 @@ def repair_cell(
     def tag(f: np.ndarray) -> np.ndarray:
         return np.isin(face_keys(f), frame_keys)
 
+    def near(f, fr, n_v):
+        """The editable faces and the frame faces that share a vertex with them: the only
+        faces the repair and the orientation look at (the rest of the frame, unrepaired
+        zones of cells not yet done among it, only shows the loops whole)."""
+        ed = np.zeros(n_v, dtype=bool)
+        ed[f[~fr].ravel()] = True
+        return ~fr | ed[f].any(axis=1)
+
     def repair(v, n, f):
+        fr = tag(f)
+        keep = near(f, fr, len(v))
+        far, f = f[~keep], f[keep]  # far: frame faces only
         f = remove_non_manifold_faces(f, len(v))  # keeps the lowest indices: the frame first
         fr = tag(f)
         f = np.vstack([f[fr], f[~fr]])
         fr = np.sort(fr)[::-1]
         v, n, f = _split_keeping_frame(v, n, f, fr)
-        return v, n, f, fr
+        return v, n, np.vstack([far, f]), np.concatenate([np.ones(len(far), bool), fr])
+
+    def orient(v, n, f, fr):
+        keep = near(f, fr, len(v))
+        g, gr, left = _orient_with_frame(v, n, f[keep], fr[keep], frame_ref)
+        return (
+            np.vstack([f[~keep], g]),
+            np.concatenate([np.ones(int((~keep).sum()), bool), gr]),
+            left,
+        )
 
     vertices, normals, faces, is_frame = repair(vertices, normals, faces)
     stats["faces_dropped"] = int(n_edit - (~is_frame).sum())
 
     def close(v, f, fr, rule) -> list[np.ndarray]:
-        opened = _open_vertices(f, fr, len(v))
+        if cut is None:
+            opened = _open_vertices(f, fr, len(v))
+        else:  # bow-tie copies (appended) are where their sources were
+            opened = np.zeros(len(v), dtype=bool)
+            opened[: len(cut)] = cut
+        edited = np.zeros(len(v), dtype=bool)
+        edited[f[~fr].ravel()] = True
         chosen = []
         for loop in boundary_loops(f):
-            if len(loop) < 3 or opened[loop].any():
+            if len(loop) < 3 or opened[loop].any() or not edited[loop].any():
                 continue
             if rule(loop):
                 chosen.append(loop)
@@ -273,9 +301,7 @@ def repair_cell(
     for rule, rounds in ((seam_rule, 3), (small_rule, 2)):
         for _ in range(rounds):
             if rule is small_rule:
-                faces, is_frame, _ = _orient_with_frame(
-                    vertices, normals, faces, is_frame, frame_ref
-                )
+                faces, is_frame, _ = orient(vertices, normals, faces, is_frame)
                 vertices, normals, faces, is_frame = repair(vertices, normals, faces)
             chosen = close(vertices, faces, is_frame, rule)
             if not chosen:
@@ -286,7 +312,7 @@ def repair_cell(
             faces = np.vstack([faces, *new])
             is_frame = np.concatenate([is_frame, np.zeros(sum(len(x) for x in new), dtype=bool)])
             vertices, normals, faces, is_frame = repair(vertices, normals, faces)
-    faces, is_frame, left = _orient_with_frame(vertices, normals, faces, is_frame, frame_ref)
+    faces, is_frame, left = orient(vertices, normals, faces, is_frame)
     vertices, normals, faces, is_frame = repair(vertices, normals, faces)
     stats["cut_orientation_conflicts"] = left
     return vertices, normals, faces[~is_frame], stats

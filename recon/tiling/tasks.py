@@ -109,6 +109,7 @@ def fit_task(job: FitJob) -> dict:
     pos = np.zeros((0, 3))
     nrm = np.zeros((0, 3))
     rest = None
+    crease = None
     if n_core >= MIN_TILE_POINTS:
         normals = job.store.normals(rows)
         try:
@@ -119,7 +120,7 @@ def fit_task(job: FitJob) -> dict:
             # a few points at a tile's corner (a roof edge, a stray return): no sheet there
             result["warnings"] = [f"{n_core} points not fitted: {exc}"]
         else:
-            pos, nrm, rest = pf.positions, pf.normals, pf.rest
+            pos, nrm, rest, crease = pf.positions, pf.normals, pf.rest, pf.crease
             result["steps"] = pf.steps
             result["warnings"] = pf.warnings
             result["trimmed"] = pf.n_trimmed
@@ -130,6 +131,10 @@ def fit_task(job: FitJob) -> dict:
         positions=pos[owned],
         normals=nrm[owned],
         rest=rest[owned] if rest is not None else np.zeros(0),
+        # crease particles (creases fitted): the mesh task pivots around them as the untiled
+        # triangulation does; absent (empty) when creases were not fitted
+        crease=crease[owned] if crease is not None else np.zeros(0, dtype=bool),
+        has_crease=crease is not None,
         colors=rgb,
         properties=props,
     )
@@ -224,26 +229,34 @@ class MeshJob:
 
 def _load_particles(
     job: MeshJob, grid: TileGrid
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    pos, nrm, rest, gid, owners = [], [], [], [], []
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
+    """The particles of the tile and its neighbours within the halo: positions, normals,
+    rest spacings, global ids, and the crease flags (None when no tile fitted creases)."""
+    pos, nrm, rest, gid, owners, crease = [], [], [], [], [], []
+    any_crease = False
     for t in [job.tile, *grid.neighbours(job.tile)]:
         if t not in job.offsets:
             continue
         owners.append(t)
         with np.load(particles_path(job.work, t)) as z:
             p, n, r = z["positions"], z["normals"], z["rest"]
+            c = z["crease"] if "crease" in z.files else np.zeros(0, dtype=bool)
+            any_crease |= bool(z["has_crease"]) if "has_crease" in z.files else False
         keep = grid.in_halo_box(job.tile, p) if len(p) else np.zeros(0, dtype=bool)
         idx = np.flatnonzero(keep)
         pos.append(p[idx])
         nrm.append(n[idx] * job.flips.get(t, 1.0))
         rest.append(r[idx] if len(r) else np.ones(len(idx)))
+        crease.append(c[idx] if len(c) == len(p) else np.zeros(len(idx), dtype=bool))
         gid.append(job.offsets[t] + idx)
     if not pos:
-        return np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), np.zeros(0, dtype=np.int64)
+        z3 = np.zeros((0, 3))
+        return z3, z3, np.zeros(0), np.zeros(0, dtype=np.int64), None
     tiles = np.concatenate([np.full(len(p), t) for p, t in zip(pos, owners, strict=True)])
     pos_a, gid_a = np.concatenate(pos), np.concatenate(gid)
     keep = ~seam_duplicates(pos_a, tiles, SEAM_MERGE * job.r0)
-    return pos_a[keep], np.concatenate(nrm)[keep], np.concatenate(rest)[keep], gid_a[keep]
+    flags = np.concatenate(crease)[keep] if any_crease else None
+    return pos_a[keep], np.concatenate(nrm)[keep], np.concatenate(rest)[keep], gid_a[keep], flags
 
 
 def seam_duplicates(positions: np.ndarray, tiles: np.ndarray, distance: float) -> np.ndarray:
@@ -287,7 +300,7 @@ def mesh_task(job: MeshJob) -> dict:
     t0 = time.perf_counter()
     grid = job.store.grid
     cfg = config_from_dict(job.config)
-    pos, nrm, rest, gid = _load_particles(job, grid)
+    pos, nrm, rest, gid, crease = _load_particles(job, grid)
     empty = {"tile": job.tile, "faces": 0, "zone_faces": 0, "new_vertices": 0, "seconds": 0.0}
     if len(pos) < 3:
         write_tile_mesh(job.work, job.tile, grid, job.r0, *_no_mesh())
@@ -316,7 +329,13 @@ def mesh_task(job: MeshJob) -> dict:
             return tree.query(c)[0] < HOLE_COVER_DISTANCE * np.asarray(s)
 
         tri = triangulate_particles(
-            x, nrm, tri_cfg, max_hole, is_covered=is_covered, local_spacing=spacing
+            x,
+            nrm,
+            tri_cfg,
+            max_hole,
+            is_covered=is_covered,
+            local_spacing=spacing,
+            crease=crease,
         )
     faces = tri.faces
     if len(faces) == 0:
@@ -357,6 +376,8 @@ def mesh_task(job: MeshJob) -> dict:
     return {
         "tile": job.tile,
         **counts,
+        # crease particles (tile and halo) the triangulation pivoted and flipped around
+        "crease_particles": 0 if crease is None else int(np.count_nonzero(crease)),
         "self_intersections_found": int(found),
         "self_intersections_left": int(left),
         "seconds": time.perf_counter() - t0,
