@@ -569,9 +569,10 @@ def _extend_to_corners(
     neighbourhood, which can tilt their refit line by 10 deg and put their foot half a spacing
     off the edge. So the samples within ``CORNER_ZONE`` of a corner are dropped, and every line
     running into the corner (samples within ``EXTEND_RADIUS`` whose lines pass within
-    ``EXTEND_OFFSET`` of it, grouped by direction within ``EXTEND_SAME_LINE_DEG``) gets samples
-    every ``EXTEND_STEP`` from the corner (not on it) along the line's mean direction up to its
-    sample nearest to the corner (with that sample's planes)."""
+    ``EXTEND_OFFSET`` of it, grouped by direction within ``EXTEND_SAME_LINE_DEG`` and by the
+    side of the corner they lie on, so a line through the corner is continued from both sides)
+    gets samples every ``EXTEND_STEP`` from the corner (not on it) along the line's mean
+    direction up to its sample nearest to the corner (with that sample's planes)."""
     if len(corners) == 0 or len(feet) == 0:
         return feet, direction, side, convex
     ctree = cKDTree(corners)
@@ -599,7 +600,14 @@ def _extend_to_corners(
         for k, j in enumerate(near):
             if not free[k]:
                 continue
-            same = free & (np.abs(direction[near] @ direction[j]) > cos_same)
+            # the same line on the same side of the corner: a line running through the
+            # corner is continued from each side
+            ahead = (feet[near] - c) @ direction[j]
+            same = (
+                free
+                & (np.abs(direction[near] @ direction[j]) > cos_same)
+                & (ahead * ahead[k] > 0.0)
+            )
             free &= ~same
             members = near[same]
             sign = np.where(direction[members] @ direction[j] < 0.0, -1.0, 1.0)

@@ -257,6 +257,28 @@ def test_lines_are_continued_through_the_corner_not_along_a_tilted_sample():
     assert abs(np.min(np.linalg.norm(rel, axis=1)) - EXTEND_STEP) < 1e-9
 
 
+def test_a_line_through_a_corner_is_continued_on_both_sides():
+    """A straight line that runs through a corner (a T-junction: another line ends there)
+    loses its samples within CORNER_ZONE on both sides; both halves have the same direction,
+    and each must be continued up to the corner, not only the half nearer to it."""
+    corner = np.zeros(3)
+    t = np.arange(-6.0, 6.25, 0.5)
+    s = np.arange(0.5, 6.25, 0.5)
+    feet = np.vstack([np.c_[t, 0 * t, 0 * t], np.c_[0 * s, s, 0 * s]])
+    direction = np.vstack(
+        [np.tile([1.0, 0.0, 0.0], (len(t), 1)), np.tile([0.0, 1.0, 0.0], (len(s), 1))]
+    )
+    side = np.tile([[0.0, 0.0, 1.0], [0.0, -1.0, 0.0]], (len(feet), 1, 1))
+    convex = np.ones(len(feet), dtype=bool)
+    out, _, _, _ = _extend_to_corners(feet, direction, side, convex, corner[None])
+    on_x = out[(np.abs(out[:, 1]) < 1e-9) & (np.abs(out[:, 2]) < 1e-9), 0]
+    for half in (on_x[on_x > 0.0], -on_x[on_x < 0.0]):
+        gaps = np.diff(np.r_[0.0, np.sort(half)])
+        assert gaps.max() <= EXTEND_STEP + 1e-9
+    on_y = out[(np.abs(out[:, 0]) < 1e-9) & (np.abs(out[:, 2]) < 1e-9), 1]
+    assert np.diff(np.r_[0.0, np.sort(on_y[on_y > 0.0])]).max() <= EXTEND_STEP + 1e-9
+
+
 def test_lines_are_smoothed_along_themselves_and_curved_lines_keep_their_curve():
     """Single samples' feet scatter by about 0.09 r0 at lblock-noise025 (tolerance 0.19 r0):
     the feet refitted along the line scatter less. A circular rim (radius 12, as a hole's)
