@@ -600,14 +600,9 @@ def _extend_to_corners(
         for k, j in enumerate(near):
             if not free[k]:
                 continue
-            # the same line on the same side of the corner: a line running through the
-            # corner is continued from each side
-            ahead = (feet[near] - c) @ direction[j]
-            same = (
-                free
-                & (np.abs(direction[near] @ direction[j]) > cos_same)
-                & (ahead * ahead[k] > 0.0)
-            )
+            ahead = (feet[near] - c) @ direction[j]  # same line and side of the corner
+            same = free & (np.abs(direction[near] @ direction[j]) > cos_same)
+            same &= ahead * ahead[k] > 0.0
             free &= ~same
             members = near[same]
             sign = np.where(direction[members] @ direction[j] < 0.0, -1.0, 1.0)
