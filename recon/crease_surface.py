@@ -629,6 +629,23 @@ def _extend_to_corners(
     )
 
 
+def _line_families(d: np.ndarray, cos_same: float):
+    """Group unit line directions ``d`` (either sign) that agree within ``cos_same``, in order
+    of first appearance; yields, for each group of at least ``CORNER_FAMILY_MIN``, its mask,
+    the signs that align its members with its first one, and its mean unit direction."""
+    free = np.ones(len(d), dtype=bool)
+    for i in range(len(d)):
+        if not free[i]:
+            continue
+        same = free & (np.abs(d @ d[i]) > cos_same)
+        free &= ~same
+        if np.count_nonzero(same) < CORNER_FAMILY_MIN:
+            continue
+        sign = np.where(d[same] @ d[i] < 0.0, -1.0, 1.0)
+        dl = (d[same] * sign[:, None]).sum(axis=0)
+        yield same, sign, dl / np.linalg.norm(dl)
+
+
 def _meeting_corners(feet: np.ndarray, direction: np.ndarray, corners: np.ndarray) -> np.ndarray:
     """Corners the detection missed, where crease lines meet (its three-plane test misses
     corners whose faces turn by little, e.g. 60 deg, or where a thin face meets).
@@ -704,19 +721,10 @@ def _line_ends_at(feet: np.ndarray, direction: np.ndarray, tree: cKDTree, x: np.
     m = off < EXTEND_OFFSET
     d, t = d[m], t[m]
     cos_same = np.cos(np.radians(EXTEND_SAME_LINE_DEG))
-    free = np.ones(len(d), dtype=bool)
     lines: list[np.ndarray] = []
     ends = False
-    for i in range(len(d)):
-        if not free[i]:
-            continue
-        same = free & (np.abs(d @ d[i]) > cos_same)
-        free &= ~same
-        if np.count_nonzero(same) < CORNER_FAMILY_MIN:
-            continue
-        sign = np.where(d[same] @ d[i] < 0.0, -1.0, 1.0)
-        dl = (d[same] * sign[:, None]).sum(axis=0)
-        lines.append(dl / np.linalg.norm(dl))
+    for same, sign, dl in _line_families(d, cos_same):
+        lines.append(dl)
         ts = t[same] * sign
         ends |= bool(ts.min() > -EXTEND_OFFSET or ts.max() < EXTEND_OFFSET)
     if len(lines) < 3 or not ends:
@@ -774,17 +782,7 @@ def _refine_corner(
         a = np.zeros((3, 3))
         b = np.zeros(3)
         lines = 0
-        free = np.ones(len(near), dtype=bool)
-        for i in range(len(near)):
-            if not free[i]:
-                continue
-            same = free & (np.abs(d @ d[i]) > cos_same)
-            free &= ~same
-            if np.count_nonzero(same) < CORNER_FAMILY_MIN:
-                continue
-            dl = d[same] * np.where(d[same] @ d[i] < 0.0, -1.0, 1.0)[:, None]
-            dl = dl.sum(axis=0)
-            dl /= np.linalg.norm(dl)
+        for same, _, dl in _line_families(d, cos_same):
             proj = np.eye(3) - np.outer(dl, dl)
             a += proj
             b += proj @ feet[near[same]].mean(axis=0)

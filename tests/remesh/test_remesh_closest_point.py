@@ -5,17 +5,7 @@ import numpy as np
 from recon.kernels.closest_point import closest_points_kernel, triangle_grid_build
 from recon.remesh.surface import MeshSurface, closest_on_triangles
 from tests.mesh_shapes import icosphere
-
-
-def _brute(p, v, f):
-    best = np.full(len(p), np.inf)
-    out = np.zeros_like(p)
-    for tri in v[f]:
-        foot = closest_on_triangles(p, np.broadcast_to(tri, (len(p), 3, 3)), p)
-        d = np.linalg.norm(foot - p, axis=1)
-        better = d < best
-        best[better], out[better] = d[better], foot[better]
-    return out, best
+from tests.test_remesh import _brute_closest as _brute
 
 
 def _mixed_mesh():
