@@ -96,6 +96,7 @@ def triangulate_particles(
     is_covered: Callable[..., np.ndarray] | None = None,
     local_spacing: np.ndarray | None = None,
     crease: np.ndarray | None = None,
+    resign: bool = True,
 ) -> TriangulationResult:
     """Mesh the particles (normalised units, r0 = 1) with a topology guarantee.
 
@@ -125,6 +126,10 @@ def triangulate_particles(
         Crease particles (issue 12): a quad whose diagonal joins the two faces of a crease beside
         two crease particles takes the diagonal along the crease
         (:func:`recon.crease_mesh.flip_straddling_edges`); the result's ``crease`` marks them.
+    resign : bool
+        Re-sign the normals over the particle sheet first (:func:`consistent_normals`), as
+        normals from a point cloud need. False when their signs are known (taken from an
+        oriented mesh, as ``remesh`` does).
     """
     positions = np.ascontiguousarray(positions, dtype=np.float64)
     normals = np.ascontiguousarray(normals, dtype=np.float64)
@@ -141,7 +146,8 @@ def triangulate_particles(
             positions, np.zeros((0, 3), dtype=np.int64), normals, {"method": cfg.method}
         )
     if cfg.method == "ball_pivoting":
-        normals = consistent_normals(positions, normals)
+        if resign:
+            normals = consistent_normals(positions, normals)
         pivot = positions if crease is None else pivot_positions(positions, normals, crease)
         faces = ball_pivoting(pivot, normals, ball_radii(cfg.radii, scale))
         if scale is not None:

@@ -615,6 +615,7 @@ def _triangulate(surface: MeshSurface, lines: FeatureLines, particles: Particles
             MAX_HOLE,
             is_covered,
             local_spacing=particles.rest[idx] if adaptive else None,
+            resign=False,  # the signs come from the input's oriented faces
         )
         for k, v in tri.stats.items():
             if isinstance(v, int):
