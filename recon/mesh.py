@@ -398,12 +398,17 @@ def overlapping_faces(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     sorted_v = corner_v[order]
     fn = face_normals(vertices, f)
     found = [np.zeros((0, 2), dtype=np.int64)]
+    # every pair of corners at one vertex, by rank distance: a corner that has no partner
+    # ``step`` ranks on has none further on either, so only the survivors are tested again
+    # and the cost is the number of pairs, not 3F times the largest valence
+    pos = np.arange(len(order))
     step = 1
-    while step < len(order):  # every pair of corners at one vertex, by rank distance
-        same = sorted_v[step:] == sorted_v[:-step]
-        if not same.any():
+    while True:
+        pos = pos[pos + step < len(order)]
+        pos = pos[sorted_v[pos + step] == sorted_v[pos]]
+        if not len(pos):
             break
-        a, b = order[:-step][same], order[step:][same]
+        a, b = order[pos], order[pos + step]
         fa, fb = corner_f[a], corner_f[b]
         m = fn[fa] + fn[fb]
         agree = np.einsum("ij,ij->i", fn[fa], fn[fb]) > OVERLAP_NORMAL_AGREEMENT
