@@ -463,10 +463,10 @@ def test_re_signing_refuses_to_turn_over_a_patch_its_neighbours_agree_with(monke
     wrong = n.copy()
     wrong[strip] *= -1  # what a propagation gone wrong proposes
 
-    monkeypatch.setattr(tri, "orient_normals", lambda *a, **k: (wrong, None))
+    monkeypatch.setattr(tri, "propagate_signs", lambda *a: np.where(strip, -1.0, 1.0))
     assert np.array_equal(tri.consistent_normals(p, n), n)  # the fitted signs were right
     # ... while a patch that does disagree with its neighbours is still turned over
-    monkeypatch.setattr(tri, "orient_normals", lambda *a, **k: (n, None))
+    monkeypatch.setattr(tri, "propagate_signs", lambda *a: np.where(strip, -1.0, 1.0))
     assert np.array_equal(tri.consistent_normals(p, wrong), n)
 
 
@@ -481,7 +481,5 @@ def test_re_signing_takes_no_vote_across_a_crease(monkeypatch):
     side = p[:, 0] > 3.0
     tilt = np.deg2rad(91.0)  # the other side's normals, just past perpendicular to +z
     n[side] = [np.sin(tilt), 0.0, np.cos(tilt)]
-    proposal = n.copy()
-    proposal[side] *= -1
-    monkeypatch.setattr(tri, "orient_normals", lambda *a, **k: (proposal, None))
+    monkeypatch.setattr(tri, "propagate_signs", lambda *a: np.where(side, -1.0, 1.0))
     assert np.array_equal(tri.consistent_normals(p, n), n)
