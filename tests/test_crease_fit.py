@@ -449,6 +449,37 @@ def test_a_bridged_line_edge_is_inserted_by_flips():
     assert not flip.any() and not conflict.any()
 
 
+def test_line_edges_are_inserted_with_only_the_faces_near_them_mapped(monkeypatch):
+    """Review (issue 12): the edge map and incidence were built over every face in Python; a
+    big mesh far from its creases pays for its faces only in numpy now. The bridged fan of
+    the test above beside a 40 x 40 grid far away: the same flips, and only the fan's faces
+    are mapped."""
+    import recon.crease_mesh as cm
+
+    a, b, u1, u2, w = range(5)
+    v = np.array(
+        [[0.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, 1.0, 0.2], [0.0, 1.0, 0.8], [1.0, 0.0, 0.5]]
+    )
+    faces = np.array([[w, b, u2], [w, u2, u1], [w, u1, a]])
+    gx, gy = np.meshgrid(np.arange(40.0), np.arange(40.0), indexing="ij")
+    grid = np.c_[gx.ravel() + 100.0, gy.ravel(), np.zeros(1600)]
+    q = (np.arange(39)[:, None] * 40 + np.arange(39)[None, :]).ravel() + 5
+    far = np.r_[np.c_[q, q + 40, q + 41], np.c_[q, q + 41, q + 1]]
+    seen = []
+    real = cm._edge_map
+    monkeypatch.setattr(cm, "_edge_map", lambda f, sub=None: seen.append(sub) or real(f, sub))
+    big_v, big_f = np.vstack([v, grid]), np.vstack([faces, far])
+    crease = np.r_[[True, True, False, False, False], np.zeros(1600, dtype=bool)]
+    out, inserted, left = insert_crease_edges(big_v, big_f, crease)
+    assert (inserted, left) == (1, 0)
+    assert len(seen) == 1 and sorted(seen[0].tolist()) == [0, 1, 2]
+    np.testing.assert_array_equal(out[3:], far)  # the grid is untouched
+    np.testing.assert_array_equal(out[:3], insert_crease_edges(v, faces, crease[:5])[0])
+    # nothing missing: no map at all
+    seen.clear()
+    assert insert_crease_edges(big_v, out, crease)[1:] == (0, 0) and not seen
+
+
 def test_straddling_triangles_have_both_faces_and_no_crease_corner():
     v, n, _ = _quad()
     n = np.vstack([n, [[0.0, 0.0, 1.0]]])
