@@ -35,8 +35,9 @@ PARTICLE_ACROSS_COST = 0.3
 #: tangent plane (|u . n| below sin 30 deg) at both ends.
 PARTICLE_TANGENT = 0.5
 #: ... and its sign counts only when the two normals are this close to (anti)parallel
-#: (|n_i . n_j| above cos 60 deg): across a crease they are near perpendicular and say nothing.
-PARTICLE_SIGN_DOT = 0.5
+#: (|n_i . n_j| above cos 25 deg): across a crease they are far from it and say nothing (near
+#: perpendicular at a box edge, 150 deg apart across a knife edge, which is dot -0.87).
+PARTICLE_SIGN_DOT = 0.9
 
 
 def consistent_normals(positions: np.ndarray, normals: np.ndarray) -> np.ndarray:
