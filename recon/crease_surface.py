@@ -72,6 +72,12 @@ CORNER_SNAP = 0.5
 #: nearest particle when within CORNER_MERGE spacings, else a new one (:meth:`_occupy_corners`).
 CORNER_TOUCH = 0.05
 CORNER_MERGE = 0.3
+#: ... then no foot of a crease sample is left farther than FILL_GAP spacings from a crease
+#: particle: the nearest particle within FILL_MERGE spacings moves onto the foot, or a new one
+#: is added (:meth:`_fill_lines`); feet with no particle within FILL_SHEET spacings are left.
+FILL_GAP = 0.75
+FILL_MERGE = 0.5
+FILL_SHEET = 1.5
 #: Neighbours of a crease sample's foot: their centroid decides whether it is convex, and they
 #: refit its two side planes (about 2.5 r0 around the foot at the default spacing of 2.5 data
 #: spacings: the fit averages sensor noise over a few spacings of line; 32 left the line
@@ -377,6 +383,57 @@ class CreaseField:
             crease = crease[~drop]
         if settle:
             crease = self._occupy_corners(state, crease)
+            crease = self._fill_lines(state, crease)
+        return crease
+
+    def _fill_lines(self, state: ParticleState, crease: np.ndarray) -> np.ndarray:
+        """Cover every crease line with crease particles at the local spacing (the last touch
+        of :meth:`constrain`, after the corners). The dynamics can leave a stretch of line with
+        no crease particle: face particles settled 0.5-0.8 spacings off it both block growth
+        on the line and are too far to snap, and the mesh then cuts the edge there. While
+        some sample's foot is farther than ``FILL_GAP`` spacings from every crease particle,
+        the farthest such foot (the middle of the widest gap) gets one: the nearest particle
+        on the sides' sheet (``n . (n_a + n_b) > 0``) is moved onto it when within
+        ``FILL_MERGE`` spacings, else a new particle is added there (normal: the bisector).
+        Feet with no particle within ``FILL_SHEET`` spacings (no sheet there) are skipped.
+        Returns the crease mask over the particles now."""
+        if self._tree is None or state.n == 0:
+            return crease
+        bis = self.side[:, 0] + self.side[:, 1]
+        bis /= np.maximum(np.linalg.norm(bis, axis=1, keepdims=True), 1e-300)
+        rest = np.asarray(state.rest, dtype=np.float64)
+        d_all, near = cKDTree(state.position).query(self.feet, k=1)
+        spacing = rest[near]
+        live = d_all <= FILL_SHEET * spacing
+        crease = crease.copy()
+        d_line = np.full(len(self.feet), np.inf)
+        if crease.any():
+            d_line = cKDTree(state.position[crease]).query(self.feet, k=1)[0]
+        for _ in range(len(self.feet)):
+            gap = np.where(live, d_line / spacing, 0.0)
+            s = int(np.argmax(gap))
+            if gap[s] <= FILL_GAP:
+                break
+            foot = self.feet[s]
+            pos, nrm = state.position, state.normal
+            cand = cKDTree(pos).query_ball_point(foot, FILL_MERGE * spacing[s])
+            cand = [j for j in cand if not crease[j] and nrm[j] @ bis[s] > 0.0]
+            if cand:
+                j = min(cand, key=lambda q: float(np.sum((pos[q] - foot) ** 2)))
+                pos, nrm = pos.copy(), nrm.copy()
+                pos[j], nrm[j] = foot, bis[s]
+                state.position, state.normal = pos, nrm
+                vel = state.velocity.copy()
+                vel[j] = 0.0
+                state.velocity = vel
+                oriented = np.asarray(state.is_oriented, dtype=bool).copy()
+                oriented[j] = False
+                state.set_oriented(oriented)
+                crease[j] = True
+            else:
+                state.add(foot[None], bis[s][None], oriented=False, rest=spacing[s])
+                crease = np.concatenate([crease, [True]])
+            d_line = np.minimum(d_line, np.linalg.norm(self.feet - foot, axis=1))
         return crease
 
     def _occupy_corners(self, state: ParticleState, crease: np.ndarray) -> np.ndarray:

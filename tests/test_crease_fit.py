@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from mesh_shapes import wedge_points
+from scipy.spatial import cKDTree
 
 from recon import fit
 from recon.config import ReconConfig, TriangulationConfig, apply_overrides
@@ -28,7 +29,7 @@ from recon.crease_mesh import (
     split_crease_vertices,
     straddling,
 )
-from recon.crease_surface import SNAP_CLEARANCE, CreaseField
+from recon.crease_surface import FILL_GAP, SNAP_CLEARANCE, CreaseField
 from recon.creases import CREASE, detect_creases
 from recon.forces import accumulate_forces
 from recon.io import read_points
@@ -179,6 +180,42 @@ def test_two_empty_corners_do_not_take_the_same_particle():
     np.testing.assert_allclose(state.position[0], corners[1])  # the nearer one
     np.testing.assert_allclose(state.position[3], corners[0])
     assert not state.is_oriented[3]
+
+
+def test_a_stretch_of_line_left_without_crease_particles_is_filled_when_settling():
+    """Regression (lblock-clean at seeds 1, 2): about 2 r0 of the concave line had no crease
+    particle (the face particles beside it settled 0.7 spacings off it: too far to snap, and
+    they kept growth off the line), and the mesh cut the edge there. Settling covers every
+    sample's foot: none farther than FILL_GAP spacings from a crease particle; a face
+    particle within FILL_MERGE spacings of the gap is moved onto the line, else one is added."""
+    y = np.arange(0.0, 10.01, 0.25)
+    field = dataclasses.replace(
+        _edge(convex=True),
+        feet=np.c_[np.zeros_like(y), y, np.zeros_like(y)],
+        direction=np.tile([0.0, -1.0, 0.0], (len(y), 1)),
+        side=np.tile(_edge(convex=True).side, (len(y), 1, 1)),
+        convex=np.ones(len(y), dtype=bool),
+    )
+    line = np.array([0.0, 1, 2, 3, 7, 8, 9, 10])
+    rows = np.arange(0.5, 10.0, 1.0)
+    pos = [np.c_[np.zeros(8), line, np.zeros(8)]]
+    nrm = [np.tile([2**-0.5, 0.0, 2**-0.5], (8, 1))]
+    for off in (0.7, 1.5):
+        pos += [np.c_[np.full(10, -off), rows, np.zeros(10)]]
+        pos += [np.c_[np.zeros(10), rows, np.full(10, -off)]]
+        nrm += [np.tile([0.0, 0.0, 1.0], (10, 1)), np.tile([1.0, 0.0, 0.0], (10, 1))]
+    pos, nrm = np.vstack(pos), np.vstack(nrm)
+    pos[8 + 4] = [-0.3, 5.0, 0.0]  # a face particle in the gap: it is moved, not doubled
+    state = ParticleState.from_points(pos, nrm)
+    state.set_oriented(np.arange(len(pos)) >= 8)
+    crease = field.constrain(state, settle=True)
+    on_line = state.position[crease]
+    gap = cKDTree(on_line).query(field.feet)[0]
+    assert gap.max() <= FILL_GAP
+    assert np.all(np.abs(on_line[:, [0, 2]]) < 1e-12)  # all on the line
+    assert not np.any(state.is_oriented[crease]) and np.all(state.is_oriented[~crease])
+    np.testing.assert_allclose(state.position[12], [0.0, 5.0, 0.0])  # moved onto the line
+    assert crease[12] and state.n == len(pos) + 2  # and two added, at 4 and 6
 
 
 def test_corners_are_moved_onto_the_meeting_point_of_their_lines():
