@@ -74,12 +74,26 @@ INSERT_ROUNDS = 8
 ORIENT_TOLERANCE = 1e-3
 
 
-def _edge_map(faces: np.ndarray) -> dict[tuple[int, int], list[int]]:
+def _edge_map(
+    faces: np.ndarray, subset: np.ndarray | None = None
+) -> dict[tuple[int, int], list[int]]:
+    """The faces around each edge ``(min, max)`` (of the faces ``subset`` only, when given)."""
+    ids = np.arange(len(faces)) if subset is None else np.asarray(subset, dtype=np.int64)
     out: dict[tuple[int, int], list[int]] = {}
-    for t, (a, b, c) in enumerate(faces.tolist()):
+    for t, (a, b, c) in zip(ids.tolist(), faces[ids].tolist(), strict=True):
         for u, w in ((a, b), (b, c), (c, a)):
             out.setdefault((min(u, w), max(u, w)), []).append(t)
     return out
+
+
+def _has_edges(faces: np.ndarray, pairs: np.ndarray, n_vertices: int) -> np.ndarray:
+    """Whether each vertex pair ``(m, 2)`` is an edge of ``faces`` (vectorised)."""
+    if len(pairs) == 0:
+        return np.zeros(0, dtype=bool)
+    e = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1)
+    p = np.sort(np.asarray(pairs, dtype=np.int64), axis=1)
+    n = np.int64(n_vertices)
+    return np.isin(p[:, 0] * n + p[:, 1], e[:, 0] * n + e[:, 1])
 
 
 def straddling(faces: np.ndarray, normals: np.ndarray, crease: np.ndarray) -> np.ndarray:
@@ -316,26 +330,33 @@ def insert_crease_edges(
     if len(faces) == 0 or np.count_nonzero(crease) < 2:
         return faces, 0, 0
     wanted = crease_line_edges(vertices, faces, crease)
-    edges = _edge_map(faces)
-    missing = [(int(a), int(b)) for a, b in wanted.tolist() if (min(a, b), max(a, b)) not in edges]
+    missing = wanted[~_has_edges(faces, wanted, len(vertices))].tolist()
     if not missing:
         return faces, 0, 0
+    # the flips stay within the unfolded neighbourhoods: only the faces touching them are
+    # mapped (a smooth or big mesh's other faces cost nothing)
     tree = cKDTree(vertices)
+    length = np.linalg.norm(
+        vertices[[b for _, b in missing]] - vertices[[a for a, _ in missing]], axis=1
+    )
+    mids = 0.5 * (vertices[[a for a, _ in missing]] + vertices[[b for _, b in missing]])
+    nears = [
+        np.asarray(x, dtype=np.int64) for x in tree.query_ball_point(mids, INSERT_RADIUS * length)
+    ]
+    local = np.zeros(len(vertices), dtype=bool)
+    local[np.concatenate(nears)] = True
+    sub = np.flatnonzero(local[faces].any(axis=1))
+    edges = _edge_map(faces, sub)
     incident: dict[int, set[int]] = {}
-    for t, f in enumerate(faces.tolist()):
+    for t, f in zip(sub.tolist(), faces[sub].tolist(), strict=True):
         for v in f:
             incident.setdefault(v, set()).add(t)
     degree = np.bincount(wanted.reshape(-1), minlength=len(vertices))
     done = failed = 0
-    for a, b in missing:
+    for (a, b), near in zip(missing, nears, strict=True):
         if (min(a, b), max(a, b)) in edges:
             done += 1
             continue
-        length = float(np.linalg.norm(vertices[b] - vertices[a]))
-        near = np.asarray(
-            tree.query_ball_point(0.5 * (vertices[a] + vertices[b]), INSERT_RADIUS * length),
-            dtype=np.int64,
-        )
         coords = _unfold(vertices, a, b, near, degree[a] != 2, degree[b] != 2)
         if coords is None:
             failed += 1

@@ -11,6 +11,10 @@ neighbourhood, 48 by default, about twice the normal-estimation one) and cluster
 - **corner**: three such clusters, pairwise turning by more than ``angle_deg``, the smallest
   holding at least 10 %.
 
+Past ``180 - angle_deg`` (a knife edge: a 150 deg turn has axes 30 deg apart) the normals near
+the edge are all blends and do not split; there two planes refitted to the neighbourhood's
+points decide (``KNIFE_RATIO``, :mod:`recon.kernels.gauss_map` eq. K1).
+
 A cheap screen comes first: a point is clustered only when one of its neighbours is as
 curved (PCA surface variation) as half of what the edge point of the weakest counting fold
 shows (:func:`_edge_variation`); on a clean smooth surface most points are not.
@@ -95,6 +99,11 @@ SHARPNESS = 0.9
 #: of the sharpest-counting fold's edge point (:func:`_edge_variation`) are smooth without
 #: clustering (a cheap first screen; most of a smooth clean surface).
 SCREEN_FRACTION = 0.5
+#: Knife edges (turns past 180 deg - angle_deg, whose faces' normal axes lie closer than
+#: angle_deg): where the normals do not split, two planes refitted to the neighbourhood's
+#: points (:mod:`recon.kernels.gauss_map`, eq. K1) must leave at most this fraction of the
+#: RMS distance to one plane (0 turns the test off).
+KNIFE_RATIO = 0.5
 #: Orientation across creases (:func:`orient_across_creases`): smooth points farther than a
 #: neighbourhood radius from every feature point are one face with those of their
 #: NORMALS_LINK_K nearest whose normals agree to FACE_LINK_DEG and that lie in their tangent
@@ -107,6 +116,9 @@ FACE_LINK_DEG = 10.0
 MIN_VOTES = 5
 VOTE_MARGIN = 0.5
 ALIGN_POWER = 8
+#: Then the points within a neighbourhood radius of a crease point and within SIDE_PLANE_TOL
+#: radii of one of its side planes take that side's sign (:func:`_sign_by_side`).
+SIDE_PLANE_TOL = 0.25
 
 
 @dataclass(frozen=True)
@@ -213,6 +225,7 @@ def detect_creases(
         CREASE_SHARE,
         CORNER_SHARE,
         CORNER_MIN_DET,
+        KNIFE_RATIO,
     )
     label[cand], side[cand], direction[cand], turn[cand], _, corner[cand], _, foot[cand] = out
     h = np.sqrt(np.pi * dist[:, -1] ** 2 / kk)
@@ -523,7 +536,90 @@ def _empty(n: int) -> Creases:
 def orient_across_creases(
     points: np.ndarray, normals: np.ndarray, found: Creases, k: int = 48
 ) -> tuple[np.ndarray, Creases, int]:
-    """Make oriented normals consistent across the detected creases.
+    """Make oriented normals consistent across the detected creases: whole faces are
+    flipped (:func:`_orient_faces`), then each point near a crease takes the sign of the side
+    it lies on (:func:`_sign_by_side`). Returns the normals, the detection with re-signed side
+    normals, and the number of points flipped (0: the input is returned)."""
+    nrm = np.asarray(normals, dtype=np.float64)
+    out, found, _ = _orient_faces(points, nrm, found, k)
+    found = _sign_sides(as_points(points), out, found, k)
+    out = _sign_by_side(as_points(points), out, found, k)
+    flipped = int(np.count_nonzero(np.einsum("ij,ij->i", out, nrm) < 0.0))
+    return (nrm if flipped == 0 else out), found, flipped
+
+
+def _sign_sides(pts: np.ndarray, nrm: np.ndarray, found: Creases, k: int) -> Creases:
+    """Side normals signed by the majority of their members' normals (the ``k`` nearest
+    points, each a member of the nearer side plane), and made consistent with each other:
+    with ``t_a`` (``t_b``) the direction in face a (b) away from the line to its members,
+    consistent sides have ``sign(n_a . t_b) == sign(n_b . t_a)``; when they do not, the side
+    whose members agree less clearly is turned. Near a knife edge most members' normals are
+    blends of both faces, and one side's majority alone was wrong at a fifth of the points."""
+    cr = np.flatnonzero((found.labels == CREASE) & np.isfinite(found.foot).all(axis=1))
+    if len(cr) == 0:
+        return found
+    kq = int(min(k, len(pts)))
+    _, idx = cKDTree(pts).query(pts[cr], k=kq)
+    idx = idx.reshape(len(cr), kq)
+    rel = pts[idx] - found.foot[cr][:, None]
+    na, nb = found.side_normals[cr, 0], found.side_normals[cr, 1]
+    on_a = np.abs(np.einsum("mkj,mj->mk", rel, na)) <= np.abs(np.einsum("mkj,mj->mk", rel, nb))
+    votes = (
+        np.sign(np.einsum("mkj,mj->mk", nrm[idx], na)),
+        np.sign(np.einsum("mkj,mj->mk", nrm[idx], nb)),
+    )
+    va = np.sum(np.where(on_a, votes[0], 0.0), axis=1)
+    vb = np.sum(np.where(~on_a, votes[1], 0.0), axis=1)
+    na = na * np.where(va < 0, -1.0, 1.0)[:, None]
+    nb = nb * np.where(vb < 0, -1.0, 1.0)[:, None]
+    d = found.direction[cr]
+    ta, tb = np.cross(d, na), np.cross(d, nb)
+    ta *= np.sign(np.einsum("mk,mkj,mj->m", on_a.astype(float), rel, ta))[:, None]
+    tb *= np.sign(np.einsum("mk,mkj,mj->m", (~on_a).astype(float), rel, tb))[:, None]
+    bad = np.sign(np.einsum("ij,ij->i", na, tb)) != np.sign(np.einsum("ij,ij->i", nb, ta))
+    share_a = np.abs(va) / np.maximum(on_a.sum(axis=1), 1)
+    share_b = np.abs(vb) / np.maximum((~on_a).sum(axis=1), 1)
+    na[bad & (share_a < share_b)] *= -1.0
+    nb[bad & (share_a >= share_b)] *= -1.0
+    side = found.side_normals.copy()
+    side[cr, 0], side[cr, 1] = na, nb
+    return replace(found, side_normals=side)
+
+
+def _sign_by_side(pts: np.ndarray, nrm: np.ndarray, found: Creases, k: int) -> np.ndarray:
+    """Each point within a neighbourhood radius of a crease point takes the sign of the side
+    plane (of the nearest crease point) it lies on: within ``SIDE_PLANE_TOL`` radii of that
+    plane, when its normal is within 60 deg of the plane's axis (a blend of the two faces or
+    the face itself; a third face's normals at a corner say nothing). Near a knife edge the
+    normals are blends of both faces, and following the nearest faces' normals (the last step
+    of :func:`_orient_faces`) signs the points of the two faces alike; the side they lie on
+    tells them apart."""
+    cr = np.flatnonzero((found.labels == CREASE) & np.isfinite(found.foot).all(axis=1))
+    if len(cr) == 0:
+        return nrm
+    kq = int(min(k, len(pts)))
+    radius = float(np.median(cKDTree(pts).query(pts[cr], k=kq)[0][:, -1]))
+    dist, near = cKDTree(pts[cr]).query(pts, k=1, distance_upper_bound=radius)
+    sel = np.flatnonzero(np.isfinite(dist))
+    c = cr[near[sel]]
+    rel = pts[sel] - found.foot[c]
+    na, nb = found.side_normals[c, 0], found.side_normals[c, 1]
+    da, db = np.einsum("ij,ij->i", rel, na), np.einsum("ij,ij->i", rel, nb)
+    side = np.where((np.abs(da) <= np.abs(db))[:, None], na, nb)
+    dot = np.einsum("ij,ij->i", nrm[sel], side)
+    on = np.minimum(np.abs(da), np.abs(db)) <= SIDE_PLANE_TOL * radius
+    turn = sel[on & (dot < -0.5)]
+    if len(turn) == 0:
+        return nrm
+    out = nrm.copy()
+    out[turn] *= -1.0
+    return out
+
+
+def _orient_faces(
+    points: np.ndarray, normals: np.ndarray, found: Creases, k: int = 48
+) -> tuple[np.ndarray, Creases, int]:
+    """Make oriented normals consistent across the detected creases, face by face.
 
     Orientation by propagation (:mod:`recon.normals`) crosses a sharp edge where the normals
     of both faces look alike up to sign: across a knife edge (a 150 deg turn, |cos| = 0.87)

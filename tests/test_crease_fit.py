@@ -9,9 +9,18 @@ from pathlib import Path
 import numpy as np
 import pytest
 from mesh_shapes import wedge_points
+from scipy.spatial import cKDTree
 
 from recon import fit
 from recon.config import ReconConfig, TriangulationConfig, apply_overrides
+from recon.crease_lines import (
+    CORNER_ZONE,
+    EXTEND_STEP,
+    extend_to_corners,
+    meeting_corners,
+    refine_corners,
+    smooth_lines,
+)
 from recon.crease_mesh import (
     corner_normals,
     crease_line_edges,
@@ -20,16 +29,7 @@ from recon.crease_mesh import (
     split_crease_vertices,
     straddling,
 )
-from recon.crease_surface import (
-    CORNER_ZONE,
-    EXTEND_STEP,
-    SNAP_CLEARANCE,
-    CreaseField,
-    _extend_to_corners,
-    _meeting_corners,
-    _refine_corners,
-    _smooth_lines,
-)
+from recon.crease_surface import FILL_GAP, SNAP_CLEARANCE, CreaseField
 from recon.creases import CREASE, detect_creases
 from recon.forces import accumulate_forces
 from recon.io import read_points
@@ -166,6 +166,58 @@ def test_a_corner_left_empty_by_the_dynamics_gets_a_particle_when_settling():
     np.testing.assert_allclose(state.position[1], [0.0, 5.0, 0.0])
 
 
+def test_two_empty_corners_do_not_take_the_same_particle():
+    """Regression (review, issue 12): two empty corners whose nearest particle is the same one
+    within CORNER_MERGE spacings of both both moved it; it ended on the last, and the first
+    stayed empty. The nearer corner takes it, the other gets a new particle."""
+    corners = np.array([[0.0, 5.0, 0.0], [0.0, 5.4, 0.0]])
+    field = dataclasses.replace(_edge(convex=True), corners=corners)
+    pos = np.array([[0.0, 5.22, 0.0], [0.0, 3.0, 0.0], [-3.0, 0.0, 0.0]])
+    state = ParticleState.from_points(pos, np.tile([0.0, 0.0, 1.0], (3, 1)))
+    state.set_oriented(np.array([True, False, True]))
+    crease = field.constrain(state, settle=True)
+    assert state.n == 4 and crease.tolist() == [True, True, False, True]
+    np.testing.assert_allclose(state.position[0], corners[1])  # the nearer one
+    np.testing.assert_allclose(state.position[3], corners[0])
+    assert not state.is_oriented[3]
+
+
+def test_a_stretch_of_line_left_without_crease_particles_is_filled_when_settling():
+    """Regression (lblock-clean at seeds 1, 2): about 2 r0 of the concave line had no crease
+    particle (the face particles beside it settled 0.7 spacings off it: too far to snap, and
+    they kept growth off the line), and the mesh cut the edge there. Settling covers every
+    sample's foot: none farther than FILL_GAP spacings from a crease particle; a face
+    particle within FILL_MERGE spacings of the gap is moved onto the line, else one is added."""
+    y = np.arange(0.0, 10.01, 0.25)
+    field = dataclasses.replace(
+        _edge(convex=True),
+        feet=np.c_[np.zeros_like(y), y, np.zeros_like(y)],
+        direction=np.tile([0.0, -1.0, 0.0], (len(y), 1)),
+        side=np.tile(_edge(convex=True).side, (len(y), 1, 1)),
+        convex=np.ones(len(y), dtype=bool),
+    )
+    line = np.array([0.0, 1, 2, 3, 7, 8, 9, 10])
+    rows = np.arange(0.5, 10.0, 1.0)
+    pos = [np.c_[np.zeros(8), line, np.zeros(8)]]
+    nrm = [np.tile([2**-0.5, 0.0, 2**-0.5], (8, 1))]
+    for off in (0.7, 1.5):
+        pos += [np.c_[np.full(10, -off), rows, np.zeros(10)]]
+        pos += [np.c_[np.zeros(10), rows, np.full(10, -off)]]
+        nrm += [np.tile([0.0, 0.0, 1.0], (10, 1)), np.tile([1.0, 0.0, 0.0], (10, 1))]
+    pos, nrm = np.vstack(pos), np.vstack(nrm)
+    pos[8 + 4] = [-0.3, 5.0, 0.0]  # a face particle in the gap: it is moved, not doubled
+    state = ParticleState.from_points(pos, nrm)
+    state.set_oriented(np.arange(len(pos)) >= 8)
+    crease = field.constrain(state, settle=True)
+    on_line = state.position[crease]
+    gap = cKDTree(on_line).query(field.feet)[0]
+    assert gap.max() <= FILL_GAP
+    assert np.all(np.abs(on_line[:, [0, 2]]) < 1e-12)  # all on the line
+    assert not np.any(state.is_oriented[crease]) and np.all(state.is_oriented[~crease])
+    np.testing.assert_allclose(state.position[12], [0.0, 5.0, 0.0])  # moved onto the line
+    assert crease[12] and state.n == len(pos) + 2  # and two added, at 4 and 6
+
+
 def test_corners_are_moved_onto_the_meeting_point_of_their_lines():
     """Three crease lines along the axes meet at (10, 0, 0); the detection's corner estimate
     sits 0.45 off (as at lblock-clean's (1, 0, 0)) and is moved onto the lines' meeting point;
@@ -178,7 +230,7 @@ def test_corners_are_moved_onto_the_meeting_point_of_their_lines():
         direction.append(np.tile(d, (len(t), 1)))
     feet, direction = np.vstack(feet), np.vstack(direction)
     corners = np.array([[9.6, 0.2, 0.05], [5.0, 0.1, 0.0]])
-    out = _refine_corners(feet, direction, corners)
+    out = refine_corners(feet, direction, corners)
     np.testing.assert_allclose(out[0], [10.0, 0.0, 0.0], atol=1e-12)
     np.testing.assert_array_equal(out[1], corners[1])
 
@@ -206,7 +258,7 @@ def test_a_corner_detected_a_spacing_off_still_finds_its_lines():
     direction = direction + rng.normal(scale=0.02, size=direction.shape)
     direction /= np.linalg.norm(direction, axis=1, keepdims=True)
     guess = np.array([[10.7, 0.6, 0.0]])  # 0.92 off: 0.6-0.92 from every line
-    out = _refine_corners(feet, direction, guess)
+    out = refine_corners(feet, direction, guess)
     assert np.linalg.norm(out[0] - corner) < 0.1
 
 
@@ -217,21 +269,21 @@ def test_a_corner_the_detection_missed_is_found_where_three_lines_meet():
     each other without ending, make none."""
     corner = np.array([10.0, 0.0, 0.0])
     feet, direction = _three_lines(corner, np.arange(2.0, 8.0, 0.5))
-    found = _meeting_corners(feet, direction, np.zeros((0, 3)))
+    found = meeting_corners(feet, direction, np.zeros((0, 3)))
     assert len(found) == 1
     np.testing.assert_allclose(found[0], corner, atol=1e-9)
     # known already: nothing new
-    assert len(_meeting_corners(feet, direction, corner[None])) == 0
+    assert len(meeting_corners(feet, direction, corner[None])) == 0
     # a circle of radius 12 in the plane z = 0 with its detection missing over 40 deg
     a = np.radians(np.r_[np.arange(0.0, 160.0, 2.0), np.arange(200.0, 360.0, 2.0)])
     rim = np.c_[12.0 * np.cos(a), 12.0 * np.sin(a), np.zeros_like(a)]
     tangent = np.c_[-np.sin(a), np.cos(a), np.zeros_like(a)]
-    assert len(_meeting_corners(rim, tangent, np.zeros((0, 3)))) == 0
+    assert len(meeting_corners(rim, tangent, np.zeros((0, 3)))) == 0
     # three lines through one point, none ending there
     t = np.arange(-6.0, 6.0, 0.5)
     feet = np.vstack([corner + t[:, None] * e for e in np.eye(3)])
     direction = np.repeat(np.eye(3), len(t), axis=0)
-    assert len(_meeting_corners(feet, direction, np.zeros((0, 3)))) == 0
+    assert len(meeting_corners(feet, direction, np.zeros((0, 3)))) == 0
 
 
 def test_lines_are_continued_through_the_corner_not_along_a_tilted_sample():
@@ -246,7 +298,7 @@ def test_lines_are_continued_through_the_corner_not_along_a_tilted_sample():
     direction = np.vstack([direction, tilt])
     side = np.tile([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0]], (len(feet), 1, 1))
     convex = np.ones(len(feet), dtype=bool)
-    out, d, _, _ = _extend_to_corners(feet, direction, side, convex, corner[None])
+    out, d, _, _ = extend_to_corners(feet, direction, side, convex, corner[None])
     rel = out - corner
     # every sample on one of the three axis lines through the corner
     off = np.min([np.linalg.norm(np.delete(rel, k, axis=1), axis=1) for k in range(3)], axis=0)
@@ -270,7 +322,7 @@ def test_a_line_through_a_corner_is_continued_on_both_sides():
     )
     side = np.tile([[0.0, 0.0, 1.0], [0.0, -1.0, 0.0]], (len(feet), 1, 1))
     convex = np.ones(len(feet), dtype=bool)
-    out, _, _, _ = _extend_to_corners(feet, direction, side, convex, corner[None])
+    out, _, _, _ = extend_to_corners(feet, direction, side, convex, corner[None])
     on_x = out[(np.abs(out[:, 1]) < 1e-9) & (np.abs(out[:, 2]) < 1e-9), 0]
     for half in (on_x[on_x > 0.0], -on_x[on_x < 0.0]):
         gaps = np.diff(np.r_[0.0, np.sort(half)])
@@ -290,7 +342,7 @@ def test_lines_are_smoothed_along_themselves_and_curved_lines_keep_their_curve()
     d = np.tile([1.0, 0.0, 0.0], (len(t), 1)) + rng.normal(scale=0.02, size=(len(t), 3))
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     good = np.ones(len(t), dtype=bool)
-    feet, _ = _smooth_lines(noisy, d, good)
+    feet, _ = smooth_lines(noisy, d, good)
     inner = (t > 6.0) & (t < 34.0)
     before = np.linalg.norm(noisy[inner, 1:], axis=1).mean()
     after = np.linalg.norm(feet[inner, 1:], axis=1).mean()
@@ -298,11 +350,11 @@ def test_lines_are_smoothed_along_themselves_and_curved_lines_keep_their_curve()
     a = np.radians(np.arange(0.0, 360.0, 2.0))
     rim = np.c_[12.0 * np.cos(a), 12.0 * np.sin(a), np.zeros_like(a)]
     tangent = np.c_[-np.sin(a), np.cos(a), np.zeros_like(a)]
-    feet, direction = _smooth_lines(rim, tangent, np.ones(len(a), dtype=bool))
+    feet, direction = smooth_lines(rim, tangent, np.ones(len(a), dtype=bool))
     assert np.abs(np.linalg.norm(feet, axis=1) - 12.0).max() < 0.01
     assert np.abs(np.einsum("ij,ij->i", direction, tangent)).min() > 0.9999
     exact = np.tile([1.0, 0.0, 0.0], (len(t), 1))
-    feet, direction = _smooth_lines(line, exact, good)
+    feet, direction = smooth_lines(line, exact, good)
     np.testing.assert_allclose(feet, line, atol=1e-9)
     np.testing.assert_allclose(direction, exact, atol=1e-12)
 
@@ -447,6 +499,37 @@ def test_a_bridged_line_edge_is_inserted_by_flips():
     )
     flip, conflict = orientation_flips(out)
     assert not flip.any() and not conflict.any()
+
+
+def test_line_edges_are_inserted_with_only_the_faces_near_them_mapped(monkeypatch):
+    """Review (issue 12): the edge map and incidence were built over every face in Python; a
+    big mesh far from its creases pays for its faces only in numpy now. The bridged fan of
+    the test above beside a 40 x 40 grid far away: the same flips, and only the fan's faces
+    are mapped."""
+    import recon.crease_mesh as cm
+
+    a, b, u1, u2, w = range(5)
+    v = np.array(
+        [[0.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, 1.0, 0.2], [0.0, 1.0, 0.8], [1.0, 0.0, 0.5]]
+    )
+    faces = np.array([[w, b, u2], [w, u2, u1], [w, u1, a]])
+    gx, gy = np.meshgrid(np.arange(40.0), np.arange(40.0), indexing="ij")
+    grid = np.c_[gx.ravel() + 100.0, gy.ravel(), np.zeros(1600)]
+    q = (np.arange(39)[:, None] * 40 + np.arange(39)[None, :]).ravel() + 5
+    far = np.r_[np.c_[q, q + 40, q + 41], np.c_[q, q + 41, q + 1]]
+    seen = []
+    real = cm._edge_map
+    monkeypatch.setattr(cm, "_edge_map", lambda f, sub=None: seen.append(sub) or real(f, sub))
+    big_v, big_f = np.vstack([v, grid]), np.vstack([faces, far])
+    crease = np.r_[[True, True, False, False, False], np.zeros(1600, dtype=bool)]
+    out, inserted, left = insert_crease_edges(big_v, big_f, crease)
+    assert (inserted, left) == (1, 0)
+    assert len(seen) == 1 and sorted(seen[0].tolist()) == [0, 1, 2]
+    np.testing.assert_array_equal(out[3:], far)  # the grid is untouched
+    np.testing.assert_array_equal(out[:3], insert_crease_edges(v, faces, crease[:5])[0])
+    # nothing missing: no map at all
+    seen.clear()
+    assert insert_crease_edges(big_v, out, crease)[1:] == (0, 0) and not seen
 
 
 def test_straddling_triangles_have_both_faces_and_no_crease_corner():

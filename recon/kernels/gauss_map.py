@@ -23,6 +23,21 @@ continuum of normals, whose halves lie about two spreads apart (a uniform arc: s
 Phi/2, spreads Phi/8 each), and noise widens the spreads with the separation, so this ratio is
 the noise floor.
 
+**Knife edges (eq. K1).** Past ``180 deg - min_turn`` the two faces' normal *axes* lie closer
+than ``min_turn`` (a 150 deg turn: 30 deg), and within a neighbourhood radius of such an edge
+every normal is a blend of both faces (the other face is within ``s sin(180 deg - turn)`` of
+a point ``s`` from the edge), so the normals do not split. Where the 2-means clusters' planes
+are closer than ``min_turn`` as axes, two planes are refitted to the *points* of the whole
+neighbourhood by alternation (``k``-planes: each point joins the nearer plane,
+
+.. math::  \\min_{n_c, c_c} \\sum_j \\min_c (n_c \\cdot (p_j - c_c))^2,
+
+each plane refitted by PCA to its members, a point within a factor ``_CLEAR`` of both planes
+not taking part), and the pair counts as a crease when each plane holds ``crease_share`` of the
+points, their RMS distance is at most ``knife_ratio`` times the distance to one PCA plane, the
+turn measured from the centroids exceeds ``min_turn`` and the line passes within ``_REACH``
+neighbourhood radii (nearly parallel planes of rounding errors meet far away).
+
 Labels: 2 (corner) when all three pairs of the 3-means separate, turn by more than the
 threshold, the smallest cluster holds ``corner_share`` of the points and the third axis leaves
 the plane of the other two by more than ``asin(min_det)`` (a blend of two faces' normals lies in
@@ -44,6 +59,10 @@ from .options import EXACT_JIT_OPTIONS
 
 _PARALLEL = dict(EXACT_JIT_OPTIONS, parallel=True)
 _ITERATIONS = 10
+#: A point takes part in a refit of its plane (eq. K1) when the other plane is at least this
+#: many times farther from it.
+_CLEAR = 2.0
+_REACH = 4.0
 
 
 @njit(**EXACT_JIT_OPTIONS)
@@ -190,6 +209,7 @@ def gauss_map_kernel(
     crease_share,
     corner_share,
     min_det,
+    knife_ratio=0.0,
 ):  # pragma: no cover - numba
     """Classify the points ``query`` (n, 3) from the normals of their neighbours ``idx`` (n, K)
     among ``points``.
@@ -322,12 +342,46 @@ def gauss_map_kernel(
                 _sign(nb, plane3, assign3, 3)
                 side[i] = plane3
                 continue
+        knife = False
+        if knife_ratio > 0.0:
+            # a knife edge (eq. K1): two faces turning by more than 180 deg - min_turn have
+            # axes closer than min_turn and the normals blended across the edge fill the gap
+            # between them; two planes refitted to the whole neighbourhood's points tell it
+            sep = np.arccos(min(1.0, abs(plane[0] @ plane[1])))
+            if sep < min_turn:
+                allp = np.empty((idx.shape[1], 3))
+                alln = np.empty((idx.shape[1], 3))
+                for j in range(idx.shape[1]):
+                    allp[j] = points[idx[i, j]]
+                    alln[j] = normals[idx[i, j]]
+                kp = plane[:2].copy()
+                kc = centroid[:2].copy()
+                member = np.zeros(idx.shape[1], np.int64)
+                rms2, kshare = _two_planes(allp, kp, kc, member)
+                if kshare >= crease_share and rms2 <= knife_ratio * _one_plane_rms(allp):
+                    kt, kd, kin = _pair(query[i], kp[0], kp[1], kc[0], kc[1], d, x0)
+                    # the line is near (within _REACH neighbourhood radii: on a thin knife
+                    # the far face is in reach well away from the edge); nearly parallel
+                    # planes of rounding errors meet far away
+                    reach = 0.0
+                    for j in range(idx.shape[1]):
+                        reach = max(reach, np.sqrt(np.sum((allp[j] - query[i]) ** 2)))
+                    if kt > min_turn and kd <= _REACH * reach:
+                        crease_ok = True
+                        t2, dist2 = kt, kin
+                        d2[:] = d
+                        x2[:] = x0
+                        _sign(alln, kp, member, 2)
+                        plane[0] = kp[0]
+                        plane[1] = kp[1]
+                        knife = True
         if crease_ok:
             foot[i] = x2
             label[i] = 1
             turn_out[i] = t2
             inface_out[i] = dist2
-            _sign(nb, plane, assign, 2)
+            if not knife:  # the knife's planes are signed by all their members
+                _sign(nb, plane, assign, 2)
             side[i, :2] = plane[:2]
             dx = plane[0, 1] * plane[1, 2] - plane[0, 2] * plane[1, 1]
             dy = plane[0, 2] * plane[1, 0] - plane[0, 0] * plane[1, 2]
@@ -337,6 +391,66 @@ def gauss_map_kernel(
             direction[i, 1] = dy / dn
             direction[i, 2] = dz / dn
     return label, side, direction, turn_out, inface_out, corner, spread_out, foot
+
+
+@njit(**EXACT_JIT_OPTIONS)
+def _two_planes(pts, planes, centroids, member):  # pragma: no cover - numba
+    """Eq. K1: refit two planes (unit ``planes`` through ``centroids``, updated in place) to
+    the points ``pts`` by alternation: each point joins the nearer plane (``member``), each
+    plane is refitted to its members by PCA (keeping its sign). Returns the RMS distance of
+    the points to their planes and the smaller plane's share of the points (0 when a plane
+    keeps fewer than three points)."""
+    k = pts.shape[0]
+    clear = np.zeros(k, np.bool_)
+    for _ in range(_ITERATIONS):
+        for j in range(k):
+            da = abs(planes[0] @ (pts[j] - centroids[0]))
+            db = abs(planes[1] @ (pts[j] - centroids[1]))
+            member[j] = 0 if da <= db else 1
+            # near the line a point fits both planes: it does not pull either
+            clear[j] = max(da, db) >= _CLEAR * min(da, db)
+        for c in range(2):
+            cnt = 0
+            cen = np.zeros(3)
+            for j in range(k):
+                if member[j] == c and clear[j]:
+                    cen += pts[j]
+                    cnt += 1
+            if cnt < 3:
+                return np.inf, 0.0
+            cen /= cnt
+            cov = np.zeros((3, 3))
+            for j in range(k):
+                if member[j] == c and clear[j]:
+                    r = pts[j] - cen
+                    cov += np.outer(r, r)
+            _, vec = np.linalg.eigh(cov)
+            nrm = vec[:, 0].copy()
+            if nrm @ planes[c] < 0.0:
+                nrm = -nrm
+            planes[c] = nrm
+            centroids[c] = cen
+    sq = 0.0
+    cnt0 = 0
+    for j in range(k):
+        c = member[j]
+        cnt0 += 1 - c
+        sq += (planes[c] @ (pts[j] - centroids[c])) ** 2
+    return np.sqrt(sq / k), min(cnt0, k - cnt0) / k
+
+
+@njit(**EXACT_JIT_OPTIONS)
+def _one_plane_rms(pts):  # pragma: no cover - numba
+    """RMS distance of ``pts`` to their PCA plane (the root of the least eigenvalue / n)."""
+    cen = np.zeros(3)
+    for j in range(pts.shape[0]):
+        cen += pts[j]
+    cen /= pts.shape[0]
+    cov = np.zeros((3, 3))
+    for j in range(pts.shape[0]):
+        r = pts[j] - cen
+        cov += np.outer(r, r)
+    return np.sqrt(max(np.linalg.eigvalsh(cov)[0], 0.0) / pts.shape[0])
 
 
 @njit(**EXACT_JIT_OPTIONS)
