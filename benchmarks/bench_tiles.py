@@ -5,6 +5,10 @@ tree crowns, open boundary, exact ground truth) fitted whole and cut into >= 8 t
 boundary loops, non-manifold edges, Chamfer-L1 and F@1% against the ground truth, and time,
 for both.
 
+``restitch``: stitches again the tiles of a ``seams`` run whose work folder ``--keep-work``
+kept (the same scene: same ``--points`` and ``--seed``) and prints what ``seams`` prints for
+the tiled mesh: a stitch experiment takes minutes instead of a refit.
+
 ``scale``: writes an N-point LAZ scene per size (a larger N is a larger area at the same
 density), fits it in tiles of a fixed side on a 2-worker Dask LocalCluster
 (``--executor dask --jobs 2``), and prints wall time, points/s, tiles, and the peak RSS of the
@@ -16,6 +20,8 @@ Examples::
     python benchmarks/bench_tiles.py seams --points 1000000
     python benchmarks/bench_tiles.py seams --points 1000000 --only untiled --keep out/
     python benchmarks/bench_tiles.py seams --points 1000000 --only tiled --keep out/
+    python benchmarks/bench_tiles.py seams --points 1000000 --only tiled --keep-work out/work
+    python benchmarks/bench_tiles.py restitch --points 1000000 --keep-work out/work
     python benchmarks/bench_tiles.py scale --points 250000 500000 1000000
     python benchmarks/bench_tiles.py scale --points 10000000 --tile-size 100
 """
@@ -187,7 +193,11 @@ def seams(ns: argparse.Namespace) -> int:
         rows = {}
         for name, extra in runs:
             out = d / f"{tag}-{name.split()[0]}.ply"
-            wall, root, workers, code = run_fit([str(src), "-o", str(out), *extra, *ns.fit_args])
+            env = None
+            if ns.keep_work and name != "untiled":
+                env = {**os.environ, "OPRECON_KEEP_TILES": str(Path(ns.keep_work).resolve())}
+            args = [str(src), "-o", str(out), *extra, *ns.fit_args]
+            wall, root, workers, code = run_fit(args, env)
             if code != 0:
                 return code
             row = mesh_scores(out, truth)
@@ -242,6 +252,27 @@ def seams(ns: argparse.Namespace) -> int:
         and tiled["boundary_loops"] == base["boundary_loops"]
     )
     print("seamless goals met" if ok else "seamless goals NOT met")
+    return 0
+
+
+def restitch(ns: argparse.Namespace) -> int:
+    import pickle
+
+    from recon.tiling.run import STITCH_INPUTS
+    from recon.tiling.run import restitch as stitch_again
+
+    work = Path(ns.keep_work)
+    scene = Scene.for_points(ns.points[0], seed=ns.seed)
+    truth = scene.ground_truth(ns.truth)
+    grid = pickle.loads((work / STITCH_INPUTS).read_bytes())[0]
+    out = work / "restitched.ply"
+    t0 = time.perf_counter()
+    stitched = stitch_again(work, out)
+    row = mesh_scores(out, truth)
+    row.update(stitch_s=time.perf_counter() - t0, repair=stitched["repair"])
+    print(f"restitched: {json.dumps(row)}", flush=True)
+    for loop in loop_table(out, np.asarray(grid.lo), grid.size):
+        print(f"  loop {json.dumps(loop)}", flush=True)
     return 0
 
 
@@ -309,7 +340,7 @@ def scale(ns: argparse.Namespace) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("mode", choices=["seams", "scale"], nargs="?", default="seams")
+    ap.add_argument("mode", choices=["seams", "restitch", "scale"], nargs="?", default="seams")
     ap.add_argument("--points", type=int, nargs="+", default=None)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--noise", type=float, default=0.02, help="[m] along the normal")
@@ -331,6 +362,11 @@ def main(argv: list[str] | None = None) -> int:
         help="seams: folder that keeps the meshes, reports and each run's row (JSON)",
     )
     ap.add_argument(
+        "--keep-work",
+        default=None,
+        help="seams: folder that receives the tiled fit's work folder; restitch: that folder",
+    )
+    ap.add_argument(
         "--fit-arg",
         dest="fit_args",
         action="append",
@@ -339,9 +375,9 @@ def main(argv: list[str] | None = None) -> int:
     )
     ns = ap.parse_args(argv)
     if ns.points is None:
-        ns.points = [1_000_000] if ns.mode == "seams" else [250_000, 500_000, 1_000_000]
+        ns.points = [1_000_000] if ns.mode != "scale" else [250_000, 500_000, 1_000_000]
     os.environ.setdefault("PYTHONWARNINGS", "ignore")
-    return seams(ns) if ns.mode == "seams" else scale(ns)
+    return {"seams": seams, "restitch": restitch, "scale": scale}[ns.mode](ns)
 
 
 if __name__ == "__main__":
