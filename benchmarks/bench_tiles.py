@@ -24,6 +24,7 @@ Examples::
     python benchmarks/bench_tiles.py restitch --points 1000000 --keep-work out/work
     python benchmarks/bench_tiles.py scale --points 250000 500000 1000000
     python benchmarks/bench_tiles.py scale --points 10000000 --tile-size 100
+    python benchmarks/bench_tiles.py scale --points 1000000 --keep-work out/scale
 """
 
 from __future__ import annotations
@@ -48,6 +49,8 @@ sys.path.insert(0, str(HERE))
 from scenes import Scene, write_laz  # noqa: E402
 
 OPRECON = [sys.executable, "-m", "recon.cli.main"]
+#: Where ``scale`` puts its scenes (georeferenced-like coordinates).
+SCALE_OFFSET = (5e6, 5e6, 200.0)
 
 
 def _oprecon() -> list[str]:
@@ -262,9 +265,11 @@ def restitch(ns: argparse.Namespace) -> int:
     from recon.tiling.run import restitch as stitch_again
 
     work = Path(ns.keep_work)
-    scene = Scene.for_points(ns.points[0], seed=ns.seed)
-    truth = scene.ground_truth(ns.truth)
     grid = pickle.loads((work / STITCH_INPUTS).read_bytes())[0]
+    # a scale run's scene lies at SCALE_OFFSET, a seams run's at the origin
+    offset = SCALE_OFFSET if grid.lo[0] > 0.5 * SCALE_OFFSET[0] else (0.0, 0.0, 0.0)
+    scene = Scene.for_points(ns.points[0], seed=ns.seed, offset=offset)
+    truth = scene.ground_truth(ns.truth)
     out = work / "restitched.ply"
     t0 = time.perf_counter()
     stitched = stitch_again(work, out)
@@ -279,7 +284,7 @@ def restitch(ns: argparse.Namespace) -> int:
 def scale(ns: argparse.Namespace) -> int:
     rows = []
     for n in ns.points:
-        scene = Scene.for_points(n, seed=ns.seed, offset=(5e6, 5e6, 200.0))
+        scene = Scene.for_points(n, seed=ns.seed, offset=SCALE_OFFSET)
         with tempfile.TemporaryDirectory(prefix="bench_tiles_", dir=ns.workdir) as tmp:
             d = Path(tmp)
             src = d / "scene.laz"
@@ -302,7 +307,11 @@ def scale(ns: argparse.Namespace) -> int:
                 ns.executor,
                 *ns.fit_args,
             ]
-            wall, root, workers, code = run_fit(args)
+            env = None
+            if ns.keep_work:
+                keep = Path(ns.keep_work).resolve() / str(n)
+                env = {**os.environ, "OPRECON_KEEP_TILES": str(keep)}
+            wall, root, workers, code = run_fit(args, env)
             if code != 0:
                 return code
             report = json.loads(out.with_suffix(".report.json").read_text())
@@ -364,7 +373,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument(
         "--keep-work",
         default=None,
-        help="seams: folder that receives the tiled fit's work folder; restitch: that folder",
+        help="seams, scale: folder that receives the tiled fits' work folders (scale: one "
+        "per size, named by the point count); restitch: such a work folder",
     )
     ap.add_argument(
         "--fit-arg",
