@@ -5,6 +5,10 @@ tree crowns, open boundary, exact ground truth) fitted whole and cut into >= 8 t
 boundary loops, non-manifold edges, Chamfer-L1 and F@1% against the ground truth, and time,
 for both.
 
+``restitch``: stitches again the tiles of a ``seams`` run whose work folder ``--keep-work``
+kept (the same scene: same ``--points`` and ``--seed``) and prints what ``seams`` prints for
+the tiled mesh: a stitch experiment takes minutes instead of a refit.
+
 ``scale``: writes an N-point LAZ scene per size (a larger N is a larger area at the same
 density), fits it in tiles of a fixed side on a 2-worker Dask LocalCluster
 (``--executor dask --jobs 2``), and prints wall time, points/s, tiles, and the peak RSS of the
@@ -16,8 +20,11 @@ Examples::
     python benchmarks/bench_tiles.py seams --points 1000000
     python benchmarks/bench_tiles.py seams --points 1000000 --only untiled --keep out/
     python benchmarks/bench_tiles.py seams --points 1000000 --only tiled --keep out/
+    python benchmarks/bench_tiles.py seams --points 1000000 --only tiled --keep-work out/work
+    python benchmarks/bench_tiles.py restitch --points 1000000 --keep-work out/work
     python benchmarks/bench_tiles.py scale --points 250000 500000 1000000
     python benchmarks/bench_tiles.py scale --points 10000000 --tile-size 100
+    python benchmarks/bench_tiles.py scale --points 1000000 --keep-work out/scale
 """
 
 from __future__ import annotations
@@ -42,6 +49,8 @@ sys.path.insert(0, str(HERE))
 from scenes import Scene, write_laz  # noqa: E402
 
 OPRECON = [sys.executable, "-m", "recon.cli.main"]
+#: Where ``scale`` puts its scenes (georeferenced-like coordinates).
+SCALE_OFFSET = (5e6, 5e6, 200.0)
 
 
 def _oprecon() -> list[str]:
@@ -187,7 +196,11 @@ def seams(ns: argparse.Namespace) -> int:
         rows = {}
         for name, extra in runs:
             out = d / f"{tag}-{name.split()[0]}.ply"
-            wall, root, workers, code = run_fit([str(src), "-o", str(out), *extra, *ns.fit_args])
+            env = None
+            if ns.keep_work and name != "untiled":
+                env = {**os.environ, "OPRECON_KEEP_TILES": str(Path(ns.keep_work).resolve())}
+            args = [str(src), "-o", str(out), *extra, *ns.fit_args]
+            wall, root, workers, code = run_fit(args, env)
             if code != 0:
                 return code
             row = mesh_scores(out, truth)
@@ -245,10 +258,33 @@ def seams(ns: argparse.Namespace) -> int:
     return 0
 
 
+def restitch(ns: argparse.Namespace) -> int:
+    import pickle
+
+    from recon.tiling.run import STITCH_INPUTS
+    from recon.tiling.run import restitch as stitch_again
+
+    work = Path(ns.keep_work)
+    grid = pickle.loads((work / STITCH_INPUTS).read_bytes())[0]
+    # a scale run's scene lies at SCALE_OFFSET, a seams run's at the origin
+    offset = SCALE_OFFSET if grid.lo[0] > 0.5 * SCALE_OFFSET[0] else (0.0, 0.0, 0.0)
+    scene = Scene.for_points(ns.points[0], seed=ns.seed, offset=offset)
+    truth = scene.ground_truth(ns.truth)
+    out = work / "restitched.ply"
+    t0 = time.perf_counter()
+    stitched = stitch_again(work, out)
+    row = mesh_scores(out, truth)
+    row.update(stitch_s=time.perf_counter() - t0, repair=stitched["repair"])
+    print(f"restitched: {json.dumps(row)}", flush=True)
+    for loop in loop_table(out, np.asarray(grid.lo), grid.size):
+        print(f"  loop {json.dumps(loop)}", flush=True)
+    return 0
+
+
 def scale(ns: argparse.Namespace) -> int:
     rows = []
     for n in ns.points:
-        scene = Scene.for_points(n, seed=ns.seed, offset=(5e6, 5e6, 200.0))
+        scene = Scene.for_points(n, seed=ns.seed, offset=SCALE_OFFSET)
         with tempfile.TemporaryDirectory(prefix="bench_tiles_", dir=ns.workdir) as tmp:
             d = Path(tmp)
             src = d / "scene.laz"
@@ -271,7 +307,11 @@ def scale(ns: argparse.Namespace) -> int:
                 ns.executor,
                 *ns.fit_args,
             ]
-            wall, root, workers, code = run_fit(args)
+            env = None
+            if ns.keep_work:
+                keep = Path(ns.keep_work).resolve() / str(n)
+                env = {**os.environ, "OPRECON_KEEP_TILES": str(keep)}
+            wall, root, workers, code = run_fit(args, env)
             if code != 0:
                 return code
             report = json.loads(out.with_suffix(".report.json").read_text())
@@ -309,7 +349,7 @@ def scale(ns: argparse.Namespace) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("mode", choices=["seams", "scale"], nargs="?", default="seams")
+    ap.add_argument("mode", choices=["seams", "restitch", "scale"], nargs="?", default="seams")
     ap.add_argument("--points", type=int, nargs="+", default=None)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--noise", type=float, default=0.02, help="[m] along the normal")
@@ -331,6 +371,12 @@ def main(argv: list[str] | None = None) -> int:
         help="seams: folder that keeps the meshes, reports and each run's row (JSON)",
     )
     ap.add_argument(
+        "--keep-work",
+        default=None,
+        help="seams, scale: folder that receives the tiled fits' work folders (scale: one "
+        "per size, named by the point count); restitch: such a work folder",
+    )
+    ap.add_argument(
         "--fit-arg",
         dest="fit_args",
         action="append",
@@ -339,9 +385,9 @@ def main(argv: list[str] | None = None) -> int:
     )
     ns = ap.parse_args(argv)
     if ns.points is None:
-        ns.points = [1_000_000] if ns.mode == "seams" else [250_000, 500_000, 1_000_000]
+        ns.points = [1_000_000] if ns.mode != "scale" else [250_000, 500_000, 1_000_000]
     os.environ.setdefault("PYTHONWARNINGS", "ignore")
-    return seams(ns) if ns.mode == "seams" else scale(ns)
+    return {"seams": seams, "restitch": restitch, "scale": scale}[ns.mode](ns)
 
 
 if __name__ == "__main__":

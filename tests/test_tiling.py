@@ -342,3 +342,23 @@ def test_tiled_mesh_does_not_cross_itself(fits):
     assert len(self_intersections(v, f)) == 0
     found = tiled.report["tiles"]["self_intersections"]
     assert found["left"] <= found["found"]
+
+
+def test_a_kept_work_folder_stitches_again_to_the_same_mesh(tmp_path, monkeypatch):
+    """``OPRECON_KEEP_TILES`` keeps the work folder with the stitch's inputs (for seam
+    experiments); :func:`recon.tiling.run.restitch` makes the same mesh from it."""
+    from recon.tiling.run import STITCH_INPUTS, restitch
+
+    src = tmp_path / "sheet.ply"
+    write_points(src, sheet(1500, seed=3))
+    keep = tmp_path / "work"
+    monkeypatch.setenv("OPRECON_KEEP_TILES", str(keep))
+    cfg = with_values(ReconConfig(), tiling={"size": SIDE / 2})
+    fit_tiled(src, tmp_path / "tiled.ply", cfg, jobs=1)
+    assert (keep / STITCH_INPUTS).exists()
+    assert not list(tmp_path.glob(".oprecon-tiles-*"))  # moved, not left beside the output
+    out = restitch(keep, tmp_path / "again.ply")
+    v1, f1 = read_mesh(tmp_path / "tiled.ply")
+    v2, f2 = read_mesh(tmp_path / "again.ply")
+    assert np.array_equal(f1, f2) and np.allclose(v1, v2)
+    assert out["topology"]["boundary_loops"] == mesh_topology(v2, f2)["boundary_loops"]

@@ -285,3 +285,25 @@ def test_a_small_stitched_mesh_is_drawn_as_it_is(tmp_path):
     _, out, n_faces = stitch(tmp_path, 2, False)
     v, f, marks = preview_mesh(out, max_faces=n_faces)
     assert len(f) == n_faces == marks["faces"]
+
+
+def test_a_bow_tie_copy_of_a_cut_vertex_stays_cut(tmp_path):
+    """A vertex whose star the cell's sub-mesh cuts off (``cut``) may look like a bow-tie
+    there: two of its six wedges lie beyond the sub-mesh. Splitting it gives the fan of
+    editable faces a copy, and the copy must stay cut (it is where its source is): the open
+    wedge next to it is no hole, so no loop through it is zipped. Before, copies were never
+    cut and the 4-vertex loop round the editable fan was zipped over that fan."""
+    from recon.tiling.stitch import repair_cell
+
+    grid = TileGrid.cover(np.zeros(3), np.array([24.0, 12.0, 1.0]), SIZE, 4.0)
+    ring = np.array([[np.cos(a), np.sin(a), 0.0] for a in np.arange(6) * np.pi / 3])
+    v = np.vstack([[[SIZE + 0.2, 6.0, 0.0]], ring + [SIZE + 0.2, 6.0, 0.0]])
+    star = np.array([[0, 1 + k, 1 + (k + 1) % 6] for k in range(6)])
+    frame, edit = star[[4, 5]], star[[1, 2]]  # wedges 0 and 3 lie beyond the sub-mesh
+    cut = np.zeros(len(v), dtype=bool)
+    cut[0] = True
+    faces = np.vstack([frame, edit])
+    v2, _, out, stats = repair_cell(grid, v, np.tile([0.0, 0, 1], (7, 1)), faces, 2, 1.0, 3.0, cut)
+    assert len(v2) == 8  # the bow-tie was split: its editable fan has a copy
+    assert stats["seam_loops_zipped"] == 0
+    assert len(out) == 2 and set(out.ravel()) == {7, 2, 3, 4}  # the fan, on the copy

@@ -23,6 +23,8 @@
 from __future__ import annotations
 
 import math
+import os
+import pickle
 import shutil
 import tempfile
 import time
@@ -57,10 +59,15 @@ from .tasks import (
 )
 from .writer import write_particles_streamed, write_streamed
 
-__all__ = ["TiledResult", "fit_tiled", "plan_tile_size"]
+__all__ = ["TiledResult", "fit_tiled", "plan_tile_size", "restitch"]
 
 #: Points whose spacing the whole scan samples (as ``median_nearest_neighbor_distance``).
 SPACING_SAMPLE = 20_000
+#: The stitch's inputs in a kept work folder (see ``_KEEP_ENV`` and :func:`restitch`).
+STITCH_INPUTS = "stitch-inputs.pkl"
+#: For stitch experiments (``benchmarks/bench_tiles.py --keep-work``): a folder that receives
+#: the work folder, with the stitch's inputs (``stitch-inputs.pkl``), instead of removing it.
+_KEEP_ENV = "OPRECON_KEEP_TILES"
 
 
 @dataclass
@@ -274,8 +281,7 @@ def fit_tiled(
             if cfg.triangulation.max_hole is not None
             else cfg.growth.max_gap
         )
-        stitched = stitch_streamed(
-            work,
+        stitch_args = (
             grid,
             {t: fits[t]["particles"] for t in offsets},
             flips,
@@ -285,6 +291,9 @@ def fit_tiled(
             particles_path,
             len(property_names(cfg.output)),
         )
+        if os.environ.get(_KEEP_ENV):
+            (work / STITCH_INPUTS).write_bytes(pickle.dumps(stitch_args))
+        stitched = stitch_streamed(work, *stitch_args)
         if stitched["n_faces"] == 0:
             raise InputError(
                 f"{input_path}: the reconstruction produced no triangles: the data may be too "
@@ -381,6 +390,10 @@ def fit_tiled(
                     tmp.write_text(dumps(report) + "\n")
         return TiledResult(report)
     finally:
+        keep = os.environ.get(_KEEP_ENV)
+        if keep and (work / STITCH_INPUTS).exists():
+            shutil.rmtree(keep, ignore_errors=True)
+            shutil.move(work, keep)
         shutil.rmtree(work, ignore_errors=True)
 
 
@@ -396,3 +409,15 @@ def _check_tile_memory(store: Any, cfg: ReconConfig, r0: float, d_nn: float) -> 
         check_memory(estimate, cfg.io.max_memory, r0)
     except InputError as exc:
         raise InputError(f"the largest tile: {exc}; or use a smaller --tile-size") from None
+
+
+def restitch(work: str | Path, output_path: str | Path) -> dict[str, Any]:
+    """Stitch the tiles of a work folder kept by ``OPRECON_KEEP_TILES`` again (for seam
+    experiments: minutes instead of a refit) and write the mesh (PLY or OBJ, positions only).
+
+    Returns the stitch's ``topology``, ``seams`` and ``repair``."""
+    work = Path(work)
+    args = pickle.loads((work / STITCH_INPUTS).read_bytes())
+    stitched = stitch_streamed(work, *args)
+    write_streamed(Path(output_path), stitched, stitched["coordinate_type"], False, False)
+    return {k: stitched[k] for k in ("topology", "seams", "repair")}

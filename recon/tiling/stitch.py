@@ -126,20 +126,23 @@ def same_winding(faces: np.ndarray, reference: np.ndarray) -> np.ndarray:
 
 def _split_keeping_frame(
     vertices: np.ndarray, normals: np.ndarray, faces: np.ndarray, is_frame: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Split bow-tie vertices (:func:`split_non_manifold_vertices`) without touching the frame:
     when a frame face would move to the copy, the copy and the original swap roles; when
-    frame faces are on both sides, the vertex stays a bow-tie."""
+    frame faces are on both sides, the vertex stays a bow-tie. The last array gives the
+    vertex each appended copy copies."""
     from ..triangulate import split_non_manifold_vertices
 
     n0 = len(vertices)
     v2, n2, f2, k = split_non_manifold_vertices(vertices, normals, faces)
+    sources = np.zeros(k, dtype=np.int64)
     if k == 0:
-        return vertices, normals, faces
+        return vertices, normals, faces, sources
     for new in range(n0, n0 + k):
         at = f2 == new
         rows = at.any(axis=1)
         src = int(faces[at][0])
+        sources[new - n0] = src
         if not (rows & is_frame).any():
             continue
         kept = (f2 == src).any(axis=1)
@@ -149,7 +152,7 @@ def _split_keeping_frame(
             src_at = f2 == src
             f2[at] = src
             f2[src_at] = new
-    return v2, n2, f2
+    return v2, n2, f2, sources
 
 
 def _open_vertices(faces: np.ndarray, is_frame: np.ndarray, n: int) -> np.ndarray:
@@ -246,7 +249,11 @@ def repair_cell(
         ed[f[~fr].ravel()] = True
         return ~fr | ed[f].any(axis=1)
 
+    # the vertex of the sub-mesh each vertex is or copies (bow-tie copies are appended)
+    origin = np.arange(len(vertices))
+
     def repair(v, n, f):
+        nonlocal origin
         fr = tag(f)
         keep = near(f, fr, len(v))
         far, f = f[~keep], f[keep]  # far: frame faces only
@@ -254,7 +261,8 @@ def repair_cell(
         fr = tag(f)
         f = np.vstack([f[fr], f[~fr]])
         fr = np.sort(fr)[::-1]
-        v, n, f = _split_keeping_frame(v, n, f, fr)
+        v, n, f, sources = _split_keeping_frame(v, n, f, fr)
+        origin = np.concatenate([origin, origin[sources]])
         return v, n, np.vstack([far, f]), np.concatenate([np.ones(len(far), bool), fr])
 
     def orient(v, n, f, fr):
@@ -272,9 +280,8 @@ def repair_cell(
     def close(v, f, fr, rule) -> list[np.ndarray]:
         if cut is None:
             opened = _open_vertices(f, fr, len(v))
-        else:  # bow-tie copies (appended) are where their sources were
-            opened = np.zeros(len(v), dtype=bool)
-            opened[: len(cut)] = cut
+        else:  # bow-tie copies (appended) are where their sources were: cut as they are
+            opened = np.asarray(cut, dtype=bool)[origin]
         edited = np.zeros(len(v), dtype=bool)
         edited[f[~fr].ravel()] = True
         chosen = []
