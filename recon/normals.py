@@ -64,6 +64,7 @@ from scipy.spatial import cKDTree
 from .errors import ConfigError, InputError
 from .geometry import as_points
 from .kernels.options import query_workers
+from .orientation_graph import edge_costs
 
 if TYPE_CHECKING:
     from .cloud import PointCloud
@@ -346,9 +347,8 @@ def _knn_graph(
     keep = rows != cols  # defensive: duplicate points can reorder self
     rows, cols = rows[keep], cols[keep]
     if across_cost <= 0.0:
-        dots = np.einsum("ij,ij->i", normals[rows], normals[cols])
-        base = np.clip(1.0 - np.abs(dots), 0.0, None) + _EDGE_EPSILON
-        return _symmetric(base, rows, cols, n), None, None
+        cost = edge_costs(points, normals, rows, cols, _EDGE_EPSILON)
+        return _symmetric(cost, rows, cols, n), None, None
     across = np.zeros((n, k_wide), dtype=bool)
     two_sided = np.zeros(n, dtype=bool)
     for lo in range(0, n, _CHUNK):  # in blocks: the split holds ~10 (block, k_wide) arrays
@@ -368,18 +368,13 @@ def _knn_graph(
     key = np.concatenate([rows * np.int64(n) + cols, seen_back])
     key.sort()
     key = key[np.r_[True, key[1:] != key[:-1]]]
-    rows, cols = key // n, key % n
-    both = np.isin(key, seen_back)
-    dots = np.einsum("ij,ij->i", normals[rows], normals[cols])
-    base = np.clip(1.0 - np.abs(dots), 0.0, None) + _EDGE_EPSILON
-    u = points[cols] - points[rows]
-    u /= np.maximum(np.linalg.norm(u, axis=1, keepdims=True), 1e-300)
-    a = 0.5 * (
-        np.abs(np.einsum("ij,ij->i", u, normals[rows]))
-        + np.abs(np.einsum("ij,ij->i", u, normals[cols]))
-    )
+    rows, cols = (key // n).astype(np.int32), (key % n).astype(np.int32)  # n < 2^31
+    both = np.zeros(len(key), dtype=bool)  # key is sorted and holds seen_back: no np.isin
+    both[np.searchsorted(key, seen_back)] = True
+    del key, across
     # an edge known to join the two faces propagates exactly (opposed signs): no penalty
-    graph = _symmetric(np.where(both, base, base + across_cost * a * a), rows, cols, n)
+    cost = edge_costs(points, normals, rows, cols, _EDGE_EPSILON, across_cost, exact=both)
+    graph = _symmetric(cost, rows, cols, n)
     flip = sparse.coo_matrix((np.ones(int(both.sum())), (rows[both], cols[both])), shape=(n, n))
     return graph, flip.tocsr(), two_sided
 
