@@ -64,6 +64,7 @@ from scipy.spatial import cKDTree
 from .errors import ConfigError, InputError
 from .geometry import as_points
 from .kernels.options import query_workers
+from .kernels.thin_sides import split_sides_kernel
 from .orientation_graph import edge_costs
 
 if TYPE_CHECKING:
@@ -285,29 +286,10 @@ def _across_neighbours(
     rel = points[idx] - points[start : start + n, None, :]
     offsets = np.einsum("ijk,ik->ij", rel, normals[start : start + n])
     radius = np.linalg.norm(rel[:, -1], axis=1)
-    d = np.concatenate([np.zeros((n, 1)), offsets], axis=1)  # the point itself at 0
-    m = k_wide + 1
-    s = np.sort(d, axis=1)
-    c1 = np.cumsum(s, axis=1)
-    c2 = np.cumsum(s * s, axis=1)
-    t = np.arange(1, m)  # left group s[:, :t]
-    left_ss = c2[:, :-1] - c1[:, :-1] ** 2 / t
-    right_n = m - t
-    right_sum = c1[:, -1:] - c1[:, :-1]
-    right_ss = (c2[:, -1:] - c2[:, :-1]) - right_sum**2 / right_n
-    ss = left_ss + right_ss
-    ss[:, (t < _SIDES_MIN) | (right_n < _SIDES_MIN)] = np.inf
-    if not np.isfinite(ss).any():
-        return np.zeros((n, k), dtype=bool), np.zeros(n, dtype=bool)
-    best = np.argmin(ss, axis=1)
-    rows = np.arange(n)
-    gap = right_sum[rows, best] / right_n[best] - c1[rows, best] / t[best]
-    pooled = np.sqrt(np.maximum(ss[rows, best], 0.0) / max(m - 2, 1))
-    two_sided = (gap > _SIDES_SEPARATION * pooled) & (gap > _SIDES_GAP * radius)
-    threshold = 0.5 * (s[rows, best] + s[rows, best + 1])
-    own_left = 0.0 < threshold  # i (offset 0) is in the left group
-    left = offsets[:, :k] < threshold[:, None]
-    return two_sided[:, None] & (left != own_left[:, None]), two_sided
+    across, two_sided = np.zeros((n, k), dtype=bool), np.zeros(n, dtype=bool)
+    args = (_SIDES_MIN, _SIDES_SEPARATION, _SIDES_GAP, across, two_sided)
+    split_sides_kernel(offsets, radius, k, *args)  # the split, row by row
+    return across, two_sided
 
 
 def _knn_graph(
