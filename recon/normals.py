@@ -664,8 +664,13 @@ def neighbors_needed(cfg: NormalsConfig, has_input: bool = False) -> int:
     estimate's ``k`` and the orientation graph's (0 when the file's normals are used)."""
     if has_input and cfg.mode in ("auto", "input"):
         return 0
-    graph = max(cfg.orient_k, _SIDES_K) if cfg.thin_parts > 0.0 else cfg.orient_k
-    return max(cfg.k, graph + 1)
+    return max(cfg.k, graph_width(cfg.orient_k, cfg.thin_parts))
+
+
+def graph_width(k: int, across_cost: float = 0.0) -> int:
+    """Nearest points per point (itself included) that :func:`orient_normals` queries for its
+    graph of ``k`` neighbours (wider with ``across_cost``: the thin-part split)."""
+    return (max(k, _SIDES_K) if across_cost > 0.0 else k) + 1
 
 
 def compute_normals(

@@ -21,7 +21,7 @@ from scipy.sparse import csgraph
 from scipy.spatial import cKDTree
 
 from .kernels.options import query_workers
-from .normals import orient_normals
+from .normals import graph_width, orient_normals
 
 __all__ = ["consistent_normals"]
 
@@ -64,10 +64,19 @@ def consistent_normals(positions: np.ndarray, normals: np.ndarray) -> np.ndarray
     k = PARTICLE_ORIENT_K
     if n <= k:
         return normals
+    # one query serves the propagation's graph (its first k + 1 columns and the thin-part
+    # split's wider neighbourhood) and the parts and patches below
+    wide = min(graph_width(k, PARTICLE_ACROSS_COST), n)
+    _, idx = cKDTree(positions).query(positions, wide, workers=query_workers())
     signed, _ = orient_normals(
-        positions, normals, k=k, orientation="none", across_cost=PARTICLE_ACROSS_COST
+        positions,
+        normals,
+        k=k,
+        orientation="none",
+        across_cost=PARTICLE_ACROSS_COST,
+        neighbors=idx,
     )
-    _, idx = cKDTree(positions).query(positions, k + 1, workers=query_workers())
+    idx = idx[:, : k + 1]
     rows, cols = np.repeat(np.arange(n), k), idx[:, 1:].ravel()
     graph = sparse.coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(n, n))
     n_parts, part = csgraph.connected_components(graph, directed=False)

@@ -102,3 +102,45 @@ def test_crease_detection_in_blocks_is_the_same_on_int32_neighbours(monkeypatch)
     assert own.n_crease_points > 0
     np.testing.assert_array_equal(shared.labels, own.labels)
     np.testing.assert_array_equal(shared.side_normals, own.side_normals)
+
+
+def test_particle_re_signing_queries_the_particles_once(monkeypatch):
+    """:func:`recon.particle_signs.consistent_normals` builds one k-d tree of the particles
+    (the propagation's graph takes its columns) and re-signs as with a query of its own."""
+    from recon import normals, particle_signs
+    from recon.normals import orient_normals
+
+    rng = np.random.default_rng(5)
+    p = _sphere(3000, seed=5) * 20.0
+    n = p / 20.0
+    cap = n @ np.array([0.0, 0.6, 0.8]) > 0.9
+    n[cap] *= -1.0
+    n += rng.normal(0.0, 0.05, n.shape)
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    built = []
+
+    class CountingTree(cKDTree):
+        def __init__(self, *a, **k):
+            built.append(1)
+            super().__init__(*a, **k)
+
+    monkeypatch.setattr(particle_signs, "cKDTree", CountingTree)
+    monkeypatch.setattr(normals, "cKDTree", CountingTree)
+    fixed = particle_signs.consistent_normals(p, n)
+    assert len(built) == 1  # was 2: the propagation queried the particles again
+    monkeypatch.undo()
+    # the propagation as it ran with its own query
+    k = particle_signs.PARTICLE_ORIENT_K
+    own, _ = orient_normals(
+        p, n, k=k, orientation="none", across_cost=particle_signs.PARTICLE_ACROSS_COST
+    )
+    shared, _ = orient_normals(
+        p,
+        n,
+        k=k,
+        orientation="none",
+        across_cost=particle_signs.PARTICLE_ACROSS_COST,
+        neighbors=cKDTree(p).query(p, 31)[1],
+    )
+    np.testing.assert_array_equal(shared, own)
+    assert np.all(np.einsum("ij,ij->i", fixed, p / 20.0) > 0.0)  # the cap turned back
