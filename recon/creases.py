@@ -195,7 +195,7 @@ def detect_creases(
         dist, idx = neighbors[0][:, :kk], neighbors[1][:, :kk]
     else:
         dist, idx = tree.query(pts, k=kk, workers=query_workers())
-    idx = np.ascontiguousarray(idx, dtype=np.int64)
+    # (the shared query's int32 indices are used as they are: an int64 copy was 384 MB at 1M)
     # the normal-estimation neighbours are the first of these (sorted by distance)
     own, variation = _pca(pts, tree, min(normals_k, n), idx if normals_k <= kk else None)
     if normals is None:
@@ -204,8 +204,9 @@ def detect_creases(
     # screen: a crease within a neighbourhood puts a point of it on the edge, whose PCA
     # neighbourhood straddles both faces; where every neighbour is flatter than half of that
     # (the fold of angle_deg), the Gauss map is not clustered (all smooth)
+    screen = SCREEN_FRACTION * _edge_variation(angle_deg)
     cand = np.flatnonzero(
-        variation[idx].max(axis=1) >= SCREEN_FRACTION * _edge_variation(angle_deg)
+        np.concatenate([variation[idx[b]].max(axis=1) >= screen for b in _blocks(n)])
     )
     label = np.zeros(n, np.int8)
     side = np.zeros((n, 3, 3))
@@ -218,7 +219,7 @@ def detect_creases(
         nrm,
         variation,
         np.ascontiguousarray(pts[cand]),
-        np.ascontiguousarray(idx[cand]),
+        np.ascontiguousarray(idx[cand], dtype=np.int64),
         max(8, int(round(KEEP_FRACTION * kk))),
         np.radians(angle_deg),
         SEPARATION_RATIO,
@@ -487,17 +488,30 @@ def _pca(
 ) -> tuple[np.ndarray, np.ndarray]:
     """PCA normals and surface variation ``l3 / (l1 + l2 + l3)`` of ``k`` neighbours (the
     first ``k`` columns of ``nearest``, the neighbours by distance, when given)."""
-    if nearest is not None:
-        idx = nearest[:, :k]
-    else:
-        _, idx = tree.query(pts, k=k, workers=query_workers())
-    nb = pts[idx]
-    nb = nb - nb.mean(axis=1, keepdims=True)
-    cov = np.einsum("nki,nkj->nij", nb, nb)
-    w, v = np.linalg.eigh(cov)
-    total = w.sum(axis=1)
-    variation = np.where(total > 0, w[:, 0] / np.where(total > 0, total, 1.0), 0.0)
-    return np.ascontiguousarray(v[:, :, 0]), np.ascontiguousarray(variation)
+    normals, variation = np.empty((len(pts), 3)), np.empty(len(pts))
+    for b in _blocks(len(pts)):  # a (block, k, 3) gather at a time
+        if nearest is not None:
+            idx = nearest[b, :k]
+        else:
+            _, idx = tree.query(pts[b], k=k, workers=query_workers())
+        nb = pts[idx]
+        nb = nb - nb.mean(axis=1, keepdims=True)
+        cov = np.einsum("nki,nkj->nij", nb, nb)
+        w, v = np.linalg.eigh(cov)
+        total = w.sum(axis=1)
+        variation[b] = np.where(total > 0, w[:, 0] / np.where(total > 0, total, 1.0), 0.0)
+        normals[b] = v[:, :, 0]
+    return normals, variation
+
+
+#: Rows per block of the per-point neighbourhood work (a (block, k, 3) float64 gather is
+#: 75 MB at k = 48).
+BLOCK = 65536
+
+
+def _blocks(n: int) -> list[slice]:
+    """Row slices of ``BLOCK`` rows covering ``range(n)``."""
+    return [slice(lo, min(lo + BLOCK, n)) for lo in range(0, n, BLOCK)]
 
 
 def _group_corners(

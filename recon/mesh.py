@@ -366,6 +366,9 @@ def orientation_flips(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 OVERLAP_NORMAL_AGREEMENT = 0.5
 #: ... and overlap when their sectors there share more than this angle [rad] (about 6 deg).
 OVERLAP_ANGLE = 0.1
+#: Corner pairs per block in :func:`overlapping_faces` (its per-pair arrays held ~0.7 GB
+#: at once on a million-particle sheet).
+OVERLAP_BLOCK = 1 << 18
 
 
 def overlapping_faces(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
@@ -408,30 +411,32 @@ def overlapping_faces(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
         pos = pos[sorted_v[pos + step] == sorted_v[pos]]
         if not len(pos):
             break
-        a, b = order[pos], order[pos + step]
-        fa, fb = corner_f[a], corner_f[b]
-        m = fn[fa] + fn[fb]
-        agree = np.einsum("ij,ij->i", fn[fa], fn[fb]) > OVERLAP_NORMAL_AGREEMENT
-        a, b, fa, fb, m = a[agree], b[agree], fa[agree], fb[agree], m[agree]
-        m /= np.linalg.norm(m, axis=1, keepdims=True)
-        helper = np.where(np.abs(m[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
-        e1 = np.cross(m, helper)
-        e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
-        e2 = np.cross(m, e1)
-        here = vertices[corner_v[a]]
+        pa, pb = order[pos], order[pos + step]
+        for lo in range(0, len(pa), OVERLAP_BLOCK):  # ~20 (block, 3) arrays per block
+            a, b = pa[lo : lo + OVERLAP_BLOCK], pb[lo : lo + OVERLAP_BLOCK]
+            fa, fb = corner_f[a], corner_f[b]
+            m = fn[fa] + fn[fb]
+            agree = np.einsum("ij,ij->i", fn[fa], fn[fb]) > OVERLAP_NORMAL_AGREEMENT
+            a, b, fa, fb, m = a[agree], b[agree], fa[agree], fb[agree], m[agree]
+            m /= np.linalg.norm(m, axis=1, keepdims=True)
+            helper = np.where(np.abs(m[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
+            e1 = np.cross(m, helper)
+            e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
+            e2 = np.cross(m, e1)
+            here = vertices[corner_v[a]]
 
-        def angle(w: np.ndarray, here=here, e1=e1, e2=e2) -> np.ndarray:
-            d = vertices[w] - here
-            return np.arctan2(np.einsum("ij,ij->i", d, e2), np.einsum("ij,ij->i", d, e1))
+            def angle(w: np.ndarray, here=here, e1=e1, e2=e2) -> np.ndarray:
+                d = vertices[w] - here
+                return np.arctan2(np.einsum("ij,ij->i", d, e2), np.einsum("ij,ij->i", d, e1))
 
-        start_a, start_b = angle(ahead[a]), angle(ahead[b])
-        width_a = (angle(behind[a]) - start_a) % (2 * np.pi)
-        width_b = (angle(behind[b]) - start_b) % (2 * np.pi)
-        rel = (start_b - start_a) % (2 * np.pi)  # b's sector starts this far into a's turn
-        shared = np.maximum(0.0, np.minimum(width_a - rel, width_b)) + np.maximum(
-            0.0, np.minimum(width_a, rel + width_b - 2 * np.pi)
-        )
-        hit = shared > OVERLAP_ANGLE
-        found.append(np.stack([np.minimum(fa, fb)[hit], np.maximum(fa, fb)[hit]], axis=1))
+            start_a, start_b = angle(ahead[a]), angle(ahead[b])
+            width_a = (angle(behind[a]) - start_a) % (2 * np.pi)
+            width_b = (angle(behind[b]) - start_b) % (2 * np.pi)
+            rel = (start_b - start_a) % (2 * np.pi)  # b's sector starts this far into a's turn
+            shared = np.maximum(0.0, np.minimum(width_a - rel, width_b)) + np.maximum(
+                0.0, np.minimum(width_a, rel + width_b - 2 * np.pi)
+            )
+            hit = shared > OVERLAP_ANGLE
+            found.append(np.stack([np.minimum(fa, fb)[hit], np.maximum(fa, fb)[hit]], axis=1))
         step += 1
     return np.unique(np.vstack(found), axis=0)

@@ -64,6 +64,8 @@ from scipy.spatial import cKDTree
 from .errors import ConfigError, InputError
 from .geometry import as_points
 from .kernels.options import query_workers
+from .kernels.thin_sides import split_sides_kernel
+from .orientation_graph import edge_costs
 
 if TYPE_CHECKING:
     from .cloud import PointCloud
@@ -284,29 +286,10 @@ def _across_neighbours(
     rel = points[idx] - points[start : start + n, None, :]
     offsets = np.einsum("ijk,ik->ij", rel, normals[start : start + n])
     radius = np.linalg.norm(rel[:, -1], axis=1)
-    d = np.concatenate([np.zeros((n, 1)), offsets], axis=1)  # the point itself at 0
-    m = k_wide + 1
-    s = np.sort(d, axis=1)
-    c1 = np.cumsum(s, axis=1)
-    c2 = np.cumsum(s * s, axis=1)
-    t = np.arange(1, m)  # left group s[:, :t]
-    left_ss = c2[:, :-1] - c1[:, :-1] ** 2 / t
-    right_n = m - t
-    right_sum = c1[:, -1:] - c1[:, :-1]
-    right_ss = (c2[:, -1:] - c2[:, :-1]) - right_sum**2 / right_n
-    ss = left_ss + right_ss
-    ss[:, (t < _SIDES_MIN) | (right_n < _SIDES_MIN)] = np.inf
-    if not np.isfinite(ss).any():
-        return np.zeros((n, k), dtype=bool), np.zeros(n, dtype=bool)
-    best = np.argmin(ss, axis=1)
-    rows = np.arange(n)
-    gap = right_sum[rows, best] / right_n[best] - c1[rows, best] / t[best]
-    pooled = np.sqrt(np.maximum(ss[rows, best], 0.0) / max(m - 2, 1))
-    two_sided = (gap > _SIDES_SEPARATION * pooled) & (gap > _SIDES_GAP * radius)
-    threshold = 0.5 * (s[rows, best] + s[rows, best + 1])
-    own_left = 0.0 < threshold  # i (offset 0) is in the left group
-    left = offsets[:, :k] < threshold[:, None]
-    return two_sided[:, None] & (left != own_left[:, None]), two_sided
+    across, two_sided = np.zeros((n, k), dtype=bool), np.zeros(n, dtype=bool)
+    args = (_SIDES_MIN, _SIDES_SEPARATION, _SIDES_GAP, across, two_sided)
+    split_sides_kernel(offsets, radius, k, *args)  # the split, row by row
+    return across, two_sided
 
 
 def _knn_graph(
@@ -346,9 +329,8 @@ def _knn_graph(
     keep = rows != cols  # defensive: duplicate points can reorder self
     rows, cols = rows[keep], cols[keep]
     if across_cost <= 0.0:
-        dots = np.einsum("ij,ij->i", normals[rows], normals[cols])
-        base = np.clip(1.0 - np.abs(dots), 0.0, None) + _EDGE_EPSILON
-        return _symmetric(base, rows, cols, n), None, None
+        cost = edge_costs(points, normals, rows, cols, _EDGE_EPSILON)
+        return _symmetric(cost, rows, cols, n), None, None
     across = np.zeros((n, k_wide), dtype=bool)
     two_sided = np.zeros(n, dtype=bool)
     for lo in range(0, n, _CHUNK):  # in blocks: the split holds ~10 (block, k_wide) arrays
@@ -368,18 +350,13 @@ def _knn_graph(
     key = np.concatenate([rows * np.int64(n) + cols, seen_back])
     key.sort()
     key = key[np.r_[True, key[1:] != key[:-1]]]
-    rows, cols = key // n, key % n
-    both = np.isin(key, seen_back)
-    dots = np.einsum("ij,ij->i", normals[rows], normals[cols])
-    base = np.clip(1.0 - np.abs(dots), 0.0, None) + _EDGE_EPSILON
-    u = points[cols] - points[rows]
-    u /= np.maximum(np.linalg.norm(u, axis=1, keepdims=True), 1e-300)
-    a = 0.5 * (
-        np.abs(np.einsum("ij,ij->i", u, normals[rows]))
-        + np.abs(np.einsum("ij,ij->i", u, normals[cols]))
-    )
+    rows, cols = (key // n).astype(np.int32), (key % n).astype(np.int32)  # n < 2^31
+    both = np.zeros(len(key), dtype=bool)  # key is sorted and holds seen_back: no np.isin
+    both[np.searchsorted(key, seen_back)] = True
+    del key, across
     # an edge known to join the two faces propagates exactly (opposed signs): no penalty
-    graph = _symmetric(np.where(both, base, base + across_cost * a * a), rows, cols, n)
+    cost = edge_costs(points, normals, rows, cols, _EDGE_EPSILON, across_cost, exact=both)
+    graph = _symmetric(cost, rows, cols, n)
     flip = sparse.coo_matrix((np.ones(int(both.sum())), (rows[both], cols[both])), shape=(n, n))
     return graph, flip.tocsr(), two_sided
 
@@ -687,8 +664,13 @@ def neighbors_needed(cfg: NormalsConfig, has_input: bool = False) -> int:
     estimate's ``k`` and the orientation graph's (0 when the file's normals are used)."""
     if has_input and cfg.mode in ("auto", "input"):
         return 0
-    graph = max(cfg.orient_k, _SIDES_K) if cfg.thin_parts > 0.0 else cfg.orient_k
-    return max(cfg.k, graph + 1)
+    return max(cfg.k, graph_width(cfg.orient_k, cfg.thin_parts))
+
+
+def graph_width(k: int, across_cost: float = 0.0) -> int:
+    """Nearest points per point (itself included) that :func:`orient_normals` queries for its
+    graph of ``k`` neighbours (wider with ``across_cost``: the thin-part split)."""
+    return (max(k, _SIDES_K) if across_cost > 0.0 else k) + 1
 
 
 def compute_normals(

@@ -483,4 +483,3 @@ def test_re_signing_takes_no_vote_across_a_crease(monkeypatch):
     n[side] = [np.sin(tilt), 0.0, np.cos(tilt)]
     monkeypatch.setattr(tri, "propagate_signs", lambda *a: np.where(side, -1.0, 1.0))
     assert np.array_equal(tri.consistent_normals(p, n), n)
-

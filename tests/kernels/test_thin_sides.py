@@ -1,0 +1,76 @@
+"""recon.kernels.thin_sides: the two-means split of neighbourhood offsets (eq. two-means).
+
+Checked against the vectorised numpy split it replaced (written out below as the reference):
+the same ``across`` and ``two_sided`` decisions on one-sheet noise, two faces a gap apart,
+ties and an exact plane, with 1 and 2 threads.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+import pytest
+
+from recon.kernels.thin_sides import split_sides_kernel
+
+SIDES_MIN, SEPARATION, GAP = 3, 5.0, 0.5
+
+
+def numpy_split(offsets: np.ndarray, radius: np.ndarray, k: int):
+    """The numpy version (recon.normals before the kernel): sort, cumulative sums, argmin."""
+    n, k_wide = offsets.shape
+    d = np.concatenate([np.zeros((n, 1)), offsets], axis=1)
+    m = k_wide + 1
+    s = np.sort(d, axis=1)
+    c1 = np.cumsum(s, axis=1)
+    c2 = np.cumsum(s * s, axis=1)
+    t = np.arange(1, m)
+    left_ss = c2[:, :-1] - c1[:, :-1] ** 2 / t
+    right_n = m - t
+    right_sum = c1[:, -1:] - c1[:, :-1]
+    right_ss = (c2[:, -1:] - c2[:, :-1]) - right_sum**2 / right_n
+    ss = left_ss + right_ss
+    ss[:, (t < SIDES_MIN) | (right_n < SIDES_MIN)] = np.inf
+    best = np.argmin(ss, axis=1)
+    rows = np.arange(n)
+    gap = right_sum[rows, best] / right_n[best] - c1[rows, best] / t[best]
+    pooled = np.sqrt(np.maximum(ss[rows, best], 0.0) / max(m - 2, 1))
+    two_sided = (gap > SEPARATION * pooled) & (gap > GAP * radius)
+    threshold = 0.5 * (s[rows, best] + s[rows, best + 1])
+    own_left = 0.0 < threshold
+    left = offsets[:, :k] < threshold[:, None]
+    return two_sided[:, None] & (left != own_left[:, None]), two_sided
+
+
+def _offsets(seed: int, n: int = 4000, k_wide: int = 30):
+    rng = np.random.default_rng(seed)
+    noise = rng.normal(0.0, 0.02, (n, k_wide))
+    # a quarter one sheet, a quarter two faces a gap apart, a quarter exact zeros and ties,
+    # a quarter a narrow gap near the decision thresholds
+    q = n // 4
+    other = rng.random((n, k_wide)) < 0.4
+    noise[q : 2 * q] += np.where(other[q : 2 * q], 1.0, 0.0)
+    noise[2 * q : 3 * q] = np.round(noise[2 * q : 3 * q] * 20.0) / 20.0
+    noise[2 * q] = 0.0
+    noise[3 * q :] += np.where(other[3 * q :], rng.uniform(0.05, 0.4, (n - 3 * q, 1)), 0.0)
+    radius = rng.uniform(0.1, 1.5, n)
+    return np.ascontiguousarray(noise), radius
+
+
+@pytest.mark.parametrize("threads", [1, 2])
+@pytest.mark.parametrize("seed", [0, 1])
+def test_split_is_the_numpy_split_bit_for_bit(seed, threads):
+    offsets, radius = _offsets(seed)
+    k = 10
+    want_across, want_sided = numpy_split(offsets, radius, k)
+    assert 0 < want_sided.sum() < len(offsets)  # both outcomes are exercised
+    across = np.zeros((len(offsets), k), dtype=bool)
+    sided = np.zeros(len(offsets), dtype=bool)
+    before = numba.get_num_threads()
+    numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
+    try:
+        split_sides_kernel(offsets, radius, k, SIDES_MIN, SEPARATION, GAP, across, sided)
+    finally:
+        numba.set_num_threads(before)
+    np.testing.assert_array_equal(sided, want_sided)
+    np.testing.assert_array_equal(across, want_across)
