@@ -257,8 +257,10 @@ def vertex_fans(faces: np.ndarray) -> np.ndarray:
     c_here = he_face * 3 + he_corner
     wedge_lo = np.where(forward, c_here, c_next)
     wedge_hi = np.where(forward, c_next, c_here)
+    del he_to, he_face, he_corner, lo, hi, forward, order, lo_s, hi_s, same, c_next, c_here
     rows = np.concatenate([wedge_lo[a], wedge_hi[a]])
     cols = np.concatenate([wedge_lo[b], wedge_hi[b]])
+    del wedge_lo, wedge_hi, a, b  # the graph's build holds a few copies of rows and cols
     graph = sparse.coo_matrix((np.ones(len(rows), np.int8), (rows, cols)), (3 * nf,) * 2)
     _, label = csgraph.connected_components(graph, directed=False)
     return label.reshape(nf, 3).astype(np.int64)

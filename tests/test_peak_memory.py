@@ -33,6 +33,17 @@ def _sphere(n: int, seed: int = 0) -> np.ndarray:
     return p / np.linalg.norm(p, axis=1, keepdims=True)
 
 
+def _grid_mesh(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """An n x n grid of vertices on a gentle wave, two triangles per cell."""
+    x, y = np.meshgrid(np.arange(n, dtype=float), np.arange(n, dtype=float))
+    v = np.column_stack([x.ravel(), y.ravel(), 0.01 * np.sin(x.ravel() + y.ravel())])
+    a = (np.arange(n - 1)[:, None] * n + np.arange(n - 1)[None, :]).ravel()
+    f = np.concatenate(
+        [np.column_stack([a, a + 1, a + n + 1]), np.column_stack([a, a + n + 1, a + n])]
+    )
+    return v, f
+
+
 def test_shared_query_holds_int32_indices_and_equals_the_tree_query(monkeypatch):
     """int32 indices (12 bytes a neighbour held instead of 16), queried block by block: the
     same neighbours and distances as one query of the whole cloud."""
@@ -70,14 +81,8 @@ def test_overlapping_faces_in_blocks_are_the_same_with_a_bounded_peak(monkeypatc
     step's arrays held 817."""
     from recon import mesh
 
-    n = 200
-    x, y = np.meshgrid(np.arange(n, dtype=float), np.arange(n, dtype=float))
-    v = np.column_stack([x.ravel(), y.ravel(), 0.01 * np.sin(x.ravel() + y.ravel())])
-    a = (np.arange(n - 1)[:, None] * n + np.arange(n - 1)[None, :]).ravel()
-    f = np.concatenate(
-        [np.column_stack([a, a + 1, a + n + 1]), np.column_stack([a, a + n + 1, a + n])]
-    )
-    f = np.vstack([f, [[0, 1, n]]])  # the other diagonal of the first quad: overlaps
+    v, f = _grid_mesh(200)
+    f = np.vstack([f, [[0, 1, 200]]])  # the other diagonal of the first quad: overlaps
     whole = mesh.overlapping_faces(v, f)
     assert len(whole) >= 2
     monkeypatch.setattr(mesh, "OVERLAP_BLOCK", 2048)
@@ -137,3 +142,15 @@ def test_particle_re_signing_queries_the_particles_once(monkeypatch):
     )
     np.testing.assert_array_equal(shared, own)
     assert np.all(np.einsum("ij,ij->i", fixed, p / 20.0) > 0.0)  # the cap turned back
+
+
+def test_mesh_topology_frees_its_half_edges_before_the_fan_pass():
+    """The report's topology count (the 1M fit's peak) holds under 550 bytes per face (817 when
+    its half-edge arrays and :func:`recon.mesh.vertex_fans`' were all alive at once)."""
+    from recon.topology import mesh_topology
+
+    v, f = _grid_mesh(300)
+    topo, peak = _traced_peak(mesh_topology, v, f)
+    assert topo["boundary_loops"] == 1 and topo["non_manifold_vertices"] == 0
+    assert topo["euler_characteristic"] == 1
+    assert peak < 550 * len(f), peak / len(f)
