@@ -348,7 +348,11 @@ def gauss_map_kernel(
             # axes closer than min_turn and the normals blended across the edge fill the gap
             # between them; two planes refitted to the whole neighbourhood's points tell it
             sep = np.arccos(min(1.0, abs(plane[0] @ plane[1])))
-            if sep < min_turn:
+            # a cheap gate: the clusters' own planes fold by more than half of min_turn (on a
+            # smooth surface the two halves lie on both sides of their planes' line: their
+            # turn is about the angle between them)
+            t0, _, _ = _pair(query[i], plane[0], plane[1], centroid[0], centroid[1], d, x0)
+            if sep < min_turn and t0 > 0.5 * min_turn:
                 allp = np.empty((idx.shape[1], 3))
                 alln = np.empty((idx.shape[1], 3))
                 for j in range(idx.shape[1]):
@@ -397,45 +401,79 @@ def gauss_map_kernel(
 def _two_planes(pts, planes, centroids, member):  # pragma: no cover - numba
     """Eq. K1: refit two planes (unit ``planes`` through ``centroids``, updated in place) to
     the points ``pts`` by alternation: each point joins the nearer plane (``member``), each
-    plane is refitted to its members by PCA (keeping its sign). Returns the RMS distance of
-    the points to their planes and the smaller plane's share of the points (0 when a plane
-    keeps fewer than three points)."""
+    plane is refitted by PCA (keeping its sign) to its members that the other plane is at
+    least ``_CLEAR`` times farther from; stops when no point changes plane. Returns the RMS
+    distance of the points to their planes and the smaller plane's share of the points (0
+    when a plane keeps fewer than three such members)."""
     k = pts.shape[0]
     clear = np.zeros(k, np.bool_)
-    for _ in range(_ITERATIONS):
+    cov = np.zeros((3, 3))
+    for it in range(_ITERATIONS):
+        changed = False
         for j in range(k):
-            da = abs(planes[0] @ (pts[j] - centroids[0]))
-            db = abs(planes[1] @ (pts[j] - centroids[1]))
-            member[j] = 0 if da <= db else 1
+            da = 0.0
+            db = 0.0
+            for t in range(3):
+                da += planes[0, t] * (pts[j, t] - centroids[0, t])
+                db += planes[1, t] * (pts[j, t] - centroids[1, t])
+            da = abs(da)
+            db = abs(db)
+            m = 0 if da <= db else 1
+            if m != member[j] or it == 0:
+                changed = True
+            member[j] = m
             # near the line a point fits both planes: it does not pull either
             clear[j] = max(da, db) >= _CLEAR * min(da, db)
+        if not changed:
+            break
         for c in range(2):
             cnt = 0
-            cen = np.zeros(3)
+            cx = 0.0
+            cy = 0.0
+            cz = 0.0
             for j in range(k):
                 if member[j] == c and clear[j]:
-                    cen += pts[j]
+                    cx += pts[j, 0]
+                    cy += pts[j, 1]
+                    cz += pts[j, 2]
                     cnt += 1
             if cnt < 3:
                 return np.inf, 0.0
-            cen /= cnt
-            cov = np.zeros((3, 3))
+            cx /= cnt
+            cy /= cnt
+            cz /= cnt
+            cov[:, :] = 0.0
             for j in range(k):
                 if member[j] == c and clear[j]:
-                    r = pts[j] - cen
-                    cov += np.outer(r, r)
+                    rx = pts[j, 0] - cx
+                    ry = pts[j, 1] - cy
+                    rz = pts[j, 2] - cz
+                    cov[0, 0] += rx * rx
+                    cov[0, 1] += rx * ry
+                    cov[0, 2] += rx * rz
+                    cov[1, 1] += ry * ry
+                    cov[1, 2] += ry * rz
+                    cov[2, 2] += rz * rz
+            cov[1, 0] = cov[0, 1]
+            cov[2, 0] = cov[0, 2]
+            cov[2, 1] = cov[1, 2]
             _, vec = np.linalg.eigh(cov)
-            nrm = vec[:, 0].copy()
-            if nrm @ planes[c] < 0.0:
-                nrm = -nrm
-            planes[c] = nrm
-            centroids[c] = cen
+            s = vec[0, 0] * planes[c, 0] + vec[1, 0] * planes[c, 1] + vec[2, 0] * planes[c, 2]
+            sign = 1.0 if s >= 0.0 else -1.0
+            for t in range(3):
+                planes[c, t] = sign * vec[t, 0]
+            centroids[c, 0] = cx
+            centroids[c, 1] = cy
+            centroids[c, 2] = cz
     sq = 0.0
     cnt0 = 0
     for j in range(k):
         c = member[j]
         cnt0 += 1 - c
-        sq += (planes[c] @ (pts[j] - centroids[c])) ** 2
+        dist = 0.0
+        for t in range(3):
+            dist += planes[c, t] * (pts[j, t] - centroids[c, t])
+        sq += dist * dist
     return np.sqrt(sq / k), min(cnt0, k - cnt0) / k
 
 
