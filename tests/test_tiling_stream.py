@@ -307,3 +307,22 @@ def test_a_bow_tie_copy_of_a_cut_vertex_stays_cut(tmp_path):
     assert len(v2) == 8  # the bow-tie was split: its editable fan has a copy
     assert stats["seam_loops_zipped"] == 0
     assert len(out) == 2 and set(out.ravel()) == {7, 2, 3, 4}  # the fan, on the copy
+
+
+def test_the_seam_repair_cuts_a_one_sided_zone_where_the_normals_turn_over():
+    """A cell's zone joined to itself one-sidedly (Moebius-like: a wall triangulated one way
+    by each tile) is cut where its normals turn over against the winding, as the untiled
+    triangulation does (``orient_consistently``), not where the orientation search closed its
+    cycle. On the 1M scale scene (100 m tiles) the search's cut dropped a strip of 69 faces
+    from a wall 1.6 m beside a seam, and left three holes (70, 41 and 3 edges); now 2 faces."""
+    from recon.mesh import face_area_vectors, orientation_flips
+    from recon.tiling.stitch import _orient_with_frame
+    from tests.test_triangulate import _moebius
+
+    p, nrm, f = _moebius()
+    assert orientation_flips(f)[1].any()
+    kept, is_frame, left = _orient_with_frame(p, nrm, f, np.zeros(len(f), dtype=bool), {})
+    assert not orientation_flips(kept)[1].any() and left == 0
+    assert len(kept) >= len(f) - 2 * 2 * 2  # at most the faces at the turn (2 quads x 2 columns)
+    agree = np.einsum("ij,ij->i", face_area_vectors(p, kept), nrm[kept].sum(axis=1))
+    assert np.all(agree > 0)

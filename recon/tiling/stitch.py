@@ -21,6 +21,7 @@ from ..triangulate import (
     loop_width,
     orient_consistently,
     remove_non_manifold_faces,
+    twisted_faces,
     zip_loop,
 )
 from .grid import TileGrid
@@ -173,14 +174,26 @@ def _orient_with_frame(
 ) -> tuple[np.ndarray, np.ndarray, int]:
     """One winding per component, chosen to agree with the frame's (unchanged) faces where
     the component reaches the frame, else by :func:`orient_consistently`'s rule. Conflicting
-    editable faces are dropped. Returns faces, is_frame and the frame faces left disagreeing."""
+    editable faces are dropped: as :func:`orient_consistently` does, the editable faces where
+    the surface turns over (:func:`twisted_faces`) when dropping them makes the sub-mesh
+    orientable and drops no more faces than the conflicts, else the conflicting ones (which
+    lie where the search's fronts met, possibly far from the cause). Returns faces, is_frame
+    and the frame faces left disagreeing."""
     from ..mesh import face_components, orientation_flips
 
     faces = faces.copy()
     for _ in range(3):
         flip, conflict = orientation_flips(faces)
-        faces[flip] = faces[flip][:, [0, 2, 1]]
         drop = conflict & ~is_frame
+        if drop.any():
+            twist = twisted_faces(vertices, normals, faces) & ~is_frame
+            if 0 < twist.sum() <= drop.sum():
+                cut_flip, cut_conflict = orientation_flips(faces[~twist])
+                if not (cut_conflict & ~is_frame[~twist]).any():
+                    faces, is_frame = faces[~twist], is_frame[~twist]
+                    flip, conflict = cut_flip, cut_conflict
+                    drop = conflict & ~is_frame
+        faces[flip] = faces[flip][:, [0, 2, 1]]
         if not drop.any():
             break
         faces, is_frame = faces[~drop], is_frame[~drop]
