@@ -77,6 +77,8 @@ __all__ = [
     "compute_normals",
     "estimate_normals",
     "orient_normals",
+    "path_products",
+    "tree_parents",
 ]
 
 ORIENTATIONS = ("auto", "outward", "viewpoint", "none")
@@ -397,7 +399,7 @@ def _edge_values(matrix: sparse.csr_matrix | None, rows: np.ndarray, cols: np.nd
     return np.asarray(matrix[rows, cols]).ravel()
 
 
-def _tree_parents(tree: sparse.spmatrix, labels: np.ndarray) -> np.ndarray:
+def tree_parents(tree: sparse.spmatrix, labels: np.ndarray) -> np.ndarray:
     """Parent of each node in a spanning forest (roots are their own parent)."""
     n = labels.size
     tree = sparse.coo_matrix(tree)
@@ -412,7 +414,7 @@ def _tree_parents(tree: sparse.spmatrix, labels: np.ndarray) -> np.ndarray:
     return np.where(is_root, np.arange(n), parent)
 
 
-def _path_products(parent: np.ndarray, edge_sign: np.ndarray) -> np.ndarray:
+def path_products(parent: np.ndarray, edge_sign: np.ndarray) -> np.ndarray:
     """Product of ``edge_sign`` along each node's path to its root (pointer jumping).
 
     ``edge_sign[i]`` relates node i to ``parent[i]``; roots (``parent[i] == i``) get +1.
@@ -443,11 +445,11 @@ def _propagate_signs(
     n = normals.shape[0]
     n_comp, labels = csgraph.connected_components(graph, directed=False)
     tree = csgraph.minimum_spanning_tree(graph)
-    parent = _tree_parents(tree, labels)
+    parent = tree_parents(tree, labels)
     across = _edge_values(flip, np.arange(n), parent) > 0
     dots = np.einsum("ij,ij->i", normals, normals[parent])
     dots = np.where(across, -dots, dots)
-    sign = _path_products(parent, np.where(dots < 0.0, -1.0, 1.0))
+    sign = path_products(parent, np.where(dots < 0.0, -1.0, 1.0))
     if tau <= 0:
         return sign, labels, int(n_comp)
     # Regions: the tree without its uncertain edges (|n_i . n_parent| < tau).
@@ -471,9 +473,9 @@ def _propagate_signs(
     cost.data = (top + 1.0) - cost.data  # maximum spanning tree of the vote strength
     reg_labels = labels[np.unique(region, return_index=True)[1]]
     reg_tree = csgraph.minimum_spanning_tree(cost)
-    reg_parent = _tree_parents(reg_tree, reg_labels)
+    reg_parent = tree_parents(reg_tree, reg_labels)
     between = np.asarray(vote[np.arange(n_reg), reg_parent]).ravel()
-    reg_sign = _path_products(reg_parent, np.where(between < 0.0, -1.0, 1.0))
+    reg_sign = path_products(reg_parent, np.where(between < 0.0, -1.0, 1.0))
     return sign * reg_sign[region], labels, int(n_comp)
 
 
