@@ -62,7 +62,7 @@ from scipy.sparse import csgraph
 from scipy.spatial import cKDTree
 
 from .errors import ConfigError, InputError
-from .geometry import as_points
+from .geometry import as_points, median_variation
 from .kernels.options import query_workers
 
 if TYPE_CHECKING:
@@ -669,17 +669,12 @@ def choose_neighborhood_size(points: np.ndarray, k: int, sample: int = 4000) -> 
     consistency 99.3 % at k = 80 but 94.6 % at k = 160).
     """
     n = len(points)
-    idx = np.linspace(0, n - 1, min(n, sample)).astype(np.int64)
     tree = cKDTree(points)
     chosen = k
     for factor in (1, 2, 4):
         kk = min(k * factor, n)
         chosen = kk
-        _, nb = tree.query(points[idx], k=kk, workers=query_workers())
-        q = points[nb] - points[nb].mean(axis=1, keepdims=True)
-        ev = np.linalg.eigvalsh(np.einsum("mki,mkj->mij", q, q))
-        variation = ev[:, 0] / np.maximum(ev.sum(axis=1), 1e-300)
-        if np.median(variation) < THIN_VARIATION or kk >= n:
+        if median_variation(points, kk, sample, tree) < THIN_VARIATION or kk >= n:
             break
     return int(chosen)
 
