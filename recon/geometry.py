@@ -30,6 +30,7 @@ __all__ = [
     "bbox_diagonal",
     "fit_plane",
     "median_nearest_neighbor_distance",
+    "median_variation",
     "poisson_disk_thin",
     "poisson_disk_thin_graded",
     "unit_vectors",
@@ -265,3 +266,17 @@ def poisson_disk_thin_graded(
     return poisson_disk_graded_kernel(
         points, np.ascontiguousarray(order, dtype=np.int64), radius, int(keep_first)
     )
+
+
+def median_variation(
+    points: np.ndarray, k: int, sample: int = 4000, tree: cKDTree | None = None
+) -> float:
+    """Median PCA surface variation ``l0 / (l0 + l1 + l2)`` of the k-neighbourhoods of up to
+    ``sample`` evenly picked points: near 0 on clean surfaces, growing with noise."""
+    n = len(points)
+    idx = np.linspace(0, n - 1, min(n, sample)).astype(np.int64)
+    tree = cKDTree(points) if tree is None else tree
+    _, nb = tree.query(points[idx], k=min(k, n), workers=query_workers())
+    q = points[nb] - points[nb].mean(axis=1, keepdims=True)
+    ev = np.linalg.eigvalsh(np.einsum("mki,mkj->mij", q, q))
+    return float(np.median(ev[:, 0] / np.maximum(ev.sum(axis=1), 1e-300)))

@@ -23,6 +23,8 @@ Definitions:
   sectors around the vertex, in the plane of their mean normal, overlap: the surface covers
   that wedge twice (a manifold mesh can still do so without a crossing the exact test sees,
   since faces that share a vertex are not tested; it makes a tiny handle).
+- A face is *opposed* (:func:`opposed_faces`) when the normals at two of its corners point
+  more than 90 deg apart: it joins two opposed sheets (e.g. the two faces of a thin part).
 - *Components* (:func:`vertex_components`, :func:`face_components`) are the connected
   components of the referenced vertices, two vertices being connected when a face uses both
   (so a bow-tie is one component).
@@ -50,6 +52,7 @@ __all__ = [
     "face_area_vectors",
     "face_components",
     "face_normals",
+    "opposed_faces",
     "orientation_flips",
     "overlapping_faces",
     "vertex_components",
@@ -442,3 +445,19 @@ def overlapping_faces(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
             found.append(np.stack([np.minimum(fa, fb)[hit], np.maximum(fa, fb)[hit]], axis=1))
         step += 1
     return np.unique(np.vstack(found), axis=0)
+
+
+def opposed_faces(normals: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Faces ``(F,)`` bool whose corners' unit normals point more than 90 deg apart
+    (``n_a . n_b < 0`` for some pair of corners): faces that join two opposed sheets.
+
+    Examples
+    --------
+    >>> n = np.array([[0, 0, 1], [0, 0, 1], [0, 0, 1], [0, 0, -1]], float)
+    >>> opposed_faces(n, np.array([[0, 1, 2], [0, 1, 3]])).tolist()
+    [False, True]
+    """
+    f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    a, b, c = normals[f[:, 0]], normals[f[:, 1]], normals[f[:, 2]]
+    ab, bc, ca = (np.einsum("ij,ij->i", x, y) for x, y in ((a, b), (b, c), (c, a)))
+    return np.minimum(np.minimum(ab, bc), ca) < 0.0

@@ -62,7 +62,7 @@ from scipy.sparse import csgraph
 from scipy.spatial import cKDTree
 
 from .errors import ConfigError, InputError
-from .geometry import as_points
+from .geometry import as_points, median_variation
 from .kernels.options import query_workers
 from .kernels.thin_sides import split_sides_kernel
 from .orientation_graph import edge_costs
@@ -79,6 +79,8 @@ __all__ = [
     "compute_normals",
     "estimate_normals",
     "orient_normals",
+    "path_products",
+    "tree_parents",
 ]
 
 ORIENTATIONS = ("auto", "outward", "viewpoint", "none")
@@ -374,7 +376,7 @@ def _edge_values(matrix: sparse.csr_matrix | None, rows: np.ndarray, cols: np.nd
     return np.asarray(matrix[rows, cols]).ravel()
 
 
-def _tree_parents(tree: sparse.spmatrix, labels: np.ndarray) -> np.ndarray:
+def tree_parents(tree: sparse.spmatrix, labels: np.ndarray) -> np.ndarray:
     """Parent of each node in a spanning forest (roots are their own parent)."""
     n = labels.size
     tree = sparse.coo_matrix(tree)
@@ -389,7 +391,7 @@ def _tree_parents(tree: sparse.spmatrix, labels: np.ndarray) -> np.ndarray:
     return np.where(is_root, np.arange(n), parent)
 
 
-def _path_products(parent: np.ndarray, edge_sign: np.ndarray) -> np.ndarray:
+def path_products(parent: np.ndarray, edge_sign: np.ndarray) -> np.ndarray:
     """Product of ``edge_sign`` along each node's path to its root (pointer jumping).
 
     ``edge_sign[i]`` relates node i to ``parent[i]``; roots (``parent[i] == i``) get +1.
@@ -420,11 +422,11 @@ def _propagate_signs(
     n = normals.shape[0]
     n_comp, labels = csgraph.connected_components(graph, directed=False)
     tree = csgraph.minimum_spanning_tree(graph)
-    parent = _tree_parents(tree, labels)
+    parent = tree_parents(tree, labels)
     across = _edge_values(flip, np.arange(n), parent) > 0
     dots = np.einsum("ij,ij->i", normals, normals[parent])
     dots = np.where(across, -dots, dots)
-    sign = _path_products(parent, np.where(dots < 0.0, -1.0, 1.0))
+    sign = path_products(parent, np.where(dots < 0.0, -1.0, 1.0))
     if tau <= 0:
         return sign, labels, int(n_comp)
     # Regions: the tree without its uncertain edges (|n_i . n_parent| < tau).
@@ -448,9 +450,9 @@ def _propagate_signs(
     cost.data = (top + 1.0) - cost.data  # maximum spanning tree of the vote strength
     reg_labels = labels[np.unique(region, return_index=True)[1]]
     reg_tree = csgraph.minimum_spanning_tree(cost)
-    reg_parent = _tree_parents(reg_tree, reg_labels)
+    reg_parent = tree_parents(reg_tree, reg_labels)
     between = np.asarray(vote[np.arange(n_reg), reg_parent]).ravel()
-    reg_sign = _path_products(reg_parent, np.where(between < 0.0, -1.0, 1.0))
+    reg_sign = path_products(reg_parent, np.where(between < 0.0, -1.0, 1.0))
     return sign * reg_sign[region], labels, int(n_comp)
 
 
@@ -644,17 +646,12 @@ def choose_neighborhood_size(points: np.ndarray, k: int, sample: int = 4000) -> 
     consistency 99.3 % at k = 80 but 94.6 % at k = 160).
     """
     n = len(points)
-    idx = np.linspace(0, n - 1, min(n, sample)).astype(np.int64)
     tree = cKDTree(points)
     chosen = k
     for factor in (1, 2, 4):
         kk = min(k * factor, n)
         chosen = kk
-        _, nb = tree.query(points[idx], k=kk, workers=query_workers())
-        q = points[nb] - points[nb].mean(axis=1, keepdims=True)
-        ev = np.linalg.eigvalsh(np.einsum("mki,mkj->mij", q, q))
-        variation = ev[:, 0] / np.maximum(ev.sum(axis=1), 1e-300)
-        if np.median(variation) < THIN_VARIATION or kk >= n:
+        if median_variation(points, kk, sample, tree) < THIN_VARIATION or kk >= n:
             break
     return int(chosen)
 

@@ -26,7 +26,7 @@ from scipy.sparse import csgraph
 from scipy.spatial import cKDTree
 
 from .kernels.options import query_workers
-from .normals import _path_products, _tree_parents
+from .normals import path_products, tree_parents
 
 __all__ = ["consistent_normals", "reflected_dots"]
 
@@ -83,9 +83,9 @@ def propagate_signs(
     graph = sparse.coo_matrix((cost + _EDGE_EPSILON, (rows, cols)), shape=(n, n)).tocsr()
     graph = graph.maximum(graph.T).tocsr()
     _, labels = csgraph.connected_components(graph, directed=False)
-    parent = _tree_parents(csgraph.minimum_spanning_tree(graph), labels)
+    parent = tree_parents(csgraph.minimum_spanning_tree(graph), labels)
     to_parent = reflected_dots(positions, normals, np.arange(n), parent)
-    return _path_products(parent, np.where(to_parent < 0.0, -1.0, 1.0))
+    return path_products(parent, np.where(to_parent < 0.0, -1.0, 1.0))
 
 
 def consistent_normals(positions: np.ndarray, normals: np.ndarray) -> np.ndarray:

@@ -120,3 +120,14 @@ def wedge_points(turn_deg: float, n: int = 4000, seed: int = 0) -> np.ndarray:
     face_a = np.c_[-u[:, 0], u[:, 1], np.zeros(n)]
     face_b = np.c_[v[:, 0] * np.cos(a), v[:, 1], v[:, 0] * np.sin(a)]
     return np.r_[face_a, face_b]
+
+
+def thin_wedge(angle_deg: float = 30.0, length: float = 1.0, height: float = 0.5):
+    """A closed prism over a right triangle with a knife edge of ``angle_deg`` (legs
+    ``length`` along x and ``length * tan(angle)`` along y, height along z), faces outward:
+    bench_machined's ``wedge`` without its subdivided caps."""
+    w = length * np.tan(np.radians(angle_deg))
+    base = np.array([[0.0, 0.0], [length, 0.0], [0.0, w]])
+    v = np.r_[np.c_[base, np.zeros(3)], np.c_[base, np.full(3, height)]]
+    f = [[0, 2, 1], [3, 4, 5], [0, 1, 4], [0, 4, 3], [1, 2, 5], [1, 5, 4], [2, 0, 3], [2, 3, 5]]
+    return v, np.array(f, dtype=np.int64)

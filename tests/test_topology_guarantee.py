@@ -71,3 +71,25 @@ def test_hole_filling_keeps_the_real_boundary_of_a_sparse_square(fits):
     assert topo.boundary_loops == 2  # the outer rim and the real hole
     # the largest remaining hole is the outer rim: far wider than max_gap, in r0
     assert topo.largest_hole_r0 > 10
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_thin_wedge_comes_out_closed_with_genus_0(seed):
+    """A closed prism with a 30 deg knife edge (bench_machined's held-out ``wedge``, 10,000
+    points). Near the tip both faces lie within one neighbourhood: particles there carried
+    the other face's normal, or a plain dot product turned them over (the faces' normals are
+    150 deg apart), and ball pivoting bridged the two faces: a hole (seed 0) or a handle,
+    genus 1 (seed 1). Particle signs now come from reflected dot products, and faces joining
+    opposed sheets are dropped where that removes a handle."""
+    from mesh_shapes import thin_wedge
+
+    from recon.io import cloud_from_arrays
+    from recon.metrics import sample_surface
+
+    v, f = thin_wedge()
+    pts, _ = sample_surface(v, f, 10_000, seed=seed)
+    res = reconstruct(cloud_from_arrays(pts), ReconConfig())
+    topo = res.report.topology
+    assert topo.watertight and topo.components == 1 and topo.genus == 0
+    m = _open3d(res.mesh)
+    assert m.is_vertex_manifold() and m.is_edge_manifold(allow_boundary_edges=False)

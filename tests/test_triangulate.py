@@ -2,15 +2,14 @@ import numpy as np
 import pytest
 
 from recon.config import TriangulationConfig
+from recon.holes import fill_small_holes, zip_loop
 from recon.mesh import boundary_loop_perimeters, boundary_loops, face_area_vectors
 from recon.topology import mesh_topology
 from recon.triangulate import (
     circumsphere_triangles,
-    fill_small_holes,
     orient_faces,
     remove_non_manifold_faces,
     triangulate_particles,
-    zip_loop,
 )
 
 

@@ -44,6 +44,7 @@ from ..errors import InputError
 from ..geometry import bbox_diagonal
 from ..intersections import untangle
 from ..kernels.options import query_workers, thread_count
+from ..normal_signs import resign_thin_parts
 from ..normals import compute_normals, neighbors_needed
 from ..serialize import dumps
 from ..state import ParticleState
@@ -421,6 +422,8 @@ def _fit_sheet(cloud: PointCloud, cfg: ReconConfig, on_progress: ProgressFn | No
     found, creases = _detect_creases(points, normals, cfg, bbox_diagonal(points), knn)
     if found is not None:  # a crease fixes the normals' orientation across it
         normals, found, _ = orient_across_creases(points, normals, found, k=cfg.creases.k)
+    if normals_info.get("source") == "estimated":  # signs where a thin part's faces meet
+        normals, _ = resign_thin_parts(points, normals, cfg.normals.k)
 
     r0, d_nn = choose_spacing(points, cfg)
     check_grid_size(points, r0)

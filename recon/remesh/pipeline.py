@@ -42,6 +42,7 @@ from scipy.spatial import cKDTree
 
 from ..config import TriangulationConfig
 from ..errors import InputError
+from ..holes import zip_loop
 from ..kernels.options import query_workers, thread_count
 from ..mesh import boundary_loops
 from ..metrics import compare_meshes, point_to_mesh_distance
@@ -50,7 +51,6 @@ from ..triangulate import (
     orient_consistently,
     repair_non_manifold,
     triangulate_particles,
-    zip_loop,
 )
 from .improve import improve
 from .mesh_check import check_mesh

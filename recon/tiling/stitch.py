@@ -16,14 +16,9 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
+from ..holes import loop_width, zip_loop
 from ..mesh import boundary_loops
-from ..triangulate import (
-    loop_width,
-    orient_consistently,
-    remove_non_manifold_faces,
-    twisted_faces,
-    zip_loop,
-)
+from ..triangulate import orient_consistently, remove_non_manifold_faces, twisted_faces
 from .grid import TileGrid
 
 __all__ = ["SEAM_BAND", "agree_signs", "face_keys", "repair_cell", "same_winding"]

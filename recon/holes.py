@@ -1,0 +1,278 @@
+"""Closing the gaps ball pivoting leaves: which boundary loops are holes, and the zipper.
+
+:func:`fill_small_holes` closes a loop that is small, that has data inside, or that is a
+narrow seam between two growth fronts supported by data all round; real boundaries (the rim
+of an open sheet, holes wider than ``max_hole``) stay. :func:`zip_loop` closes a loop without
+new vertices, cutting off the corner with the shortest diagonal; a loop that wraps round a
+thin part is zipped fold-free (:func:`rezip_crossing_loops`). Used by
+:func:`recon.triangulate.triangulate_particles` and by the tiles' seam repair.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+from .intersections import self_intersections, untangle
+from .mesh import (
+    boundary_loops,
+    count_edge_faces,
+    face_area_vectors,
+    face_components,
+    face_normals,
+)
+
+__all__ = ["across_points", "fill_small_holes", "loop_width", "rezip_crossing_loops", "zip_loop"]
+
+#: A loop whose rim faces point against its patch is kept open when its component's area is
+#: below this many times the patch's area (the outer rim of a small open sheet).
+SHEET_AREA_FACTOR = 4.0
+#: A seam is closed when data lies at this fraction of the points across it.
+SEAM_SUPPORT = 0.9
+
+
+def fill_small_holes(
+    vertices: np.ndarray,
+    normals: np.ndarray,
+    faces: np.ndarray,
+    max_perimeter: float,
+    is_covered: Callable[..., np.ndarray] | None = None,
+    covered_max_perimeter: float | None = None,
+    scale: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    """Close the boundary loops that are gaps of the triangulation rather than real boundaries.
+
+    A simple loop (:func:`recon.mesh.boundary_loops`) is closed when
+
+    * its perimeter is at most ``max_perimeter`` (a small hole), or
+    * with ``is_covered`` (points (m, 3) -> bool (m,): does data lie there?): its perimeter is
+      at most ``covered_max_perimeter`` and data lies at its centroid, or
+    * it is a *seam*: narrower than ``max_perimeter / pi`` (:func:`loop_width`, however long)
+      and data lies at ``SEAM_SUPPORT`` of the points across it (:func:`across_points`): the
+      rim is supported by data all round.
+
+    A loop whose rim faces point against the patch that would close it is the outer rim of an
+    open sheet and stays open. Loops are closed by :func:`zip_loop` (no new vertex), wound
+    opposite to the boundary half-edges so that orientation stays consistent. A loop whose
+    zip crosses the mesh and whose rim normals disagree (it wraps round a thin part) is zipped
+    again fold-free (:func:`rezip_crossing_loops`).
+
+    ``scale`` (per vertex, default 1) is the local rest spacing: every length limit above is
+    multiplied by the mean scale of the loop's rim, and ``is_covered`` is then called as
+    ``is_covered(points, scale_per_point)``.
+
+    Returns
+    -------
+    vertices, normals, faces, n_filled
+        Vertices and normals are returned unchanged (kept for the callers' symmetry).
+    """
+    loops = boundary_loops(faces)
+    if not loops:
+        return vertices, normals, faces, 0
+    # Only half-edges between rim vertices are ever looked up (the rim's faces; the diagonals
+    # zip_loop tests and adds join rim vertices), so the dict and the set hold only those:
+    # same entries, in the same order (a later duplicate still wins), without a Python loop
+    # over every half-edge.
+    on_rim = np.zeros(len(vertices), dtype=bool)
+    for loop in loops:
+        on_rim[loop] = True
+    he = faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
+    sel = np.flatnonzero(on_rim[he[:, 0]] & on_rim[he[:, 1]])
+    rim_face = dict(zip(map(tuple, he[sel].tolist()), (sel // 3).tolist(), strict=True))
+    edge_set = set(map(tuple, np.sort(he[sel], axis=1).tolist()))
+    _, comp = face_components(faces, len(vertices))
+    comp_area = np.bincount(
+        comp, weights=0.5 * np.linalg.norm(face_area_vectors(vertices, faces), axis=1)
+    )
+
+    def covered(points: np.ndarray, s: float) -> np.ndarray:
+        if scale is None:
+            return np.asarray(is_covered(points))  # type: ignore[misc]
+        return np.asarray(is_covered(points, np.full(len(points), s)))  # type: ignore[misc]
+
+    new_faces, zipped = [], []
+    for loop in loops:
+        if len(loop) < 3:
+            continue
+        ring = vertices[loop]
+        s = float(scale[loop].mean()) if scale is not None else 1.0
+        perim = float(np.linalg.norm(ring - np.roll(ring, -1, axis=0), axis=1).sum())
+        fill = perim <= max_perimeter * s
+        if not fill and is_covered is not None and covered_max_perimeter is not None:
+            if perim <= covered_max_perimeter * s:
+                fill = bool(covered(ring.mean(axis=0)[None], s)[0])
+            if not fill and len(loop) >= 5 and loop_width(ring) <= max_perimeter / np.pi * s:
+                fill = bool(np.mean(covered(across_points(ring), s)) >= SEAM_SUPPORT)
+        if not fill:
+            continue
+        rev = loop[::-1]
+        # A patch wound this way must face the side the rim faces face; if it faces away and
+        # the sheet is not much larger than the patch, the loop is the outer rim of an open
+        # sheet (e.g. a small flat patch), and "filling" it would cap the sheet's back side
+        # into a closed double layer. Only rims whose faces agree (a flat-ish rim) are judged;
+        # on a rim whose normals cancel (a cylinder's open end) the test says nothing.
+        centre = ring.mean(axis=0)
+        patch_normal = np.cross(vertices[rev] - centre, vertices[np.roll(rev, -1)] - centre).sum(0)
+        rim = [rim_face[(int(a), int(b))] for a, b in zip(loop, np.roll(loop, -1), strict=True)]
+        rim_normal = face_normals(vertices, faces[rim]).sum(axis=0)
+        agree = float(patch_normal @ rim_normal)
+        coherent = np.linalg.norm(rim_normal) > 0.5 * len(loop)
+        against = agree < -0.5 * np.linalg.norm(patch_normal) * np.linalg.norm(rim_normal)
+        # ... unless the sheet is much larger than the patch: then the loop is a fold in it
+        small_sheet = comp_area[comp[rim[0]]] < SHEET_AREA_FACTOR * 0.5 * np.linalg.norm(
+            patch_normal
+        )
+        if coherent and against and small_sheet:
+            continue
+        new_faces.append(zip_loop(vertices, rev, edge_set))
+        zipped.append(rev)
+    if not new_faces:
+        return vertices, normals, faces, 0
+    new_faces = rezip_crossing_loops(vertices, normals, faces, zipped, new_faces, edge_set)
+    return vertices, normals, np.vstack([faces, *new_faces]), len(new_faces)
+
+
+def loop_width(ring: np.ndarray) -> float:
+    """Width of a hole: its hydraulic diameter ``4 A / P`` [units of ``ring``].
+
+    ``A`` is the norm of the loop's vector area, ``P`` its perimeter. A round hole's width is
+    its diameter; a slit of width ``w`` (a seam between two growth fronts) has width ``~2 w``
+    however long it is.
+    """
+    nxt = np.roll(ring, -1, axis=0)
+    perimeter = float(np.linalg.norm(nxt - ring, axis=1).sum())
+    area = 0.5 * float(np.linalg.norm(np.cross(ring - ring[0], nxt - ring[0]).sum(axis=0)))
+    return 4.0 * area / perimeter if perimeter > 0 else 0.0
+
+
+def across_points(ring: np.ndarray, min_steps: int = 3) -> np.ndarray:
+    """Points inside a hole: the midpoint from every rim vertex to the nearest rim vertex at
+    least ``min_steps`` along the loop away, and the loop's centroid. If data lies at all of
+    them, the rim is supported by data all round and the hole is a gap of the triangulation.
+    """
+    k = len(ring)
+    d = np.linalg.norm(ring[:, None, :] - ring[None, :, :], axis=2)
+    idx = np.arange(k)
+    steps = np.abs(idx[:, None] - idx[None, :])
+    steps = np.minimum(steps, k - steps)
+    d[steps < min_steps] = np.inf
+    j = np.argmin(d, axis=1)
+    mids = 0.5 * (ring + ring[j])
+    return np.vstack([mids, ring.mean(axis=0)[None]])
+
+
+def zip_loop(
+    vertices: np.ndarray,
+    loop: np.ndarray,
+    edges: set[tuple[int, int]] | None = None,
+    normals: np.ndarray | None = None,
+) -> np.ndarray:
+    """Close a loop (in the winding of the new faces) by repeatedly cutting off the corner
+    with the shortest diagonal: a zipper along a narrow seam, no new vertices. Diagonals that
+    are already ``edges`` (``(lo, hi)`` pairs) of the mesh are avoided. Returns faces.
+
+    With ``normals`` (unit, per vertex), a corner whose triangle faces against the normal at
+    any of its three corners is cut only when every corner does: such a triangle folds the
+    patch back on itself. :func:`fill_small_holes` zips this way a loop whose plain zip
+    crosses the mesh: on a hole that wraps round the rim of a thin part (both faces of an
+    ear on one loop) the shortest diagonals cross the part's thickness and build a membrane
+    through the part that crosses its other face.
+    """
+    ring = [int(x) for x in loop]
+    edges = edges if edges is not None else set()
+    out = []
+    while len(ring) > 3:
+        p = vertices[ring]
+        prev, nxt = np.roll(p, 1, axis=0), np.roll(p, -1, axis=0)
+        diag = np.linalg.norm(prev - nxt, axis=1)
+        k = len(ring)
+        for i in range(k):
+            a, b = ring[(i - 1) % k], ring[(i + 1) % k]
+            if (min(a, b), max(a, b)) in edges:
+                diag[i] = np.inf
+        if normals is not None:
+            # corner i's triangle (i - 1, i, i + 1) against the normals at its corners
+            tri_n = np.cross(p - prev, nxt - prev)
+            n = normals[ring]
+            folds = (
+                (np.einsum("ij,ij->i", tri_n, n) < 0)
+                | (np.einsum("ij,ij->i", tri_n, np.roll(n, 1, axis=0)) < 0)
+                | (np.einsum("ij,ij->i", tri_n, np.roll(n, -1, axis=0)) < 0)
+            )
+            if not np.all(folds | ~np.isfinite(diag)):
+                diag[folds] = np.inf
+        i = int(np.argmin(diag))
+        a, b = ring[(i - 1) % k], ring[(i + 1) % k]
+        edges.add((min(a, b), max(a, b)))
+        out.append([ring[(i - 1) % k], ring[i], ring[(i + 1) % k]])
+        del ring[i]
+    out.append(ring)
+    return np.asarray(out, dtype=np.int64)
+
+
+def rezip_crossing_loops(
+    vertices: np.ndarray,
+    normals: np.ndarray,
+    faces: np.ndarray,
+    loops: list[np.ndarray],
+    patches: list[np.ndarray],
+    edges: set[tuple[int, int]],
+) -> list[np.ndarray]:
+    """Zip again, fold-free (:func:`zip_loop` with ``normals``), each loop whose patch crosses
+    the mesh or another patch and whose rim normals disagree (the loop wraps round a thin
+    part); the new patch is kept when fewer crossings are left after untangling around it
+    (shallow crossings untangle; a patch through a thin part's other face cannot). ``loops``
+    are in the winding of the patches; ``edges`` holds the mesh's and the patches' edges."""
+    if not patches:
+        return patches
+    owner = np.repeat(np.arange(len(patches)), [len(p) for p in patches])
+    every = np.vstack([faces, *patches])
+    pairs = self_intersections(vertices, every, np.arange(len(faces), len(every)))
+    if not len(pairs):
+        return patches
+    hit = pairs[pairs >= len(faces)] - len(faces)
+    crossings = np.bincount(owner[hit], minlength=len(patches))
+    patches = list(patches)
+    for k in np.flatnonzero(crossings):
+        rim = normals[loops[k]]
+        if np.min(rim @ rim.sum(axis=0)) >= 0:
+            continue  # one sheet: the loop does not wrap round a thin part
+        ring = set(int(x) for x in loops[k])
+        own = {
+            (min(a, b), max(a, b))
+            for a, b in patches[k][:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
+            if not ({int(a), int(b)} <= ring and abs(_ring_step(loops[k], a, b)) == 1)
+        }
+        alt = zip_loop(vertices, loops[k], edges - own, normals)
+        others = np.vstack([faces, *patches[:k], *patches[k + 1 :]])
+        if _left_after_untangle(vertices, others, alt) < _left_after_untangle(
+            vertices, others, patches[k]
+        ):
+            edges -= own
+            edges |= {(min(a, b), max(a, b)) for a, b in alt[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)}
+            patches[k] = alt
+    return patches
+
+
+def _left_after_untangle(vertices: np.ndarray, faces: np.ndarray, patch: np.ndarray) -> int:
+    """Crossings a patch leaves once the mesh around it is untangled (the fit's repair):
+    :func:`recon.intersections.untangle` on the faces near the patch, their rim held."""
+    every = np.vstack([faces, patch])
+    centre = vertices[patch.reshape(-1)]
+    reach = float(np.linalg.norm(centre - centre.mean(axis=0), axis=1).max()) + 3.0
+    near = np.linalg.norm(vertices[every].mean(axis=1) - centre.mean(axis=0), axis=1) <= reach
+    local = every[near]
+    used, inv = np.unique(local, return_inverse=True)
+    sub = inv.reshape(-1, 3)
+    e, c = count_edge_faces(sub)
+    fixed = np.zeros(len(used), dtype=bool)
+    fixed[e[c == 1].reshape(-1)] = True
+    return untangle(vertices[used], sub, fixed=fixed)[2]
+
+
+def _ring_step(loop: np.ndarray, a: int, b: int) -> int:
+    """Steps along the loop from vertex ``a`` to ``b`` (+-1 for a rim edge)."""
+    where = {int(v): i for i, v in enumerate(loop)}
+    d = (where[int(b)] - where[int(a)]) % len(loop)
+    return 1 if d == 1 else -1 if d == len(loop) - 1 else d
