@@ -154,7 +154,7 @@ def triangulate_particles(
     args = (cfg, max_hole, is_covered, scale, crease)
     result = _repair(positions, normals, faces, dict(stats), *args)
     opposed = opposed_faces(normals, faces)
-    if opposed.any():
+    if opposed.any() and _count(result)[2] > 0:  # without a handle there is none to remove
         # Opposite sheets never merge: a face whose corners face more than 90 deg apart can
         # bridge the two faces of a thin part into a handle (a 30 deg knife edge whose
         # particles near the tip carry the other face's normal). Without those faces the
