@@ -67,9 +67,15 @@ _REACH = 4.0
 
 @njit(**EXACT_JIT_OPTIONS)
 def _lloyd(nb, centres, m, assign):  # pragma: no cover - numba
-    """Axial Lloyd iterations on the unit normals ``nb`` with ``m`` initial ``centres``."""
+    """Axial Lloyd iterations on the unit normals ``nb`` with ``m`` initial ``centres``.
+
+    Stops early at a fixed point: when an update leaves every centre bit-identical, the
+    iterations left would repeat it (same assignment, same sums), so the result is that of
+    all ``_ITERATIONS``."""
     kk = nb.shape[0]
+    previous = np.empty((m, 3))
     for _ in range(_ITERATIONS):
+        previous[:, :] = centres[:m]
         for j in range(kk):
             best = -1.0
             arg = 0
@@ -101,12 +107,14 @@ def _lloyd(nb, centres, m, assign):  # pragma: no cover - numba
                 centres[c, 0] = sx / norm
                 centres[c, 1] = sy / norm
                 centres[c, 2] = sz / norm
+        if np.all(centres[:m] == previous):
+            break
 
 
 @njit(**EXACT_JIT_OPTIONS)
 def _clusters(nb, pts, centres, m, assign, share, spread, centroid, plane):  # pragma: no cover
-    """Share, spread (median angle to the centre), centroid and plane normal (PCA of the member
-    points, signed like the centre; the centre itself with fewer than 3 members) per cluster."""
+    """Share, spread (median angle to the centre) and centroid per cluster; ``plane`` is set to
+    the centres (:func:`_planes` refits it to the member points where it is needed)."""
     kk = nb.shape[0]
     angles = np.empty(kk)
     for c in range(m):
@@ -130,24 +138,38 @@ def _clusters(nb, pts, centres, m, assign, share, spread, centroid, plane):  # p
             centroid[c, 0] = cx / cnt
             centroid[c, 1] = cy / cnt
             centroid[c, 2] = cz / cnt
-            plane[c] = centres[c]
-            if cnt >= 3:
-                cov = np.zeros((3, 3))
-                for j in range(kk):
-                    if assign[j] == c:
-                        r = pts[j] - centroid[c]
-                        for a in range(3):
-                            for b in range(3):
-                                cov[a, b] += r[a] * r[b]
-                _, vec = np.linalg.eigh(cov)
-                nrm = vec[:, 0].copy()
-                if nrm @ centres[c] < 0.0:
-                    nrm = -nrm
-                plane[c] = nrm
         else:
-            plane[c] = centres[c]
             spread[c] = np.pi
             centroid[c, :] = pts[0]
+        plane[c] = centres[c]
+
+
+@njit(**EXACT_JIT_OPTIONS)
+def _planes(pts, centres, m, assign, centroid, plane):  # pragma: no cover - numba
+    """Plane normal per cluster of :func:`_clusters`: PCA of the member points about their
+    centroid, signed like the centre (the centre itself, left in ``plane``, with fewer than 3
+    members). Three eigen-decompositions per point of the 3-means are most of a smooth
+    point's cost, and only a pair of clusters that separates needs them."""
+    kk = pts.shape[0]
+    for c in range(m):
+        cnt = 0
+        for j in range(kk):
+            if assign[j] == c:
+                cnt += 1
+        if cnt < 3:
+            continue
+        cov = np.zeros((3, 3))
+        for j in range(kk):
+            if assign[j] == c:
+                r = pts[j] - centroid[c]
+                for a in range(3):
+                    for b in range(3):
+                        cov[a, b] += r[a] * r[b]
+        _, vec = np.linalg.eigh(cov)
+        nrm = vec[:, 0].copy()
+        if nrm @ centres[c] < 0.0:
+            nrm = -nrm
+        plane[c] = nrm
 
 
 @njit(**EXACT_JIT_OPTIONS)
@@ -284,6 +306,7 @@ def gauss_map_kernel(
         centroid = np.zeros((3, 3))
         plane = np.zeros((3, 3))
         _clusters(nb, pts, centres, 2, assign, share, spread, centroid, plane)
+        _planes(pts, centres, 2, assign, centroid, plane)  # the knife gate needs them
         spread_out[i, 0] = spread[0]
         spread_out[i, 1] = spread[1]
         d = np.zeros(3)
@@ -310,6 +333,7 @@ def gauss_map_kernel(
         corner_ok = min(share3[0], min(share3[1], share3[2])) >= corner_share
         tmin = np.inf
         dmin = np.inf
+        fitted3 = False
         for a in range(3):
             if not corner_ok:
                 break
@@ -318,6 +342,9 @@ def gauss_map_kernel(
                 if sep <= ratio * (spread3[a] + spread3[b]):
                     corner_ok = False
                     break
+                if not fitted3:  # first separated pair: the planes are needed from here on
+                    _planes(pts, c3, 3, assign3, centroid3, plane3)
+                    fitted3 = True
                 t, _, dd = _pair(query[i], plane3[a], plane3[b], centroid3[a], centroid3[b], d, x0)
                 if t <= min_turn:
                     corner_ok = False
