@@ -44,6 +44,7 @@ from ..errors import InputError
 from ..geometry import bbox_diagonal
 from ..intersections import untangle
 from ..kernels.options import query_workers, thread_count
+from ..kernels.warm import warm_fit_kernels
 from ..normal_signs import resign_thin_parts
 from ..normals import compute_normals, neighbors_needed
 from ..serialize import dumps
@@ -411,6 +412,7 @@ class _Sheet:
 def _fit_sheet(cloud: PointCloud, cfg: ReconConfig, on_progress: ProgressFn | None) -> _Sheet:
     """Normals, r0, the schedule and the trim: everything before the triangulation."""
     clock = Clock(cfg.dynamics.time_limit)
+    warm_fit_kernels()  # the kernels' cached code loads beside the first stages
     rng = np.random.default_rng(cfg.seed)
     points = np.asarray(cloud.points, dtype=np.float64)
 

@@ -1,0 +1,87 @@
+"""recon.kernels.warm: a fit's kernels load from numba's cache in a background thread.
+
+Loading must never compile (a kernel without a fresh cache is left to its first call), must
+give the dispatcher the cached overload (a cache hit, not a compile), and the list of a fit's
+kernels must name real kernels.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import os
+import sys
+import textwrap
+from pathlib import Path
+
+import pytest
+from numba.core.dispatcher import Dispatcher
+
+from recon.kernels import warm
+
+pytestmark = pytest.mark.skipif(
+    os.environ.get("NUMBA_DISABLE_JIT", "0") not in ("", "0"),
+    reason="without the JIT there is no cache to load",
+)
+
+SOURCE = textwrap.dedent(
+    '''
+    from numba import njit
+
+
+    @njit(cache=True)
+    def twice(x):
+        """x + x."""
+        return x + x
+
+
+    @njit(cache=True)
+    def never_called(x):
+        """x - 1."""
+        return x - 1
+    '''
+)
+
+
+def _import(path: Path, name: str):
+    spec = importlib.util.spec_from_file_location(name, path)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_cached_code_is_loaded_and_nothing_is_compiled(tmp_path):
+    path = tmp_path / "warm_sample.py"
+    path.write_text(SOURCE)
+    first = _import(path, "warm_sample_a")
+    assert first.twice(2.0) == 4.0  # compiles and writes the cache
+    assert warm.cached_signatures(first.never_called) == []
+
+    # a new process's view: fresh dispatchers of the same source, nothing loaded yet
+    again = _import(path, "warm_sample_b")
+    assert len(again.twice.overloads) == 0
+    assert len(warm.cached_signatures(again.twice)) == 1
+    assert warm.load_cached([again.twice, again.never_called]) == 1
+    assert len(again.twice.overloads) == 1
+    assert sum(again.twice._cache_hits.values()) == 1  # loaded, not compiled
+    assert len(again.never_called.overloads) == 0  # no cache: left to its first call
+    assert warm.load_cached([again.twice]) == 0  # already there
+    assert again.twice(3.0) == 6.0
+    assert sum(again.twice._cache_misses.values()) == 0
+
+
+def test_plain_functions_are_skipped():
+    def plain(x):
+        return x
+
+    assert warm.load_cached([plain]) == 0
+
+
+def test_the_fit_kernels_are_kernels_and_the_thread_starts_once():
+    kernels = warm.resolve(warm.FIT_KERNELS)
+    assert all(isinstance(k, Dispatcher) for k in kernels)
+    assert len(set(map(id, kernels))) == len(kernels)
+    thread = warm.warm_fit_kernels()
+    assert warm.warm_fit_kernels() is thread
+    thread.join(timeout=120)
+    assert not thread.is_alive()
