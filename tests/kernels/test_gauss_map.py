@@ -1,7 +1,7 @@
 """recon.kernels.gauss_map: the axial Lloyd iterations and the per-cluster planes.
 
-The Lloyd iterations stop at a fixed point; checked bit for bit against the plain
-``_ITERATIONS`` rounds written out below. The cluster planes, fitted only where a pair of
+The Lloyd iterations stop at a fixed point; checked bit for bit against all ``_ITERATIONS``
+rounds, run one per call. The cluster planes, fitted only where a pair of
 clusters separates, are the PCA normals of the members signed like their centres.
 """
 
@@ -14,37 +14,18 @@ from recon.kernels import gauss_map
 from recon.kernels.gauss_map import _clusters, _lloyd, _planes
 
 
-def plain_lloyd(nb: np.ndarray, centres: np.ndarray, m: int) -> tuple[np.ndarray, np.ndarray]:
-    """Every one of the ``_ITERATIONS`` rounds, in the kernel's order of operations."""
+def plain_lloyd(
+    nb: np.ndarray, centres: np.ndarray, m: int, monkeypatch: pytest.MonkeyPatch
+) -> tuple[np.ndarray, np.ndarray]:
+    """Every one of the ``_ITERATIONS`` rounds: the kernel's Python source run one round per
+    call (so no early stop), as many times."""
     centres = centres.copy()
-    kk = len(nb)
-    assign = np.zeros(kk, dtype=np.int64)
-    for _ in range(gauss_map._ITERATIONS):
-        for j in range(kk):
-            best, arg = -1.0, 0
-            for c in range(m):
-                dot = abs(
-                    nb[j, 0] * centres[c, 0] + nb[j, 1] * centres[c, 1] + nb[j, 2] * centres[c, 2]
-                )
-                if dot > best:
-                    best, arg = dot, c
-            assign[j] = arg
-        for c in range(m):
-            sx = sy = sz = 0.0
-            for j in range(kk):
-                if assign[j] == c:
-                    dot = (
-                        nb[j, 0] * centres[c, 0]
-                        + nb[j, 1] * centres[c, 1]
-                        + nb[j, 2] * centres[c, 2]
-                    )
-                    s = 1.0 if dot >= 0.0 else -1.0
-                    sx += s * nb[j, 0]
-                    sy += s * nb[j, 1]
-                    sz += s * nb[j, 2]
-            norm = np.sqrt(sx * sx + sy * sy + sz * sz)
-            if norm > 0.0:
-                centres[c] = [sx / norm, sy / norm, sz / norm]
+    assign = np.zeros(len(nb), dtype=np.int64)
+    rounds = gauss_map._ITERATIONS
+    monkeypatch.setattr(gauss_map, "_ITERATIONS", 1)
+    for _ in range(rounds):
+        _lloyd.py_func(nb, centres, m, assign)
+    monkeypatch.undo()
     return centres, assign
 
 
@@ -63,12 +44,12 @@ def _normals(kind: str, rng: np.random.Generator, kk: int = 24) -> np.ndarray:
 
 @pytest.mark.parametrize("kind", ["one", "two", "three", "arc"])
 @pytest.mark.parametrize("m", [2, 3])
-def test_lloyd_stops_at_a_fixed_point_with_the_result_of_every_round(kind, m):
+def test_lloyd_stops_at_a_fixed_point_with_the_result_of_every_round(kind, m, monkeypatch):
     rng = np.random.default_rng(7)
     for _ in range(20):
         nb = _normals(kind, rng)
         start = nb[rng.choice(len(nb), 3, replace=False)].copy()
-        want_centres, want_assign = plain_lloyd(nb, start, m)
+        want_centres, want_assign = plain_lloyd(nb, start, m, monkeypatch)
         centres = start.copy()
         assign = np.zeros(len(nb), dtype=np.int64)
         _lloyd(nb, centres, m, assign)
