@@ -329,8 +329,14 @@ def gauss_map_kernel(
         spread3 = np.zeros(3)
         centroid3 = np.zeros((3, 3))
         plane3 = np.zeros((3, 3))
-        _clusters(nb, pts, c3, 3, assign3, share3, spread3, centroid3, plane3)
-        corner_ok = min(share3[0], min(share3[1], share3[2])) >= corner_share
+        # a corner needs corner_share of the points in each cluster: count first, and only
+        # then take the spreads and centroids (which nothing else uses)
+        counts3 = np.zeros(3)
+        for j in range(kk):
+            counts3[assign3[j]] += 1.0
+        corner_ok = min(counts3[0], min(counts3[1], counts3[2])) / kk >= corner_share
+        if corner_ok:
+            _clusters(nb, pts, c3, 3, assign3, share3, spread3, centroid3, plane3)
         tmin = np.inf
         dmin = np.inf
         fitted3 = False
