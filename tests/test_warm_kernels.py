@@ -11,6 +11,7 @@ import importlib.util
 import os
 import sys
 import textwrap
+import threading
 from pathlib import Path
 
 import pytest
@@ -85,3 +86,17 @@ def test_the_fit_kernels_are_kernels_and_the_thread_starts_once():
     assert warm.warm_fit_kernels() is thread
     thread.join(timeout=120)
     assert not thread.is_alive()
+
+
+def test_a_numba_without_the_cache_internals_only_skips_the_loading(monkeypatch):
+    def renamed(dispatcher):
+        raise AttributeError("'_CacheFile' object has no attribute '_load_index'")
+
+    raised = []
+    monkeypatch.setattr(threading, "excepthook", raised.append)
+    monkeypatch.setattr(warm, "cached_signatures", renamed)
+    monkeypatch.setattr(warm, "_started", None)
+    thread = warm.warm_fit_kernels(("pair_loop.step_particles",))
+    thread.join(timeout=120)
+    assert not thread.is_alive()
+    assert raised == []  # nothing escapes the thread (it would print a traceback)

@@ -86,6 +86,16 @@ def resolve(names: Sequence[str]) -> list[object]:
     return out
 
 
+def _load_quietly(dispatchers: Sequence[object]) -> None:
+    """:func:`load_cached` as a pure optimisation: it reads numba's cache through internals
+    that a future numba may rename, and any failure there only means the kernels load on
+    their first call, as without this thread, so it is not reported."""
+    try:
+        load_cached(dispatchers)
+    except Exception:  # noqa: BLE001 - nothing a fit depends on happens here
+        pass
+
+
 def warm_fit_kernels(names: Sequence[str] = FIT_KERNELS) -> threading.Thread:
     """Start (once per process) the daemon thread that loads ``names``' cached code; returns
     it (already finished or running)."""
@@ -94,7 +104,7 @@ def warm_fit_kernels(names: Sequence[str] = FIT_KERNELS) -> threading.Thread:
         if _started is None:
             kernels = resolve(names)  # imported here, in the caller's thread
             _started = threading.Thread(
-                target=load_cached, args=(kernels,), name="oprecon-warm-kernels", daemon=True
+                target=_load_quietly, args=(kernels,), name="oprecon-warm-kernels", daemon=True
             )
             _started.start()
         return _started
