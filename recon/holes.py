@@ -23,7 +23,14 @@ from .mesh import (
     face_normals,
 )
 
-__all__ = ["across_points", "fill_small_holes", "loop_width", "rezip_crossing_loops", "zip_loop"]
+__all__ = [
+    "across_points",
+    "drop_tangled_patches",
+    "fill_small_holes",
+    "loop_width",
+    "rezip_crossing_loops",
+    "zip_loop",
+]
 
 #: A loop whose rim faces point against its patch is kept open when its component's area is
 #: below this many times the patch's area (the outer rim of a small open sheet).
@@ -130,6 +137,9 @@ def fill_small_holes(
     if not new_faces:
         return vertices, normals, faces, 0
     new_faces = rezip_crossing_loops(vertices, normals, faces, zipped, new_faces, edge_set)
+    new_faces = drop_tangled_patches(vertices, faces, new_faces)
+    if not new_faces:
+        return vertices, normals, faces, 0
     return vertices, normals, np.vstack([faces, *new_faces]), len(new_faces)
 
 
@@ -253,6 +263,32 @@ def rezip_crossing_loops(
             edges |= {(min(a, b), max(a, b)) for a, b in alt[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)}
             patches[k] = alt
     return patches
+
+
+def drop_tangled_patches(
+    vertices: np.ndarray, faces: np.ndarray, patches: list[np.ndarray]
+) -> list[np.ndarray]:
+    """The patches without those that still cross the mesh or another patch once the mesh
+    around them is untangled (:func:`_left_after_untangle`): such a patch is not a gap of one
+    sheet closed but a membrane through a thin part (a loop that wraps round an under-sampled
+    leg or ear, whose across-points all lie within the data's reach). Its loop stays open:
+    the guarantee is a mesh that never crosses itself, and an open loop is reported."""
+    if not patches:
+        return patches
+    every = np.vstack([faces, *patches])
+    pairs = self_intersections(vertices, every, np.arange(len(faces), len(every)))
+    if not len(pairs):
+        return patches
+    owner = np.repeat(np.arange(len(patches)), [len(p) for p in patches])
+    hit = np.unique(owner[pairs[pairs >= len(faces)] - len(faces)])
+    tangled = {
+        int(k)
+        for k in hit
+        if _left_after_untangle(
+            vertices, np.vstack([faces, *patches[:k], *patches[k + 1 :]]), patches[k]
+        )
+    }
+    return [p for k, p in enumerate(patches) if k not in tangled]
 
 
 def _left_after_untangle(vertices: np.ndarray, faces: np.ndarray, patch: np.ndarray) -> int:
