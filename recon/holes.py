@@ -13,6 +13,7 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from .intersections import self_intersections, untangle
 from .mesh import (
@@ -275,12 +276,15 @@ def drop_tangled_patches(
     the guarantee is a mesh that never crosses itself, and an open loop is reported."""
     if not patches:
         return patches
-    every = np.vstack([faces, *patches])
-    pairs = self_intersections(vertices, every, np.arange(len(faces), len(every)))
+    # only faces whose bounding sphere can reach a patch face's take part in the search
+    patch = np.vstack(patches)
+    near = _near_faces(vertices, faces, patch)
+    every = np.vstack([near, patch])
+    pairs = self_intersections(vertices, every, np.arange(len(near), len(every)))
     if not len(pairs):
         return patches
     owner = np.repeat(np.arange(len(patches)), [len(p) for p in patches])
-    hit = np.unique(owner[pairs[pairs >= len(faces)] - len(faces)])
+    hit = np.unique(owner[pairs[pairs >= len(near)] - len(near)])
     tangled = {
         int(k)
         for k in hit
@@ -289,6 +293,22 @@ def drop_tangled_patches(
         )
     }
     return [p for k, p in enumerate(patches) if k not in tangled]
+
+
+def _near_faces(vertices: np.ndarray, faces: np.ndarray, patch: np.ndarray) -> np.ndarray:
+    """The faces whose bounding sphere (centroid, farthest corner) can meet that of a face of
+    ``patch``: every face that can cross the patch."""
+    if len(faces) == 0:
+        return faces
+
+    def spheres(f: np.ndarray) -> tuple[np.ndarray, float]:
+        corners = vertices[f]
+        centre = corners.mean(axis=1)
+        return centre, float(np.linalg.norm(corners - centre[:, None, :], axis=2).max())
+
+    (c_face, r_face), (c_patch, r_patch) = spheres(faces), spheres(patch)
+    dist, _ = cKDTree(c_patch).query(c_face, distance_upper_bound=r_face + r_patch)
+    return faces[np.isfinite(dist)]
 
 
 def _left_after_untangle(vertices: np.ndarray, faces: np.ndarray, patch: np.ndarray) -> int:
