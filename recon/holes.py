@@ -269,11 +269,13 @@ def rezip_crossing_loops(
 def drop_tangled_patches(
     vertices: np.ndarray, faces: np.ndarray, patches: list[np.ndarray]
 ) -> list[np.ndarray]:
-    """The patches without those that still cross the mesh or another patch once the mesh
-    around them is untangled (:func:`_left_after_untangle`): such a patch is not a gap of one
-    sheet closed but a membrane through a thin part (a loop that wraps round an under-sampled
-    leg or ear, whose across-points all lie within the data's reach). Its loop stays open:
-    the guarantee is a mesh that never crosses itself, and an open loop is reported."""
+    """The patches without those that still cross the mesh once the mesh around them is
+    untangled (:func:`_left_after_untangle`): such a patch is not a gap of one sheet closed
+    but a membrane through a thin part (a loop that wraps round an under-sampled leg or ear,
+    whose across-points all lie within the data's reach). Its loop stays open: the guarantee
+    is a mesh that never crosses itself, and an open loop is reported. Crossings between two
+    patches are left to the fit's untangling, which moves both (on a knife's edge, zips on
+    its two faces cross each other and untangle together)."""
     if not patches:
         return patches
     # only faces whose bounding sphere can reach a patch face's take part in the search
@@ -281,17 +283,12 @@ def drop_tangled_patches(
     near = _near_faces(vertices, faces, patch)
     every = np.vstack([near, patch])
     pairs = self_intersections(vertices, every, np.arange(len(near), len(every)))
+    pairs = pairs[(pairs < len(near)).sum(axis=1) == 1]  # a mesh face and a patch face
     if not len(pairs):
         return patches
     owner = np.repeat(np.arange(len(patches)), [len(p) for p in patches])
-    hit = np.unique(owner[pairs[pairs >= len(near)] - len(near)])
-    tangled = {
-        int(k)
-        for k in hit
-        if _left_after_untangle(
-            vertices, np.vstack([faces, *patches[:k], *patches[k + 1 :]]), patches[k]
-        )
-    }
+    hit = np.unique(owner[pairs.max(axis=1) - len(near)])
+    tangled = {int(k) for k in hit if _left_after_untangle(vertices, faces, patches[k])}
     return [p for k, p in enumerate(patches) if k not in tangled]
 
 
