@@ -118,3 +118,16 @@ def test_a_patch_through_the_mesh_is_dropped_and_a_clean_one_kept():
     assert len(kept) == 1 and np.array_equal(kept[0], beside)
     # nothing crosses: every patch is kept as it is
     assert len(drop_tangled_patches(v, f, [beside])) == 1
+
+
+def test_patches_crossing_only_each_other_are_kept():
+    # two patches off the sheet that cross each other (zips on a knife's two faces): the fit's
+    # untangling moves both, so neither is dropped here
+    v, f = _sheet()
+    extra = np.array(
+        [[20, 0, 0], [22, 0, 0], [21, 2, 0], [21, 1, -1], [21, 1.2, 1], [21.5, 0.5, 1]]
+    )
+    v = np.vstack([v, extra])
+    a, b = np.array([[64, 65, 66]]), np.array([[67, 68, 69]])
+    assert len(self_intersections(v, np.vstack([f, a, b]))) > 0
+    assert len(drop_tangled_patches(v, f, [a, b])) == 2
