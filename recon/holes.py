@@ -13,7 +13,6 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from .intersections import self_intersections, untangle
 from .mesh import (
@@ -24,14 +23,7 @@ from .mesh import (
     face_normals,
 )
 
-__all__ = [
-    "across_points",
-    "drop_tangled_patches",
-    "fill_small_holes",
-    "loop_width",
-    "rezip_crossing_loops",
-    "zip_loop",
-]
+__all__ = ["across_points", "fill_small_holes", "loop_width", "rezip_crossing_loops", "zip_loop"]
 
 #: A loop whose rim faces point against its patch is kept open when its component's area is
 #: below this many times the patch's area (the outer rim of a small open sheet).
@@ -138,9 +130,6 @@ def fill_small_holes(
     if not new_faces:
         return vertices, normals, faces, 0
     new_faces = rezip_crossing_loops(vertices, normals, faces, zipped, new_faces, edge_set)
-    new_faces = drop_tangled_patches(vertices, faces, new_faces)
-    if not new_faces:
-        return vertices, normals, faces, 0
     return vertices, normals, np.vstack([faces, *new_faces]), len(new_faces)
 
 
@@ -264,48 +253,6 @@ def rezip_crossing_loops(
             edges |= {(min(a, b), max(a, b)) for a, b in alt[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)}
             patches[k] = alt
     return patches
-
-
-def drop_tangled_patches(
-    vertices: np.ndarray, faces: np.ndarray, patches: list[np.ndarray]
-) -> list[np.ndarray]:
-    """The patches without those that still cross the mesh once the mesh around them is
-    untangled (:func:`_left_after_untangle`): such a patch is not a gap of one sheet closed
-    but a membrane through a thin part (a loop that wraps round an under-sampled leg or ear,
-    whose across-points all lie within the data's reach). Its loop stays open: the guarantee
-    is a mesh that never crosses itself, and an open loop is reported. Crossings between two
-    patches are left to the fit's untangling, which moves both (on a knife's edge, zips on
-    its two faces cross each other and untangle together)."""
-    if not patches:
-        return patches
-    # only faces whose bounding sphere can reach a patch face's take part in the search
-    patch = np.vstack(patches)
-    near = _near_faces(vertices, faces, patch)
-    every = np.vstack([near, patch])
-    pairs = self_intersections(vertices, every, np.arange(len(near), len(every)))
-    pairs = pairs[(pairs < len(near)).sum(axis=1) == 1]  # a mesh face and a patch face
-    if not len(pairs):
-        return patches
-    owner = np.repeat(np.arange(len(patches)), [len(p) for p in patches])
-    hit = np.unique(owner[pairs.max(axis=1) - len(near)])
-    tangled = {int(k) for k in hit if _left_after_untangle(vertices, faces, patches[k])}
-    return [p for k, p in enumerate(patches) if k not in tangled]
-
-
-def _near_faces(vertices: np.ndarray, faces: np.ndarray, patch: np.ndarray) -> np.ndarray:
-    """The faces whose bounding sphere (centroid, farthest corner) can meet that of a face of
-    ``patch``: every face that can cross the patch."""
-    if len(faces) == 0:
-        return faces
-
-    def spheres(f: np.ndarray) -> tuple[np.ndarray, float]:
-        corners = vertices[f]
-        centre = corners.mean(axis=1)
-        return centre, float(np.linalg.norm(corners - centre[:, None, :], axis=2).max())
-
-    (c_face, r_face), (c_patch, r_patch) = spheres(faces), spheres(patch)
-    dist, _ = cKDTree(c_patch).query(c_face, distance_upper_bound=r_face + r_patch)
-    return faces[np.isfinite(dist)]
 
 
 def _left_after_untangle(vertices: np.ndarray, faces: np.ndarray, patch: np.ndarray) -> int:

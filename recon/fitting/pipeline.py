@@ -258,24 +258,33 @@ def _triangulate(
         max(tri_cfg.max_density_scale, 1.0),
     )
 
+    def mesh(reach: float) -> tuple[TriangulationResult, int, int]:
+        def is_covered(c: np.ndarray, spacing: float | np.ndarray = 1.0) -> np.ndarray:
+            dist, idx = surface.nearest(surface.project(c)[0])
+            near = HOLE_COVER_DISTANCE * np.maximum(spacing, sparser[idx])
+            return dist < np.maximum(near, reach)
+
+        result = triangulate_particles(
+            state.position,
+            state.normal,
+            tri_cfg,
+            max_hole,
+            is_covered,
+            local_spacing=spacing,
+            crease=None if surface.creases is None else ~np.asarray(state.is_oriented, dtype=bool),
+        )
+        vertices, found, left = untangle(result.vertices, result.faces, fixed=result.crease)
+        return replace(result, vertices=vertices), found, left
+
     reach = cover_reach(median_spacing)
-
-    def is_covered(c: np.ndarray, spacing: float | np.ndarray = 1.0) -> np.ndarray:
-        dist, idx = surface.nearest(surface.project(c)[0])
-        return dist < np.maximum(HOLE_COVER_DISTANCE * np.maximum(spacing, sparser[idx]), reach)
-
-    result = triangulate_particles(
-        state.position,
-        state.normal,
-        tri_cfg,
-        max_hole,
-        is_covered,
-        local_spacing=spacing,
-        crease=None if surface.creases is None else ~np.asarray(state.is_oriented, dtype=bool),
-    )
-    vertices, found, left = untangle(result.vertices, result.faces, fixed=result.crease)
+    result, found, left = mesh(reach)
+    if left and reach > HOLE_COVER_DISTANCE:
+        # the reach closed a loop through a thin part (a loop round an under-sampled ear or
+        # leg, whose inside lies within the reach): the mesh would cross itself, so the
+        # loops the reach alone closed stay open
+        result, found, left = mesh(0.0)
     stats = {**result.stats, "self_intersections_found": found, "self_intersections_left": left}
-    return replace(result, vertices=vertices, stats=stats)
+    return replace(result, stats=stats)
 
 
 #: Vertex normals are split at a crease vertex between faces turning by more than this
