@@ -54,6 +54,7 @@ from ..triangulate import TriangulationResult, triangulate_particles
 from ..version import __version__
 from .memory import estimate_fit_memory
 from .report import (
+    SAMPLING_REACH,
     CreaseStats,
     FitReport,
     History,
@@ -92,7 +93,8 @@ TRIM_GAP_FRACTION = 0.5
 #: times that data point's sampling spacing (:func:`data_spacing`) over the median one
 #: (clipped to ``triangulation.max_density_scale``), whichever is larger: where the data is k
 #: times sparser than usual, a sample covers k times farther (uniformly sparse data keeps the
-#: test at r0, so small true holes stay open).
+#: test at r0, so small true holes stay open), or within :func:`cover_reach` of the data's
+#: median spacing where that is farther (sparse input, r0 near one point spacing).
 HOLE_COVER_DISTANCE = 1.0
 #: The local data spacing is the distance to this many-th nearest data point.
 DENSITY_NEIGHBOURS = 6
@@ -207,14 +209,36 @@ def local_density_scale(
     return np.clip(ratio / DENSITY_TOLERANCE, 1.0, max_scale)
 
 
+def cover_reach(median_spacing: float) -> float:
+    """Distance [r0] within which data covers the surface: ``SAMPLING_REACH`` median point
+    spacings ``median_spacing`` [r0] (95 % of a uniformly sampled surface lies that close to
+    a sample), the same reach by which the report judges the mesh on the data.
+
+    On dense input r0 is 2.5 spacings and this stays below ``HOLE_COVER_DISTANCE`` r0. On
+    sparse input the resolution floor puts r0 near one spacing, where a test at r0 finds
+    data beside only about half of the surface between samples: a narrow seam between two
+    growth fronts then fails the coverage test of hole filling and stays open.
+
+    Examples
+    --------
+    >>> cover_reach(1.0)
+    2.1
+    >>> cover_reach(0.5)
+    1.05
+    """
+    return SAMPLING_REACH * float(median_spacing)
+
+
 def _triangulate(
-    state: ParticleState, surface: DataSurface, cfg: ReconConfig
+    state: ParticleState, surface: DataSurface, cfg: ReconConfig, median_spacing: float = 0.0
 ) -> TriangulationResult:
     """Triangulate the particles; gaps up to ``max_hole`` (default ``max_gap``) are closed.
 
     Ball radii and hole sizes follow each particle's spacing [r0]: the larger of its rest
     spacing (``seeds.adaptive``; 1 otherwise) and the local data spacing
-    (``triangulation.max_density_scale``).
+    (``triangulation.max_density_scale``). ``median_spacing`` [r0]: the data's median
+    nearest-neighbour distance; a hole's inside counts as covered by data within
+    ``SAMPLING_REACH`` of them (:func:`cover_reach`).
     """
     tri_cfg = cfg.triangulation
     max_hole = tri_cfg.max_hole if tri_cfg.max_hole is not None else cfg.growth.max_gap
@@ -235,22 +259,33 @@ def _triangulate(
         max(tri_cfg.max_density_scale, 1.0),
     )
 
-    def is_covered(c: np.ndarray, spacing: float | np.ndarray = 1.0) -> np.ndarray:
-        dist, idx = surface.nearest(surface.project(c)[0])
-        return dist < HOLE_COVER_DISTANCE * np.maximum(spacing, sparser[idx])
+    def mesh(reach: float) -> tuple[TriangulationResult, int, int]:
+        def is_covered(c: np.ndarray, spacing: float | np.ndarray = 1.0) -> np.ndarray:
+            dist, idx = surface.nearest(surface.project(c)[0])
+            near = HOLE_COVER_DISTANCE * np.maximum(spacing, sparser[idx])
+            return dist < np.maximum(near, reach)
 
-    result = triangulate_particles(
-        state.position,
-        state.normal,
-        tri_cfg,
-        max_hole,
-        is_covered,
-        local_spacing=spacing,
-        crease=None if surface.creases is None else ~np.asarray(state.is_oriented, dtype=bool),
-    )
-    vertices, found, left = untangle(result.vertices, result.faces, fixed=result.crease)
+        result = triangulate_particles(
+            state.position,
+            state.normal,
+            tri_cfg,
+            max_hole,
+            is_covered,
+            local_spacing=spacing,
+            crease=None if surface.creases is None else ~np.asarray(state.is_oriented, dtype=bool),
+        )
+        vertices, found, left = untangle(result.vertices, result.faces, fixed=result.crease)
+        return replace(result, vertices=vertices), found, left
+
+    reach = cover_reach(median_spacing)
+    result, found, left = mesh(reach)
+    if left and reach > HOLE_COVER_DISTANCE:
+        # the reach closed a loop through a thin part (a loop round an under-sampled ear or
+        # leg, whose inside lies within the reach): the mesh would cross itself, so the
+        # loops the reach alone closed stay open
+        result, found, left = mesh(0.0)
     stats = {**result.stats, "self_intersections_found": found, "self_intersections_left": left}
-    return replace(result, vertices=vertices, stats=stats)
+    return replace(result, stats=stats)
 
 
 #: Vertex normals are split at a crease vertex between faces turning by more than this
@@ -486,7 +521,7 @@ def _reconstruct(cloud: PointCloud, cfg: ReconConfig, on_progress: ProgressFn | 
     normals_info, creases = sheet.normals_info, sheet.creases
     state = sched.state
     diag = bbox_diagonal(points)
-    tri = _triangulate(state, surface, cfg)
+    tri = _triangulate(state, surface, cfg, d_nn / r0)
     clock.lap("triangulate")
     clock.check()
 
