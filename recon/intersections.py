@@ -47,8 +47,9 @@ def candidate_pairs(
     with a face in ``subset``).
 
     Pairs of ordinary faces come from one search radius (twice the largest ordinary bounding
-    radius); the few faces larger than ``LARGE_FACE`` times the median are paired one by one
-    with their own radius, so that one large face does not widen every search.
+    radius); the few faces larger than ``LARGE_FACE`` times the median search with their own
+    radius, so that one large face does not widen every search, and are paired among
+    themselves the same way, one level up (:func:`_overlapping`).
     """
     n = len(faces)
     if n < 2:
@@ -56,24 +57,52 @@ def candidate_pairs(
     corners = vertices[faces]
     centroid = corners.mean(axis=1)
     radius = np.linalg.norm(corners - centroid[:, None, :], axis=2).max(axis=1)
+    mark = np.ones(n, dtype=np.bool_)
+    if subset is not None:
+        mark[:] = False
+        mark[np.asarray(subset, dtype=np.int64)] = True
+    key = _overlapping(centroid, radius, mark)
+    return np.stack([key // n, key % n], axis=1)
+
+
+def _overlapping(centroid: np.ndarray, radius: np.ndarray, mark: np.ndarray) -> np.ndarray:
+    """Sorted keys ``i n + j`` (``i < j``) of the overlapping bounding spheres with a marked
+    sphere. On the cell grid (:func:`recon.kernels.sphere_pairs.sphere_pairs`) the large
+    spheres find their ordinary partners; pairs of two large ones come from the same search
+    over the large ones alone (fewer than half at each level: above 3x the median), so no
+    sphere is ever compared with all of a big mesh."""
+    n = len(centroid)
+    if n < 2:
+        return np.zeros(0, dtype=np.int64)
     large = radius > LARGE_FACE * max(float(np.median(radius)), 1e-300)
     r_small = float(radius[~large].max()) if np.any(~large) else 0.0
     extent = centroid.max(axis=0) - centroid.min(axis=0)
-    if r_small > 0.0 and np.prod(np.floor(3.0 * extent / (2.0 * r_small)) + 1.0) < 2.0**62:
-        mark = np.ones(n, dtype=np.bool_)
-        if subset is not None:
-            mark[:] = False
-            mark[np.asarray(subset, dtype=np.int64)] = True
-        with thread_limit(n >= PARALLEL_MIN_PARTICLES):
-            key = sphere_pairs(centroid, radius, mark, large, r_small)
-        return np.stack([key // n, key % n], axis=1)
+    if not (r_small > 0.0 and np.prod(np.floor(3.0 * extent / (2.0 * r_small)) + 1.0) < 2.0**62):
+        return _tree_overlapping(centroid, radius, mark, large, r_small)
+    with thread_limit(n >= PARALLEL_MIN_PARTICLES):
+        key = sphere_pairs(centroid, radius, mark, large, r_small)
+    big = np.flatnonzero(large)
+    if len(big) < 2:
+        return key
+    among = _overlapping(centroid[big], radius[big], mark[big])
+    key = np.concatenate([key, big[among // len(big)] * n + big[among % len(big)]])
+    key.sort()  # the two sets are disjoint (a pair of two large spheres, or not)
+    return key
+
+
+def _tree_overlapping(
+    centroid: np.ndarray, radius: np.ndarray, mark: np.ndarray, large: np.ndarray, r_small: float
+) -> np.ndarray:
+    """:func:`_overlapping` on a k-d tree, where no cell grid fits (degenerate radii, or more
+    cells than int64 keys)."""
+    n = len(centroid)
+    everything = bool(mark.all())
     tree = cKDTree(centroid)
     found = [np.zeros((0, 2), dtype=np.int64)]
-    if subset is None:
+    if everything:
         found.append(tree.query_pairs(2.0 * r_small, output_type="ndarray").astype(np.int64))
     else:
-        queries = np.asarray(subset, dtype=np.int64)
-        queries = queries[~large[queries]]
+        queries = np.flatnonzero(mark & ~large)
         found.append(_around(tree, centroid, queries, radius[queries] + r_small))
     big = np.flatnonzero(large)
     if len(big):
@@ -81,15 +110,12 @@ def candidate_pairs(
     pairs = np.vstack(found)
     gap = np.linalg.norm(centroid[pairs[:, 0]] - centroid[pairs[:, 1]], axis=1)
     pairs = pairs[gap <= radius[pairs[:, 0]] + radius[pairs[:, 1]]]
-    if subset is not None:
-        mark = np.zeros(n, dtype=bool)
-        mark[np.asarray(subset, dtype=np.int64)] = True
+    if not everything:
         pairs = pairs[mark[pairs[:, 0]] | mark[pairs[:, 1]]]
     key = pairs[:, 0] * n + pairs[:, 1]
     # a pair may have been found twice (by both its faces, or also as a large face's);
     # query_pairs alone finds each pair once, and then sorting is all np.unique would do
-    key = np.sort(key) if subset is None and len(big) == 0 else np.unique(key)
-    return np.stack([key // n, key % n], axis=1)
+    return np.sort(key) if everything and len(big) == 0 else np.unique(key)
 
 
 def _around(tree: cKDTree, centroid: np.ndarray, faces: np.ndarray, reach: np.ndarray):

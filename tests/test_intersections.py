@@ -119,3 +119,27 @@ def test_candidate_pairs_equal_the_overlapping_bounding_spheres():
         mark[subset] = True
         want_sub = want[mark[want[:, 0]] | mark[want[:, 1]]]
         np.testing.assert_array_equal(candidate_pairs(vertices, faces, subset), want_sub)
+
+
+def test_candidate_pairs_with_faces_at_many_scales():
+    """Large faces at several scales (each level more than 3x the median of the one below)
+    are paired with every face they overlap, large or not, by the grid's level search: the
+    pairs equal the brute-force overlaps, with and without a subset."""
+    rng = np.random.default_rng(11)
+    sizes = np.repeat([0.05, 0.4, 3.0, 20.0], [600, 60, 12, 3])
+    centres = rng.uniform(0.0, 30.0, (len(sizes), 1, 3))
+    vertices = (centres + sizes[:, None, None] * rng.normal(size=(len(sizes), 3, 3))).reshape(-1, 3)
+    faces = np.arange(len(vertices)).reshape(-1, 3)
+    corners = vertices[faces]
+    centroid = corners.mean(axis=1)
+    radius = np.linalg.norm(corners - centroid[:, None, :], axis=2).max(axis=1)
+    gap = np.linalg.norm(centroid[:, None, :] - centroid[None, :, :], axis=2)
+    want = np.argwhere(np.triu(gap <= radius[:, None] + radius[None, :], k=1))
+    large = radius > 3.0 * np.median(radius)
+    assert np.sum(large[want].all(axis=1)) > 5  # pairs of two large faces are among them
+    np.testing.assert_array_equal(candidate_pairs(vertices, faces), want)
+    for subset in (np.arange(0, len(faces), 9), np.flatnonzero(large)[:4]):
+        mark = np.zeros(len(faces), dtype=bool)
+        mark[subset] = True
+        want_sub = want[mark[want[:, 0]] | mark[want[:, 1]]]
+        np.testing.assert_array_equal(candidate_pairs(vertices, faces, subset), want_sub)
