@@ -28,7 +28,13 @@ from .kernels.sphere_pairs import sphere_pairs
 from .kernels.tri_intersect import pairs_intersect
 from .neighbors import PARALLEL_MIN_PARTICLES
 
-__all__ = ["UNTANGLE_PASSES", "UNTANGLE_STEP", "self_intersections", "untangle"]
+__all__ = [
+    "UNTANGLE_PASSES",
+    "UNTANGLE_STEP",
+    "faces_near_balls",
+    "self_intersections",
+    "untangle",
+]
 
 #: Passes of :func:`untangle` (each smooths around the crossing faces once).
 UNTANGLE_PASSES = 30
@@ -63,6 +69,35 @@ def candidate_pairs(
         mark[np.asarray(subset, dtype=np.int64)] = True
     key = _overlapping(centroid, radius, mark)
     return np.stack([key // n, key % n], axis=1)
+
+
+def faces_near_balls(
+    vertices: np.ndarray, faces: np.ndarray, centres: np.ndarray, radii: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Faces whose bounding sphere (centroid, farthest corner) overlaps one of the balls
+    ``(centres[k], radii[k])``: one grid search for all balls (:func:`_overlapping`), so that a
+    search around many small regions of a big mesh costs one pass, not one per region.
+
+    Returns
+    -------
+    face_idx, ball_idx : (m,) int64
+        The overlapping pairs, sorted by face, then ball.
+    """
+    n = len(faces)
+    corners = vertices[faces]
+    centroid = corners.mean(axis=1)
+    radius = np.linalg.norm(corners - centroid[:, None, :], axis=2).max(axis=1)
+    mark = np.zeros(n + len(centres), dtype=np.bool_)
+    mark[n:] = True
+    key = _overlapping(
+        np.vstack([centroid, np.asarray(centres, dtype=np.float64).reshape(-1, 3)]),
+        np.concatenate([radius, np.asarray(radii, dtype=np.float64)]),
+        mark,
+    )
+    total = n + len(centres)
+    face, ball = key // total, key % total
+    keep = face < n  # not a pair of two balls
+    return face[keep], ball[keep] - n
 
 
 def _overlapping(centroid: np.ndarray, radius: np.ndarray, mark: np.ndarray) -> np.ndarray:
