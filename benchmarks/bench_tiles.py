@@ -324,6 +324,8 @@ def scale(ns: argparse.Namespace) -> int:
                 "coordinator_gib": root / 2**30,
                 "worker_gib": [w / 2**30 for w in workers[:2]],
                 "tile_s_mean": report["tiles"]["time_per_tile"]["mean"],
+                "phases_s": {k: round(v, 1) for k, v in report["timings"].items()},
+                **_tile_shares(report["tiles"]["per_tile"]),
                 "write_laz_s": t_write,
                 "non_manifold_edges": report["topology"]["non_manifold_edges"],
                 "boundary_loops": report["topology"]["boundary_loops"],
@@ -345,6 +347,19 @@ def scale(ns: argparse.Namespace) -> int:
         slope = math.log(b["wall_s"] / a["wall_s"]) / math.log(b["points"] / a["points"])
         print(f"slope {a['points']:,} -> {b['points']:,}: {slope:.2f} (goal <= 1.1)")
     return 0
+
+
+def _tile_shares(per_tile: list[dict]) -> dict:
+    """Where a tiled fit's worker time goes: the tiles' fit and mesh seconds summed, the
+    fitted points over the core points (the halo's share of the work) and points per tile."""
+    core = sum(t["points"] for t in per_tile)
+    fitted = sum(t.get("points_with_halo", t["points"]) for t in per_tile)
+    return {
+        "fit_s_sum": round(sum(t["fit_s"] for t in per_tile), 1),
+        "mesh_s_sum": round(sum(t["mesh_s"] for t in per_tile), 1),
+        "halo_factor": round(fitted / max(core, 1), 3),
+        "points_per_tile": round(core / max(len(per_tile), 1)),
+    }
 
 
 def main(argv: list[str] | None = None) -> int:
