@@ -57,6 +57,14 @@ def candidate_pairs(
     radius, so that one large face does not widen every search, and are paired among
     themselves the same way, one level up (:func:`_overlapping`).
     """
+    return _face_pairs(vertices, faces, subset, crossing=False)
+
+
+def _face_pairs(
+    vertices: np.ndarray, faces: np.ndarray, subset: np.ndarray | None, crossing: bool
+) -> np.ndarray:
+    """:func:`candidate_pairs`, or with ``crossing`` only those that cross (tested on the
+    grid as they are found: the candidates are never held)."""
     n = len(faces)
     if n < 2:
         return np.zeros((0, 2), dtype=np.int64)
@@ -67,7 +75,8 @@ def candidate_pairs(
     if subset is not None:
         mark[:] = False
         mark[np.asarray(subset, dtype=np.int64)] = True
-    key = _overlapping(centroid, radius, mark)
+    test = (vertices, faces) if crossing else None
+    key = _overlapping(centroid, radius, mark, test)
     return np.stack([key // n, key % n], axis=1)
 
 
@@ -100,12 +109,18 @@ def faces_near_balls(
     return face[keep], ball[keep] - n
 
 
-def _overlapping(centroid: np.ndarray, radius: np.ndarray, mark: np.ndarray) -> np.ndarray:
+def _overlapping(
+    centroid: np.ndarray,
+    radius: np.ndarray,
+    mark: np.ndarray,
+    test: tuple[np.ndarray, np.ndarray] | None = None,
+) -> np.ndarray:
     """Sorted keys ``i n + j`` (``i < j``) of the overlapping bounding spheres with a marked
     sphere. On the cell grid (:func:`recon.kernels.sphere_pairs.sphere_pairs`) the large
     spheres find their ordinary partners; pairs of two large ones come from the same search
     over the large ones alone (fewer than half at each level: above 3x the median), so no
-    sphere is ever compared with all of a big mesh."""
+    sphere is ever compared with all of a big mesh. With ``test`` (vertices, faces: one face
+    per sphere), only the pairs of faces that cross."""
     n = len(centroid)
     if n < 2:
         return np.zeros(0, dtype=np.int64)
@@ -113,13 +128,22 @@ def _overlapping(centroid: np.ndarray, radius: np.ndarray, mark: np.ndarray) -> 
     r_small = float(radius[~large].max()) if np.any(~large) else 0.0
     extent = centroid.max(axis=0) - centroid.min(axis=0)
     if not (r_small > 0.0 and np.prod(np.floor(3.0 * extent / (2.0 * r_small)) + 1.0) < 2.0**62):
-        return _tree_overlapping(centroid, radius, mark, large, r_small)
+        key = _tree_overlapping(centroid, radius, mark, large, r_small)
+        if test is None or not len(key):
+            return key
+        pairs = np.stack([key // n, key % n], axis=1)
+        hit = np.zeros(len(pairs), dtype=np.bool_)
+        pairs_intersect(test[0], test[1], pairs, hit)
+        return key[hit]
+    vertices, faces = test if test is not None else (np.zeros((0, 3)), np.zeros((0, 3), np.int64))
     with thread_limit(n >= PARALLEL_MIN_PARTICLES):
-        key = sphere_pairs(centroid, radius, mark, large, r_small)
+        key = sphere_pairs(centroid, radius, mark, large, r_small, vertices, faces)
     big = np.flatnonzero(large)
     if len(big) < 2:
         return key
-    among = _overlapping(centroid[big], radius[big], mark[big])
+    among = _overlapping(
+        centroid[big], radius[big], mark[big], None if test is None else (vertices, faces[big])
+    )
     key = np.concatenate([key, big[among // len(big)] * n + big[among % len(big)]])
     key.sort()  # the two sets are disjoint (a pair of two large spheres, or not)
     return key
@@ -185,11 +209,7 @@ def self_intersections(
     """
     vertices = np.ascontiguousarray(vertices, dtype=np.float64)
     faces = np.ascontiguousarray(faces, dtype=np.int64)
-    pairs = candidate_pairs(vertices, faces, subset)
-    hit = np.zeros(len(pairs), dtype=np.bool_)
-    if len(pairs):
-        pairs_intersect(vertices, faces, pairs, hit)
-    return pairs[hit]
+    return _face_pairs(vertices, faces, subset, crossing=True)
 
 
 def _umbrella(faces: np.ndarray, n_vertices: int) -> sparse.csr_matrix:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import open3d as o3d
+import pytest
 from mesh_shapes import icosphere
 
 from recon.intersections import candidate_pairs, self_intersections, untangle
@@ -143,3 +144,24 @@ def test_candidate_pairs_with_faces_at_many_scales():
         mark[subset] = True
         want_sub = want[mark[want[:, 0]] | mark[want[:, 1]]]
         np.testing.assert_array_equal(candidate_pairs(vertices, faces, subset), want_sub)
+
+
+def test_crossing_test_fused_into_the_grid_search_equals_testing_every_candidate():
+    """self_intersections tests pairs as the grid finds them: the same pairs as testing every
+    candidate pair afterwards (the two-step search it replaces), with faces at several
+    scales and with a subset."""
+    from recon.kernels.tri_intersect import pairs_intersect
+
+    rng = np.random.default_rng(12)
+    sizes = np.repeat([0.1, 0.6, 4.0], [900, 60, 6])
+    centres = rng.uniform(0.0, 6.0, (len(sizes), 1, 3))
+    vertices = (centres + sizes[:, None, None] * rng.normal(size=(len(sizes), 3, 3))).reshape(-1, 3)
+    faces = np.arange(len(vertices)).reshape(-1, 3)
+    faces[::7, 0] = faces[1::7, 1][: len(faces[::7])]  # some pairs share a vertex
+    for subset in (None, np.arange(0, len(faces), 5)):
+        candidates = candidate_pairs(vertices, faces, subset)
+        hit = np.zeros(len(candidates), dtype=np.bool_)
+        pairs_intersect(vertices, faces, candidates, hit)
+        got = self_intersections(vertices, faces, subset)
+        assert len(got) > 30
+        np.testing.assert_array_equal(got, candidates[hit])

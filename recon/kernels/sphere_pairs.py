@@ -34,6 +34,7 @@ from numba import njit, prange
 
 from .cell_list import bin_particles
 from .options import EXACT_JIT_OPTIONS
+from .tri_intersect import triangles_intersect
 
 _PARALLEL = dict(EXACT_JIT_OPTIONS, parallel=True)
 
@@ -63,6 +64,19 @@ def _emits(i, j, mark, large):
 
 
 @njit(inline="always", **EXACT_JIT_OPTIONS)
+def _keeps(vertices, faces, i, j):
+    """With ``faces`` (the crossing test fused in): do faces i and j cross (sharing no
+    vertex)? Without (empty ``faces``): every overlapping pair is kept."""
+    if faces.shape[0] == 0:
+        return True
+    for a in range(3):
+        for b in range(3):
+            if faces[i, a] == faces[j, b]:
+                return False
+    return triangles_intersect(vertices, faces[i], faces[j])
+
+
+@njit(inline="always", **EXACT_JIT_OPTIONS)
 def _emit(i, j, n, out_keys, base, count, write):
     """Write the key of pair (i, j) at slot ``base + count`` (second pass); the new count."""
     if write:
@@ -71,7 +85,9 @@ def _emit(i, j, n, out_keys, base, count, write):
 
 
 @njit(**_PARALLEL)
-def _scan(centroid, radius, mark, large, binning, cell, r_small, out_keys, offsets, write):
+def _scan(
+    centroid, radius, mark, large, binning, cell, r_small, vertices, faces, out_keys, offsets, write
+):
     """Count (``write`` False) or write the pair keys each face emits."""
     order, cell_keys, cell_start, _, dims, lo = binning
     n = centroid.shape[0]
@@ -79,6 +95,8 @@ def _scan(centroid, radius, mark, large, binning, cell, r_small, out_keys, offse
     for i in prange(n):
         if not (mark[i] or large[i]):
             continue
+        if write and offsets[i + 1] == offsets[i]:
+            continue  # nothing to write (most faces, when only crossing pairs are kept)
         count = 0
         base = offsets[i] if write else 0
         # an ordinary partner j lies within r_i + r_j <= r_i + r_small
@@ -87,7 +105,8 @@ def _scan(centroid, radius, mark, large, binning, cell, r_small, out_keys, offse
         if large[i] and columns > n:
             for j in range(n):
                 if j != i and _emits(i, j, mark, large) and _overlap(centroid, radius, i, j):
-                    count = _emit(i, j, n, out_keys, base, count, write)
+                    if _keeps(vertices, faces, i, j):
+                        count = _emit(i, j, n, out_keys, base, count, write)
         else:
             cx = np.int64(math.floor((centroid[i, 0] - lo[0]) * inv))
             cy = np.int64(math.floor((centroid[i, 1] - lo[1]) * inv))
@@ -113,7 +132,7 @@ def _scan(centroid, radius, mark, large, binning, cell, r_small, out_keys, offse
                             j = order[p]
                             if j == i or not _emits(i, j, mark, large):
                                 continue
-                            if _overlap(centroid, radius, i, j):
+                            if _overlap(centroid, radius, i, j) and _keeps(vertices, faces, i, j):
                                 count = _emit(i, j, n, out_keys, base, count, write)
                         c += 1
         if not write:
@@ -122,7 +141,7 @@ def _scan(centroid, radius, mark, large, binning, cell, r_small, out_keys, offse
 
 
 @njit(**EXACT_JIT_OPTIONS)
-def sphere_pairs(centroid, radius, mark, large, r_small):
+def sphere_pairs(centroid, radius, mark, large, r_small, vertices, faces):
     r"""Sorted keys ``i n + j`` (i < j) of the face pairs whose bounding spheres overlap,
     :math:`|c_i - c_j| \le r_i + r_j`, with at least one face marked and at least one ordinary
     (not ``large``).
@@ -139,6 +158,11 @@ def sphere_pairs(centroid, radius, mark, large, r_small):
         face when that is cheaper); pairs of two large faces are not returned.
     r_small : float
         The largest radius of the faces that are not large, > 0.
+    vertices : (V, 3) float64
+    faces : (n, 3) int64, or (0, 3)
+        With faces, only the pairs that cross are returned (sharing no vertex;
+        :func:`recon.kernels.tri_intersect.triangles_intersect`), tested as they are found:
+        the candidate pairs (tens per face) are never held. Empty: every overlapping pair.
 
     Returns
     -------
@@ -149,10 +173,11 @@ def sphere_pairs(centroid, radius, mark, large, r_small):
     binning = bin_particles(centroid, cell)
     offsets = np.zeros(n + 1, dtype=np.int64)
     empty = np.zeros(0, dtype=np.int64)
-    _scan(centroid, radius, mark, large, binning, cell, r_small, empty, offsets, False)
+    args = (centroid, radius, mark, large, binning, cell, r_small, vertices, faces)
+    _scan(*args, empty, offsets, False)
     for i in range(n):
         offsets[i + 1] += offsets[i]
     keys = np.zeros(offsets[n], dtype=np.int64)
-    _scan(centroid, radius, mark, large, binning, cell, r_small, keys, offsets, True)
+    _scan(*args, keys, offsets, True)
     keys.sort()
     return keys
