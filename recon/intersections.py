@@ -261,7 +261,9 @@ def untangle(
         shape=(len(vertices), len(faces)),
     )
     moved = np.zeros(len(vertices), dtype=bool)
+    first = pairs
     best, best_left = vertices.copy(), found
+    start = best
     for _ in range(passes):
         crossing = np.unique(faces[pairs].ravel())
         ring = np.unique(faces[vertex_faces[crossing].indices].ravel())
@@ -278,5 +280,11 @@ def untangle(
         if len(pairs) == 0:
             break
     # the passes re-test only pairs with a face that moved: count what is left over all faces
-    # (a crossing between fixed vertices, for one, never moves)
-    return best, found, int(len(self_intersections(best, faces)))
+    # (a crossing between fixed vertices, for one, never moves). A pair of faces that ``best``
+    # did not move crosses as it did at the start; the others are searched again.
+    shifted = np.flatnonzero(np.any(best != start, axis=1))
+    touched = np.unique(vertex_faces[shifted].indices)
+    was_moved = np.zeros(len(faces), dtype=bool)
+    was_moved[touched] = True
+    kept = int(np.count_nonzero(~was_moved[first].any(axis=1)))
+    return best, found, kept + int(len(self_intersections(best, faces, touched)))

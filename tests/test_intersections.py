@@ -165,3 +165,23 @@ def test_crossing_test_fused_into_the_grid_search_equals_testing_every_candidate
         got = self_intersections(vertices, faces, subset)
         assert len(got) > 30
         np.testing.assert_array_equal(got, candidates[hit])
+
+
+@pytest.mark.parametrize("passes", [3, 5, 30])
+def test_untangle_counts_what_is_left_as_a_search_of_the_whole_mesh(passes):
+    """The crossings left are counted from the start's pairs where nothing moved and a search
+    around the moved faces: the same as searching the whole returned mesh, also when the
+    passes stop short and some crossings are held by fixed vertices."""
+    v, f = pinched_lens(depth=0.1)
+    fixed = np.zeros(len(v), dtype=bool)
+    fixed[np.argsort(np.linalg.norm(v[:, :2], axis=1))[:3]] = True
+    out, found, left = untangle(v, f, passes=passes, fixed=fixed)
+    assert found > left > 0 and not np.array_equal(out, v)
+    assert left == len(self_intersections(out, f))
+    # and a crossing far away that nothing moves is still counted
+    far = v + np.array([10.0, 0.0, 0.0])
+    v2, f2 = np.vstack([v, far]), np.vstack([f, f + len(v)])
+    fixed2 = np.concatenate([fixed, np.ones(len(v), dtype=bool)])
+    out2, found2, left2 = untangle(v2, f2, passes=passes, fixed=fixed2)
+    assert found2 == 2 * found and left2 == left + found
+    assert left2 == len(self_intersections(out2, f2))
