@@ -25,6 +25,7 @@ Examples::
     python benchmarks/bench_tiles.py scale --points 250000 500000 1000000
     python benchmarks/bench_tiles.py scale --points 10000000 --tile-size 100
     python benchmarks/bench_tiles.py scale --points 1000000 --keep-work out/scale
+    python benchmarks/bench_tiles.py scale --points 300000 --untiled
 """
 
 from __future__ import annotations
@@ -330,6 +331,12 @@ def scale(ns: argparse.Namespace) -> int:
                 "non_manifold_edges": report["topology"]["non_manifold_edges"],
                 "boundary_loops": report["topology"]["boundary_loops"],
             }
+            if ns.untiled:  # the same scene fitted whole: the tiled path's overhead per point
+                whole, _, _, code = run_fit([str(src), "-o", str(d / "whole.ply"), *ns.fit_args])
+                if code != 0:
+                    return code
+                row["untiled_wall_s"] = whole
+                row["tiled_over_untiled"] = wall / whole
             rows.append(row)
             print(json.dumps(row), flush=True)
             lo = np.asarray(report["tiles"]["per_tile"][0]["bounds"][0])
@@ -372,6 +379,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--tiles-per-side", type=int, default=3, help="seams: tiles per side")
     ap.add_argument("--tile-size", type=float, default=100.0, help="scale: tile side [m]")
     ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument(
+        "--untiled",
+        action="store_true",
+        help="scale: also fit each scene whole and print the tiled/untiled time ratio",
+    )
     ap.add_argument("--executor", default="dask", choices=["local", "dask"])
     ap.add_argument("--workdir", default=None, help="folder for the scenes and meshes")
     ap.add_argument(
