@@ -10,7 +10,6 @@ from recon.holes import rezip_crossing_loops, zip_loop
 from recon.intersections import self_intersections
 from recon.mesh import boundary_loops
 
-
 SHEET = 14 * 14  # the sheet's vertices come first
 
 
