@@ -11,6 +11,8 @@ Examples::
     python benchmarks/bench_memory.py                          # 10k .. 160k points
     python benchmarks/bench_memory.py --points 20000 80000 --spacing-factors 1 2 --fit
     python benchmarks/bench_memory.py --reading 3000000         # reading memory, --classes
+    python benchmarks/bench_scale.py --sizes 100000 1000000 4000000 --no-peer --json-out s.json
+    python benchmarks/bench_memory.py --points 20000 80000 --scale-json s.json --fit
 """
 
 from __future__ import annotations
@@ -139,6 +141,34 @@ def reading_memory(n: int) -> None:
             )
 
 
+def torus_rows(path: Path) -> list[tuple]:
+    """Rows (as ``main`` makes them) of the torus fits of ``bench_scale.py --json-out``: the
+    point count, r0 and median spacing an untiled fit chooses for each size, and its peak."""
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from bench_scale import sample_torus
+
+    from recon.config import ReconConfig
+    from recon.fitting.memory import estimate_fit_memory
+    from recon.fitting.scale import choose_spacing
+
+    rows = []
+    for r in json.loads(Path(path).read_text())["rows"]:
+        if r.get("failed"):
+            continue
+        pts = sample_torus(r["points"])
+        r0, _ = choose_spacing(pts, ReconConfig())
+        est = estimate_fit_memory(pts, ReconConfig())
+        peak = r["rss_mib"] * 2**20
+        rows.append((r["points"], "torus", r0, r["particles"], est.particles, peak, est))
+        print(
+            f"torus {r['points']:>8,}  r0 {r0:.4f}  particles {r['particles']:>8,} (est "
+            f"{est.particles:>8,})  peak {r['rss_mib']:7.0f} MiB  estimate "
+            f"{est.peak_bytes / 2**20:7.0f} MiB  error {100 * (est.peak_bytes / peak - 1):+5.1f}%",
+            flush=True,
+        )
+    return rows
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--points", type=int, nargs="+", default=[10_000, 40_000, 160_000])
@@ -149,6 +179,11 @@ def main() -> None:
         type=int,
         metavar="N",
         help="only measure reading an N-point LAZ, whole and with --classes 6 (5 %%)",
+    )
+    ap.add_argument(
+        "--scale-json",
+        type=Path,
+        help="also fit the torus runs of `bench_scale.py --json-out` (their peak RSS)",
     )
     args = ap.parse_args()
     if args.reading:
@@ -177,6 +212,8 @@ def main() -> None:
                     f"error {100 * err:+5.1f}%",
                     flush=True,
                 )
+    if args.scale_json:
+        rows += torus_rows(args.scale_json)
     if args.fit:
         a = np.array([[1.0, r[0], r[4]] for r in rows])
         b = np.array([r[5] for r in rows], dtype=np.float64)

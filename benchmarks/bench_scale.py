@@ -137,6 +137,17 @@ def _slope(sizes: list[int], times: list[float]) -> float | None:
     return float(np.polyfit(np.log(sizes), np.log(times), 1)[0])
 
 
+def _phase_slopes(rows: list[dict[str, Any]]) -> dict[str, float]:
+    """The log-log slope of each phase's time (from the reports) against the input size: a
+    phase above 1 grows faster than linearly."""
+    out = {}
+    for phase in rows[0]["phases_s"]:
+        times = [r["phases_s"].get(phase, 0.0) for r in rows]
+        if all(t > 0 for t in times):
+            out[phase] = _slope([r["points"] for r in rows], times)
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--sizes", type=int, nargs="+", default=[100_000, 300_000, 1_000_000])
@@ -201,9 +212,13 @@ def main(argv: list[str] | None = None) -> int:
     slope = _slope([r["points"] for r in done], [r["wall_s"] for r in done])
     if slope is not None:
         print(f"log-log slope of wall time vs points: {slope:.3f} (1.0 = linear)")
+        print("per phase: " + ", ".join(f"{k} {v:.2f}" for k, v in _phase_slopes(done).items()))
     if args.json_out:
         args.json_out.parent.mkdir(parents=True, exist_ok=True)
-        args.json_out.write_text(json.dumps({"rows": rows, "slope": slope}, indent=1))
+        phases = _phase_slopes(done) if slope is not None else {}
+        args.json_out.write_text(
+            json.dumps({"rows": rows, "slope": slope, "phase_slopes": phases}, indent=1)
+        )
     return 0
 
 

@@ -25,6 +25,7 @@ Examples::
     python benchmarks/bench_tiles.py scale --points 250000 500000 1000000
     python benchmarks/bench_tiles.py scale --points 10000000 --tile-size 100
     python benchmarks/bench_tiles.py scale --points 1000000 --keep-work out/scale
+    python benchmarks/bench_tiles.py scale --points 300000 --untiled
 """
 
 from __future__ import annotations
@@ -324,10 +325,18 @@ def scale(ns: argparse.Namespace) -> int:
                 "coordinator_gib": root / 2**30,
                 "worker_gib": [w / 2**30 for w in workers[:2]],
                 "tile_s_mean": report["tiles"]["time_per_tile"]["mean"],
+                "phases_s": {k: round(v, 1) for k, v in report["timings"].items()},
+                **_tile_shares(report["tiles"]["per_tile"]),
                 "write_laz_s": t_write,
                 "non_manifold_edges": report["topology"]["non_manifold_edges"],
                 "boundary_loops": report["topology"]["boundary_loops"],
             }
+            if ns.untiled:  # the same scene fitted whole: the tiled path's overhead per point
+                whole, _, _, code = run_fit([str(src), "-o", str(d / "whole.ply"), *ns.fit_args])
+                if code != 0:
+                    return code
+                row["untiled_wall_s"] = whole
+                row["tiled_over_untiled"] = wall / whole
             rows.append(row)
             print(json.dumps(row), flush=True)
             lo = np.asarray(report["tiles"]["per_tile"][0]["bounds"][0])
@@ -347,6 +356,19 @@ def scale(ns: argparse.Namespace) -> int:
     return 0
 
 
+def _tile_shares(per_tile: list[dict]) -> dict:
+    """Where a tiled fit's worker time goes: the tiles' fit and mesh seconds summed, the
+    fitted points over the core points (the halo's share of the work) and points per tile."""
+    core = sum(t["points"] for t in per_tile)
+    fitted = sum(t.get("points_with_halo", t["points"]) for t in per_tile)
+    return {
+        "fit_s_sum": round(sum(t["fit_s"] for t in per_tile), 1),
+        "mesh_s_sum": round(sum(t["mesh_s"] for t in per_tile), 1),
+        "halo_factor": round(fitted / max(core, 1), 3),
+        "points_per_tile": round(core / max(len(per_tile), 1)),
+    }
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("mode", choices=["seams", "restitch", "scale"], nargs="?", default="seams")
@@ -357,6 +379,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--tiles-per-side", type=int, default=3, help="seams: tiles per side")
     ap.add_argument("--tile-size", type=float, default=100.0, help="scale: tile side [m]")
     ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument(
+        "--untiled",
+        action="store_true",
+        help="scale: also fit each scene whole and print the tiled/untiled time ratio",
+    )
     ap.add_argument("--executor", default="dask", choices=["local", "dask"])
     ap.add_argument("--workdir", default=None, help="folder for the scenes and meshes")
     ap.add_argument(

@@ -124,11 +124,20 @@ def flip_straddling_edges(
     cos = np.cos(np.radians(SIDE_ANGLE_DEG))
     flips = 0
     for _ in range(FLIP_PASSES):
-        edges = _edge_map(faces)
+        # only edges between two non-crease vertices on different faces can flip, and only
+        # edges between crease vertices can block a flip: the rest of the mesh (nearly all of
+        # it) stays out of the Python loop, which sees the same edges in the same order
+        he = faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
+        lo, hi = he.min(axis=1), he.max(axis=1)
+        apart = np.einsum("ij,ij->i", normals[lo], normals[hi]) < cos + 1e-9
+        flippable = np.flatnonzero(~crease[lo] & ~crease[hi] & apart)
+        candidates = _edge_map(faces, np.unique(flippable // 3))
+        on_crease = crease[lo] & crease[hi]
+        edges = set(zip(lo[on_crease].tolist(), hi[on_crease].tolist(), strict=True))
         touched = np.zeros(len(faces), dtype=bool)
         created: set[tuple[int, int]] = set()
         done = 0
-        for (u, w), owners in edges.items():
+        for (u, w), owners in candidates.items():
             if len(owners) != 2 or crease[u] or crease[w] or normals[u] @ normals[w] >= cos:
                 continue
             t1, t2 = owners

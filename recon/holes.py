@@ -14,7 +14,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from .intersections import self_intersections, untangle
+from .intersections import faces_near_balls, self_intersections, untangle
 from .mesh import (
     boundary_loops,
     count_edge_faces,
@@ -30,6 +30,9 @@ __all__ = ["across_points", "fill_small_holes", "loop_width", "rezip_crossing_lo
 SHEET_AREA_FACTOR = 4.0
 #: A seam is closed when data lies at this fraction of the points across it.
 SEAM_SUPPORT = 0.9
+#: A re-zip is judged by untangling the faces within this distance [r0] of the patch's extent
+#: (:func:`_left_after_untangle`).
+UNTANGLE_MARGIN = 3.0
 
 
 def fill_small_holes(
@@ -223,16 +226,40 @@ def rezip_crossing_loops(
     the mesh or another patch and whose rim normals disagree (the loop wraps round a thin
     part); the new patch is kept when fewer crossings are left after untangling around it
     (shallow crossings untangle; a patch through a thin part's other face cannot). ``loops``
-    are in the winding of the patches; ``edges`` holds the mesh's and the patches' edges."""
+    are in the winding of the patches; ``edges`` holds the mesh's and the patches' edges.
+
+    Only the faces near the loops take part: a patch lies inside its loop's bounding ball
+    (centre ``m``, radius ``R``; it has no vertex off the loop), so a face that crosses it
+    overlaps that ball, and the faces :func:`_left_after_untangle` untangles lie within
+    ``3 R + UNTANGLE_MARGIN`` of ``m``. One grid search (:func:`faces_near_balls`) finds
+    them for all loops at once; the result is the same as over the whole mesh.
+    """
     if not patches:
         return patches
+    centre = np.array([vertices[loop].mean(axis=0) for loop in loops])
+    extent = np.array(
+        [
+            np.linalg.norm(vertices[loop] - c, axis=1).max()
+            for loop, c in zip(loops, centre, strict=True)
+        ]
+    )
+    # the untangling reach, padded against rounding: a superset is all that is needed
+    reach = (3.0 * extent + UNTANGLE_MARGIN) * (1.0 + 1e-9) + 1e-9
+    near, ball = faces_near_balls(vertices, faces, centre, reach)
+    corners = vertices[faces[near]]
+    mid = corners.mean(axis=1)
+    size = np.linalg.norm(corners - mid[:, None, :], axis=2).max(axis=1)
+    touches = np.linalg.norm(mid - centre[ball], axis=1) <= (extent[ball] + size) * (1.0 + 1e-9)
+    local = faces[np.unique(near[touches])]
     owner = np.repeat(np.arange(len(patches)), [len(p) for p in patches])
-    every = np.vstack([faces, *patches])
-    pairs = self_intersections(vertices, every, np.arange(len(faces), len(every)))
+    every = np.vstack([local, *patches])
+    pairs = self_intersections(vertices, every, np.arange(len(local), len(every)))
     if not len(pairs):
         return patches
-    hit = pairs[pairs >= len(faces)] - len(faces)
+    hit = pairs[pairs >= len(local)] - len(local)
     crossings = np.bincount(owner[hit], minlength=len(patches))
+    order = np.argsort(ball, kind="stable")  # each loop's faces, in face order
+    bounds = np.searchsorted(ball[order], np.arange(len(patches) + 1))
     patches = list(patches)
     for k in np.flatnonzero(crossings):
         rim = normals[loops[k]]
@@ -245,7 +272,14 @@ def rezip_crossing_loops(
             if not ({int(a), int(b)} <= ring and abs(_ring_step(loops[k], a, b)) == 1)
         }
         alt = zip_loop(vertices, loops[k], edges - own, normals)
-        others = np.vstack([faces, *patches[:k], *patches[k + 1 :]])
+        # the mesh faces and the other patches within the untangling reach, in their order
+        close = np.linalg.norm(centre - centre[k], axis=1) <= extent + reach[k]
+        others = np.vstack(
+            [
+                faces[near[order[bounds[k] : bounds[k + 1]]]],
+                *(patches[j] for j in np.flatnonzero(close) if j != k),
+            ]
+        )
         if _left_after_untangle(vertices, others, alt) < _left_after_untangle(
             vertices, others, patches[k]
         ):
@@ -260,7 +294,7 @@ def _left_after_untangle(vertices: np.ndarray, faces: np.ndarray, patch: np.ndar
     :func:`recon.intersections.untangle` on the faces near the patch, their rim held."""
     every = np.vstack([faces, patch])
     centre = vertices[patch.reshape(-1)]
-    reach = float(np.linalg.norm(centre - centre.mean(axis=0), axis=1).max()) + 3.0
+    reach = float(np.linalg.norm(centre - centre.mean(axis=0), axis=1).max()) + UNTANGLE_MARGIN
     near = np.linalg.norm(vertices[every].mean(axis=1) - centre.mean(axis=0), axis=1) <= reach
     local = every[near]
     used, inv = np.unique(local, return_inverse=True)

@@ -28,7 +28,13 @@ from .kernels.sphere_pairs import sphere_pairs
 from .kernels.tri_intersect import pairs_intersect
 from .neighbors import PARALLEL_MIN_PARTICLES
 
-__all__ = ["UNTANGLE_PASSES", "UNTANGLE_STEP", "self_intersections", "untangle"]
+__all__ = [
+    "UNTANGLE_PASSES",
+    "UNTANGLE_STEP",
+    "faces_near_balls",
+    "self_intersections",
+    "untangle",
+]
 
 #: Passes of :func:`untangle` (each smooths around the crossing faces once).
 UNTANGLE_PASSES = 30
@@ -47,33 +53,115 @@ def candidate_pairs(
     with a face in ``subset``).
 
     Pairs of ordinary faces come from one search radius (twice the largest ordinary bounding
-    radius); the few faces larger than ``LARGE_FACE`` times the median are paired one by one
-    with their own radius, so that one large face does not widen every search.
+    radius); the few faces larger than ``LARGE_FACE`` times the median search with their own
+    radius, so that one large face does not widen every search, and are paired among
+    themselves the same way, one level up (:func:`_overlapping`).
     """
+    return _face_pairs(vertices, faces, subset, crossing=False)
+
+
+def _face_pairs(
+    vertices: np.ndarray, faces: np.ndarray, subset: np.ndarray | None, crossing: bool
+) -> np.ndarray:
+    """:func:`candidate_pairs`, or with ``crossing`` only those that cross (tested on the
+    grid as they are found: the candidates are never held)."""
     n = len(faces)
     if n < 2:
         return np.zeros((0, 2), dtype=np.int64)
     corners = vertices[faces]
     centroid = corners.mean(axis=1)
     radius = np.linalg.norm(corners - centroid[:, None, :], axis=2).max(axis=1)
+    mark = np.ones(n, dtype=np.bool_)
+    if subset is not None:
+        mark[:] = False
+        mark[np.asarray(subset, dtype=np.int64)] = True
+    test = (vertices, faces) if crossing else None
+    key = _overlapping(centroid, radius, mark, test)
+    return np.stack([key // n, key % n], axis=1)
+
+
+def faces_near_balls(
+    vertices: np.ndarray, faces: np.ndarray, centres: np.ndarray, radii: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Faces whose bounding sphere (centroid, farthest corner) overlaps one of the balls
+    ``(centres[k], radii[k])``: one grid search for all balls (:func:`_overlapping`), so that a
+    search around many small regions of a big mesh costs one pass, not one per region.
+
+    Returns
+    -------
+    face_idx, ball_idx : (m,) int64
+        The overlapping pairs, sorted by face, then ball.
+    """
+    n = len(faces)
+    corners = vertices[faces]
+    centroid = corners.mean(axis=1)
+    radius = np.linalg.norm(corners - centroid[:, None, :], axis=2).max(axis=1)
+    mark = np.zeros(n + len(centres), dtype=np.bool_)
+    mark[n:] = True
+    key = _overlapping(
+        np.vstack([centroid, np.asarray(centres, dtype=np.float64).reshape(-1, 3)]),
+        np.concatenate([radius, np.asarray(radii, dtype=np.float64)]),
+        mark,
+    )
+    total = n + len(centres)
+    face, ball = key // total, key % total
+    keep = face < n  # not a pair of two balls
+    return face[keep], ball[keep] - n
+
+
+def _overlapping(
+    centroid: np.ndarray,
+    radius: np.ndarray,
+    mark: np.ndarray,
+    test: tuple[np.ndarray, np.ndarray] | None = None,
+) -> np.ndarray:
+    """Sorted keys ``i n + j`` (``i < j``) of the overlapping bounding spheres with a marked
+    sphere. On the cell grid (:func:`recon.kernels.sphere_pairs.sphere_pairs`) the large
+    spheres find their ordinary partners; pairs of two large ones come from the same search
+    over the large ones alone (fewer than half at each level: above 3x the median), so no
+    sphere is ever compared with all of a big mesh. With ``test`` (vertices, faces: one face
+    per sphere), only the pairs of faces that cross."""
+    n = len(centroid)
+    if n < 2:
+        return np.zeros(0, dtype=np.int64)
     large = radius > LARGE_FACE * max(float(np.median(radius)), 1e-300)
     r_small = float(radius[~large].max()) if np.any(~large) else 0.0
     extent = centroid.max(axis=0) - centroid.min(axis=0)
-    if r_small > 0.0 and np.prod(np.floor(3.0 * extent / (2.0 * r_small)) + 1.0) < 2.0**62:
-        mark = np.ones(n, dtype=np.bool_)
-        if subset is not None:
-            mark[:] = False
-            mark[np.asarray(subset, dtype=np.int64)] = True
-        with thread_limit(n >= PARALLEL_MIN_PARTICLES):
-            key = sphere_pairs(centroid, radius, mark, large, r_small)
-        return np.stack([key // n, key % n], axis=1)
+    if not (r_small > 0.0 and np.prod(np.floor(3.0 * extent / (2.0 * r_small)) + 1.0) < 2.0**62):
+        key = _tree_overlapping(centroid, radius, mark, large, r_small)
+        if test is None or not len(key):
+            return key
+        pairs = np.stack([key // n, key % n], axis=1)
+        hit = np.zeros(len(pairs), dtype=np.bool_)
+        pairs_intersect(test[0], test[1], pairs, hit)
+        return key[hit]
+    vertices, faces = test if test is not None else (np.zeros((0, 3)), np.zeros((0, 3), np.int64))
+    with thread_limit(n >= PARALLEL_MIN_PARTICLES):
+        key = sphere_pairs(centroid, radius, mark, large, r_small, vertices, faces)
+    big = np.flatnonzero(large)
+    if len(big) < 2:
+        return key
+    among = _overlapping(
+        centroid[big], radius[big], mark[big], None if test is None else (vertices, faces[big])
+    )
+    key = np.concatenate([key, big[among // len(big)] * n + big[among % len(big)]])
+    key.sort()  # the two sets are disjoint (a pair of two large spheres, or not)
+    return key
+
+
+def _tree_overlapping(
+    centroid: np.ndarray, radius: np.ndarray, mark: np.ndarray, large: np.ndarray, r_small: float
+) -> np.ndarray:
+    """:func:`_overlapping` on a k-d tree, where no cell grid fits (degenerate radii, or more
+    cells than int64 keys)."""
+    n = len(centroid)
+    everything = bool(mark.all())
     tree = cKDTree(centroid)
     found = [np.zeros((0, 2), dtype=np.int64)]
-    if subset is None:
+    if everything:
         found.append(tree.query_pairs(2.0 * r_small, output_type="ndarray").astype(np.int64))
     else:
-        queries = np.asarray(subset, dtype=np.int64)
-        queries = queries[~large[queries]]
+        queries = np.flatnonzero(mark & ~large)
         found.append(_around(tree, centroid, queries, radius[queries] + r_small))
     big = np.flatnonzero(large)
     if len(big):
@@ -81,15 +169,12 @@ def candidate_pairs(
     pairs = np.vstack(found)
     gap = np.linalg.norm(centroid[pairs[:, 0]] - centroid[pairs[:, 1]], axis=1)
     pairs = pairs[gap <= radius[pairs[:, 0]] + radius[pairs[:, 1]]]
-    if subset is not None:
-        mark = np.zeros(n, dtype=bool)
-        mark[np.asarray(subset, dtype=np.int64)] = True
+    if not everything:
         pairs = pairs[mark[pairs[:, 0]] | mark[pairs[:, 1]]]
     key = pairs[:, 0] * n + pairs[:, 1]
     # a pair may have been found twice (by both its faces, or also as a large face's);
     # query_pairs alone finds each pair once, and then sorting is all np.unique would do
-    key = np.sort(key) if subset is None and len(big) == 0 else np.unique(key)
-    return np.stack([key // n, key % n], axis=1)
+    return np.sort(key) if everything and len(big) == 0 else np.unique(key)
 
 
 def _around(tree: cKDTree, centroid: np.ndarray, faces: np.ndarray, reach: np.ndarray):
@@ -124,11 +209,7 @@ def self_intersections(
     """
     vertices = np.ascontiguousarray(vertices, dtype=np.float64)
     faces = np.ascontiguousarray(faces, dtype=np.int64)
-    pairs = candidate_pairs(vertices, faces, subset)
-    hit = np.zeros(len(pairs), dtype=np.bool_)
-    if len(pairs):
-        pairs_intersect(vertices, faces, pairs, hit)
-    return pairs[hit]
+    return _face_pairs(vertices, faces, subset, crossing=True)
 
 
 def _umbrella(faces: np.ndarray, n_vertices: int) -> sparse.csr_matrix:
@@ -180,7 +261,9 @@ def untangle(
         shape=(len(vertices), len(faces)),
     )
     moved = np.zeros(len(vertices), dtype=bool)
+    first = pairs
     best, best_left = vertices.copy(), found
+    start = best
     for _ in range(passes):
         crossing = np.unique(faces[pairs].ravel())
         ring = np.unique(faces[vertex_faces[crossing].indices].ravel())
@@ -197,5 +280,11 @@ def untangle(
         if len(pairs) == 0:
             break
     # the passes re-test only pairs with a face that moved: count what is left over all faces
-    # (a crossing between fixed vertices, for one, never moves)
-    return best, found, int(len(self_intersections(best, faces)))
+    # (a crossing between fixed vertices, for one, never moves). A pair of faces that ``best``
+    # did not move crosses as it did at the start; the others are searched again.
+    shifted = np.flatnonzero(np.any(best != start, axis=1))
+    touched = np.unique(vertex_faces[shifted].indices)
+    was_moved = np.zeros(len(faces), dtype=bool)
+    was_moved[touched] = True
+    kept = int(np.count_nonzero(~was_moved[first].any(axis=1)))
+    return best, found, kept + int(len(self_intersections(best, faces, touched)))

@@ -49,3 +49,37 @@ def test_bench_phases_accounts_every_phase(capsys):
         assert wall >= 0.0 and cpu >= 0.0
     assert float(rows["total"][1]) > 0.0
     assert "mesh sha1" in out
+
+
+def _bench(name: str):
+    spec = importlib.util.spec_from_file_location(name, ROOT / "benchmarks" / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_bench_scale_prints_the_slope_of_every_phase():
+    """A phase that grows as n^2 shows slope 2 while the others stay at 1 (the 4M fit's hole
+    filling was found this way); a phase missing at one size has no slope."""
+    rows = [
+        {"points": n, "phases_s": {"grow": 1e-5 * n, "triangulate": 1e-11 * n * n, "x": 1.0}}
+        for n in (100_000, 1_000_000, 4_000_000)
+    ]
+    rows[0]["phases_s"]["x"] = 0.0
+    slopes = _bench("bench_scale")._phase_slopes(rows)
+    assert slopes["grow"] == pytest.approx(1.0) and slopes["triangulate"] == pytest.approx(2.0)
+    assert "x" not in slopes
+
+
+def test_bench_tiles_splits_the_workers_time_by_tile():
+    per_tile = [
+        {"points": 100, "points_with_halo": 150, "fit_s": 2.0, "mesh_s": 0.5},
+        {"points": 300, "points_with_halo": 350, "fit_s": 4.0, "mesh_s": 1.5},
+    ]
+    shares = _bench("bench_tiles")._tile_shares(per_tile)
+    assert shares == {
+        "fit_s_sum": 6.0,
+        "mesh_s_sum": 2.0,
+        "halo_factor": 1.25,
+        "points_per_tile": 200,
+    }

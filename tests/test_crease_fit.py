@@ -781,3 +781,64 @@ def test_a_concave_line_edge_is_inserted_at_a_corner_lying_a_rounding_error_past
     edges = {tuple(sorted(e)) for t in out.tolist() for e in zip(t, t[1:] + t[:1], strict=True)}
     assert (0, 1) in edges and (3, 4) not in edges
     assert count_edge_faces(out)[1].max() <= 2
+
+
+def _flip_every_edge_reference(faces, normals, crease):
+    """flip_straddling_edges as it was: every edge of the mesh through the Python loop."""
+    from recon.crease_mesh import FLIP_PASSES, SIDE_ANGLE_DEG, _edge_map
+
+    faces = np.array(faces, dtype=np.int64, copy=True)
+    cos = np.cos(np.radians(SIDE_ANGLE_DEG))
+    flips = 0
+    for _ in range(FLIP_PASSES):
+        edges = _edge_map(faces)
+        touched = np.zeros(len(faces), dtype=bool)
+        created: set[tuple[int, int]] = set()
+        done = 0
+        for (u, w), owners in edges.items():
+            if len(owners) != 2 or crease[u] or crease[w] or normals[u] @ normals[w] >= cos:
+                continue
+            t1, t2 = owners
+            if touched[t1] or touched[t2]:
+                continue
+            f1, f2 = faces[t1].tolist(), faces[t2].tolist()
+            a = next(x for x in f1 if x != u and x != w)
+            b = next(x for x in f2 if x != u and x != w)
+            key = (min(a, b), max(a, b))
+            if a == b or not (crease[a] and crease[b]) or key in edges or key in created:
+                continue
+            i = f1.index(u)
+            if f1[(i + 1) % 3] != w:
+                u, w = w, u
+            faces[t1] = (a, u, b)
+            faces[t2] = (b, w, a)
+            touched[t1] = touched[t2] = True
+            created.add(key)
+            done += 1
+        flips += done
+        if done == 0:
+            break
+    return faces, flips
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_straddling_flips_looking_only_at_candidate_edges_equal_the_full_loop(seed):
+    """The flips see only the edges that can flip (and the crease edges that can block one),
+    in the mesh's edge order: the same faces and count as the loop over every edge, on a grid
+    whose vertices face two ways at random, with random crease vertices (flips that compete
+    for a face, flips an existing edge blocks, several passes)."""
+    rng = np.random.default_rng(seed)
+    n = 16
+    i, j = np.meshgrid(np.arange(n - 1), np.arange(n - 1), indexing="ij")
+    a = (i * n + j).ravel()
+    faces = np.concatenate([np.stack([a, a + n, a + n + 1], 1), np.stack([a, a + n + 1, a + 1], 1)])
+    normals = np.where(rng.random(n * n)[:, None] < 0.5, [0.0, 0.0, 1.0], [1.0, 0.0, 0.0])
+    crease = rng.random(n * n) < 0.35
+    # and faces over a quarter of the quads' other diagonals: edges that exist block flips
+    some = a[rng.random(len(a)) < 0.25]
+    faces = np.vstack([faces, np.stack([some + 1, some + n, (some + 2 * n + 1) % (n * n)], 1)])
+    got, flips = flip_straddling_edges(faces, normals, crease)
+    want, want_flips = _flip_every_edge_reference(faces, normals, crease)
+    assert want_flips > 5
+    assert flips == want_flips
+    np.testing.assert_array_equal(got, want)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import open3d as o3d
+import pytest
 from mesh_shapes import icosphere
 
 from recon.intersections import candidate_pairs, self_intersections, untangle
@@ -119,3 +120,68 @@ def test_candidate_pairs_equal_the_overlapping_bounding_spheres():
         mark[subset] = True
         want_sub = want[mark[want[:, 0]] | mark[want[:, 1]]]
         np.testing.assert_array_equal(candidate_pairs(vertices, faces, subset), want_sub)
+
+
+def test_candidate_pairs_with_faces_at_many_scales():
+    """Large faces at several scales (each level more than 3x the median of the one below)
+    are paired with every face they overlap, large or not, by the grid's level search: the
+    pairs equal the brute-force overlaps, with and without a subset."""
+    rng = np.random.default_rng(11)
+    sizes = np.repeat([0.05, 0.4, 3.0, 20.0], [600, 60, 12, 3])
+    centres = rng.uniform(0.0, 30.0, (len(sizes), 1, 3))
+    vertices = (centres + sizes[:, None, None] * rng.normal(size=(len(sizes), 3, 3))).reshape(-1, 3)
+    faces = np.arange(len(vertices)).reshape(-1, 3)
+    corners = vertices[faces]
+    centroid = corners.mean(axis=1)
+    radius = np.linalg.norm(corners - centroid[:, None, :], axis=2).max(axis=1)
+    gap = np.linalg.norm(centroid[:, None, :] - centroid[None, :, :], axis=2)
+    want = np.argwhere(np.triu(gap <= radius[:, None] + radius[None, :], k=1))
+    large = radius > 3.0 * np.median(radius)
+    assert np.sum(large[want].all(axis=1)) > 5  # pairs of two large faces are among them
+    np.testing.assert_array_equal(candidate_pairs(vertices, faces), want)
+    for subset in (np.arange(0, len(faces), 9), np.flatnonzero(large)[:4]):
+        mark = np.zeros(len(faces), dtype=bool)
+        mark[subset] = True
+        want_sub = want[mark[want[:, 0]] | mark[want[:, 1]]]
+        np.testing.assert_array_equal(candidate_pairs(vertices, faces, subset), want_sub)
+
+
+def test_crossing_test_fused_into_the_grid_search_equals_testing_every_candidate():
+    """self_intersections tests pairs as the grid finds them: the same pairs as testing every
+    candidate pair afterwards (the two-step search it replaces), with faces at several
+    scales and with a subset."""
+    from recon.kernels.tri_intersect import pairs_intersect
+
+    rng = np.random.default_rng(12)
+    sizes = np.repeat([0.1, 0.6, 4.0], [900, 60, 6])
+    centres = rng.uniform(0.0, 6.0, (len(sizes), 1, 3))
+    vertices = (centres + sizes[:, None, None] * rng.normal(size=(len(sizes), 3, 3))).reshape(-1, 3)
+    faces = np.arange(len(vertices)).reshape(-1, 3)
+    faces[::7, 0] = faces[1::7, 1][: len(faces[::7])]  # some pairs share a vertex
+    for subset in (None, np.arange(0, len(faces), 5)):
+        candidates = candidate_pairs(vertices, faces, subset)
+        hit = np.zeros(len(candidates), dtype=np.bool_)
+        pairs_intersect(vertices, faces, candidates, hit)
+        got = self_intersections(vertices, faces, subset)
+        assert len(got) > 30
+        np.testing.assert_array_equal(got, candidates[hit])
+
+
+@pytest.mark.parametrize("passes", [3, 5, 30])
+def test_untangle_counts_what_is_left_as_a_search_of_the_whole_mesh(passes):
+    """The crossings left are counted from the start's pairs where nothing moved and a search
+    around the moved faces: the same as searching the whole returned mesh, also when the
+    passes stop short and some crossings are held by fixed vertices."""
+    v, f = pinched_lens(depth=0.1)
+    fixed = np.zeros(len(v), dtype=bool)
+    fixed[np.argsort(np.linalg.norm(v[:, :2], axis=1))[:3]] = True
+    out, found, left = untangle(v, f, passes=passes, fixed=fixed)
+    assert found > left > 0 and not np.array_equal(out, v)
+    assert left == len(self_intersections(out, f))
+    # and a crossing far away that nothing moves is still counted
+    far = v + np.array([10.0, 0.0, 0.0])
+    v2, f2 = np.vstack([v, far]), np.vstack([f, f + len(v)])
+    fixed2 = np.concatenate([fixed, np.ones(len(v), dtype=bool)])
+    out2, found2, left2 = untangle(v2, f2, passes=passes, fixed=fixed2)
+    assert found2 == 2 * found and left2 == left + found
+    assert left2 == len(self_intersections(out2, f2))

@@ -272,6 +272,8 @@ def test_tiled_report_has_tiles_section(fits):
     assert len(tiles["per_tile"]) == 4
     assert all(t["fit_s"] > 0 and t["mesh_s"] > 0 and t["particles"] > 0 for t in tiles["per_tile"])
     assert sum(t["points"] for t in tiles["per_tile"]) == 3000
+    # each tile also fits the points of its halo, in its neighbours' cores
+    assert all(t["points_with_halo"] > t["points"] for t in tiles["per_tile"])
     assert tiles["time_per_tile"]["max"] >= tiles["time_per_tile"]["mean"] > 0
     assert set(tiles["seams"]) >= {"seam_edges", "seam_boundary_edges", "non_manifold_edges"}
 

@@ -7,14 +7,18 @@ overlap:
 
     |c_i - c_j| \le r_i + r_j .
 
-:func:`sphere_pairs` returns every such pair ``i < j`` with at least one face marked, as sorted
-keys ``i n + j``. Ordinary faces are binned into cubic cells of side h = 2 r_s (r_s: the largest
-ordinary radius; ``CELL_FACTOR``); an ordinary partner of face i lies within r_i + r_s ≤ h, so
-in the 27 cells around it (the cells of one column are consecutive keys: one binary search per
-column). The few "large" faces (flagged by the caller) are compared with every face. Each pair
-is emitted once (by its marked face of lower index, or by its large face), counted in a first
-pass and written in a second, each face into its own slice, so the result is the same for any
-thread count.
+:func:`sphere_pairs` returns every such pair ``i < j`` with at least one face marked and at
+least one face ordinary, as sorted keys ``i n + j``. Ordinary faces are binned into cubic cells of
+side h = 2 r_s (r_s: the largest ordinary radius; ``CELL_FACTOR``); an ordinary partner of face i
+lies within r_i + r_s of it, so in the cells up to ceil((r_i + r_s) / h) away (27 for an
+ordinary face; the cells of one column are consecutive keys: one binary search per column). The
+few "large" faces (flagged by the caller) search the same way with their own radius, or compare
+with every face when that ring holds more columns than there are faces; pairs of two large faces
+are left to the caller (:func:`recon.intersections.candidate_pairs` pairs them on a grid of their
+own), so that no large face is ever compared with every face of a big mesh. Each pair is emitted
+once (by its marked face of lower index, or by its large face), counted in a first pass and
+written in a second, each face into its own slice, so the result is the same for any thread
+count.
 
 References
 ----------
@@ -30,6 +34,7 @@ from numba import njit, prange
 
 from .cell_list import bin_particles
 from .options import EXACT_JIT_OPTIONS
+from .tri_intersect import triangles_intersect
 
 _PARALLEL = dict(EXACT_JIT_OPTIONS, parallel=True)
 
@@ -47,11 +52,10 @@ def _overlap(centroid, radius, i, j):
 
 @njit(inline="always", **EXACT_JIT_OPTIONS)
 def _emits(i, j, mark, large):
-    """Whether face i emits the pair (i, j) (so that every pair is emitted exactly once)."""
+    """Whether face i emits the pair (i, j) (so that every pair is emitted exactly once; pairs
+    of two large faces are not emitted here)."""
     if large[i]:
-        if large[j]:
-            return j > i and (mark[i] or mark[j])
-        return mark[i] or mark[j]
+        return not large[j] and (mark[i] or mark[j])
     if large[j]:
         return False  # the large face emits it
     if not mark[i]:
@@ -59,8 +63,31 @@ def _emits(i, j, mark, large):
     return j > i or not mark[j]
 
 
+@njit(inline="always", **EXACT_JIT_OPTIONS)
+def _keeps(vertices, faces, i, j):
+    """With ``faces`` (the crossing test fused in): do faces i and j cross (sharing no
+    vertex)? Without (empty ``faces``): every overlapping pair is kept."""
+    if faces.shape[0] == 0:
+        return True
+    for a in range(3):
+        for b in range(3):
+            if faces[i, a] == faces[j, b]:
+                return False
+    return triangles_intersect(vertices, faces[i], faces[j])
+
+
+@njit(inline="always", **EXACT_JIT_OPTIONS)
+def _emit(i, j, n, out_keys, base, count, write):
+    """Write the key of pair (i, j) at slot ``base + count`` (second pass); the new count."""
+    if write:
+        out_keys[base + count] = min(i, j) * n + max(i, j)
+    return count + 1
+
+
 @njit(**_PARALLEL)
-def _scan(centroid, radius, mark, large, binning, cell, r_small, out_keys, offsets, write):
+def _scan(
+    centroid, radius, mark, large, binning, cell, r_small, vertices, faces, out_keys, offsets, write
+):
     """Count (``write`` False) or write the pair keys each face emits."""
     order, cell_keys, cell_start, _, dims, lo = binning
     n = centroid.shape[0]
@@ -68,20 +95,22 @@ def _scan(centroid, radius, mark, large, binning, cell, r_small, out_keys, offse
     for i in prange(n):
         if not (mark[i] or large[i]):
             continue
+        if write and offsets[i + 1] == offsets[i]:
+            continue  # nothing to write (most faces, when only crossing pairs are kept)
         count = 0
         base = offsets[i] if write else 0
-        if large[i]:
+        # an ordinary partner j lies within r_i + r_j <= r_i + r_small
+        ring = np.int64(math.ceil((radius[i] + r_small) * inv))
+        columns = min(2 * ring + 1, dims[0]) * min(2 * ring + 1, dims[1])
+        if large[i] and columns > n:
             for j in range(n):
                 if j != i and _emits(i, j, mark, large) and _overlap(centroid, radius, i, j):
-                    if write:
-                        out_keys[base + count] = min(i, j) * n + max(i, j)
-                    count += 1
+                    if _keeps(vertices, faces, i, j):
+                        count = _emit(i, j, n, out_keys, base, count, write)
         else:
             cx = np.int64(math.floor((centroid[i, 0] - lo[0]) * inv))
             cy = np.int64(math.floor((centroid[i, 1] - lo[1]) * inv))
             cz = np.int64(math.floor((centroid[i, 2] - lo[2]) * inv))
-            # an ordinary partner j lies within r_i + r_j <= r_i + r_small
-            ring = np.int64(math.ceil((radius[i] + r_small) * inv))
             for ddx in range(-ring, ring + 1):
                 x = cx + ddx
                 if x < 0 or x >= dims[0]:
@@ -103,10 +132,8 @@ def _scan(centroid, radius, mark, large, binning, cell, r_small, out_keys, offse
                             j = order[p]
                             if j == i or not _emits(i, j, mark, large):
                                 continue
-                            if _overlap(centroid, radius, i, j):
-                                if write:
-                                    out_keys[base + count] = min(i, j) * n + max(i, j)
-                                count += 1
+                            if _overlap(centroid, radius, i, j) and _keeps(vertices, faces, i, j):
+                                count = _emit(i, j, n, out_keys, base, count, write)
                         c += 1
         if not write:
             offsets[i + 1] = count
@@ -114,9 +141,10 @@ def _scan(centroid, radius, mark, large, binning, cell, r_small, out_keys, offse
 
 
 @njit(**EXACT_JIT_OPTIONS)
-def sphere_pairs(centroid, radius, mark, large, r_small):
+def sphere_pairs(centroid, radius, mark, large, r_small, vertices, faces):
     r"""Sorted keys ``i n + j`` (i < j) of the face pairs whose bounding spheres overlap,
-    :math:`|c_i - c_j| \le r_i + r_j`, with at least one face marked.
+    :math:`|c_i - c_j| \le r_i + r_j`, with at least one face marked and at least one ordinary
+    (not ``large``).
 
     Parameters
     ----------
@@ -126,9 +154,15 @@ def sphere_pairs(centroid, radius, mark, large, r_small):
     mark : (n,) bool
         Faces whose pairs are wanted (all True for every pair).
     large : (n,) bool
-        Faces compared with every face.
+        Faces larger than ``r_small``: they search the cells within their own radius (every
+        face when that is cheaper); pairs of two large faces are not returned.
     r_small : float
         The largest radius of the faces that are not large, > 0.
+    vertices : (V, 3) float64
+    faces : (n, 3) int64, or (0, 3)
+        With faces, only the pairs that cross are returned (sharing no vertex;
+        :func:`recon.kernels.tri_intersect.triangles_intersect`), tested as they are found:
+        the candidate pairs (tens per face) are never held. Empty: every overlapping pair.
 
     Returns
     -------
@@ -139,10 +173,11 @@ def sphere_pairs(centroid, radius, mark, large, r_small):
     binning = bin_particles(centroid, cell)
     offsets = np.zeros(n + 1, dtype=np.int64)
     empty = np.zeros(0, dtype=np.int64)
-    _scan(centroid, radius, mark, large, binning, cell, r_small, empty, offsets, False)
+    args = (centroid, radius, mark, large, binning, cell, r_small, vertices, faces)
+    _scan(*args, empty, offsets, False)
     for i in range(n):
         offsets[i + 1] += offsets[i]
     keys = np.zeros(offsets[n], dtype=np.int64)
-    _scan(centroid, radius, mark, large, binning, cell, r_small, keys, offsets, True)
+    _scan(*args, keys, offsets, True)
     keys.sort()
     return keys

@@ -312,6 +312,7 @@ def fit_tiled(
                     "index": list(grid.ijk(t)),
                     "bounds": [lo.tolist(), hi.tolist()],
                     "points": fits[t]["points"],
+                    "points_with_halo": fits[t].get("points_with_halo", fits[t]["points"]),
                     "particles": fits[t]["particles"],
                     "fit_s": fits[t]["seconds"],
                     "mesh_s": meshes[t]["seconds"] if t in meshes else 0.0,

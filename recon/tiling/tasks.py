@@ -105,7 +105,12 @@ def fit_task(job: FitJob) -> dict:
     cfg = config_from_dict(job.config)
     rows = read_box(job.store, job.tile, grid.halo)
     n_core = int(grid.in_core(job.tile, rows[:, :3]).sum()) if len(rows) else 0
-    result: dict[str, Any] = {"tile": job.tile, "points": n_core, "particles": 0}
+    result: dict[str, Any] = {
+        "tile": job.tile,
+        "points": n_core,
+        "points_with_halo": len(rows),
+        "particles": 0,
+    }
     pos = np.zeros((0, 3))
     nrm = np.zeros((0, 3))
     rest = None

@@ -1,0 +1,126 @@
+"""Hole filling's re-zip of crossing patches: local search, same result as over the whole mesh."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import recon.holes as holes
+from recon.holes import rezip_crossing_loops, zip_loop
+from recon.intersections import self_intersections
+from recon.mesh import boundary_loops
+
+SHEET = 14 * 14  # the sheet's vertices come first
+
+
+def _grid(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """An n x n vertex grid in z = 0 (unit spacing) and its faces, two per cell."""
+    x, y = np.meshgrid(np.arange(n, dtype=float), np.arange(n, dtype=float), indexing="ij")
+    vertices = np.stack([x.ravel(), y.ravel(), np.zeros(n * n)], axis=1)
+    i, j = np.meshgrid(np.arange(n - 1), np.arange(n - 1), indexing="ij")
+    a = (i * n + j).ravel()
+    faces = np.concatenate([np.stack([a, a + n, a + n + 1], 1), np.stack([a, a + n + 1, a + 1], 1)])
+    return vertices, faces
+
+
+def _scene() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """A sheet with two holes, a wall standing through the larger one (its zip crosses the
+    wall), and, far away, two triangles crossing each other: an unrelated crossing."""
+    n = 14
+    v, f = _grid(n)
+    centre = v[f].mean(axis=1)
+    big = (centre[:, 0] > 4) & (centre[:, 0] < 9) & (centre[:, 1] > 4) & (centre[:, 1] < 8)
+    small = (centre[:, 0] > 1) & (centre[:, 0] < 3) & (centre[:, 1] > 1) & (centre[:, 1] < 3)
+    f = f[~(big | small)]
+    wall_y, wall_z = np.meshgrid([3.6, 5.1, 6.3, 8.4], [-1.0, 0.35, 1.0], indexing="ij")
+    wall = np.stack([np.full(wall_y.size, 6.45), wall_y.ravel(), wall_z.ravel()], axis=1)
+    w = len(v) + np.arange(len(wall)).reshape(4, 3)
+    wall_faces = np.concatenate(
+        [
+            np.stack([w[:-1, :-1].ravel(), w[1:, :-1].ravel(), w[1:, 1:].ravel()], 1),
+            np.stack([w[:-1, :-1].ravel(), w[1:, 1:].ravel(), w[:-1, 1:].ravel()], 1),
+        ]
+    )
+    far = np.array([[1000, 1000, 0], [1002, 1000, 0], [1000, 1002, 0]], dtype=float)
+    far = np.vstack([far, [[1000.5, 1000.5, -1], [1000.5, 1000.5, 1], [1001.5, 1001.5, 0]]])
+    o = len(v) + len(wall)
+    vertices = np.vstack([v, wall, far])
+    faces = np.vstack([f, wall_faces, [[o, o + 1, o + 2], [o + 3, o + 4, o + 5]]])
+    normals = np.tile([0.0, 0.0, 1.0], (len(vertices), 1))
+    normals[len(v) :] = [1.0, 0.0, 0.0]
+    return vertices, normals, faces, o + np.arange(6)
+
+
+def _zipped(vertices, faces):
+    """The holes' loops in the patches' winding, their plain zips and the edge set, as
+    :func:`recon.holes.fill_small_holes` hands them over."""
+    he = faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
+    edges = set(map(tuple, np.sort(he, axis=1).tolist()))
+    inner = [loop for loop in boundary_loops(faces) if loop.max() < SHEET and len(loop) <= 20]
+    loops = [loop[::-1] for loop in inner]
+    return loops, [zip_loop(vertices, loop, edges) for loop in loops], edges
+
+
+def _rezip_over_the_whole_mesh(vertices, normals, faces, loops, patches, edges):
+    """The re-zip as it was, searching every face of the mesh (the reference)."""
+    owner = np.repeat(np.arange(len(patches)), [len(p) for p in patches])
+    every = np.vstack([faces, *patches])
+    pairs = self_intersections(vertices, every, np.arange(len(faces), len(every)))
+    hit = pairs[pairs >= len(faces)] - len(faces)
+    crossings = np.bincount(owner[hit], minlength=len(patches))
+    patches = list(patches)
+    for k in np.flatnonzero(crossings):
+        rim = normals[loops[k]]
+        if np.min(rim @ rim.sum(axis=0)) >= 0:
+            continue
+        ring = set(int(x) for x in loops[k])
+        own = {
+            (min(a, b), max(a, b))
+            for a, b in patches[k][:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
+            if not ({int(a), int(b)} <= ring and abs(holes._ring_step(loops[k], a, b)) == 1)
+        }
+        alt = zip_loop(vertices, loops[k], edges - own, normals)
+        others = np.vstack([faces, *patches[:k], *patches[k + 1 :]])
+        if holes._left_after_untangle(vertices, others, alt) < holes._left_after_untangle(
+            vertices, others, patches[k]
+        ):
+            edges -= own
+            edges |= {(min(a, b), max(a, b)) for a, b in alt[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)}
+            patches[k] = alt
+    return patches
+
+
+@pytest.mark.parametrize("flip", [0, 3, 7])
+def test_rezip_is_local_and_equals_the_search_over_the_whole_mesh(monkeypatch, flip):
+    vertices, normals, faces, far = _scene()
+    loops, patches, edges = _zipped(vertices, faces)
+    assert len(loops) == 2
+    big = int(np.argmax([len(loop) for loop in loops]))
+    normals[loops[big][flip : flip + 4]] *= -1.0  # the rim normals disagree: a thin part's rim
+    every = np.vstack([faces, *patches])
+    assert len(self_intersections(vertices, every, np.arange(len(faces), len(every))))
+    assert len(self_intersections(vertices, faces[-2:]))  # the unrelated crossing
+    want_edges = set(edges)
+    want = _rezip_over_the_whole_mesh(vertices, normals, faces, loops, patches, want_edges)
+
+    seen: list[np.ndarray] = []
+
+    def spy_crossings(v, f, subset=None):
+        seen.append(v[np.unique(f)])
+        return self_intersections(v, f, subset)
+
+    def spy_untangle(v, f, **kwargs):
+        seen.append(v)
+        return untangle(v, f, **kwargs)
+
+    untangle = holes.untangle
+    monkeypatch.setattr(holes, "self_intersections", spy_crossings)
+    monkeypatch.setattr(holes, "untangle", spy_untangle)
+    got = rezip_crossing_loops(vertices, normals, faces, loops, patches, edges)
+    assert len(got) == len(want)
+    for a, b in zip(got, want, strict=True):
+        np.testing.assert_array_equal(a, b)
+    assert edges == want_edges
+    assert len(seen) >= 3  # the crossing search and both untangling tests ran
+    # the unrelated crossing far away took no part in any search
+    assert not any(np.isin(vertices[far], s).all(axis=1).any() for s in seen)
