@@ -29,6 +29,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -92,8 +93,11 @@ def _particle_steps(history: dict[str, list[Any]]) -> float:
     return float(np.sum(np.diff(np.concatenate([[0.0], steps])) * particles))
 
 
-def run_oprecon(path: Path, out: Path, threads: int | None) -> dict[str, Any]:
+def run_oprecon(
+    path: Path, out: Path, threads: int | None, overrides: Sequence[str] = ()
+) -> dict[str, Any]:
     cmd = [sys.executable, "-m", "recon.cli.main", "fit", str(path), "-o", str(out), "-q"]
+    cmd += [arg for kv in overrides for arg in ("--set", kv)]
     wall, rss, code = _run(cmd, {"NUMBA_NUM_THREADS": str(threads)} if threads else None)
     if code != 0:
         return {"wall_s": wall, "rss_mib": rss, "failed": True}
@@ -157,6 +161,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--peer-max", type=int, default=1_000_000, help="largest size for the peer")
     parser.add_argument("--threads", type=int, default=None, help="NUMBA_NUM_THREADS for oprecon")
     parser.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="SECTION.KEY=VALUE",
+        help="passed to `oprecon fit --set` (repeatable), e.g. dynamics.max_particles=4000000 "
+        "so that the largest sizes are not capped",
+    )
+    parser.add_argument(
         "--omp-wait-policy",
         choices=("default", "PASSIVE", "ACTIVE"),
         default="default",
@@ -186,7 +198,7 @@ def main(argv: list[str] | None = None) -> int:
             write_points(path, sample_torus(n))
             ours, theirs = [], []
             for _ in range(args.repeats):  # alternate: the machine's load drifts
-                ours.append(run_oprecon(path, Path(tmp) / f"o-{n}.ply", args.threads))
+                ours.append(run_oprecon(path, Path(tmp) / f"o-{n}.ply", args.threads, args.set))
                 if peer and n <= args.peer_max:
                     theirs.append(
                         run_peer(
@@ -217,7 +229,10 @@ def main(argv: list[str] | None = None) -> int:
         args.json_out.parent.mkdir(parents=True, exist_ok=True)
         phases = _phase_slopes(done) if slope is not None else {}
         args.json_out.write_text(
-            json.dumps({"rows": rows, "slope": slope, "phase_slopes": phases}, indent=1)
+            json.dumps(
+                {"rows": rows, "slope": slope, "phase_slopes": phases, "overrides": args.set},
+                indent=1,
+            )
         )
     return 0
 

@@ -83,3 +83,17 @@ def test_bench_tiles_splits_the_workers_time_by_tile():
         "halo_factor": 1.25,
         "points_per_tile": 200,
     }
+
+
+def test_bench_scale_passes_its_overrides_to_the_fit(monkeypatch, tmp_path):
+    bench = _bench("bench_scale")
+    seen = []
+
+    def fake_run(cmd, env):
+        seen.append(cmd)
+        return 1.0, 10.0, 2  # a failed fit: no report to read
+
+    monkeypatch.setattr(bench, "_run", fake_run)
+    out = bench.run_oprecon(tmp_path / "in.ply", tmp_path / "o.ply", None, ["a.b=1", "c.d=2"])
+    assert out["failed"]
+    assert seen[0][-4:] == ["--set", "a.b=1", "--set", "c.d=2"]
