@@ -26,6 +26,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Container
+
 import numpy as np
 from scipy.spatial import cKDTree
 
@@ -111,6 +113,44 @@ def straddling(faces: np.ndarray, normals: np.ndarray, crease: np.ndarray) -> np
     return apart & ~crease[faces].any(axis=1)
 
 
+def _flip_pass(
+    faces: np.ndarray,
+    normals: np.ndarray,
+    crease: np.ndarray,
+    candidates: dict[tuple[int, int], list[int]],
+    edges: Container[tuple[int, int]],
+    cos: float,
+) -> int:
+    """One pass of :func:`flip_straddling_edges` over ``candidates`` (edge -> its faces, in the
+    mesh's edge order), in place; ``edges`` holds every edge that would block a flip to it.
+    Returns the number of flips."""
+    touched = np.zeros(len(faces), dtype=bool)
+    created: set[tuple[int, int]] = set()
+    done = 0
+    for (u, w), owners in candidates.items():
+        if len(owners) != 2 or crease[u] or crease[w] or normals[u] @ normals[w] >= cos:
+            continue
+        t1, t2 = owners
+        if touched[t1] or touched[t2]:
+            continue
+        f1, f2 = faces[t1].tolist(), faces[t2].tolist()
+        a = next(x for x in f1 if x != u and x != w)
+        b = next(x for x in f2 if x != u and x != w)
+        key = (min(a, b), max(a, b))
+        if a == b or not (crease[a] and crease[b]) or key in edges or key in created:
+            continue
+        i = f1.index(u)
+        if f1[(i + 1) % 3] != w:  # name them so that t1 runs u -> w
+            u, w = w, u
+        # t1 = (u, w, a), t2 = (w, u, b) -> (a, u, b), (b, w, a): same outer edges
+        faces[t1] = (a, u, b)
+        faces[t2] = (b, w, a)
+        touched[t1] = touched[t2] = True
+        created.add(key)
+        done += 1
+    return done
+
+
 def flip_straddling_edges(
     faces: np.ndarray, normals: np.ndarray, crease: np.ndarray
 ) -> tuple[np.ndarray, int]:
@@ -134,30 +174,7 @@ def flip_straddling_edges(
         candidates = _edge_map(faces, np.unique(flippable // 3))
         on_crease = crease[lo] & crease[hi]
         edges = set(zip(lo[on_crease].tolist(), hi[on_crease].tolist(), strict=True))
-        touched = np.zeros(len(faces), dtype=bool)
-        created: set[tuple[int, int]] = set()
-        done = 0
-        for (u, w), owners in candidates.items():
-            if len(owners) != 2 or crease[u] or crease[w] or normals[u] @ normals[w] >= cos:
-                continue
-            t1, t2 = owners
-            if touched[t1] or touched[t2]:
-                continue
-            f1, f2 = faces[t1].tolist(), faces[t2].tolist()
-            a = next(x for x in f1 if x != u and x != w)
-            b = next(x for x in f2 if x != u and x != w)
-            key = (min(a, b), max(a, b))
-            if a == b or not (crease[a] and crease[b]) or key in edges or key in created:
-                continue
-            i = f1.index(u)
-            if f1[(i + 1) % 3] != w:  # name them so that t1 runs u -> w
-                u, w = w, u
-            # t1 = (u, w, a), t2 = (w, u, b) -> (a, u, b), (b, w, a): same outer edges
-            faces[t1] = (a, u, b)
-            faces[t2] = (b, w, a)
-            touched[t1] = touched[t2] = True
-            created.add(key)
-            done += 1
+        done = _flip_pass(faces, normals, crease, candidates, edges, cos)
         flips += done
         if done == 0:
             break

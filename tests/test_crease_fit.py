@@ -784,37 +784,16 @@ def test_a_concave_line_edge_is_inserted_at_a_corner_lying_a_rounding_error_past
 
 
 def _flip_every_edge_reference(faces, normals, crease):
-    """flip_straddling_edges as it was: every edge of the mesh through the Python loop."""
-    from recon.crease_mesh import FLIP_PASSES, SIDE_ANGLE_DEG, _edge_map
+    """flip_straddling_edges as it was: every edge of the mesh goes through each pass, and
+    every edge blocks a flip to it."""
+    from recon.crease_mesh import FLIP_PASSES, SIDE_ANGLE_DEG, _edge_map, _flip_pass
 
     faces = np.array(faces, dtype=np.int64, copy=True)
     cos = np.cos(np.radians(SIDE_ANGLE_DEG))
     flips = 0
     for _ in range(FLIP_PASSES):
         edges = _edge_map(faces)
-        touched = np.zeros(len(faces), dtype=bool)
-        created: set[tuple[int, int]] = set()
-        done = 0
-        for (u, w), owners in edges.items():
-            if len(owners) != 2 or crease[u] or crease[w] or normals[u] @ normals[w] >= cos:
-                continue
-            t1, t2 = owners
-            if touched[t1] or touched[t2]:
-                continue
-            f1, f2 = faces[t1].tolist(), faces[t2].tolist()
-            a = next(x for x in f1 if x != u and x != w)
-            b = next(x for x in f2 if x != u and x != w)
-            key = (min(a, b), max(a, b))
-            if a == b or not (crease[a] and crease[b]) or key in edges or key in created:
-                continue
-            i = f1.index(u)
-            if f1[(i + 1) % 3] != w:
-                u, w = w, u
-            faces[t1] = (a, u, b)
-            faces[t2] = (b, w, a)
-            touched[t1] = touched[t2] = True
-            created.add(key)
-            done += 1
+        done = _flip_pass(faces, normals, crease, edges, edges, cos)
         flips += done
         if done == 0:
             break
