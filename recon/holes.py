@@ -14,7 +14,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from .intersections import faces_near_balls, self_intersections, untangle
+from .intersections import face_spheres, faces_near_balls, self_intersections, untangle
 from .mesh import (
     boundary_loops,
     count_edge_faces,
@@ -246,9 +246,7 @@ def rezip_crossing_loops(
     # the untangling reach, padded against rounding: a superset is all that is needed
     reach = (3.0 * extent + UNTANGLE_MARGIN) * (1.0 + 1e-9) + 1e-9
     near, ball = faces_near_balls(vertices, faces, centre, reach)
-    corners = vertices[faces[near]]
-    mid = corners.mean(axis=1)
-    size = np.linalg.norm(corners - mid[:, None, :], axis=2).max(axis=1)
+    mid, size = face_spheres(vertices, faces[near])
     touches = np.linalg.norm(mid - centre[ball], axis=1) <= (extent[ball] + size) * (1.0 + 1e-9)
     local = faces[np.unique(near[touches])]
     owner = np.repeat(np.arange(len(patches)), [len(p) for p in patches])

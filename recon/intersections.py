@@ -31,6 +31,7 @@ from .neighbors import PARALLEL_MIN_PARTICLES
 __all__ = [
     "UNTANGLE_PASSES",
     "UNTANGLE_STEP",
+    "face_spheres",
     "faces_near_balls",
     "self_intersections",
     "untangle",
@@ -68,9 +69,7 @@ def _face_pairs(
     n = len(faces)
     if n < 2:
         return np.zeros((0, 2), dtype=np.int64)
-    corners = vertices[faces]
-    centroid = corners.mean(axis=1)
-    radius = np.linalg.norm(corners - centroid[:, None, :], axis=2).max(axis=1)
+    centroid, radius = face_spheres(vertices, faces)
     mark = np.ones(n, dtype=np.bool_)
     if subset is not None:
         mark[:] = False
@@ -78,6 +77,13 @@ def _face_pairs(
     test = (vertices, faces) if crossing else None
     key = _overlapping(centroid, radius, mark, test)
     return np.stack([key // n, key % n], axis=1)
+
+
+def face_spheres(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each face's bounding sphere: its centroid and the distance to its farthest corner."""
+    corners = vertices[faces]
+    centroid = corners.mean(axis=1)
+    return centroid, np.linalg.norm(corners - centroid[:, None, :], axis=2).max(axis=1)
 
 
 def faces_near_balls(
@@ -93,9 +99,7 @@ def faces_near_balls(
         The overlapping pairs, sorted by face, then ball.
     """
     n = len(faces)
-    corners = vertices[faces]
-    centroid = corners.mean(axis=1)
-    radius = np.linalg.norm(corners - centroid[:, None, :], axis=2).max(axis=1)
+    centroid, radius = face_spheres(vertices, faces)
     mark = np.zeros(n + len(centres), dtype=np.bool_)
     mark[n:] = True
     key = _overlapping(
