@@ -232,6 +232,15 @@ class Simulation:
         self._external_force = None
         self._refresh_coefficients()
 
+    def notify_moved(self) -> None:
+        """Particles were moved in place by the caller (the same particles, e.g. snapped onto
+        a crease line): the list is rebuilt before the next step only if it no longer holds
+        every pair within the cutoff (:meth:`NeighborList.covers`, exact). Unlike
+        :meth:`notify_changed`, the anchors and the external force are kept. A changed
+        particle count needs :meth:`notify_changed`."""
+        if self._neighbors.n != self.state.n or not self._neighbors.covers(self.state.position):
+            self._needs_rebuild = True
+
     def sort_particles(self) -> np.ndarray:
         """Reorder the particles by grid cell for memory locality; return the permutation.
 

@@ -371,6 +371,31 @@ def test_a_few_fast_particles_rebuild_only_when_they_meet_a_new_neighbour():
     assert sim.step().rebuilt
 
 
+def test_notify_moved_keeps_a_list_that_still_holds_every_pair():
+    """Moving particles in place (a crease snap) rebuilds the list only when some moved pair
+    now interacts unlisted; anchors are kept, and the steps equal those of a fresh list."""
+    state = _patch(12, k=8)
+    sim = Simulation(state, DEFAULTS)
+    sim.run(2)
+    sim.set_anchors(state.position, state.normal, 1.0, 0.5)
+    rebuilds = sim.n_rebuilds
+    state.position[5] += [0.0, 0.0, 0.05]  # a small snap: every pair still listed
+    fresh = Simulation(state.copy(), DEFAULTS)
+    fresh.set_anchors(sim.anchors.points, sim.anchors.normals, 1.0, 0.5)
+    sim.notify_moved()
+    assert sim.anchors is not None
+    assert not sim.step().rebuilt
+    fresh.step()
+    assert sim.n_rebuilds == rebuilds
+    assert np.allclose(sim.state.position, fresh.state.position, rtol=0, atol=1e-12)
+    # a particle moved far onto another part of the sheet meets unlisted neighbours
+    state.position[0] = state.position[-1] + [0.0, 0.0, 0.3]
+    sim.notify_moved()
+    assert sim.step().rebuilt
+    offsets, indices = sim.neighbors
+    assert 0 in indices[offsets[state.n - 1] : offsets[state.n]]
+
+
 def test_particles_added_and_removed_between_steps():
     state = _patch(10)
     sim = Simulation(state, DEFAULTS)

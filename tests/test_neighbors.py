@@ -94,9 +94,26 @@ def test_covers_is_exact_for_a_few_fast_particles():
     moved[1] -= [0.19, 0.0, 0.0]  # 1.96 apart: interacting, not listed
     assert not nl.covers(moved)
     moved = position.copy()
-    moved[0] += [0.41, 0.0, 0.0]  # past the full skin
+    moved[0] += [0.41, 0.0, 0.0]  # past the full skin, 2.04 apart: nothing new within 2.0
+    assert nl.covers(moved)
+    moved[0] += [0.1, 0.0, 0.0]  # 1.94 apart: interacting, not listed
     assert not nl.covers(moved)
     assert not nl.covers(position[:3])  # the count changed
+
+
+def test_covers_checks_two_particles_past_the_skin_against_each_other():
+    """Two particles that both moved more than the skin can meet although neither finds the
+    other in the build grid around its new place: they are compared directly."""
+    still = np.column_stack([np.arange(40.0), np.full(40, 9.0), np.zeros(40)])  # far off
+    position = np.vstack([[[0.0, 0, 0], [6.0, 0, 0]], still])  # room for two fast ones
+    nl = NeighborList(cutoff=2.0, skin=0.4)
+    nl.build(position)
+    moved = position.copy()
+    moved[0] += [2.5, 0.0, 0.0]
+    moved[1] -= [2.5, 0.0, 0.0]  # 1.0 apart now, 6.0 at the build: not listed
+    assert not nl.covers(moved)
+    moved[1] += [0.0, 0.0, 2.5]  # both far from the build, 2.7 apart: nothing interacts
+    assert nl.covers(moved)
 
 
 def test_covers_never_misses_a_pair():
@@ -112,6 +129,8 @@ def test_covers_never_misses_a_pair():
         moved = position + rng.normal(0.0, 0.03, position.shape)
         fast = rng.choice(n, size=2, replace=False)
         moved[fast] += rng.normal(0.0, 0.2, (2, 3))
+        far = rng.choice(n, size=2, replace=False)  # past the skin
+        moved[far] += rng.normal(0.0, 0.5, (2, 3))
         if not nl.covers(moved):
             continue
         kept += 1

@@ -431,10 +431,16 @@ class _Schedule:
         self, sim: Simulation, state: ParticleState, settle: bool = False
     ) -> None:
         """Crease hook (issue 12): snap particles near crease lines and corners onto them and
-        mark them unoriented (:meth:`recon.crease_surface.CreaseField.constrain`)."""
+        mark them unoriented (:meth:`recon.crease_surface.CreaseField.constrain`). The
+        neighbour list is kept while it still holds every interacting pair (most calls snap a
+        few particles by less than the skin); dropped or added particles rebuild it."""
         if self.surface.creases is not None and state.n:
+            n = state.n
             self.surface.creases.constrain(state, settle=settle)
-            sim.notify_changed()
+            if state.n == n:
+                sim.notify_moved()
+            else:
+                sim.notify_changed()
 
     # -- phases --------------------------------------------------------------------------
     def make_seeds(self) -> tuple[ParticleState, np.ndarray]:

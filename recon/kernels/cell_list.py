@@ -326,9 +326,11 @@ def list_covers(position, reference_position, offsets, indices, cutoff, skin, bi
     Let Δ_i = |x_i − x_i⁰|. A pair missing from the list was at least r_l = r_c + s apart at the
     build, so it can be closer than r_c now only if Δ_i + Δ_j > s. Pairs of two particles with
     Δ ≤ s/2 are therefore covered (the usual rebuild rule); the "fast" particles with
-    Δ > s/2 are checked one by one: every particle j within r_c of such a particle a now
-    (its build position then lies within r_c + Δ_j ≤ r_l of x_a, so in the 27 cells of the
-    build-time grid of side r_l around x_a) must be in a's row.
+    Δ > s/2 are checked one by one: every particle j with Δ_j ≤ s within r_c of such a
+    particle a now (its build position then lies within r_c + Δ_j ≤ r_l of x_a, so in the 27
+    cells of the build-time grid of side r_l around x_a) must be in a's row. A pair of two
+    particles that both moved more than the skin may lie farther apart in the build grid: such
+    pairs (few: at most ``max_fast`` particles) are compared directly.
 
     Parameters
     ----------
@@ -346,23 +348,27 @@ def list_covers(position, reference_position, offsets, indices, cutoff, skin, bi
     Returns
     -------
     bool
-        False also when some particle moved more than the skin.
     """
     n = position.shape[0]
     half2 = 0.25 * skin * skin
     skin2 = skin * skin
     fast = np.zeros(max_fast + 1, dtype=np.int64)
     n_fast = 0
+    beyond = np.zeros(max_fast + 1, dtype=np.int64)  # the fast ones past the whole skin
+    n_beyond = 0
     for i in range(n):
         dx = position[i, 0] - reference_position[i, 0]
         dy = position[i, 1] - reference_position[i, 1]
         dz = position[i, 2] - reference_position[i, 2]
         d2 = dx * dx + dy * dy + dz * dz
         if d2 > half2:
-            if d2 > skin2 or n_fast == max_fast:
+            if n_fast == max_fast:
                 return False
             fast[n_fast] = i
             n_fast += 1
+            if d2 > skin2:
+                beyond[n_beyond] = i
+                n_beyond += 1
     order, cell_keys, cell_start, _, dims, lo = binning
     inv = 1.0 / (cutoff + skin)
     cutoff2 = cutoff * cutoff
@@ -405,4 +411,17 @@ def list_covers(position, reference_position, offsets, indices, cutoff, skin, bi
                         k = row_lo + np.searchsorted(indices[row_lo:row_hi], j)
                         if k >= row_hi or indices[k] != j:
                             return False
+    for u in range(n_beyond):
+        a = beyond[u]
+        row_lo = offsets[a]
+        row_hi = offsets[a + 1]
+        for v in range(u + 1, n_beyond):
+            j = beyond[v]
+            rx = position[j, 0] - position[a, 0]
+            ry = position[j, 1] - position[a, 1]
+            rz = position[j, 2] - position[a, 2]
+            if rx * rx + ry * ry + rz * rz < cutoff2:
+                k = row_lo + np.searchsorted(indices[row_lo:row_hi], j)
+                if k >= row_hi or indices[k] != j:
+                    return False
     return True
