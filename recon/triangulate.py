@@ -196,7 +196,10 @@ def _repair(
     faces = orient_faces(positions, normals, faces)
     faces = drop_overlaps(positions, faces)
     vertices, vnormals, faces = repair_non_manifold(positions, normals, faces)
-    faces = orient_consistently(vertices, vnormals, faces)
+    oriented = orient_consistently(vertices, vnormals, faces)
+    # a repaired mesh that orienting dropped no face from is manifold and oriented: repairing
+    # or orienting it again changes nothing (each pass rescans the whole mesh)
+    clean, faces = len(oriented) == len(faces), oriented
     stats["faces_manifold"] = int(len(faces))
     stats["holes_filled"] = 0
     for _ in range(FILL_PASSES if cfg.fill_holes else 0):
@@ -211,8 +214,11 @@ def _repair(
             scale=_extend(scale, positions, vertices),
         )
         stats["holes_filled"] += n_filled
+        if n_filled == 0 and clean:
+            break  # nothing filled: the faces are the clean ones of the last pass
         vertices, vnormals, faces = repair_non_manifold(vertices, vnormals, faces)
-        faces = orient_consistently(vertices, vnormals, faces)
+        oriented = orient_consistently(vertices, vnormals, faces)
+        clean, faces = len(oriented) == len(faces), oriented
         if n_filled == 0:
             break
     faces, n_small = remove_small_components(
@@ -230,8 +236,10 @@ def _repair(
         used = np.zeros(len(vertices), dtype=bool)
         used[faces.reshape(-1)] = True
         on_crease = on_crease[used]
+    unchanged = clean and np.array_equal(faces, oriented)  # no debris or crease edit
     vertices, vnormals, faces = drop_unreferenced(vertices, vnormals, faces)
-    faces = orient_consistently(vertices, vnormals, faces)
+    if not unchanged:  # (renumbering the vertices keeps the winding)
+        faces = orient_consistently(vertices, vnormals, faces)
     return TriangulationResult(vertices, faces, vnormals, stats, on_crease)
 
 

@@ -496,3 +496,30 @@ def test_opposed_faces_get_a_second_repair_only_when_the_mesh_has_a_handle(monke
     monkeypatch.setattr(tri, "_repair", lambda *a: calls.append(1) or repair(*a))
     res = tri.triangulate_particles(p, n, TriangulationConfig(), max_hole=4.0)
     assert len(calls) == 1 and len(res.faces) > 0
+
+
+@pytest.mark.parametrize("hole", [0.0, 1.2])
+def test_repair_passes_run_only_while_they_can_change_the_mesh(monkeypatch, hole):
+    """A repaired mesh that orienting dropped no face from is manifold and oriented: the
+    passes after a fill that found nothing, and the last orientation when nothing changed
+    since, are skipped (each rescans the whole mesh: ~0.1 s of bunny-clean's fit). What
+    they would do is nothing: running them on the result leaves it as it is."""
+    import recon.triangulate as tri
+
+    p, n = _hex_sheet(hole=hole)
+    calls = {"repair": 0, "orient": 0}
+    repair, orient = tri.repair_non_manifold, tri.orient_consistently
+
+    def count(name, fn):
+        return lambda *a, **k: calls.__setitem__(name, calls[name] + 1) or fn(*a, **k)
+
+    monkeypatch.setattr(tri, "repair_non_manifold", count("repair", repair))
+    monkeypatch.setattr(tri, "orient_consistently", count("orient", orient))
+    res = tri.triangulate_particles(p, n, TriangulationConfig(), max_hole=4.0)
+    filled = res.stats["holes_filled"] > 0
+    assert filled == (hole > 0)
+    assert calls == {"repair": 1 + filled, "orient": 1 + filled}
+    assert len(boundary_loops(res.faces)) == 1
+    v, vn, f = repair(res.vertices, res.normals, res.faces)
+    assert np.array_equal(v, res.vertices) and np.array_equal(f, res.faces)
+    assert np.array_equal(orient(res.vertices, res.normals, res.faces), res.faces)
