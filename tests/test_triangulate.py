@@ -87,6 +87,21 @@ def test_non_manifold_edge_faces_are_removed():
     assert out.tolist() == [[0, 1, 2], [1, 0, 3]]
 
 
+def test_duplicate_faces_are_found_by_one_key_per_triple_as_by_rows():
+    """Below FACE_KEY_LIMIT vertices a face's sorted triple is one int64 key; the result is
+    the same as comparing rows (the path taken above the limit)."""
+    from recon.triangulate import FACE_KEY_LIMIT
+
+    rng = np.random.default_rng(4)
+    faces = rng.integers(0, 30, (400, 3))
+    faces = np.vstack([faces, faces[rng.integers(0, 400, 150)][:, [2, 0, 1]]])  # rotated copies
+    small = remove_non_manifold_faces(faces, 30)
+    rows = remove_non_manifold_faces(faces, FACE_KEY_LIMIT)  # the same faces, keyed by rows
+    assert np.array_equal(small, rows)
+    keys = {tuple(sorted(f)) for f in small.tolist()}
+    assert len(keys) == len(small) and all(len(set(f)) == 3 for f in small.tolist())
+
+
 def test_orient_faces_follows_normals():
     v = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]])
     f = np.array([[0, 2, 1]])
