@@ -58,6 +58,35 @@ def test_shared_query_holds_int32_indices_and_equals_the_tree_query(monkeypatch)
     np.testing.assert_array_equal(dist, d_ref)
 
 
+def test_shared_query_runs_on_a_cell_grid_and_equals_the_tree_query_where_density_varies(
+    monkeypatch,
+):
+    """The grid answers the shared query (its cell from a sample of the widest neighbour's
+    distance); points far sparser than the sample's median go to the grid's k-d tree: every
+    answer is the tree's."""
+    from recon.fitting import pipeline
+    from recon.neighbors import PointGrid
+
+    rng = np.random.default_rng(8)
+    dense = _sphere(6000)
+    sparse = rng.uniform(-6.0, 6.0, (60, 3))  # far outside, ~1 point per 30 cells
+    p = np.vstack([dense, sparse])
+    grids = []
+
+    class Spy(PointGrid):
+        def __init__(self, *a, **k):
+            super().__init__(*a, **k)
+            grids.append(self)
+
+    monkeypatch.setattr(pipeline, "PointGrid", Spy)
+    dist, idx = pipeline.shared_neighbors(p, ReconConfig())
+    assert len(grids) == 1 and grids[0].grid is not None
+    assert grids[0]._tree is not None  # the sparse points were handed on
+    d_ref, i_ref = cKDTree(p).query(p, k=idx.shape[1])
+    np.testing.assert_array_equal(idx, i_ref)
+    np.testing.assert_array_equal(dist, d_ref)
+
+
 def test_orientation_costs_in_blocks_are_the_same_with_a_bounded_peak(monkeypatch):
     """The orientation graph's edge costs, block by block: the same oriented normals, and the
     graph's temporaries stay within 900 bytes per point (1.3 kB with the whole-graph gathers)."""

@@ -25,17 +25,17 @@ from numba.core.dispatcher import Dispatcher
 #: The kernels a fit calls from Python, ``module.function`` under :mod:`recon.kernels`, in
 #: the order of their first call on a smooth scan (bunny-clean).
 FIT_KERNELS: tuple[str, ...] = (
+    "grid_query.grid_build",
+    "grid_query.knn_grid_kernel",
     "thin_sides.split_sides_kernel",
     "gauss_map.gauss_map_kernel",
     "local_surface.select_agreeing",
     "local_surface.fit_quadrics_kernel",
     "poisson_disk.poisson_disk_kernel",
-    "grid_query.grid_build",
     "grid_query.anchor_feet_kernel",
     "cell_list.bin_particles",
     "cell_list.build_neighbor_list_kernel",
     "growth_rules.grow_kernel",
-    "grid_query.knn_grid_kernel",
     "local_surface.max_angular_gap_kernel",
     "grid_query.covered_kernel",
     "pair_loop.step_particles",
