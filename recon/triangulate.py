@@ -38,6 +38,7 @@ from .mesh import (
     face_area_vectors,
     face_components,
     handle_bridges,
+    handle_count,
     opposed_faces,
     orientation_flips,
     overlapping_faces,
@@ -45,7 +46,6 @@ from .mesh import (
 )
 from .neighbors import build_neighbor_list
 from .particle_signs import consistent_normals
-from .topology import mesh_topology
 
 log = logging.getLogger(__name__)
 
@@ -201,10 +201,10 @@ def _better(alt: TriangulationResult, result: TriangulationResult) -> bool:
     return all(x <= y for x, y in zip(a, r, strict=True)) and a != r
 
 
-def _count(result: TriangulationResult) -> tuple[int, int, float]:
-    t = mesh_topology(result.vertices, result.faces)
-    c, b = t["components"], t["boundary_loops"]
-    return c, b, (2 * c - b - t["euler_characteristic"]) / 2
+def _count(result: TriangulationResult) -> tuple[int, int, int]:
+    """Components, boundary loops and handles of a repaired mesh
+    (:func:`recon.mesh.handle_count`)."""
+    return handle_count(result.faces, len(result.vertices))
 
 
 def _repair(
