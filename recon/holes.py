@@ -10,6 +10,7 @@ thin part is zipped fold-free (:func:`rezip_crossing_loops`). Used by
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Callable
 
 import numpy as np
@@ -22,6 +23,8 @@ from .mesh import (
     face_components,
     face_normals,
 )
+
+log = logging.getLogger(__name__)
 
 __all__ = ["across_points", "fill_small_holes", "loop_width", "rezip_crossing_loops", "zip_loop"]
 
@@ -102,12 +105,22 @@ def fill_small_holes(
         s = float(scale[loop].mean()) if scale is not None else 1.0
         perim = float(np.linalg.norm(ring - np.roll(ring, -1, axis=0), axis=1).sum())
         fill = perim <= max_perimeter * s
+        support = None  # share of the points across a seam over data, when tested
         if not fill and is_covered is not None and covered_max_perimeter is not None:
             if perim <= covered_max_perimeter * s:
                 fill = bool(covered(ring.mean(axis=0)[None], s)[0])
             if not fill and len(loop) >= 5 and loop_width(ring) <= max_perimeter / np.pi * s:
-                fill = bool(np.mean(covered(across_points(ring), s)) >= SEAM_SUPPORT)
+                support = float(np.mean(covered(across_points(ring), s)))
+                fill = support >= SEAM_SUPPORT
         if not fill:
+            if log.isEnabledFor(logging.DEBUG):  # which rule keeps it open [local spacings]
+                log.debug(
+                    "loop of %d edges left open: perimeter %.1f, width %.2f, seam support %s",
+                    len(loop),
+                    perim / s,
+                    loop_width(ring) / s,
+                    "untested" if support is None else f"{support:.2f}",
+                )
             continue
         rev = loop[::-1]
         # A patch wound this way must face the side the rim faces face; if it faces away and
@@ -127,6 +140,7 @@ def fill_small_holes(
             patch_normal
         )
         if coherent and against and small_sheet:
+            log.debug("loop of %d edges left open: the outer rim of a small open sheet", len(loop))
             continue
         new_faces.append(zip_loop(vertices, rev, edge_set))
         zipped.append(rev)

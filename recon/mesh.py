@@ -25,6 +25,8 @@ Definitions:
   since faces that share a vertex are not tested; it makes a tiny handle).
 - A face is *opposed* (:func:`opposed_faces`) when the normals at two of its corners point
   more than 90 deg apart: it joins two opposed sheets (e.g. the two faces of a thin part).
+- A *bridge* is a connected set of opposed faces; one that carries a handle
+  (:func:`handle_bridges`) is a tunnel between the two faces of a thin part.
 - *Components* (:func:`vertex_components`, :func:`face_components`) are the connected
   components of the referenced vertices, two vertices being connected when a face uses both
   (so a bow-tie is one component).
@@ -52,6 +54,8 @@ __all__ = [
     "face_area_vectors",
     "face_components",
     "face_normals",
+    "handle_bridges",
+    "handle_count",
     "opposed_faces",
     "orientation_flips",
     "overlapping_faces",
@@ -461,3 +465,57 @@ def opposed_faces(normals: np.ndarray, faces: np.ndarray) -> np.ndarray:
     a, b, c = normals[f[:, 0]], normals[f[:, 1]], normals[f[:, 2]]
     ab, bc, ca = (np.einsum("ij,ij->i", x, y) for x, y in ((a, b), (b, c), (c, a)))
     return np.minimum(np.minimum(ab, bc), ca) < 0.0
+
+
+def handle_count(faces: np.ndarray, n_vertices: int) -> tuple[int, int, int]:
+    """Components ``c``, boundary loops ``b`` (:func:`boundary_components`) and handles of a
+    manifold mesh: ``(2 c - b - chi) / 2`` with ``chi = V - E + F`` over the used vertices.
+
+    Examples
+    --------
+    >>> handle_count(np.array([[0, 1, 2], [0, 2, 3]]), 4)
+    (1, 1, 0)
+    """
+    f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    if len(f) == 0:
+        return 0, 0, 0
+    keys, counts = np.unique(edge_keys(f, n_vertices), return_counts=True)
+    edges = np.stack([keys // n_vertices, keys % n_vertices], axis=1)
+    c, _ = vertex_components(f, n_vertices)
+    b = boundary_components(edges, counts, n_vertices)
+    chi = len(np.unique(f)) - len(keys) + len(f)
+    return c, b, (2 * c - b - chi) // 2
+
+
+def handle_bridges(normals: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Faces ``(F,)`` bool of the opposed bridges that carry a handle: tunnels between the two
+    faces of a thin part.
+
+    The opposed faces (:func:`opposed_faces`) fall into connected bridges. The rim of a thin
+    part is one (it closes the part's edge); a bridge across the part away from its rim makes
+    a tunnel between its faces, a handle the true surface does not have. Bridges are taken
+    smallest first, and one is marked when the mesh without it and the bridges marked before
+    has fewer handles (:func:`handle_count`). On a thin slab with one tunnel both the tunnel
+    and the rim carry the handle (either cut opens it); the tunnel is the smaller and goes
+    first, after which the rim carries none. Without a handle, nothing is marked.
+    """
+    f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    marked = np.zeros(len(f), dtype=bool)
+    if len(f) == 0:
+        return marked
+    n_v = int(f.max()) + 1
+    handles = handle_count(f, n_v)[2]
+    opposed = np.flatnonzero(opposed_faces(normals, f))
+    if handles <= 0 or len(opposed) == 0:
+        return marked
+    n, label = face_components(f[opposed], n_v)
+    sizes = np.bincount(label, minlength=n)
+    for k in np.argsort(sizes, kind="stable"):
+        trial = marked.copy()
+        trial[opposed[label == k]] = True
+        left = handle_count(f[~trial], n_v)[2]
+        if left < handles:
+            marked, handles = trial, left
+            if handles == 0:
+                break
+    return marked

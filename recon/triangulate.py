@@ -37,6 +37,8 @@ from .mesh import (
     edge_keys,
     face_area_vectors,
     face_components,
+    handle_bridges,
+    handle_count,
     opposed_faces,
     orientation_flips,
     overlapping_faces,
@@ -44,7 +46,6 @@ from .mesh import (
 )
 from .neighbors import build_neighbor_list
 from .particle_signs import consistent_normals
-from .topology import mesh_topology
 
 log = logging.getLogger(__name__)
 
@@ -155,31 +156,57 @@ def triangulate_particles(
     stats: dict = {"method": cfg.method, "faces_raw": int(len(faces))}
     args = (cfg, max_hole, is_covered, scale, crease)
     result = _repair(positions, normals, faces, dict(stats), *args)
+    if _count(result)[2] == 0:  # without a handle there is none to remove
+        return result
+    # A tunnel between the two faces of a thin part (a bridge of faces joining opposed sheets
+    # away from the part's rim) is a handle the surface does not have: drop the bridges that
+    # carry one (:func:`recon.mesh.handle_bridges`, smallest first) and repair again; hole
+    # filling caps their ends on each face.
+    bridges = handle_bridges(result.normals, result.faces)
+    if bridges.any():
+        here = scale if scale is None else scale[cKDTree(positions).query(result.vertices)[1]]
+        alt = _repair(
+            result.vertices,
+            result.normals,
+            result.faces[~bridges],
+            dict(result.stats),
+            cfg,
+            max_hole,
+            is_covered,
+            here,
+            result.crease,
+        )
+        alt.stats["holes_filled"] += result.stats["holes_filled"]
+        alt.stats["vertices_split"] += result.stats["vertices_split"]
+        if _better(alt, result):
+            log.debug("dropped %d faces of tunnels between opposed sheets", int(bridges.sum()))
+            result = alt
     opposed = opposed_faces(normals, faces)
-    if opposed.any() and _count(result)[2] > 0:  # without a handle there is none to remove
+    if opposed.any():
         # Opposite sheets never merge: a face whose corners face more than 90 deg apart can
         # bridge the two faces of a thin part into a handle (a 30 deg knife edge whose
-        # particles near the tip carry the other face's normal). Without those faces the
-        # mesh is kept when it has fewer handles and is no more open; where they closed a
-        # real rim (a blade's edge thinner than a spacing) dropping them tears it: kept.
+        # particles near the tip carry the other face's normal). Without all of those faces
+        # the mesh is kept when it has no more handles, components or boundary loops and
+        # fewer of one; where they closed a real rim (a blade's edge thinner than a spacing)
+        # dropping them tears it: kept.
         alt = _repair(positions, normals, faces[~opposed], dict(stats), *args)
-        if _fewer_handles(alt, result):
+        if _better(alt, result):
             log.debug("dropped %d faces joining opposed sheets", int(opposed.sum()))
             result = alt
     return result
 
 
-def _fewer_handles(alt: TriangulationResult, result: TriangulationResult) -> bool:
-    """Has ``alt`` fewer handles than ``result`` and no more components or boundary loops?
-    Handles of a manifold mesh: ``(2 c - b - chi) / 2`` (c components, b loops)."""
-    (ca, ba, ga), (cr, br, gr) = _count(alt), _count(result)
-    return ca <= cr and ba <= br and ga < gr
+def _better(alt: TriangulationResult, result: TriangulationResult) -> bool:
+    """Has ``alt`` no more components, boundary loops or handles than ``result``, and fewer of
+    one? Handles of a manifold mesh: ``(2 c - b - chi) / 2`` (c components, b loops)."""
+    a, r = _count(alt), _count(result)
+    return all(x <= y for x, y in zip(a, r, strict=True)) and a != r
 
 
-def _count(result: TriangulationResult) -> tuple[int, int, float]:
-    t = mesh_topology(result.vertices, result.faces)
-    c, b = t["components"], t["boundary_loops"]
-    return c, b, (2 * c - b - t["euler_characteristic"]) / 2
+def _count(result: TriangulationResult) -> tuple[int, int, int]:
+    """Components, boundary loops and handles of a repaired mesh
+    (:func:`recon.mesh.handle_count`)."""
+    return handle_count(result.faces, len(result.vertices))
 
 
 def _repair(

@@ -124,3 +124,22 @@ def test_rezip_is_local_and_equals_the_search_over_the_whole_mesh(monkeypatch, f
     assert len(seen) >= 3  # the crossing search and both untangling tests ran
     # the unrelated crossing far away took no part in any search
     assert not any(np.isin(vertices[far], s).all(axis=1).any() for s in seen)
+
+
+def test_every_loop_left_open_is_logged_with_the_rule_that_keeps_it(caplog):
+    """Which rule keeps a loop open (the knife's one-sided sheets: the open-sheet rule and
+    ``max_hole``) is in the debug log, with the loop's perimeter, width and seam support."""
+    import logging
+
+    v, f = _grid(6)
+    normals = np.tile([0.0, 0.0, 1.0], (len(v), 1))
+    with caplog.at_level(logging.DEBUG, logger="recon.holes"):
+        # data everywhere: the rim would be filled but is the outer rim of a small sheet
+        holes.fill_small_holes(v, normals, f, 4.0, lambda p: np.ones(len(p), bool), 100.0)
+        # no data test: a rim of perimeter 20 over a limit of 4
+        holes.fill_small_holes(v, normals, f, 4.0)
+    messages = [r.getMessage() for r in caplog.records if r.name == "recon.holes"]
+    assert messages == [
+        "loop of 20 edges left open: the outer rim of a small open sheet",
+        "loop of 20 edges left open: perimeter 20.0, width 5.00, seam support untested",
+    ]

@@ -538,3 +538,68 @@ def test_repair_passes_run_only_while_they_can_change_the_mesh(monkeypatch, hole
     v, vn, f = repair(res.vertices, res.normals, res.faces)
     assert np.array_equal(v, res.vertices) and np.array_equal(f, res.faces)
     assert np.array_equal(orient(res.vertices, res.normals, res.faces), res.faces)
+
+
+def _tunnel_slab(n=8, h=0.3):
+    """A closed thin slab (two n x n grids 2 h apart, normals +z above and -z below, their
+    rims joined by a band of faces) with a square tunnel through one middle cell: genus 1.
+    Band and tunnel both join the opposed faces; returns vertices, normals, faces and the
+    tunnel's faces (the last 8)."""
+    g = np.stack(np.meshgrid(np.arange(n), np.arange(n), indexing="ij"), -1).reshape(-1, 2)
+    v = np.vstack(
+        [np.column_stack([g, np.full(n * n, h)]), np.column_stack([g, np.full(n * n, -h)])]
+    )
+    nrm = np.repeat([[0.0, 0.0, 1.0], [0.0, 0.0, -1.0]], n * n, axis=0)
+    c, m = n // 2 - 1, n * n
+    faces = []
+    for i in range(n - 1):
+        for j in range(n - 1):
+            if (i, j) != (c, c):
+                a, b, d, e = i * n + j, (i + 1) * n + j, (i + 1) * n + j + 1, i * n + j + 1
+                faces += [[a, b, d], [a, d, e], [a + m, d + m, b + m], [a + m, e + m, d + m]]
+    ring = (
+        [i * n for i in range(n - 1)]
+        + [(n - 1) * n + j for j in range(n - 1)]
+        + [i * n + n - 1 for i in range(n - 1, 0, -1)]
+        + [j for j in range(n - 1, 0, -1)]
+    )
+    hole = [c * n + c, (c + 1) * n + c, (c + 1) * n + c + 1, c * n + c + 1]
+    for loop, outward in ((ring, True), (hole, False)):
+        for a, b in zip(loop, np.roll(loop, -1), strict=True):
+            pair = [[a, a + m, b], [b, a + m, b + m]]
+            faces += pair if outward else [t[::-1] for t in pair]
+    faces = np.array(faces, dtype=np.int64)
+    tunnel = np.zeros(len(faces), dtype=bool)
+    tunnel[-8:] = True
+    return v.astype(float), nrm, faces, tunnel
+
+
+def test_handle_bridges_marks_the_tunnel_through_a_thin_slab_not_its_rim():
+    """Both the rim band and the tunnel join the slab's opposed faces, and either cut removes
+    the handle; the smaller (the tunnel) is taken, after which the rim carries none."""
+    from recon.mesh import handle_bridges, handle_count, opposed_faces
+
+    v, nrm, f, tunnel = _tunnel_slab()
+    assert handle_count(f, len(v)) == (1, 0, 1)
+    assert opposed_faces(nrm, f).sum() > tunnel.sum()  # the rim band is opposed as well
+    assert np.array_equal(handle_bridges(nrm, f), tunnel)
+    assert not handle_bridges(nrm, f[~tunnel]).any()  # genus 0: nothing to cut
+
+
+def test_a_tunnel_between_the_faces_of_a_thin_part_is_dropped_and_its_ends_capped(monkeypatch):
+    """The held-out eared shape at 3,000 points had 4 such tunnels between an ear's faces.
+    Dropping every opposed face cannot remove them (it opens the rim, which they close too):
+    only the tunnel goes, and hole filling caps its two ends."""
+    import open3d as o3d
+
+    import recon.triangulate as tri
+
+    v, nrm, f, _ = _tunnel_slab()
+    monkeypatch.setattr(tri, "ball_pivoting", lambda *a: f.copy())
+    res = triangulate_particles(v, nrm, TriangulationConfig(), max_hole=4.0, resign=False)
+    t = mesh_topology(res.vertices, res.faces)
+    assert t["components"] == 1 and t["watertight"] and t["genus"] == 0
+    m = o3d.geometry.TriangleMesh(
+        o3d.utility.Vector3dVector(res.vertices), o3d.utility.Vector3iVector(res.faces)
+    )
+    assert m.is_watertight() and m.is_vertex_manifold() and m.is_orientable()
