@@ -1,0 +1,84 @@
+"""Per-point numpy work in row blocks over the fit's threads (:mod:`recon.row_blocks`): the
+same result, bit for bit, whatever the threads and blocks."""
+
+from __future__ import annotations
+
+import threading
+
+import numba
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+
+from recon.creases import _pca
+from recon.kernels.options import thread_count
+from recon.row_blocks import MIN_ROWS, for_row_blocks, row_blocks
+
+needs_two = pytest.mark.skipif(
+    int(numba.config.NUMBA_NUM_THREADS) < 2, reason="numba has fewer than 2 threads here"
+)
+
+
+@pytest.mark.parametrize(("n", "block", "parts"), [(0, 5, 2), (1, 5, 2), (10, 3, 1), (10, 100, 3)])
+def test_row_blocks_cover_the_rows_in_order(n, block, parts):
+    blocks = row_blocks(n, block, parts)
+    assert np.array_equal(np.concatenate([np.arange(n)[b] for b in blocks] or [[]]), np.arange(n))
+    assert all(b.stop - b.start <= block for b in blocks)
+    assert len(blocks) >= min(parts, n)
+
+
+@needs_two
+def test_blocks_run_in_the_fits_threads_only():
+    n = 3 * MIN_ROWS
+    for threads, many in ((1, False), (2, True)):
+        seen: set[str] = set()
+        out = np.zeros(n)
+
+        def fn(b: slice, seen=seen, out=out) -> None:
+            seen.add(threading.current_thread().name)
+            out[b] = np.arange(n)[b] * 2.0
+
+        with thread_count(threads):
+            for_row_blocks(fn, n, n)
+        assert np.array_equal(out, np.arange(n) * 2.0)
+        if many:  # a pool of two (which of its threads takes a block is up to the pool)
+            assert all(name.startswith("oprecon-rows") for name in seen), seen
+        else:
+            assert seen == {threading.current_thread().name}
+
+
+def test_an_error_in_a_block_propagates():
+    def fn(b: slice) -> None:
+        raise ValueError("bad block")
+
+    with thread_count(2), pytest.raises(ValueError, match="bad block"):
+        for_row_blocks(fn, 3 * MIN_ROWS, 10**6)
+
+
+@needs_two
+def test_crease_pca_is_bit_identical_with_one_and_two_threads_and_any_block(monkeypatch):
+    import recon.creases
+
+    rng = np.random.default_rng(5)
+    pts = rng.normal(size=(9000, 3)) * [1.0, 1.0, 0.05]
+    tree = cKDTree(pts)
+    _, idx = tree.query(pts, 24)
+    idx = idx.astype(np.int32)
+    calls: list[int] = []
+    real = recon.creases.for_row_blocks
+    monkeypatch.setattr(
+        recon.creases, "for_row_blocks", lambda fn, n, b: calls.append(n) or real(fn, n, b)
+    )
+    results = []
+    for threads, block in ((1, 65536), (2, 65536), (2, 1000), (1, 777)):
+        monkeypatch.setattr(recon.creases, "BLOCK", block)
+        with thread_count(threads):
+            results.append(_pca(pts, tree, 20, idx))
+    assert calls == [len(pts)] * 4  # the shared neighbours' rows go through the blocks
+    for normals, variation in results[1:]:
+        assert np.array_equal(normals, results[0][0])
+        assert np.array_equal(variation, results[0][1])
+    # and the k-d tree path (no shared neighbours) gives the same rows
+    with thread_count(2):
+        normals, variation = _pca(pts, tree, 20, None)
+    assert np.array_equal(variation, results[0][1])
