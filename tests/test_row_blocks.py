@@ -82,3 +82,32 @@ def test_crease_pca_is_bit_identical_with_one_and_two_threads_and_any_block(monk
     with thread_count(2):
         normals, variation = _pca(pts, tree, 20, None)
     assert np.array_equal(variation, results[0][1])
+
+
+@needs_two
+@pytest.mark.parametrize("radius", [None, 0.3])
+def test_normal_estimate_is_bit_identical_with_one_and_two_threads_and_any_block(
+    radius, monkeypatch
+):
+    import recon.normals
+    from recon.normals import estimate_normals
+
+    rng = np.random.default_rng(6)
+    pts = rng.normal(size=(9000, 3)) * [1.0, 1.0, 0.05]
+    dist, idx = cKDTree(pts).query(pts, 24)
+    shared = (dist, idx.astype(np.int32))
+    calls: list[int] = []
+    real = recon.normals.for_row_blocks
+    monkeypatch.setattr(
+        recon.normals, "for_row_blocks", lambda fn, n, b: calls.append(n) or real(fn, n, b)
+    )
+    results = []
+    for threads, chunk in ((1, 16384), (2, 16384), (2, 1000), (1, 777)):
+        monkeypatch.setattr(recon.normals, "_CHUNK", chunk)
+        with thread_count(threads):
+            results.append(estimate_normals(pts, k=20, radius=radius, neighbors=shared))
+    assert calls == [len(pts)] * 4
+    with thread_count(2):  # the k-d tree path
+        results.append(estimate_normals(pts, k=20, radius=radius))
+    for normals in results[1:]:
+        assert np.array_equal(normals, results[0])
