@@ -55,20 +55,30 @@ def test_an_error_in_a_block_propagates():
         for_row_blocks(fn, 3 * MIN_ROWS, 10**6)
 
 
+def _flat_cloud(seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """9,000 points of a thin slab, their 24 nearest (distances, int32 indices)."""
+    pts = np.random.default_rng(seed).normal(size=(9000, 3)) * [1.0, 1.0, 0.05]
+    dist, idx = cKDTree(pts).query(pts, 24)
+    return pts, dist, idx.astype(np.int32)
+
+
+def _count_block_calls(monkeypatch, module) -> list[int]:
+    """The row counts of every ``for_row_blocks`` call made by ``module``."""
+    calls: list[int] = []
+    real = module.for_row_blocks
+    monkeypatch.setattr(
+        module, "for_row_blocks", lambda fn, n, b: calls.append(n) or real(fn, n, b)
+    )
+    return calls
+
+
 @needs_two
 def test_crease_pca_is_bit_identical_with_one_and_two_threads_and_any_block(monkeypatch):
     import recon.creases
 
-    rng = np.random.default_rng(5)
-    pts = rng.normal(size=(9000, 3)) * [1.0, 1.0, 0.05]
+    pts, _, idx = _flat_cloud(5)
     tree = cKDTree(pts)
-    _, idx = tree.query(pts, 24)
-    idx = idx.astype(np.int32)
-    calls: list[int] = []
-    real = recon.creases.for_row_blocks
-    monkeypatch.setattr(
-        recon.creases, "for_row_blocks", lambda fn, n, b: calls.append(n) or real(fn, n, b)
-    )
+    calls = _count_block_calls(monkeypatch, recon.creases)
     results = []
     for threads, block in ((1, 65536), (2, 65536), (2, 1000), (1, 777)):
         monkeypatch.setattr(recon.creases, "BLOCK", block)
@@ -92,15 +102,9 @@ def test_normal_estimate_is_bit_identical_with_one_and_two_threads_and_any_block
     import recon.normals
     from recon.normals import estimate_normals
 
-    rng = np.random.default_rng(6)
-    pts = rng.normal(size=(9000, 3)) * [1.0, 1.0, 0.05]
-    dist, idx = cKDTree(pts).query(pts, 24)
-    shared = (dist, idx.astype(np.int32))
-    calls: list[int] = []
-    real = recon.normals.for_row_blocks
-    monkeypatch.setattr(
-        recon.normals, "for_row_blocks", lambda fn, n, b: calls.append(n) or real(fn, n, b)
-    )
+    pts, dist, idx = _flat_cloud(6)
+    shared = (dist, idx)
+    calls = _count_block_calls(monkeypatch, recon.normals)
     results = []
     for threads, chunk in ((1, 16384), (2, 16384), (2, 1000), (1, 777)):
         monkeypatch.setattr(recon.normals, "_CHUNK", chunk)
