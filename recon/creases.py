@@ -61,6 +61,7 @@ from scipy.spatial import cKDTree
 from .geometry import as_points
 from .kernels.gauss_map import gauss_map_kernel
 from .kernels.options import query_workers
+from .row_blocks import for_row_blocks
 
 __all__ = ["SMOOTH", "CREASE", "CORNER", "Creases", "detect_creases", "orient_across_creases"]
 
@@ -489,11 +490,10 @@ def _pca(
     """PCA normals and surface variation ``l3 / (l1 + l2 + l3)`` of ``k`` neighbours (the
     first ``k`` columns of ``nearest``, the neighbours by distance, when given)."""
     normals, variation = np.empty((len(pts), 3)), np.empty(len(pts))
-    for b in _blocks(len(pts)):  # a (block, k, 3) gather at a time
-        if nearest is not None:
-            idx = nearest[b, :k]
-        else:
-            _, idx = tree.query(pts[b], k=k, workers=query_workers())
+    workers = query_workers()
+
+    def rows(b: slice) -> None:  # a (block, k, 3) gather at a time
+        idx = nearest[b, :k] if nearest is not None else tree.query(pts[b], k, workers=workers)[1]
         nb = pts[idx]
         nb = nb - nb.mean(axis=1, keepdims=True)
         cov = np.einsum("nki,nkj->nij", nb, nb)
@@ -501,6 +501,12 @@ def _pca(
         total = w.sum(axis=1)
         variation[b] = np.where(total > 0, w[:, 0] / np.where(total > 0, total, 1.0), 0.0)
         normals[b] = v[:, :, 0]
+
+    if nearest is None:  # the k-d tree query is threaded itself
+        for b in _blocks(len(pts)):
+            rows(b)
+    else:  # numpy without the GIL: blocks in threads
+        for_row_blocks(rows, len(pts), BLOCK)
     return normals, variation
 
 

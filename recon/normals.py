@@ -66,6 +66,7 @@ from .geometry import as_points, median_variation
 from .kernels.options import query_workers
 from .kernels.thin_sides import split_sides_kernel
 from .orientation_graph import edge_costs
+from .row_blocks import for_row_blocks, row_blocks
 
 if TYPE_CHECKING:
     from .cloud import PointCloud
@@ -206,13 +207,14 @@ def estimate_normals(
         neighbors = None  # too narrow: query
     tree = cKDTree(pts) if neighbors is None else None
     normals = np.zeros((n, 3))
-    for start in range(0, n, _CHUNK):
-        query = pts[start : start + _CHUNK]
+    workers = query_workers()
+
+    def rows(b: slice) -> None:
+        query = pts[b]
         if tree is None:
-            dist = neighbors[0][start : start + _CHUNK, :k_eff]
-            idx = neighbors[1][start : start + _CHUNK, :k_eff]
+            dist, idx = neighbors[0][b, :k_eff], neighbors[1][b, :k_eff]
         else:
-            dist, idx = tree.query(query, k=k_eff, workers=query_workers())
+            dist, idx = tree.query(query, k=k_eff, workers=workers)
         idx = idx.reshape(len(query), k_eff)
         if radius is not None:
             dist = dist.reshape(len(query), k_eff)
@@ -221,7 +223,13 @@ def estimate_normals(
             weights = np.where(enough[:, None], inside, True).astype(np.float64)
         else:
             weights = None
-        normals[start : start + len(query)] = _pca_normals(pts, query, idx, weights)
+        normals[b] = _pca_normals(pts, query, idx, weights)
+
+    if tree is None:  # shared neighbours: numpy without the GIL, blocks in threads
+        for_row_blocks(rows, n, _CHUNK)
+    else:  # the k-d tree query is threaded itself
+        for b in row_blocks(n, _CHUNK):
+            rows(b)
     return normals
 
 

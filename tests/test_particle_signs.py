@@ -83,3 +83,54 @@ def test_knife_edge_with_a_wrong_patch_meshes_as_one_sheet():
     res = triangulate_particles(p, wrong, TriangulationConfig(), max_hole=4.0)
     t = mesh_topology(res.vertices, res.faces)
     assert t["components"] == 1 and t["boundary_loops"] == 1 and t["consistently_oriented"]
+
+
+def _sphere(n=800):
+    """Points on the unit sphere (Fibonacci spiral) and their outward normals."""
+    i = np.arange(n) + 0.5
+    z = 1.0 - 2.0 * i / n
+    phi = np.pi * (1.0 + 5.0**0.5) * i
+    r = np.sqrt(1.0 - z * z)
+    p = np.c_[r * np.cos(phi), r * np.sin(phi), z]
+    return p * 10.0, p.copy()
+
+
+def _inputs():
+    """A flat sheet, and a sphere with outward and inward normals."""
+    h = _hex_sheet()
+    s, m = _sphere()
+    return [(h, np.tile([0.0, 0.0, 1.0], (len(h), 1))), (s, m), (s, -m)]
+
+
+@pytest.mark.parametrize("case", range(3))
+def test_consistent_input_skips_the_propagation(case, monkeypatch):
+    """Every neighbour pair agrees (all reflected dots >= 0): the normals come back as they
+    are, without the spanning tree (the screen fires on clean scans)."""
+    import recon.particle_signs as ps
+
+    p, n = _inputs()[case]
+
+    def fail(*args, **kwargs):
+        raise AssertionError("propagate_signs ran on consistent normals")
+
+    monkeypatch.setattr(ps, "propagate_signs", fail)
+    assert consistent_normals(p, n) is n
+
+
+@pytest.mark.parametrize("case", range(3))
+@pytest.mark.parametrize("flip_one", [False, True])
+def test_the_screen_gives_what_the_full_re_signing_gives(case, flip_one, monkeypatch):
+    """The screen is exact: with it switched off, the propagation and the patch vote return
+    the same normals on consistent input; with one normal flipped it does not fire and that
+    normal is re-signed."""
+    import recon.particle_signs as ps
+
+    p, n = _inputs()[case]
+    wrong = n.copy()
+    if flip_one:
+        wrong[len(n) // 3] *= -1.0
+    screened = consistent_normals(p, wrong)
+    monkeypatch.setattr(ps, "all_agree", lambda dots: False)
+    full = consistent_normals(p, wrong)
+    assert np.array_equal(screened, full)
+    assert np.array_equal(screened, n)

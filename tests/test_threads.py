@@ -269,3 +269,33 @@ def test_threads_limit_every_kd_tree_query_of_a_fit(monkeypatch):
     cloud = read_points(SPHERE)
     reconstruct(cloud, apply_overrides(ReconConfig(), {"threads": 1}))
     assert seen and set(seen) == {1}, sorted(set(seen))
+
+
+@needs_two
+def test_report_measures_the_mesh_in_two_threads_with_the_same_figures(monkeypatch):
+    """With two threads the report's topology and triangle quality run in a second thread
+    beside the distances (:func:`recon.fitting.report.measure_mesh`); with one, in the fit's
+    thread. Every measure is the same either way."""
+    import threading
+
+    import recon.fitting.report as report
+    from recon.fitting import reconstruct
+    from recon.io import read_points
+
+    where: list[str] = []
+    real = report.quality_report
+
+    def spy(*args, **kwargs):
+        where.append(threading.current_thread().name)
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(report, "quality_report", spy)
+    cloud = read_points(SPHERE)
+    keys = ("topology", "triangle_quality", "mesh_bbox_diag", "fidelity", "mesh_to_input")
+    measures = {}
+    for n in (1, 2):
+        d = reconstruct(cloud, apply_overrides(ReconConfig(), {"threads": n})).report.to_dict()
+        measures[n] = {key: d[key] for key in keys}
+    assert where[0] == threading.current_thread().name
+    assert where[1].startswith("oprecon-report")
+    assert measures[1] == measures[2]

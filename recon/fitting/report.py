@@ -16,12 +16,14 @@ from __future__ import annotations
 
 import copy
 from collections.abc import Mapping
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import MISSING, dataclass, field, fields
 from pathlib import Path
 from typing import Any, NamedTuple, TypeVar
 
 import numpy as np
 
+from ..kernels.options import query_workers
 from ..metrics import distance_stats, fidelity, quality_report, sample_surface
 from ..surface import DataSurface
 
@@ -552,11 +554,15 @@ def measure_mesh(
     MeshMeasures
     """
     absolute = vertices * r0
-    quality = quality_report(None, absolute, faces)
-    fid = fidelity(points, absolute, faces, diag, within={"r0": r0})
-    n_samples = min(MESH_SAMPLES_MAX, MESH_SAMPLES_PER_FACE * len(faces))
-    samples, _ = sample_surface(vertices, faces, n_samples, rng)
-    d_mesh, _ = surface.nearest(samples)
+    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="oprecon-report") as pool:
+        # topology and triangle quality (numpy and scipy only: no numba parallel region, so
+        # any threading layer allows it) beside the distances, when the fit has 2+ threads
+        side = pool.submit(quality_report, None, absolute, faces) if query_workers() > 1 else None
+        fid = fidelity(points, absolute, faces, diag, within={"r0": r0})
+        n_samples = min(MESH_SAMPLES_MAX, MESH_SAMPLES_PER_FACE * len(faces))
+        samples, _ = sample_surface(vertices, faces, n_samples, rng)
+        d_mesh, _ = surface.nearest(samples)
+        quality = quality_report(None, absolute, faces) if side is None else side.result()
     reach = max(1.0, SAMPLING_REACH * median_spacing / r0)
     mesh_to_input = {
         **distance_stats(d_mesh * r0, diag),
