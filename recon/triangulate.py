@@ -31,7 +31,7 @@ from scipy.spatial import cKDTree
 
 from .config import TriangulationConfig
 from .crease_mesh import flip_straddling_edges, insert_crease_edges, pivot_positions
-from .holes import fill_small_holes
+from .holes import fill_small_holes, loft_nearest_loops
 from .kernels.circumsphere import circumsphere_kernel
 from .mesh import (
     edge_keys,
@@ -62,6 +62,9 @@ class TriangulationResult:
 #: Loops whose interior holds data are triangulation gaps: closed up to this many times the
 #: ``max_hole`` perimeter.
 COVERED_HOLE_FACTOR = 3.0
+#: Two boundary loops left where opposed faces closed a thin edge are joined by a strip when
+#: each lies within this median distance [local spacings] of the other.
+LOFT_GAP = 2.0
 #: Debris removal: components with fewer faces than this and than ``MIN_COMPONENT_FRACTION``
 #: of the largest component are dropped.
 MIN_COMPONENT_FACES = 50
@@ -191,7 +194,28 @@ def triangulate_particles(
         if _better(alt, result):
             log.debug("dropped %d faces joining opposed sheets", int(opposed.sum()))
             result = alt
+        else:
+            # the opposed band closed the edge of a part thinner than a spacing, and carried
+            # the handles: close the edge again with a plain strip between the two faces' rims
+            strip = _relofted(alt, positions, args)
+            if strip is not None and _better(strip, result):
+                log.debug("re-closed a thin edge without its %d opposed faces", int(opposed.sum()))
+                result = strip
     return result
+
+
+def _relofted(
+    alt: TriangulationResult, positions: np.ndarray, args: tuple
+) -> TriangulationResult | None:
+    """``alt`` with its pairs of nearby boundary loops joined by strips
+    (:func:`recon.holes.loft_nearest_loops`, ``LOFT_GAP``) and repaired again; None without
+    such a pair."""
+    scale = args[3]
+    local = scale if scale is None else scale[cKDTree(positions).query(alt.vertices)[1]]
+    faces = loft_nearest_loops(alt.vertices, alt.faces, LOFT_GAP, local)
+    if len(faces) == len(alt.faces):
+        return None
+    return _repair(alt.vertices, alt.normals, faces, dict(alt.stats), *args[:3], local, alt.crease)
 
 
 def _better(alt: TriangulationResult, result: TriangulationResult) -> bool:
