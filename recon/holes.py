@@ -358,24 +358,21 @@ def loft_loops(vertices: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray
     b_fwd = np.roll(b, -int(j0))
     best = None
     for bb in (b_fwd, np.roll(b_fwd[::-1], 1)):
-        steps = np.empty(m + n, dtype=np.int8)
-        pa = np.ascontiguousarray(vertices[np.append(a, a[0])], dtype=np.float64)
-        pb = np.ascontiguousarray(vertices[np.append(bb, bb[0])], dtype=np.float64)
+        steps = np.empty(m + n - 2, dtype=np.int8)
+        pa = np.ascontiguousarray(vertices[a], dtype=np.float64)
+        pb = np.ascontiguousarray(vertices[bb], dtype=np.float64)
         total = loft_path_kernel(pa, pb, steps)
         if best is None or total < best[0]:
             best = (total, bb, steps)
     _, b, steps = best
+    # close from (m - 1, n - 1) to (m, n) = (0, 0) through the edge (a_0, b_n-1) unless the
+    # path already used it (it ran up the whole of b first): then through (a_m-1, b_0)
+    last = np.array([1, 0] if steps[: n - 1].all() else [0, 1], dtype=np.int8)
+    steps = np.concatenate([steps, last])
     i = np.concatenate([[0], np.cumsum(steps == 0)[:-1]])
     j = np.concatenate([[0], np.cumsum(steps == 1)[:-1]])
     step_a = steps == 0
-    return np.stack(
-        [
-            a[i % m],
-            np.where(step_a, a[(i + 1) % m], b[(j + 1) % n]),
-            b[j % n],
-        ],
-        axis=1,
-    )
+    return np.stack([a[i % m], np.where(step_a, a[(i + 1) % m], b[(j + 1) % n]), b[j % n]], axis=1)
 
 
 def loft_nearest_loops(

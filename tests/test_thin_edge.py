@@ -8,7 +8,7 @@ import open3d as o3d
 
 from recon.holes import loft_loops, loft_nearest_loops
 from recon.intersections import self_intersections
-from recon.mesh import boundary_loops, handle_count
+from recon.mesh import boundary_loops, count_edge_faces, handle_count
 from recon.topology import mesh_topology
 from recon.triangulate import orient_consistently
 
@@ -66,3 +66,17 @@ def test_loops_farther_apart_than_the_gap_stay_open():
     v, f = _two_faces(notch=False)
     v[v[:, 2] < 0, 2] -= 5.0  # the faces 5.8 apart: two sheets, not one thin part
     assert len(loft_nearest_loops(v, f, max_gap=2.0)) == len(f)
+
+
+def test_a_strip_between_two_small_loops_stays_manifold():
+    # the cheapest path along the grid of vertex pairs may run along one loop first; it must
+    # not come back to its first edge (two triangles 0.5 apart used to be capped by fans)
+    rng = np.random.default_rng(0)
+    for m, n in ((3, 3), (3, 5), (4, 3), (7, 10)):
+        for _ in range(20):
+            v = rng.normal(size=(m + n, 3))
+            v[m:, 2] += 0.5
+            b = np.arange(m, m + n)[:: rng.choice([1, -1])]
+            strip = loft_loops(v, np.arange(m), b)
+            assert handle_count(strip, m + n) == (1, 2, 0)
+            assert count_edge_faces(strip)[1].max() == 2

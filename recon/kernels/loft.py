@@ -17,20 +17,20 @@ from .options import EXACT_JIT_OPTIONS
 
 @njit(**EXACT_JIT_OPTIONS)
 def loft_path_kernel(pa, pb, steps):  # pragma: no cover - numba
-    """Cheapest strip between polylines ``pa`` (m + 1 points) and ``pb`` (n + 1 points).
+    """Cheapest strip between open polylines ``pa`` (m points) and ``pb`` (n points).
 
     Grid node (i, j) is the edge between ``pa[i]`` and ``pb[j]``; a step from (i, j) to
     (i + 1, j) adds the triangle (a_i, a_i+1, b_j) and costs ``|a_i+1 - b_j|``, one to
     (i, j + 1) the triangle (a_i, b_j+1, b_j) at ``|a_i - b_j+1|`` (F77's shortest path, with
     the new edge's length as the cost). Writes ``steps[k]`` = 0 (advance a) or 1 (advance b)
-    for the m + n steps from (0, 0) to (m, n) and returns the total cost.
+    for the m + n - 2 steps from (0, 0) to (m - 1, n - 1) and returns the total cost.
     """
-    m, n = pa.shape[0] - 1, pb.shape[0] - 1
-    cost = np.full((m + 1, n + 1), np.inf)
-    came = np.zeros((m + 1, n + 1), dtype=np.int8)
+    m, n = pa.shape[0], pb.shape[0]
+    cost = np.full((m, n), np.inf)
+    came = np.zeros((m, n), dtype=np.int8)
     cost[0, 0] = np.sqrt(((pa[0] - pb[0]) ** 2).sum())
-    for i in range(m + 1):
-        for j in range(n + 1):
+    for i in range(m):
+        for j in range(n):
             if i > 0:
                 c = cost[i - 1, j] + np.sqrt(((pa[i] - pb[j]) ** 2).sum())
                 if c < cost[i, j]:
@@ -41,11 +41,11 @@ def loft_path_kernel(pa, pb, steps):  # pragma: no cover - numba
                 if c < cost[i, j]:
                     cost[i, j] = c
                     came[i, j] = 1
-    i, j = m, n
-    for k in range(m + n - 1, -1, -1):
+    i, j = m - 1, n - 1
+    for k in range(m + n - 3, -1, -1):
         steps[k] = came[i, j]
         if came[i, j] == 0:
             i -= 1
         else:
             j -= 1
-    return cost[m, n]
+    return cost[m - 1, n - 1]
