@@ -33,8 +33,10 @@ __all__ = [
     "fill_small_holes",
     "loft_loops",
     "loft_nearest_loops",
+    "neck_between",
     "loop_width",
     "rezip_crossing_loops",
+    "thicken_sheet",
     "zip_loop",
 ]
 
@@ -418,3 +420,53 @@ def loft_nearest_loops(
         if gap[i, j] <= max_gap * here:
             strips.append(loft_loops(vertices, loops[i], loops[j]))
     return np.concatenate([faces, *strips]) if strips else faces
+
+
+def thicken_sheet(
+    vertices: np.ndarray, faces: np.ndarray, half: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """A one-sided open sheet (a disc: one boundary loop) as a thin closed body: two copies
+    ``half`` off it along its (area-weighted) vertex normals, the lower one turned over,
+    joined round the rim by a strip. Returns the new vertices (the upper copy, then the lower
+    one, in the order of ``np.unique(faces)``) and faces indexing them.
+
+    Examples
+    --------
+    >>> v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], float)
+    >>> nv, nf = thicken_sheet(v, np.array([[0, 1, 2]]), 0.1)
+    >>> nv[:, 2].tolist(), len(nf)
+    ([0.1, 0.1, 0.1, -0.1, -0.1, -0.1], 8)
+    """
+    used, local = np.unique(np.asarray(faces, dtype=np.int64), return_inverse=True)
+    local = local.reshape(-1, 3)
+    k = len(used)
+    normal = np.zeros((k, 3))
+    area = face_area_vectors(vertices[used], local)
+    for c in range(3):
+        np.add.at(normal, local[:, c], area)
+    normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-300)
+    p = vertices[used]
+    (rim,) = boundary_loops(local)
+    a, b = rim, np.roll(rim, -1)
+    strip = np.concatenate([np.stack([a, a + k, b], 1), np.stack([b, a + k, b + k], 1)])
+    new_faces = np.concatenate([local, local[:, ::-1] + k, strip])
+    return np.concatenate([p + half * normal, p - half * normal]), new_faces
+
+
+def neck_between(
+    vertices: np.ndarray, faces: np.ndarray, a: np.ndarray, b: np.ndarray, candidates: int = 8
+) -> np.ndarray | None:
+    """Join two closed components by a short tube (a connected sum): ``faces`` without one
+    face of each (``a``, ``b``: face indices) plus the strip between their corners
+    (:func:`loft_loops`), at the closest of the ``candidates`` nearest pairs of faces whose
+    tube crosses no face; None when every one crosses."""
+    ca, cb = vertices[faces[a]].mean(axis=1), vertices[faces[b]].mean(axis=1)
+    dist, nearest = cKDTree(cb).query(ca)
+    for i in np.argsort(dist)[:candidates]:
+        fa, fb = int(a[i]), int(b[nearest[i]])
+        tube = loft_loops(vertices, faces[fa], faces[fb])
+        joined = np.concatenate([np.delete(faces, [fa, fb], axis=0), tube])
+        subset = np.arange(len(joined) - len(tube), len(joined))
+        if len(self_intersections(vertices, joined, subset)) == 0:
+            return joined
+    return None

@@ -10,7 +10,7 @@ from recon.holes import loft_loops, loft_nearest_loops
 from recon.intersections import self_intersections
 from recon.mesh import boundary_loops, count_edge_faces, handle_count
 from recon.topology import mesh_topology
-from recon.triangulate import orient_consistently
+from recon.triangulate import TriangulationResult, _sheets_thickened, orient_consistently
 
 
 def _grid(n: int, step: float, z: float, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
@@ -80,3 +80,33 @@ def test_a_strip_between_two_small_loops_stays_manifold():
             strip = loft_loops(v, np.arange(m), b)
             assert handle_count(strip, m + n) == (1, 2, 0)
             assert count_edge_faces(strip)[1].max() == 2
+
+
+def _body_and_sheet(gap: float) -> TriangulationResult:
+    """A closed sphere (radius 5) and, ``gap`` beyond its equator, a one-sided open 5 x 5
+    sheet in z = 0: the merged faces of a part thinner than a spacing, continuing the body."""
+    sphere = o3d.geometry.TriangleMesh.create_sphere(radius=5.0, resolution=20)
+    bv, bf = np.asarray(sphere.vertices), np.asarray(sphere.triangles)
+    sv, sf = _grid(6, 1.0, 0.0, np.random.default_rng(0))
+    sv[:, 0] += 5.0 + gap + 2.5
+    v = np.concatenate([bv, sv])
+    normals = np.concatenate([bv / 5.0, np.tile([0.0, 0.0, 1.0], (len(sv), 1))])
+    return TriangulationResult(v, np.concatenate([bf, sf + len(bv)]), normals, {})
+
+
+def test_a_one_sided_sheet_at_a_closed_body_becomes_part_of_it():
+    result = _body_and_sheet(gap=0.5)
+    assert handle_count(result.faces, len(result.vertices)) == (2, 1, 0)
+    thick = _sheets_thickened(result)
+    assert thick is not None
+    topo = mesh_topology(thick.vertices, thick.faces)
+    assert topo["watertight"] and topo["components"] == 1 and topo["genus"] == 0, topo
+    assert len(self_intersections(thick.vertices, thick.faces)) == 0
+    mesh = o3d.geometry.TriangleMesh(
+        o3d.utility.Vector3dVector(thick.vertices), o3d.utility.Vector3iVector(thick.faces)
+    )
+    assert mesh.is_watertight() and mesh.is_orientable()
+
+
+def test_a_sheet_away_from_the_body_stays():
+    assert _sheets_thickened(_body_and_sheet(gap=3.0)) is None
