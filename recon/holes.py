@@ -14,8 +14,10 @@ import logging
 from collections.abc import Callable
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from .intersections import face_spheres, faces_near_balls, self_intersections, untangle
+from .kernels.loft import loft_path_kernel
 from .mesh import (
     boundary_loops,
     count_edge_faces,
@@ -26,7 +28,17 @@ from .mesh import (
 
 log = logging.getLogger(__name__)
 
-__all__ = ["across_points", "fill_small_holes", "loop_width", "rezip_crossing_loops", "zip_loop"]
+__all__ = [
+    "across_points",
+    "fill_small_holes",
+    "loft_loops",
+    "loft_nearest_loops",
+    "neck_between",
+    "loop_width",
+    "rezip_crossing_loops",
+    "thicken_sheet",
+    "zip_loop",
+]
 
 #: A loop whose rim faces point against its patch is kept open when its component's area is
 #: below this many times the patch's area (the outer rim of a small open sheet).
@@ -322,3 +334,139 @@ def _ring_step(loop: np.ndarray, a: int, b: int) -> int:
     where = {int(v): i for i, v in enumerate(loop)}
     d = (where[int(b)] - where[int(a)]) % len(loop)
     return 1 if d == 1 else -1 if d == len(loop) - 1 else d
+
+
+def loft_loops(vertices: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Faces ``(len(a) + len(b), 3)`` of a strip (an annulus) joining two closed loops.
+
+    The loops are walked side by side from their closest pair of vertices along the strip
+    whose new edges are shortest in total (Fuchs, Kedem & Uselton 1977:
+    :func:`recon.kernels.loft.loft_path_kernel`), in the direction of ``b`` that gives the
+    shorter one. No vertex is added. Winding is left to the caller.
+
+    Examples
+    --------
+    >>> t = np.linspace(0, 2 * np.pi, 6, endpoint=False)
+    >>> ring = np.stack([np.cos(t), np.sin(t), np.zeros(6)], axis=1)
+    >>> v = np.concatenate([ring, ring + [0, 0, 1]])
+    >>> loft_loops(v, np.arange(6), np.arange(6, 12)[::-1]).shape
+    (12, 3)
+    """
+    a, b = np.asarray(a, dtype=np.int64), np.asarray(b, dtype=np.int64)
+    m, n = len(a), len(b)
+    dist = np.linalg.norm(vertices[a][:, None, :] - vertices[b][None, :, :], axis=2)
+    i0, j0 = np.unravel_index(np.argmin(dist), dist.shape)
+    a = np.roll(a, -int(i0))
+    b_fwd = np.roll(b, -int(j0))
+    best = None
+    for bb in (b_fwd, np.roll(b_fwd[::-1], 1)):
+        steps = np.empty(m + n - 2, dtype=np.int8)
+        pa = np.ascontiguousarray(vertices[a], dtype=np.float64)
+        pb = np.ascontiguousarray(vertices[bb], dtype=np.float64)
+        total = loft_path_kernel(pa, pb, steps)
+        if best is None or total < best[0]:
+            best = (total, bb, steps)
+    _, b, steps = best
+    # close from (m - 1, n - 1) to (m, n) = (0, 0) through the edge (a_0, b_n-1) unless the
+    # path already used it (it ran up the whole of b first): then through (a_m-1, b_0)
+    last = np.array([1, 0] if steps[: n - 1].all() else [0, 1], dtype=np.int8)
+    steps = np.concatenate([steps, last])
+    i = np.concatenate([[0], np.cumsum(steps == 0)[:-1]])
+    j = np.concatenate([[0], np.cumsum(steps == 1)[:-1]])
+    step_a = steps == 0
+    return np.stack([a[i % m], np.where(step_a, a[(i + 1) % m], b[(j + 1) % n]), b[j % n]], axis=1)
+
+
+def loft_nearest_loops(
+    vertices: np.ndarray, faces: np.ndarray, max_gap: float, spacing: np.ndarray | None = None
+) -> np.ndarray:
+    """``faces`` with each pair of mutually nearest boundary loops joined by a strip
+    (:func:`loft_loops`), when each loop's vertices lie within ``max_gap`` of the other's in
+    median (times the median ``spacing`` (per vertex) at the two loops' vertices).
+
+    This closes the edge of a part thinner than a spacing again where the faces across it
+    were dropped (:func:`recon.triangulate.triangulate_particles`): the rims of its two faces
+    are two loops side by side.
+
+    Examples
+    --------
+    Two discs (fans round a centre) half a unit apart become one closed surface:
+
+    >>> t = np.linspace(0, 2 * np.pi, 8, endpoint=False)
+    >>> ring = np.stack([np.cos(t), np.sin(t), np.zeros(8)], axis=1)
+    >>> v = np.concatenate([ring, ring + [0, 0, 0.5], [[0, 0, 0], [0, 0, 0.5]]])
+    >>> k = np.arange(8)
+    >>> fans = [np.stack([np.full(8, c), o + (k + 1) % 8, o + k], 1) for c, o in ((16, 0), (17, 8))]
+    >>> loft_nearest_loops(v, np.concatenate(fans), 2.0).shape
+    (32, 3)
+    """
+    faces = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    loops = [loop for loop in boundary_loops(faces) if len(loop) >= 3]
+    if len(loops) < 2:
+        return faces
+    trees = [cKDTree(vertices[loop]) for loop in loops]
+    gap = np.full((len(loops), len(loops)), np.inf)
+    for i, j in zip(*np.triu_indices(len(loops), 1), strict=True):
+        gap[i, j] = gap[j, i] = max(
+            np.median(trees[j].query(vertices[loops[i]])[0]),
+            np.median(trees[i].query(vertices[loops[j]])[0]),
+        )
+    nearest = np.argmin(gap, axis=1)
+    strips = []
+    for i, j in enumerate(nearest):
+        if i >= j or nearest[j] != i:
+            continue
+        here = 1.0 if spacing is None else float(np.median(spacing[np.append(loops[i], loops[j])]))
+        if gap[i, j] <= max_gap * here:
+            strips.append(loft_loops(vertices, loops[i], loops[j]))
+    return np.concatenate([faces, *strips]) if strips else faces
+
+
+def thicken_sheet(
+    vertices: np.ndarray, faces: np.ndarray, half: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """A one-sided open sheet (a disc: one boundary loop) as a thin closed body: two copies
+    ``half`` off it along its (area-weighted) vertex normals, the lower one turned over,
+    joined round the rim by a strip. Returns the new vertices (the upper copy, then the lower
+    one, in the order of ``np.unique(faces)``) and faces indexing them.
+
+    Examples
+    --------
+    >>> v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], float)
+    >>> nv, nf = thicken_sheet(v, np.array([[0, 1, 2]]), 0.1)
+    >>> nv[:, 2].tolist(), len(nf)
+    ([0.1, 0.1, 0.1, -0.1, -0.1, -0.1], 8)
+    """
+    used, local = np.unique(np.asarray(faces, dtype=np.int64), return_inverse=True)
+    local = local.reshape(-1, 3)
+    k = len(used)
+    normal = np.zeros((k, 3))
+    area = face_area_vectors(vertices[used], local)
+    for c in range(3):
+        np.add.at(normal, local[:, c], area)
+    normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-300)
+    p = vertices[used]
+    (rim,) = boundary_loops(local)
+    a, b = rim, np.roll(rim, -1)
+    strip = np.concatenate([np.stack([a, a + k, b], 1), np.stack([b, a + k, b + k], 1)])
+    new_faces = np.concatenate([local, local[:, ::-1] + k, strip])
+    return np.concatenate([p + half * normal, p - half * normal]), new_faces
+
+
+def neck_between(
+    vertices: np.ndarray, faces: np.ndarray, a: np.ndarray, b: np.ndarray, candidates: int = 8
+) -> np.ndarray | None:
+    """Join two closed components by a short tube (a connected sum): ``faces`` without one
+    face of each (``a``, ``b``: face indices) plus the strip between their corners
+    (:func:`loft_loops`), at the closest of the ``candidates`` nearest pairs of faces whose
+    tube crosses no face; None when every one crosses."""
+    ca, cb = vertices[faces[a]].mean(axis=1), vertices[faces[b]].mean(axis=1)
+    dist, nearest = cKDTree(cb).query(ca)
+    for i in np.argsort(dist)[:candidates]:
+        fa, fb = int(a[i]), int(b[nearest[i]])
+        tube = loft_loops(vertices, faces[fa], faces[fb])
+        joined = np.concatenate([np.delete(faces, [fa, fb], axis=0), tube])
+        subset = np.arange(len(joined) - len(tube), len(joined))
+        if len(self_intersections(vertices, joined, subset)) == 0:
+            return joined
+    return None

@@ -31,7 +31,8 @@ from scipy.spatial import cKDTree
 
 from .config import TriangulationConfig
 from .crease_mesh import flip_straddling_edges, insert_crease_edges, pivot_positions
-from .holes import fill_small_holes
+from .holes import fill_small_holes, loft_nearest_loops, neck_between, thicken_sheet
+from .intersections import self_intersections
 from .kernels.circumsphere import circumsphere_kernel
 from .mesh import (
     edge_keys,
@@ -62,6 +63,14 @@ class TriangulationResult:
 #: Loops whose interior holds data are triangulation gaps: closed up to this many times the
 #: ``max_hole`` perimeter.
 COVERED_HOLE_FACTOR = 3.0
+#: Two boundary loops left where opposed faces closed a thin edge are joined by a strip when
+#: each lies within this median distance [local spacings] of the other.
+LOFT_GAP = 2.0
+#: A one-sided open sheet this close [r0] to the closed main body continues its edge
+#: (:func:`_sheets_thickened`) ...
+SHEET_NECK_GAP = 1.0
+#: ... and is made a closed body this far [r0] either side of it.
+SHEET_HALF_THICKNESS = 0.15
 #: Debris removal: components with fewer faces than this and than ``MIN_COMPONENT_FRACTION``
 #: of the largest component are dropped.
 MIN_COMPONENT_FACES = 50
@@ -193,7 +202,104 @@ def triangulate_particles(
         if _better(alt, result):
             log.debug("dropped %d faces joining opposed sheets", int(opposed.sum()))
             result = alt
+        else:
+            # the opposed band closed the edge of a part thinner than a spacing, and carried
+            # the handles: close the edge again with a plain strip between the two faces' rims
+            strip = _relofted(alt, positions, args)
+            if strip is not None and _better(strip, result):
+                log.debug("re-closed a thin edge without its %d opposed faces", int(opposed.sum()))
+                result = strip
+    thick = _sheets_thickened(result)
+    if thick is not None and _better(thick, result):
+        result = thick
     return result
+
+
+def _sheets_thickened(result: TriangulationResult) -> TriangulationResult | None:
+    """``result`` with each one-sided open sheet beside the closed main body made a thin body
+    of its own and joined to it; None when there is none.
+
+    Where a part is thinner than the normals' orientation resolves (the last spacings of a
+    knife's edge), both faces' particles merge into one sheet, meshed as one layer: an open
+    disc within ``SHEET_NECK_GAP`` of the closed body whose edge it continues. The data
+    there is a closed part thinner than a spacing: the sheet becomes two copies
+    ``SHEET_HALF_THICKNESS`` off it joined round its rim (:func:`recon.holes.thicken_sheet`),
+    connected to the body by a short tube at their closest faces
+    (:func:`recon.holes.neck_between`). A sheet whose thick copy would cross a face stays.
+    """
+    v, f = result.vertices, result.faces
+    n, label = face_components(f, len(v))
+    if n < 2:
+        return None
+    body = int(np.argmax(np.bincount(label)))
+    if handle_count(f[label == body], len(v))[1] != 0:
+        return None
+    tree = cKDTree(v[np.unique(f[label == body])])
+    vertices, normals, faces, changed = [v], [result.normals], [f[label == body]], False
+    count = len(v)
+    for k in range(n):
+        sheet = f[label == k]
+        if k == body:
+            continue
+        disc = handle_count(sheet, len(v)) == (1, 1, 0)
+        if not disc or tree.query(v[np.unique(sheet)])[0].min() > SHEET_NECK_GAP:
+            faces.append(sheet)
+            continue
+        new_v, new_f = thicken_sheet(v, sheet, SHEET_HALF_THICKNESS)
+        trial_v = np.concatenate([*vertices, new_v])
+        trial_f = np.concatenate([*faces, new_f + count])
+        crossing = self_intersections(
+            trial_v, trial_f, np.arange(len(trial_f) - len(new_f), len(trial_f))
+        )
+        joined = (
+            None
+            if len(crossing)
+            else neck_between(
+                trial_v,
+                trial_f,
+                np.arange(len(faces[0])),
+                np.arange(len(trial_f) - len(new_f), len(trial_f)),
+            )
+        )
+        if joined is None:
+            faces.append(sheet)
+            continue
+        up = result.normals[np.unique(sheet)]
+        vertices.append(new_v)
+        normals.append(np.concatenate([up, -up]))
+        count += len(new_v)
+        # the body (joined to this sheet) first, then the other parts
+        faces = [joined]
+        changed = True
+    if not changed:
+        return None
+    vertices_all = np.concatenate(vertices)
+    normals_all = np.concatenate(normals)
+    faces_all = np.concatenate(faces)
+    crease = result.crease
+    if crease is not None:
+        crease = np.concatenate([crease, np.zeros(len(vertices_all) - len(crease), dtype=bool)])
+        used = np.zeros(len(vertices_all), dtype=bool)
+        used[faces_all.reshape(-1)] = True
+        crease = crease[used]
+    vertices_all, normals_all, faces_all = drop_unreferenced(vertices_all, normals_all, faces_all)
+    faces_all = orient_consistently(vertices_all, normals_all, faces_all)
+    log.debug("thickened one-sided sheets at a thin edge: %d -> %d faces", len(f), len(faces_all))
+    return TriangulationResult(vertices_all, faces_all, normals_all, dict(result.stats), crease)
+
+
+def _relofted(
+    alt: TriangulationResult, positions: np.ndarray, args: tuple
+) -> TriangulationResult | None:
+    """``alt`` with its pairs of nearby boundary loops joined by strips
+    (:func:`recon.holes.loft_nearest_loops`, ``LOFT_GAP``) and repaired again; None without
+    such a pair."""
+    scale = args[3]
+    local = scale if scale is None else scale[cKDTree(positions).query(alt.vertices)[1]]
+    faces = loft_nearest_loops(alt.vertices, alt.faces, LOFT_GAP, local)
+    if len(faces) == len(alt.faces):
+        return None
+    return _repair(alt.vertices, alt.normals, faces, dict(alt.stats), *args[:3], local, alt.crease)
 
 
 def _better(alt: TriangulationResult, result: TriangulationResult) -> bool:

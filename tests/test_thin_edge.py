@@ -1,0 +1,112 @@
+"""The edge of a part thinner than a spacing, closed again by a strip between its two faces'
+rims (#11: the held-out knife's handles ran through the band of opposed faces at its edge)."""
+
+from __future__ import annotations
+
+import numpy as np
+import open3d as o3d
+
+from recon.holes import loft_loops, loft_nearest_loops
+from recon.intersections import self_intersections
+from recon.mesh import boundary_loops, count_edge_faces, handle_count
+from recon.topology import mesh_topology
+from recon.triangulate import TriangulationResult, _sheets_thickened, orient_consistently
+
+
+def _grid(n: int, step: float, z: float, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """An n x n vertex grid centred on the z axis at height z (jittered) and its faces."""
+    s = (np.arange(n) - (n - 1) / 2) * step
+    x, y = np.meshgrid(s, s, indexing="ij")
+    v = np.stack([x.ravel(), y.ravel(), np.full(n * n, z)], axis=1)
+    v += rng.normal(scale=0.05 * step, size=v.shape)
+    i, j = np.meshgrid(np.arange(n - 1), np.arange(n - 1), indexing="ij")
+    a = (i * n + j).ravel()
+    f = np.concatenate([np.stack([a, a + n, a + n + 1], 1), np.stack([a, a + n + 1, a + 1], 1)])
+    return v, f
+
+
+def _two_faces(notch: bool) -> tuple[np.ndarray, np.ndarray]:
+    """The two faces of a thin slab 0.8 apart without the faces across its edge: a 12 x 12
+    grid above, an 11 x 11 grid of another step below (rims of other lengths); with ``notch``
+    the upper rim turns inward round two missing cells."""
+    rng = np.random.default_rng(3)
+    vt, ft = _grid(12, 1.0, 0.4, rng)
+    vb, fb = _grid(11, 1.1, -0.4, rng)
+    if notch:  # drop the two faces of rim cells (0, 4) and (0, 5)
+        ft = np.delete(ft, [4, 5, 121 + 4, 121 + 5], axis=0)
+    return np.concatenate([vt, vb]), np.concatenate([ft, fb[:, ::-1] + len(vt)])
+
+
+def test_a_strip_between_two_loops_is_an_annulus_that_does_not_cross_itself():
+    v, f = _two_faces(notch=True)
+    top, bottom = sorted(boundary_loops(f), key=len, reverse=True)
+    strip = loft_loops(v, top, bottom)
+    assert len(strip) == len(top) + len(bottom)
+    assert handle_count(strip, len(v)) == (1, 2, 0)
+    assert len(self_intersections(v, strip)) == 0
+    assert len(self_intersections(v, np.concatenate([f, strip]))) == 0
+
+
+def test_the_two_faces_of_a_thin_edge_are_joined_into_one_closed_surface():
+    for notch in (False, True):
+        v, f = _two_faces(notch)
+        closed = loft_nearest_loops(v, f, max_gap=2.0)
+        normals = np.zeros_like(v)
+        normals[:, 2] = np.sign(v[:, 2])
+        closed = orient_consistently(v, normals, closed)
+        topo = mesh_topology(v, closed)
+        assert topo["watertight"] and topo["components"] == 1 and topo["genus"] == 0, topo
+        mesh = o3d.geometry.TriangleMesh(
+            o3d.utility.Vector3dVector(v), o3d.utility.Vector3iVector(closed)
+        )
+        assert mesh.is_watertight() and mesh.is_orientable()
+
+
+def test_loops_farther_apart_than_the_gap_stay_open():
+    v, f = _two_faces(notch=False)
+    v[v[:, 2] < 0, 2] -= 5.0  # the faces 5.8 apart: two sheets, not one thin part
+    assert len(loft_nearest_loops(v, f, max_gap=2.0)) == len(f)
+
+
+def test_a_strip_between_two_small_loops_stays_manifold():
+    # the cheapest path along the grid of vertex pairs may run along one loop first; it must
+    # not come back to its first edge (two triangles 0.5 apart used to be capped by fans)
+    rng = np.random.default_rng(0)
+    for m, n in ((3, 3), (3, 5), (4, 3), (7, 10)):
+        for _ in range(20):
+            v = rng.normal(size=(m + n, 3))
+            v[m:, 2] += 0.5
+            b = np.arange(m, m + n)[:: rng.choice([1, -1])]
+            strip = loft_loops(v, np.arange(m), b)
+            assert handle_count(strip, m + n) == (1, 2, 0)
+            assert count_edge_faces(strip)[1].max() == 2
+
+
+def _body_and_sheet(gap: float) -> TriangulationResult:
+    """A closed sphere (radius 5) and, ``gap`` beyond its equator, a one-sided open 5 x 5
+    sheet in z = 0: the merged faces of a part thinner than a spacing, continuing the body."""
+    sphere = o3d.geometry.TriangleMesh.create_sphere(radius=5.0, resolution=20)
+    bv, bf = np.asarray(sphere.vertices), np.asarray(sphere.triangles)
+    sv, sf = _grid(6, 1.0, 0.0, np.random.default_rng(0))
+    sv[:, 0] += 5.0 + gap + 2.5
+    v = np.concatenate([bv, sv])
+    normals = np.concatenate([bv / 5.0, np.tile([0.0, 0.0, 1.0], (len(sv), 1))])
+    return TriangulationResult(v, np.concatenate([bf, sf + len(bv)]), normals, {})
+
+
+def test_a_one_sided_sheet_at_a_closed_body_becomes_part_of_it():
+    result = _body_and_sheet(gap=0.5)
+    assert handle_count(result.faces, len(result.vertices)) == (2, 1, 0)
+    thick = _sheets_thickened(result)
+    assert thick is not None
+    topo = mesh_topology(thick.vertices, thick.faces)
+    assert topo["watertight"] and topo["components"] == 1 and topo["genus"] == 0, topo
+    assert len(self_intersections(thick.vertices, thick.faces)) == 0
+    mesh = o3d.geometry.TriangleMesh(
+        o3d.utility.Vector3dVector(thick.vertices), o3d.utility.Vector3iVector(thick.faces)
+    )
+    assert mesh.is_watertight() and mesh.is_orientable()
+
+
+def test_a_sheet_away_from_the_body_stays():
+    assert _sheets_thickened(_body_and_sheet(gap=3.0)) is None
