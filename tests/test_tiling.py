@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import os
 from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -333,6 +334,23 @@ def test_tiled_report_topology_is_the_written_meshs(fits):
         assert report[key] == pytest.approx(whole[key]), key
     memory = tiled.report["tiles"]["coordinator"]
     assert 0 < memory["largest_unit_faces"] < len(f)
+    phases = ["start", "split", "spacing", "fit", "mesh", "stitch", "write"]
+    assert list(memory["peak_rss_mib"]) == phases
+
+
+@pytest.mark.skipif(not Path("/proc/self/clear_refs").exists(), reason="Linux only")
+def test_the_coordinators_peak_memory_is_measured_phase_by_phase():
+    """The report's per-phase peaks: a phase that held 64 MiB more shows it, the next
+    phase (after the reset) does not."""
+    from recon.tiling.run import peak_rss_mib
+
+    peak_rss_mib(reset=True)
+    block = np.ones(2**23)  # 64 MiB, touched
+    del block
+    held = peak_rss_mib(reset=True)
+    after = peak_rss_mib()
+    assert held is not None and after is not None
+    assert held - after > 48
 
 
 def test_tiled_mesh_does_not_cross_itself(fits):
