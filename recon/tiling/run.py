@@ -51,6 +51,7 @@ from .grid import TileGrid, choose_auto_tile_size
 from .source import ScanHeader, scan_header, split_input
 from .stitch import agree_signs
 from .tasks import (
+    BorderFiles,
     FitJob,
     MeshJob,
     fit_task,
@@ -278,10 +279,7 @@ def fit_tiled(
             timings["fit"] = time.perf_counter() - t0
             peaks["fit"] = peak_rss_mib(reset=True)
             flips, disagreeing = agree_signs(
-                grid,
-                {t: r["border_in"] for t, r in fits.items()},
-                {t: r["border_out"] for t, r in fits.items()},
-                r0,
+                grid, BorderFiles(work, fits, "in"), BorderFiles(work, fits, "out"), r0
             )
             offsets: dict[int, int] = {}
             total = 0
