@@ -234,6 +234,38 @@ def test_the_sign_agreement_holds_a_few_tiles_borders_not_the_scans(tmp_path):
     assert peaks[6] < 1.3 * peaks[3]
 
 
+def test_the_split_holds_a_chunk_not_the_scan(tmp_path, monkeypatch):
+    """The coordinator splits a LAS file chunk by chunk: 4x the points, the same peak
+    allocation (one chunk's working set; nothing per point is kept)."""
+    import tracemalloc
+
+    import recon.tiling.source as source
+
+    laspy = pytest.importorskip("laspy")
+    monkeypatch.setattr(source, "SPLIT_CHUNK_POINTS", 5000)
+    cfg = ReconConfig()
+    peaks = {}
+    for n in (20_000, 80_000):
+        rng = np.random.default_rng(n)
+        side = np.sqrt(n / 100.0)  # the same density: a larger area
+        pts = np.column_stack([rng.uniform(0, side, (n, 2)), rng.normal(0, 0.01, n)])
+        header = laspy.LasHeader(point_format=3, version="1.2")
+        header.scales = np.array([1e-4] * 3)
+        header.offsets = np.floor(pts.min(axis=0))
+        las = laspy.LasData(header)
+        las.x, las.y, las.z = pts[:, 0], pts[:, 1], pts[:, 2]
+        path = tmp_path / f"scan-{n}.las"
+        las.write(str(path))
+        scan = source.scan_header(path, cfg)
+        grid = TileGrid.cover(scan.lo, scan.hi, 4.0, 0.0)
+        tracemalloc.start()
+        store = source.split_input(scan, grid, tmp_path / f"work-{n}", cfg)
+        peaks[n] = tracemalloc.get_traced_memory()[1]
+        tracemalloc.stop()
+        assert sum(store.counts.values()) == n
+    assert peaks[80_000] < 1.3 * peaks[20_000]
+
+
 # -- a tiled fit against the untiled one ------------------------------------------------------
 
 
