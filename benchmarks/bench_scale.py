@@ -15,6 +15,10 @@ Examples::
     python benchmarks/bench_scale.py                                   # 100k, 300k, 1M points
     python benchmarks/bench_scale.py --sizes 100000 1000000 4000000 --no-peer
     python benchmarks/bench_scale.py --sizes 40000 --repeats 3 --json-out bench_output/scale.json
+
+``--baseline DIR`` also fits every size with the source tree in DIR (e.g. ``git archive BASE |
+tar -x -C DIR``), alternating with this tree, and prints its times and the ratio of each
+phase (this tree / baseline): a code change measured under the same load.
 """
 
 from __future__ import annotations
@@ -94,11 +98,20 @@ def _particle_steps(history: dict[str, list[Any]]) -> float:
 
 
 def run_oprecon(
-    path: Path, out: Path, threads: int | None, overrides: Sequence[str] = ()
+    path: Path,
+    out: Path,
+    threads: int | None,
+    overrides: Sequence[str] = (),
+    source: Path | None = None,
 ) -> dict[str, Any]:
+    """One ``oprecon fit`` in a fresh process; ``source``: a source tree to run instead of
+    the installed one (put first on PYTHONPATH)."""
     cmd = [sys.executable, "-m", "recon.cli.main", "fit", str(path), "-o", str(out), "-q"]
     cmd += [arg for kv in overrides for arg in ("--set", kv)]
-    wall, rss, code = _run(cmd, {"NUMBA_NUM_THREADS": str(threads)} if threads else None)
+    env = {"NUMBA_NUM_THREADS": str(threads)} if threads else {}
+    if source is not None:
+        env["PYTHONPATH"] = os.pathsep.join([str(source), os.environ.get("PYTHONPATH", "")])
+    wall, rss, code = _run(cmd, env)
     if code != 0:
         return {"wall_s": wall, "rss_mib": rss, "failed": True}
     report = json.loads(out.with_name(out.stem + ".report.json").read_text())
@@ -176,6 +189,14 @@ def main(argv: list[str] | None = None) -> int:
         "on a loaded machine)",
     )
     parser.add_argument("--json-out", type=Path)
+    parser.add_argument(
+        "--baseline",
+        type=Path,
+        default=None,
+        metavar="DIR",
+        help="a source tree (e.g. the base commit's `git archive`) fitted alternately with "
+        "this one; prints its times and the per-phase ratio",
+    )
     args = parser.parse_args(argv)
 
     peer = not args.no_peer and _have_pymeshlab()
@@ -196,9 +217,15 @@ def main(argv: list[str] | None = None) -> int:
         for n in args.sizes:
             path = Path(tmp) / f"torus-{n}.ply"
             write_points(path, sample_torus(n))
-            ours, theirs = [], []
+            ours, theirs, base = [], [], []
             for _ in range(args.repeats):  # alternate: the machine's load drifts
                 ours.append(run_oprecon(path, Path(tmp) / f"o-{n}.ply", args.threads, args.set))
+                if args.baseline is not None:
+                    base.append(
+                        run_oprecon(
+                            path, Path(tmp) / f"b-{n}.ply", args.threads, args.set, args.baseline
+                        )
+                    )
                 if peer and n <= args.peer_max:
                     theirs.append(
                         run_peer(
@@ -220,11 +247,24 @@ def main(argv: list[str] | None = None) -> int:
             row["load_after"] = os.getloadavg()[0]
             rows.append(row)
             _print_row(row)
+            good_base = [r for r in base if not r.get("failed")]
+            if good_base:
+                b = sorted(good_base, key=lambda r: r["wall_s"])[len(good_base) // 2]
+                row["baseline"] = b
+                _print_baseline(row, b)
     done = [r for r in rows if not r.get("failed")]
     slope = _slope([r["points"] for r in done], [r["wall_s"] for r in done])
     if slope is not None:
         print(f"log-log slope of wall time vs points: {slope:.3f} (1.0 = linear)")
         print("per phase: " + ", ".join(f"{k} {v:.2f}" for k, v in _phase_slopes(done).items()))
+        based = [r["baseline"] | {"points": r["points"]} for r in done if "baseline" in r]
+        if len(based) == len(done):
+            b_slope = _slope([r["points"] for r in based], [r["wall_s"] for r in based])
+            print(f"baseline: log-log slope {b_slope:.3f}")
+            print(
+                "baseline per phase: "
+                + ", ".join(f"{k} {v:.2f}" for k, v in _phase_slopes(based).items())
+            )
     if args.json_out:
         args.json_out.parent.mkdir(parents=True, exist_ok=True)
         phases = _phase_slopes(done) if slope is not None else {}
@@ -251,6 +291,20 @@ def _print_row(r: dict[str, Any]) -> None:
         f"{r['particles']:,d} particles, {r['steps']} steps, "
         f"{pss / 1e6 if pss else float('nan'):.2f} M particle-steps/s, "
         f"{r['rss_mib']:.0f} MiB peak{peer} (load average {r['load_after']:.1f} after)",
+        flush=True,
+    )
+
+
+def _print_baseline(r: dict[str, Any], b: dict[str, Any]) -> None:
+    ratios = ", ".join(
+        f"{k} {r['phases_s'][k] / v:.2f}"
+        for k, v in b["phases_s"].items()
+        if k in r["phases_s"] and v > 0
+    )
+    print(
+        f"{'':>9}  baseline: {b['wall_s']:.1f} s wall, {b['particles']:,d} particles, "
+        f"{b['rss_mib']:.0f} MiB peak; this / baseline: wall {r['wall_s'] / b['wall_s']:.2f} "
+        f"({ratios})",
         flush=True,
     )
 

@@ -323,6 +323,8 @@ def scale(ns: argparse.Namespace) -> int:
                 "wall_s": wall,
                 "points_per_s": n / wall,
                 "coordinator_gib": root / 2**30,
+                # the coordinator's own peak in each phase (split ... write) [MiB]
+                "coordinator_mib_after": report["tiles"]["coordinator"].get("peak_rss_mib"),
                 "worker_gib": [w / 2**30 for w in workers[:2]],
                 "tile_s_mean": report["tiles"]["time_per_tile"]["mean"],
                 "phases_s": {k: round(v, 1) for k, v in report["timings"].items()},

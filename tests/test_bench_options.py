@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import importlib.util
+import os
 from pathlib import Path
 
 import pytest
@@ -97,3 +98,21 @@ def test_bench_scale_passes_its_overrides_to_the_fit(monkeypatch, tmp_path):
     out = bench.run_oprecon(tmp_path / "in.ply", tmp_path / "o.ply", None, ["a.b=1", "c.d=2"])
     assert out["failed"]
     assert seen[0][-4:] == ["--set", "a.b=1", "--set", "c.d=2"]
+
+
+def test_bench_scale_runs_a_baseline_tree_first_on_the_path(monkeypatch, tmp_path):
+    """``--baseline DIR``: that tree's fit runs with DIR first on PYTHONPATH (so that its
+    ``recon`` is imported, not the installed one); this tree's runs without it."""
+    bench = _bench("bench_scale")
+    envs = []
+
+    def fake_run(cmd, env):
+        envs.append(env)
+        return 1.0, 10.0, 2
+
+    monkeypatch.setattr(bench, "_run", fake_run)
+    monkeypatch.setenv("PYTHONPATH", "elsewhere")
+    bench.run_oprecon(tmp_path / "in.ply", tmp_path / "o.ply", None)
+    bench.run_oprecon(tmp_path / "in.ply", tmp_path / "o.ply", None, source=tmp_path / "base")
+    assert "PYTHONPATH" not in envs[0]
+    assert envs[1]["PYTHONPATH"].split(os.pathsep) == [str(tmp_path / "base"), "elsewhere"]

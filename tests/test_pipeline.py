@@ -280,3 +280,14 @@ def test_stages_share_one_neighbor_query():
     # noisy data raise normals.k: the widest use no longer fits, each stage queries its own
     wide = load_config(overrides=["normals.k=40", "normals.auto_scale=false"])
     assert shared_neighbors(p, wide) is None
+
+
+def test_the_mesh_does_not_depend_on_the_order_of_the_input_rows():
+    """The fit puts the points in Morton order first (recon.cloud.spatial_order): the same
+    points in another row order give the same mesh, vertex for vertex."""
+    pts = _sphere(800)
+    cfg = load_config(overrides=FAST)
+    a = fit(pts, cfg)
+    b = fit(pts[np.random.default_rng(3).permutation(len(pts))], cfg)
+    assert np.array_equal(a.mesh.vertices, b.mesh.vertices)
+    assert np.array_equal(a.mesh.faces, b.mesh.faces)

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import os
 from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -184,6 +185,87 @@ def test_normal_signs_agree_across_seams():
     assert len(set(oriented.values())) == 1
 
 
+def _border_files(work, n_side: int, per_tile: int = 4000):
+    """Border files (as fit_task writes them) of an n x n grid of 5 x 5 tiles over a plane."""
+    from recon.tiling.tasks import BorderFiles, border_path
+
+    side = 5.0 * n_side
+    grid = TileGrid.cover(np.zeros(3), np.array([side, side, 1.0]), 5.0, 1.0)
+    rng = np.random.default_rng(0)
+    for t in range(grid.count):
+        lo, hi = grid.bounds(t)
+        p = np.column_stack(
+            [
+                rng.uniform(lo[0] - 1, hi[0] + 1, per_tile),
+                rng.uniform(lo[1] - 1, hi[1] + 1, per_tile),
+            ]
+        )
+        p = np.column_stack([p, np.zeros(len(p))])
+        p = p[grid.in_halo_box(t, p, 1.0)]
+        own = grid.in_core(t, p)
+        n = np.tile([0.0, 0.0, 1.0], (len(p), 1))
+        np.savez(
+            border_path(work, t),
+            in_positions=p[own],
+            in_normals=n[own],
+            out_positions=p[~own],
+            out_normals=n[~own],
+        )
+    tiles = range(grid.count)
+    return grid, BorderFiles(work, tiles, "in"), BorderFiles(work, tiles, "out")
+
+
+def test_the_sign_agreement_holds_a_few_tiles_borders_not_the_scans(tmp_path):
+    """The coordinator compares normal signs one tile at a time, reading the borders from the
+    work folder: 4x the tiles, the same peak allocation (all trees at once grew with them)."""
+    import tracemalloc
+
+    peaks = {}
+    for n in (3, 6):
+        d = tmp_path / str(n)
+        d.mkdir()
+        grid, b_in, b_out = _border_files(d, n)
+        tracemalloc.start()
+        flips, disagreeing = agree_signs(grid, b_in, b_out, r0=0.2)
+        peaks[n] = tracemalloc.get_traced_memory()[1]
+        tracemalloc.stop()
+        assert disagreeing == 0 and set(flips.values()) == {1.0}
+        assert len(flips) == n * n
+    assert peaks[6] < 1.3 * peaks[3]
+
+
+def test_the_split_holds_a_chunk_not_the_scan(tmp_path, monkeypatch):
+    """The coordinator splits a LAS file chunk by chunk: 4x the points, the same peak
+    allocation (one chunk's working set; nothing per point is kept)."""
+    import tracemalloc
+
+    import recon.tiling.source as source
+
+    laspy = pytest.importorskip("laspy")
+    monkeypatch.setattr(source, "SPLIT_CHUNK_POINTS", 5000)
+    cfg = ReconConfig()
+    peaks = {}
+    for n in (20_000, 80_000):
+        rng = np.random.default_rng(n)
+        side = np.sqrt(n / 100.0)  # the same density: a larger area
+        pts = np.column_stack([rng.uniform(0, side, (n, 2)), rng.normal(0, 0.01, n)])
+        header = laspy.LasHeader(point_format=3, version="1.2")
+        header.scales = np.array([1e-4] * 3)
+        header.offsets = np.floor(pts.min(axis=0))
+        las = laspy.LasData(header)
+        las.x, las.y, las.z = pts[:, 0], pts[:, 1], pts[:, 2]
+        path = tmp_path / f"scan-{n}.las"
+        las.write(str(path))
+        scan = source.scan_header(path, cfg)
+        grid = TileGrid.cover(scan.lo, scan.hi, 4.0, 0.0)
+        tracemalloc.start()
+        store = source.split_input(scan, grid, tmp_path / f"work-{n}", cfg)
+        peaks[n] = tracemalloc.get_traced_memory()[1]
+        tracemalloc.stop()
+        assert sum(store.counts.values()) == n
+    assert peaks[80_000] < 1.3 * peaks[20_000]
+
+
 # -- a tiled fit against the untiled one ------------------------------------------------------
 
 
@@ -333,6 +415,23 @@ def test_tiled_report_topology_is_the_written_meshs(fits):
         assert report[key] == pytest.approx(whole[key]), key
     memory = tiled.report["tiles"]["coordinator"]
     assert 0 < memory["largest_unit_faces"] < len(f)
+    phases = ["start", "split", "spacing", "fit", "mesh", "stitch", "write"]
+    assert list(memory["peak_rss_mib"]) == phases
+
+
+@pytest.mark.skipif(not Path("/proc/self/clear_refs").exists(), reason="Linux only")
+def test_the_coordinators_peak_memory_is_measured_phase_by_phase():
+    """The report's per-phase peaks: a phase that held 64 MiB more shows it, the next
+    phase (after the reset) does not."""
+    from recon.tiling.run import peak_rss_mib
+
+    peak_rss_mib(reset=True)
+    block = np.ones(2**23)  # 64 MiB, touched
+    del block
+    held = peak_rss_mib(reset=True)
+    after = peak_rss_mib()
+    assert held is not None and after is not None
+    assert held - after > 48
 
 
 def test_tiled_mesh_does_not_cross_itself(fits):
@@ -364,3 +463,30 @@ def test_a_kept_work_folder_stitches_again_to_the_same_mesh(tmp_path, monkeypatc
     v2, f2 = read_mesh(tmp_path / "again.ply")
     assert np.array_equal(f1, f2) and np.allclose(v1, v2)
     assert out["topology"]["boundary_loops"] == mesh_topology(v2, f2)["boundary_loops"]
+
+
+def test_only_the_particles_near_a_seam_go_to_the_sign_agreement(tmp_path, monkeypatch):
+    """A tile's fit files for the normal-sign comparison its own particles within the sign
+    band plus the pair distance of an inner tile face, not all of its particles (the
+    coordinator held them all before: ~48 bytes per particle of the scan)."""
+    import pickle
+
+    from recon.tiling.run import STITCH_INPUTS
+    from recon.tiling.stitch import SIGN_PAIR_DISTANCE
+    from recon.tiling.tasks import SIGN_BAND, BorderFiles, particles_path
+
+    src = tmp_path / "sheet.ply"
+    write_points(src, sheet(3000, seed=4))
+    keep = tmp_path / "work"
+    monkeypatch.setenv("OPRECON_KEEP_TILES", str(keep))
+    fit_tiled(src, tmp_path / "tiled.ply", with_values(ReconConfig(), tiling={"size": SIDE / 2}))
+    grid, counts = pickle.loads((keep / STITCH_INPUTS).read_bytes())[:2]
+    r0 = pickle.loads((keep / STITCH_INPUTS).read_bytes())[4]
+    own = BorderFiles(keep, counts, "in")
+    reach = (SIGN_BAND + SIGN_PAIR_DISTANCE) * r0
+    for t in counts:
+        p, n = own[t]
+        with np.load(particles_path(keep, t)) as z:
+            n_particles = len(z["positions"])
+        assert len(p) == len(n) and 0 < len(p) < 0.8 * n_particles
+        assert np.all(grid.seam_distance(p) <= reach + 1e-9)

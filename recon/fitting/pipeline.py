@@ -35,7 +35,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ..attributes import check_attribute_output, check_transfer, transfer_for_output
-from ..cloud import PointCloud
+from ..cloud import PointCloud, spatial_order
 from ..config import ReconConfig, config_to_dict, with_values
 from ..crease_mesh import corner_normals, split_crease_vertices
 from ..crease_surface import CreaseField
@@ -457,6 +457,9 @@ def _fit_sheet(cloud: PointCloud, cfg: ReconConfig, on_progress: ProgressFn | No
     clock = Clock(cfg.dynamics.time_limit)
     warm_fit_kernels()  # the kernels' cached code loads beside the first stages
     rng = np.random.default_rng(cfg.seed)
+    # Morton order: every neighbour query and per-point pass below touches nearby memory,
+    # and the fit no longer depends on the order of the input's rows
+    cloud = cloud.take(spatial_order(cloud.points))
     points = np.asarray(cloud.points, dtype=np.float64)
 
     cfg = with_neighborhood_size(points, cfg)

@@ -22,10 +22,12 @@
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 import pickle
 import shutil
+import sys
 import tempfile
 import time
 from collections.abc import Callable
@@ -49,6 +51,7 @@ from .grid import TileGrid, choose_auto_tile_size
 from .source import ScanHeader, scan_header, split_input
 from .stitch import agree_signs
 from .tasks import (
+    BorderFiles,
     FitJob,
     MeshJob,
     fit_task,
@@ -76,6 +79,28 @@ class TiledResult:
     streamed there, never held whole)."""
 
     report: dict = field(default_factory=dict)
+
+
+def peak_rss_mib(reset: bool = False) -> float | None:
+    """This process's peak resident memory [MiB] since it started or since the last
+    ``reset`` (None where the OS does not say).
+
+    Linux: ``VmHWM`` of ``/proc/self/status``, reset through ``/proc/self/clear_refs``
+    (``ru_maxrss`` would keep the high-water mark of the parent that started the process).
+    Elsewhere ``ru_maxrss``, never reset."""
+    status = Path("/proc/self/status")
+    if status.exists():
+        hwm = next((ln for ln in status.read_text().splitlines() if ln.startswith("VmHWM")), "")
+        if reset:
+            with contextlib.suppress(OSError):
+                Path("/proc/self/clear_refs").write_text("5")
+        return int(hwm.split()[1]) / 2**10 if hwm else None
+    try:
+        import resource
+    except ImportError:  # Windows
+        return None
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return peak / 2**20 if sys.platform == "darwin" else peak / 2**10  # bytes / KiB
 
 
 def _budget(cfg: ReconConfig) -> int:
@@ -206,14 +231,17 @@ def fit_tiled(
         return None
     grid = TileGrid.cover(header.lo, header.hi, size, 0.0)
     timings: dict[str, float] = {}
+    peaks: dict[str, float | None] = {}  # the coordinator's peak RSS in each phase [MiB]
     warnings: list[str] = []
     work = Path(tempfile.mkdtemp(prefix=".oprecon-tiles-", dir=output_path.parent))
     try:
+        peaks["start"] = peak_rss_mib(reset=True)  # imports, the header (formats read whole)
         t0 = time.perf_counter()
         cloud = header.cloud
         store = split_input(header, grid, work, cfg)
         header.cloud = cloud  # the scales below need it once more (formats read whole)
         timings["split"] = time.perf_counter() - t0
+        peaks["split"] = peak_rss_mib(reset=True)
         executor_jobs = jobs
         with tile_runner(executor, executor_jobs, scheduler) as runner:
             t0 = time.perf_counter()
@@ -237,6 +265,7 @@ def fit_tiled(
             store = replace(store, grid=grid)
             _check_tile_memory(store, cfg, r0, d_nn)
             timings["spacing"] = time.perf_counter() - t0
+            peaks["spacing"] = peak_rss_mib(reset=True)
 
             t0 = time.perf_counter()
             cfg_dict = config_to_dict(tile_cfg)
@@ -248,11 +277,9 @@ def fit_tiled(
                 on_event,
             )
             timings["fit"] = time.perf_counter() - t0
+            peaks["fit"] = peak_rss_mib(reset=True)
             flips, disagreeing = agree_signs(
-                grid,
-                {t: r["border_in"] for t, r in fits.items()},
-                {t: r["border_out"] for t, r in fits.items()},
-                r0,
+                grid, BorderFiles(work, fits, "in"), BorderFiles(work, fits, "out"), r0
             )
             offsets: dict[int, int] = {}
             total = 0
@@ -274,6 +301,7 @@ def fit_tiled(
                 on_event,
             )
             timings["mesh"] = time.perf_counter() - t0
+            peaks["mesh"] = peak_rss_mib(reset=True)
             n_jobs = runner.jobs
         t0 = time.perf_counter()
         max_hole = (
@@ -301,6 +329,7 @@ def fit_tiled(
             )
         seams, repair = stitched["seams"], stitched["repair"]
         timings["stitch"] = time.perf_counter() - t0
+        peaks["stitch"] = peak_rss_mib(reset=True)
         topology, quality = stitched["topology"], stitched["quality"]
         timings["total"] = time.perf_counter() - t_start
         per_tile = []
@@ -349,7 +378,7 @@ def fit_tiled(
                 "sign_disagreements": disagreeing,
                 "seams": seams,
                 "repair": repair,
-                "coordinator": stitched["memory"],
+                "coordinator": {**stitched["memory"], "peak_rss_mib": peaks},
                 # each tile untangles its own mesh (halo included, the neighbours' particles
                 # fixed); crossings the seam repair makes are not searched
                 "self_intersections": {
@@ -379,6 +408,7 @@ def fit_tiled(
                     colors=store.has_colors and (cfg.output.obj_colors or not is_obj),
                     properties=property_names(cfg.output),
                 )
+            peaks["write"] = peak_rss_mib(reset=True)
             if particles_path_out is not None:
                 with atomic_output(Path(particles_path_out), outputs) as tmp:
                     write_particles_streamed(tmp, stitched["store"], len(offsets), cfg.io.ascii)

@@ -13,6 +13,8 @@ flips whole tiles (:func:`agree_signs`).
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+
 import numpy as np
 from scipy.spatial import cKDTree
 
@@ -35,30 +37,32 @@ SIGN_PAIR_DISTANCE = 0.75
 
 def agree_signs(
     grid: TileGrid,
-    border_in: dict[int, tuple[np.ndarray, np.ndarray]],
-    border_out: dict[int, tuple[np.ndarray, np.ndarray]],
+    border_in: Mapping[int, tuple[np.ndarray, np.ndarray]],
+    border_out: Mapping[int, tuple[np.ndarray, np.ndarray]],
     r0: float,
 ) -> tuple[dict[int, float], int]:
     """A sign (+1/-1) per tile so that the normals agree across seams; and the number of tile
-    pairs whose normals disagreed before."""
+    pairs whose normals disagreed before.
+
+    ``border_in[t]``: (positions, normals) of tile t's own particles near its core's faces;
+    ``border_out[t]``: those its fit placed in the neighbours' cores. One tile's own particles
+    are searched at a time, against its neighbours' (the mappings may load each entry from
+    disk when asked: :class:`recon.tiling.tasks.BorderFiles`), so the memory held is a few
+    tiles' borders, whatever the tile count."""
     tiles = sorted(border_in)
-    owner_tree = {}
-    for t in tiles:
-        p, n = border_in[t]
-        if len(p):
-            owner_tree[t] = (cKDTree(p), n)
     votes: dict[tuple[int, int], float] = {}
-    for a in tiles:
-        p, n = border_out.get(a, (np.zeros((0, 3)), np.zeros((0, 3))))
-        if not len(p):
+    for b in tiles:
+        pb, nb = border_in[b]
+        if not len(pb):
             continue
-        cell = grid.cell_of(p)
-        for b in np.unique(cell):
-            b = int(b)
-            if b == a or b not in owner_tree:
+        tree = cKDTree(pb)
+        for a in grid.neighbours(b):
+            if a not in border_out:
                 continue
-            sel = cell == b
-            tree, nb = owner_tree[b]
+            p, n = border_out[a]
+            sel = grid.cell_of(p) == b if len(p) else np.zeros(0, dtype=bool)
+            if not sel.any():
+                continue
             d, j = tree.query(p[sel])
             close = d < SIGN_PAIR_DISTANCE * r0
             if not close.any():

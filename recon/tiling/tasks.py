@@ -7,7 +7,7 @@ folder (shared storage on a cluster) and returns small results:
   whole scan);
 * :func:`fit_task`: the particle sheet over the tile's core and halo with the scan's r0 and
   configuration; the particles in the tile's half-open core are written to the work folder,
-  and the particles near the core's faces come back to compare normal signs across seams;
+  and so are the particles near the core's faces, to compare normal signs across seams;
 * :func:`mesh_task`: the triangulation over the tile's particles and its neighbours' (the halo),
   keeping the faces whose centroid lies in the core, in global particle ids.
 """
@@ -15,6 +15,7 @@ folder (shared storage on a cluster) and returns small results:
 from __future__ import annotations
 
 import time
+from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -24,8 +25,17 @@ import numpy as np
 from .assemble import write_tile_mesh
 from .grid import TileGrid
 from .source import TileStore, read_box, read_tile
+from .stitch import SIGN_PAIR_DISTANCE
 
-__all__ = ["SIGN_BAND", "fit_task", "mesh_task", "particles_path", "spacing_task"]
+__all__ = [
+    "SIGN_BAND",
+    "BorderFiles",
+    "border_path",
+    "fit_task",
+    "mesh_task",
+    "particles_path",
+    "spacing_task",
+]
 
 #: Particles within this many r0 of a core face are sent back to compare normal signs.
 SIGN_BAND = 1.5
@@ -50,6 +60,38 @@ def _quiet_worker() -> None:
 
 def particles_path(directory: Path, tile: int) -> Path:
     return Path(directory) / f"particles-{tile}.npz"
+
+
+def border_path(directory: Path, tile: int) -> Path:
+    """The particles of a tile's fit near its core's faces (see :class:`BorderFiles`)."""
+    return Path(directory) / f"border-{tile}.npz"
+
+
+class BorderFiles(Mapping):
+    """tile -> (positions, normals) of the particles a tile's fit placed near its core's
+    faces, on one ``side``: ``"in"`` its own, ``"out"`` those in its neighbours' cores.
+    Each entry is read from the work folder when asked for (:func:`fit_task` writes them),
+    so the coordinator holds a few tiles' borders at a time, not the scan's
+    (:func:`recon.tiling.stitch.agree_signs`)."""
+
+    def __init__(self, work: Path, tiles: Iterable[int], side: str) -> None:
+        self.work, self.tiles, self.side = Path(work), sorted(tiles), side
+        self._known = set(self.tiles)
+
+    def __getitem__(self, tile: int) -> tuple[np.ndarray, np.ndarray]:
+        if tile not in self._known:
+            raise KeyError(tile)
+        with np.load(border_path(self.work, tile)) as z:
+            return z[f"{self.side}_positions"], z[f"{self.side}_normals"]
+
+    def __contains__(self, tile: object) -> bool:
+        return tile in self._known
+
+    def __iter__(self) -> Iterator[int]:
+        return iter(self.tiles)
+
+    def __len__(self) -> int:
+        return len(self.tiles)
 
 
 def spacing_task(store: TileStore, tile: int, sample: int, k: int, auto_scale: bool) -> dict:
@@ -144,11 +186,24 @@ def fit_task(job: FitJob) -> dict:
         properties=props,
     )
     # the particles close to the core's faces, inside and outside: the seam sign comparison
+    # (to the work folder: the coordinator reads a few tiles' at a time)
     band = SIGN_BAND * job.r0
     near = grid.in_halo_box(job.tile, pos, band) if len(pos) else owned
+    # own particles deeper than the band plus the pair distance are never the nearest of a
+    # neighbour's halo particle within that distance: the comparison is the same without them
+    deep = (
+        grid.in_halo_box(job.tile, pos, -(band + SIGN_PAIR_DISTANCE * job.r0))
+        if len(pos)
+        else owned
+    )
     result["particles"] = int(owned.sum())
-    result["border_in"] = (pos[near & owned], nrm[near & owned])
-    result["border_out"] = (pos[near & ~owned], nrm[near & ~owned])
+    np.savez(
+        border_path(job.work, job.tile),
+        in_positions=pos[owned & ~deep],
+        in_normals=nrm[owned & ~deep],
+        out_positions=pos[near & ~owned],
+        out_normals=nrm[near & ~owned],
+    )
     result["seconds"] = time.perf_counter() - t0
     return result
 
