@@ -271,16 +271,12 @@ def test_threads_limit_every_kd_tree_query_of_a_fit(monkeypatch):
     assert seen and set(seen) == {1}, sorted(set(seen))
 
 
-@needs_two
-def test_report_measures_the_mesh_in_two_threads_with_the_same_figures(monkeypatch):
-    """With two threads the report's topology and triangle quality run in a second thread
-    beside the distances (:func:`recon.fitting.report.measure_mesh`); with one, in the fit's
-    thread. Every measure is the same either way."""
+def _threads_of_quality_report(monkeypatch) -> list[str]:
+    """The names of the threads that :func:`recon.fitting.report.quality_report` runs in,
+    call by call, from now on."""
     import threading
 
     import recon.fitting.report as report
-    from recon.fitting import reconstruct
-    from recon.io import read_points
 
     where: list[str] = []
     real = report.quality_report
@@ -290,6 +286,20 @@ def test_report_measures_the_mesh_in_two_threads_with_the_same_figures(monkeypat
         return real(*args, **kwargs)
 
     monkeypatch.setattr(report, "quality_report", spy)
+    return where
+
+
+@needs_two
+def test_report_measures_the_mesh_in_two_threads_with_the_same_figures(monkeypatch):
+    """With two threads the report's topology and triangle quality run in a second thread
+    beside the distances (:func:`recon.fitting.report.measure_mesh`); with one, in the fit's
+    thread. Every measure is the same either way."""
+    import threading
+
+    from recon.fitting import reconstruct
+    from recon.io import read_points
+
+    where = _threads_of_quality_report(monkeypatch)
     cloud = read_points(SPHERE)
     keys = ("topology", "triangle_quality", "mesh_bbox_diag", "fidelity", "mesh_to_input")
     measures = {}
@@ -312,14 +322,7 @@ def test_a_large_mesh_is_measured_in_the_fits_thread(monkeypatch):
     from recon.fitting import reconstruct
     from recon.io import read_points
 
-    where: list[str] = []
-    real = report.quality_report
-
-    def spy(*args, **kwargs):
-        where.append(threading.current_thread().name)
-        return real(*args, **kwargs)
-
-    monkeypatch.setattr(report, "quality_report", spy)
+    where = _threads_of_quality_report(monkeypatch)
     monkeypatch.setattr(report, "CONCURRENT_REPORT_FACES", 10)
     reconstruct(read_points(SPHERE), apply_overrides(ReconConfig(), {"threads": 2}))
     assert where == [threading.current_thread().name]
