@@ -173,7 +173,7 @@ def triangulate_particles(
     # filling caps their ends on each face.
     bridges = handle_bridges(result.normals, result.faces)
     if bridges.any():
-        here = scale if scale is None else scale[cKDTree(positions).query(result.vertices)[1]]
+        here = _spacing_at(scale, positions, result.vertices)
         alt = _repair(
             result.vertices,
             result.normals,
@@ -295,7 +295,7 @@ def _relofted(
     (:func:`recon.holes.loft_nearest_loops`, ``LOFT_GAP``) and repaired again; None without
     such a pair."""
     scale = args[3]
-    local = scale if scale is None else scale[cKDTree(positions).query(alt.vertices)[1]]
+    local = _spacing_at(scale, positions, alt.vertices)
     faces = loft_nearest_loops(alt.vertices, alt.faces, LOFT_GAP, local)
     if len(faces) == len(alt.faces):
         return None
@@ -406,6 +406,14 @@ def circumradius(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     area2 = np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
     with np.errstate(divide="ignore", invalid="ignore"):
         return np.where(area2 > 0, a * b * c / (2.0 * area2), np.inf)
+
+
+def _spacing_at(
+    scale: np.ndarray | None, positions: np.ndarray, vertices: np.ndarray
+) -> np.ndarray | None:
+    """The per-vertex spacing of a repaired mesh whose vertices were renumbered: each takes
+    its nearest particle's (None stays None)."""
+    return scale if scale is None else scale[cKDTree(positions).query(vertices)[1]]
 
 
 def _extend(scale: np.ndarray | None, positions: np.ndarray, vertices: np.ndarray):
