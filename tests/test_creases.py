@@ -14,7 +14,8 @@ from recon.cli.main import app
 
 from recon import creases as creases_module
 from recon.config import CreasesConfig, ReconConfig
-from recon.creases import CORNER, CREASE, SMOOTH, detect_creases, orient_across_creases
+from recon.crease_orient import orient_across_creases
+from recon.creases import CORNER, CREASE, SMOOTH, detect_creases
 from recon.fitting.report import FitReport
 from recon.io import write_points
 
@@ -160,6 +161,33 @@ def test_a_short_fold_is_not_a_crease_a_long_one_is():
     found = detect_creases(_short_wedge(0.6))
     assert (found.labels == CREASE).sum() > 50
     assert 0.45 < found.length < 0.65
+
+
+@pytest.mark.parametrize("length, fitted", [(0.25, False), (0.6, True)])
+def test_the_fold_fits_run_only_for_a_line_long_enough(length, fitted, monkeypatch):
+    # a short fold's crease points reach the line test and all turn smooth for being short:
+    # the fold residuals and the noise floor (most of the filters' cost on smooth scans,
+    # whose tight bends give short fragments) are then not computed; a long fold needs them
+    calls, seen = [], []
+    for name in ("_fold_residuals", "_noise_floor"):
+        real = getattr(creases_module, name)
+
+        def spy(*args, _real=real, _name=name):
+            calls.append(_name)
+            return _real(*args)
+
+        monkeypatch.setattr(creases_module, name, spy)
+    real_folds = creases_module._long_folds
+
+    def folds(pts, label, *rest):
+        seen.append(int(np.count_nonzero(label == CREASE)))
+        return real_folds(pts, label, *rest)
+
+    monkeypatch.setattr(creases_module, "_long_folds", folds)
+    found = detect_creases(_short_wedge(length))
+    assert seen[0] > 20  # the line test had crease points to judge
+    assert sorted(calls) == (["_fold_residuals", "_noise_floor"] if fitted else [])
+    assert ((found.labels == CREASE).sum() > 50) == fitted
 
 
 def _fold_measures(radius):

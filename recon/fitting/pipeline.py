@@ -38,8 +38,9 @@ from ..attributes import check_attribute_output, check_transfer, transfer_for_ou
 from ..cloud import PointCloud, spatial_order
 from ..config import ReconConfig, config_to_dict, with_values
 from ..crease_mesh import corner_normals, split_crease_vertices
+from ..crease_orient import orient_across_creases
 from ..crease_surface import CreaseField
-from ..creases import Creases, detect_creases, orient_across_creases
+from ..creases import Creases, detect_creases
 from ..errors import InputError
 from ..geometry import bbox_diagonal
 from ..intersections import untangle
