@@ -155,6 +155,7 @@ def detect_creases(
     k: int = 48,
     normals_k: int = 20,
     neighbors: tuple[np.ndarray, np.ndarray] | None = None,
+    tree: cKDTree | None = None,
 ) -> Creases:
     """Label every point smooth, crease or corner (see the module docstring).
 
@@ -170,13 +171,15 @@ def detect_creases(
     neighbors : (distances (n, m), indices (n, m)), optional
         Each point's m >= k nearest points, nearest first (a shared k-d tree query of
         ``points``); queried here when None or narrower.
+    tree : scipy.spatial.cKDTree, optional
+        A k-d tree of ``points`` (the fit's shared one); built here when None.
     """
     pts = as_points(points)
     n = len(pts)
     kk = int(min(k, n))
     if kk < 8:
         return _empty(n)
-    tree = cKDTree(pts)
+    tree = cKDTree(pts) if tree is None else tree
     if neighbors is not None and neighbors[1].shape[1] >= kk:
         dist, idx = neighbors[0][:, :kk], neighbors[1][:, :kk]
     else:

@@ -121,6 +121,7 @@ def median_nearest_neighbor_distance(
     sample: int | None = 20000,
     *,
     rng: np.random.Generator,
+    tree: cKDTree | None = None,
 ) -> float:
     """Median distance from a point to its nearest other point (the data spacing).
 
@@ -133,6 +134,8 @@ def median_nearest_neighbor_distance(
     rng : numpy.random.Generator
         Chooses the sample when there are more than ``sample`` points (the fit passes
         ``np.random.default_rng(SPACING_SAMPLE_SEED)``).
+    tree : scipy.spatial.cKDTree, optional
+        A k-d tree of ``points`` already built (the fit shares one); built here when None.
 
     Returns
     -------
@@ -149,7 +152,7 @@ def median_nearest_neighbor_distance(
     n = pts.shape[0]
     if n < 2:
         raise ValueError(f"points: need at least 2 points for a spacing, got {n}")
-    tree = cKDTree(pts)
+    tree = cKDTree(pts) if tree is None else tree
     if sample is not None and n > sample:
         query = pts[np.sort(rng.choice(n, size=sample, replace=False))]
     else:

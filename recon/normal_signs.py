@@ -16,6 +16,7 @@ from __future__ import annotations
 import logging
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from .geometry import median_variation
 from .particle_signs import consistent_normals
@@ -30,10 +31,13 @@ log = logging.getLogger(__name__)
 CLEAN_VARIATION = 0.02
 
 
-def resign_thin_parts(points: np.ndarray, normals: np.ndarray, k: int) -> tuple[np.ndarray, int]:
+def resign_thin_parts(
+    points: np.ndarray, normals: np.ndarray, k: int, tree: cKDTree | None = None
+) -> tuple[np.ndarray, int]:
     """Estimated normals with wrongly signed patches re-signed (clean data only), and how
-    many normals were turned over. Directions never change."""
-    if len(points) <= k or median_variation(points, k) >= CLEAN_VARIATION:
+    many normals were turned over (``tree``: a k-d tree of ``points`` if one is built).
+    Directions never change."""
+    if len(points) <= k or median_variation(points, k, tree=tree) >= CLEAN_VARIATION:
         return normals, 0
     out = consistent_normals(points, normals)
     n_flipped = int(np.count_nonzero(np.einsum("ij,ij->i", out, normals) < 0))

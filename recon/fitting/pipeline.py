@@ -327,12 +327,15 @@ SHARED_QUERY_BLOCK = 65536
 SHARED_CELL_SAMPLE = 256
 
 
-def shared_neighbors(points: np.ndarray, cfg: ReconConfig) -> tuple[np.ndarray, np.ndarray] | None:
+def shared_neighbors(
+    points: np.ndarray, cfg: ReconConfig, tree: cKDTree | None = None
+) -> tuple[np.ndarray, np.ndarray] | None:
     """One k-nearest query of the data for every stage before the dynamics: (distances
     float64, indices int32) of each point's nearest points, nearest first; None when the
     widest use exceeds ``SHARED_NEIGHBORS_MAX`` (noisy data with a raised ``normals.k``) or
     the data is tiny. The indices are int32 (the data holds fewer than 2^31 points: the
-    same values at half the memory, 192 MB of the 576 MB held at 1M points)."""
+    same values at half the memory, 192 MB of the 576 MB held at 1M points). ``tree``: a
+    k-d tree of ``points`` when one is built already."""
     n = len(points)
     widest = [2 * cfg.normals.k, neighbors_needed(cfg.normals)]  # local surfaces, normals
     if cfg.creases.enabled:
@@ -340,7 +343,7 @@ def shared_neighbors(points: np.ndarray, cfg: ReconConfig) -> tuple[np.ndarray, 
     m = max(widest)
     if m > SHARED_NEIGHBORS_MAX or m >= n or n >= 2**31:
         return None
-    tree = cKDTree(points)
+    tree = cKDTree(points) if tree is None else tree
     sample, _ = tree.query(points[:: max(1, n // SHARED_CELL_SAMPLE)], k=m)
     cell = float(np.median(sample[:, -1]))
     grid = PointGrid(points, cell) if np.isfinite(cell) and cell > 0.0 else tree
@@ -358,12 +361,14 @@ def _detect_creases(
     cfg: ReconConfig,
     diag: float,
     neighbors: tuple[np.ndarray, np.ndarray] | None = None,
+    tree: cKDTree | None = None,
 ) -> tuple[Creases | None, CreaseStats | None]:
     """Sharp creases and corners of the data: the detection and the report's section."""
     if not cfg.creases.enabled:
         return None, None
+    c = cfg.creases
     found = detect_creases(
-        points, normals, angle_deg=cfg.creases.angle_deg, k=cfg.creases.k, neighbors=neighbors
+        points, normals, angle_deg=c.angle_deg, k=c.k, neighbors=neighbors, tree=tree
     )
     return found, CreaseStats(
         angle_deg=cfg.creases.angle_deg,
@@ -463,18 +468,20 @@ def _fit_sheet(cloud: PointCloud, cfg: ReconConfig, on_progress: ProgressFn | No
     cloud = cloud.take(spatial_order(cloud.points))
     points = np.asarray(cloud.points, dtype=np.float64)
 
-    cfg = with_neighborhood_size(points, cfg)
-    knn = shared_neighbors(points, cfg)
+    tree = cKDTree(points)  # one k-d tree of the data for the stages up to r0 (same queries)
+    cfg = with_neighborhood_size(points, cfg, tree)
+    knn = shared_neighbors(points, cfg, tree)
     normals, normals_info = compute_normals(cloud, cfg.normals, neighbors=knn)
     clock.lap("normals")
     clock.check()
-    found, creases = _detect_creases(points, normals, cfg, bbox_diagonal(points), knn)
+    found, creases = _detect_creases(points, normals, cfg, bbox_diagonal(points), knn, tree)
     if found is not None:  # a crease fixes the normals' orientation across it
         normals, found, _ = orient_across_creases(points, normals, found, k=cfg.creases.k)
     if normals_info.get("source") == "estimated":  # signs where a thin part's faces meet
-        normals, _ = resign_thin_parts(points, normals, cfg.normals.k)
+        normals, _ = resign_thin_parts(points, normals, cfg.normals.k, tree)
 
-    r0, d_nn = choose_spacing(points, cfg)
+    r0, d_nn = choose_spacing(points, cfg, tree)
+    del tree
     check_grid_size(points, r0)
     cfg = with_max_gap(cfg, r0, d_nn)
     if knn is not None:

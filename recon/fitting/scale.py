@@ -15,6 +15,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from ..config import ReconConfig, with_values
 from ..errors import InputError
@@ -54,18 +55,23 @@ AUTO_GAP = 10.0
 MIN_AUTO_GAP = 1.0
 
 
-def with_neighborhood_size(points: np.ndarray, cfg: ReconConfig) -> ReconConfig:
-    """``cfg`` with ``normals.k`` resolved when ``normals.auto_scale`` is on (else ``cfg``).
+def with_neighborhood_size(
+    points: np.ndarray, cfg: ReconConfig, tree: cKDTree | None = None
+) -> ReconConfig:
+    """``cfg`` with ``normals.k`` resolved when ``normals.auto_scale`` is on (else ``cfg``);
+    ``tree``: a k-d tree of ``points`` when one is built already.
 
     Resolved once so that the normals and the local data surfaces share the neighbourhood size.
     """
     if not cfg.normals.auto_scale:
         return cfg
-    k = choose_neighborhood_size(points, cfg.normals.k)
+    k = choose_neighborhood_size(points, cfg.normals.k, tree=tree)
     return with_values(cfg, normals={"k": k, "auto_scale": False})
 
 
-def choose_spacing(points: np.ndarray, cfg: ReconConfig) -> tuple[float, float]:
+def choose_spacing(
+    points: np.ndarray, cfg: ReconConfig, tree: cKDTree | None = None
+) -> tuple[float, float]:
     """Rest spacing r0 [length] and the median nearest-neighbour distance of the data.
 
     By default r0 = ``spacing_factor`` x median spacing, lowered (not below
@@ -80,6 +86,8 @@ def choose_spacing(points: np.ndarray, cfg: ReconConfig) -> tuple[float, float]:
     cfg : ReconConfig
         ``seeds.spacing`` (absolute), ``seeds.spacing_relative`` (of the bounding-box
         diagonal) or ``seeds.spacing_factor`` with ``seeds.min_particles``.
+    tree : scipy.spatial.cKDTree, optional
+        A k-d tree of ``points`` (the fit's shared one).
 
     Returns
     -------
@@ -91,7 +99,8 @@ def choose_spacing(points: np.ndarray, cfg: ReconConfig) -> tuple[float, float]:
     InputError
         No positive finite spacing can be derived (e.g. mostly duplicate points).
     """
-    d_nn = median_nearest_neighbor_distance(points, rng=np.random.default_rng(SPACING_SAMPLE_SEED))
+    rng = np.random.default_rng(SPACING_SAMPLE_SEED)
+    d_nn = median_nearest_neighbor_distance(points, rng=rng, tree=tree)
     return spacing_from_median(d_nn, len(points), bbox_diagonal(points), cfg), float(d_nn)
 
 
