@@ -165,14 +165,14 @@ def triangulate_particles(
     stats: dict = {"method": cfg.method, "faces_raw": int(len(faces))}
     args = (cfg, max_hole, is_covered, scale, crease)
     result = _repair(positions, normals, faces, dict(stats), *args)
-    if _count(result)[2] == 0:  # without a handle there is none to remove
+    if _count(result)[1:] == (0, 0):  # closed without a handle: nothing to mend
         return result
     # A tunnel between the two faces of a thin part (a bridge of faces joining opposed sheets
     # away from the part's rim) is a handle the surface does not have: drop the bridges that
     # carry one (:func:`recon.mesh.handle_bridges`, smallest first) and repair again; hole
     # filling caps their ends on each face.
-    bridges = handle_bridges(result.normals, result.faces)
-    if bridges.any():
+    bridges = handle_bridges(result.normals, result.faces) if _count(result)[2] else None
+    if bridges is not None and bridges.any():
         here = _spacing_at(scale, positions, result.vertices)
         alt = _repair(
             result.vertices,
@@ -204,11 +204,17 @@ def triangulate_particles(
             result = alt
         else:
             # the opposed band closed the edge of a part thinner than a spacing, and carried
-            # the handles: close the edge again with a plain strip between the two faces' rims
+            # the handles or left it open in places: close the edge again with a plain strip
+            # between the two faces' rims, judged with the edge's one-sided sheets made part of
+            # the body (the two steps mend one edge: alone, the strip can trade the handles
+            # for the rim the sheets continue)
             strip = _relofted(alt, positions, args)
-            if strip is not None and _better(strip, result):
-                log.debug("re-closed a thin edge without its %d opposed faces", int(opposed.sum()))
-                result = strip
+            thick = None if strip is None else _sheets_thickened(strip)
+            for mended in (thick, strip):
+                if mended is not None and _better(mended, result):
+                    log.debug("re-closed a thin edge without its %d opposed faces", opposed.sum())
+                    result = mended
+                    break
     thick = _sheets_thickened(result)
     if thick is not None and _better(thick, result):
         result = thick
@@ -225,7 +231,9 @@ def _sheets_thickened(result: TriangulationResult) -> TriangulationResult | None
     there is a closed part thinner than a spacing: the sheet becomes two copies
     ``SHEET_HALF_THICKNESS`` off it joined round its rim (:func:`recon.holes.thicken_sheet`),
     connected to the body by a short tube at their closest faces
-    (:func:`recon.holes.neck_between`). A sheet whose thick copy would cross a face stays.
+    (:func:`recon.holes.neck_between`). A sheet whose thick copy would cross the body stays.
+    A joined sheet is part of the body: a sheet that continues it (the edge's next stretch,
+    farther from the original body) is judged against the body with it, until none joins.
     """
     v, f = result.vertices, result.faces
     n, label = face_components(f, len(v))
@@ -234,48 +242,42 @@ def _sheets_thickened(result: TriangulationResult) -> TriangulationResult | None
     body = int(np.argmax(np.bincount(label)))
     if handle_count(f[label == body], len(v))[1] != 0:
         return None
-    tree = cKDTree(v[np.unique(f[label == body])])
-    vertices, normals, faces, changed = [v], [result.normals], [f[label == body]], False
-    count = len(v)
-    for k in range(n):
-        sheet = f[label == k]
-        if k == body:
-            continue
-        disc = handle_count(sheet, len(v)) == (1, 1, 0)
-        if not disc or tree.query(v[np.unique(sheet)])[0].min() > SHEET_NECK_GAP:
-            faces.append(sheet)
-            continue
-        new_v, new_f = thicken_sheet(v, sheet, SHEET_HALF_THICKNESS)
-        trial_v = np.concatenate([*vertices, new_v])
-        trial_f = np.concatenate([*faces, new_f + count])
-        crossing = self_intersections(
-            trial_v, trial_f, np.arange(len(trial_f) - len(new_f), len(trial_f))
-        )
-        joined = (
-            None
-            if len(crossing)
-            else neck_between(
-                trial_v,
-                trial_f,
-                np.arange(len(faces[0])),
-                np.arange(len(trial_f) - len(new_f), len(trial_f)),
+    sheets = [f[label == k] for k in range(n) if k != body]
+    discs = [handle_count(sheet, len(v)) == (1, 1, 0) for sheet in sheets]
+    vertices, normals, body_faces = [v], [result.normals], f[label == body]
+    count, joined_any = len(v), True
+    while joined_any:
+        joined_any = False
+        all_v = np.concatenate(vertices)
+        tree = cKDTree(all_v[np.unique(body_faces)])
+        for k, sheet in enumerate(sheets):
+            if sheet is None or not discs[k]:
+                continue
+            if tree.query(v[np.unique(sheet)])[0].min() > SHEET_NECK_GAP:
+                continue
+            new_v, new_f = thicken_sheet(v, sheet, SHEET_HALF_THICKNESS)
+            trial_v = np.concatenate([all_v, new_v])
+            trial_f = np.concatenate([body_faces, new_f + count])
+            new = np.arange(len(body_faces), len(trial_f))
+            crossing = self_intersections(trial_v, trial_f, new)
+            joined = (
+                None
+                if len(crossing)
+                else neck_between(trial_v, trial_f, np.arange(len(body_faces)), new)
             )
-        )
-        if joined is None:
-            faces.append(sheet)
-            continue
-        up = result.normals[np.unique(sheet)]
-        vertices.append(new_v)
-        normals.append(np.concatenate([up, -up]))
-        count += len(new_v)
-        # the body (joined to this sheet) first, then the other parts
-        faces = [joined]
-        changed = True
-    if not changed:
+            if joined is None:
+                continue
+            up = result.normals[np.unique(sheet)]
+            vertices.append(new_v)
+            normals.append(np.concatenate([up, -up]))
+            count += len(new_v)
+            body_faces, sheets[k], joined_any = joined, None, True
+            break  # the body grew: measure the other sheets' distances to it again
+    if count == len(v):
         return None
     vertices_all = np.concatenate(vertices)
     normals_all = np.concatenate(normals)
-    faces_all = np.concatenate(faces)
+    faces_all = np.concatenate([body_faces, *(s for s in sheets if s is not None)])
     crease = result.crease
     if crease is not None:
         crease = np.concatenate([crease, np.zeros(len(vertices_all) - len(crease), dtype=bool)])
