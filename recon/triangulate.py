@@ -35,6 +35,7 @@ from .holes import fill_small_holes, loft_nearest_loops, neck_between, thicken_s
 from .intersections import self_intersections
 from .kernels.circumsphere import circumsphere_kernel
 from .mesh import (
+    boundary_loops,
     edge_keys,
     face_area_vectors,
     face_components,
@@ -165,8 +166,8 @@ def triangulate_particles(
     stats: dict = {"method": cfg.method, "faces_raw": int(len(faces))}
     args = (cfg, max_hole, is_covered, scale, crease)
     result = _repair(positions, normals, faces, dict(stats), *args)
-    if _count(result)[1:] == (0, 0):  # closed without a handle: nothing to mend
-        return result
+    if _count(result)[2] == 0 and not _open_along_opposed(result):
+        return result  # no handle, and no thin edge left open in places: nothing to mend
     # A tunnel between the two faces of a thin part (a bridge of faces joining opposed sheets
     # away from the part's rim) is a handle the surface does not have: drop the bridges that
     # carry one (:func:`recon.mesh.handle_bridges`, smallest first) and repair again; hole
@@ -288,6 +289,19 @@ def _sheets_thickened(result: TriangulationResult) -> TriangulationResult | None
     faces_all = orient_consistently(vertices_all, normals_all, faces_all)
     log.debug("thickened one-sided sheets at a thin edge: %d -> %d faces", len(f), len(faces_all))
     return TriangulationResult(vertices_all, faces_all, normals_all, dict(result.stats), crease)
+
+
+def _open_along_opposed(result: TriangulationResult) -> bool:
+    """Does a boundary loop of ``result`` touch a face whose corners face more than 90 deg
+    apart (:func:`recon.mesh.opposed_faces`)? Such a loop is where the band of opposed faces
+    across the edge of a part thinner than a spacing left the edge open; a real boundary (a
+    scan's rim) has one sheet's normals round it."""
+    loops = boundary_loops(result.faces)
+    if not loops:
+        return False
+    on_band = np.zeros(len(result.vertices), dtype=bool)
+    on_band[result.faces[opposed_faces(result.normals, result.faces)].reshape(-1)] = True
+    return any(on_band[loop].any() for loop in loops)
 
 
 def _relofted(
