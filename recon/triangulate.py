@@ -210,7 +210,7 @@ def triangulate_particles(
             # the body (the two steps mend one edge: alone, the strip can trade the handles
             # for the rim the sheets continue)
             strip = _relofted(alt, positions, args)
-            thick = None if strip is None else _sheets_thickened(strip)
+            thick = None if strip is None else _sheets_thickened(strip, open_body=True)
             for mended in (thick, strip):
                 if mended is not None and _better(mended, result):
                     log.debug("re-closed a thin edge without its %d opposed faces", opposed.sum())
@@ -222,7 +222,9 @@ def triangulate_particles(
     return result
 
 
-def _sheets_thickened(result: TriangulationResult) -> TriangulationResult | None:
+def _sheets_thickened(
+    result: TriangulationResult, open_body: bool = False
+) -> TriangulationResult | None:
     """``result`` with each one-sided open sheet beside the closed main body made a thin body
     of its own and joined to it; None when there is none.
 
@@ -235,13 +237,16 @@ def _sheets_thickened(result: TriangulationResult) -> TriangulationResult | None
     (:func:`recon.holes.neck_between`). A sheet whose thick copy would cross the body stays.
     A joined sheet is part of the body: a sheet that continues it (the edge's next stretch,
     farther from the original body) is judged against the body with it, until none joins.
+    ``open_body``: the body may have boundary loops (where a thin edge's opposed band was
+    dropped and its rims joined, a loop left beside the sheets is the edge's rest); else only
+    a closed body takes sheets (an open scan's separate patch is one-sided data).
     """
     v, f = result.vertices, result.faces
     n, label = face_components(f, len(v))
     if n < 2:
         return None
     body = int(np.argmax(np.bincount(label)))
-    if handle_count(f[label == body], len(v))[1] != 0:
+    if not open_body and handle_count(f[label == body], len(v))[1] != 0:
         return None
     sheets = [f[label == k] for k in range(n) if k != body]
     discs = [handle_count(sheet, len(v)) == (1, 1, 0) for sheet in sheets]

@@ -159,3 +159,19 @@ def test_a_thin_edge_left_open_in_places_without_a_handle_is_closed(monkeypatch)
         o3d.utility.Vector3dVector(result.vertices), o3d.utility.Vector3iVector(result.faces)
     )
     assert mesh.is_watertight() and mesh.is_orientable()
+
+
+def test_a_sheet_beside_a_body_left_open_at_its_edge_joins_it_only_when_asked():
+    # regression (held-out knife, seed 0): after the opposed band was dropped and the two
+    # faces' rims joined, the body kept one loop at the blade's tip, beside the one-sided
+    # sheets that continue the edge; sheets were taken only by a closed body (4 components)
+    result = _body_and_sheet(gap=0.5)
+    v, f = result.vertices, result.faces
+    cap = np.flatnonzero(v[f[: len(f) - 50]].mean(axis=1)[:, 2] < -4.5)  # open the south pole
+    result = TriangulationResult(v, np.delete(f, cap, axis=0), result.normals, {})
+    assert handle_count(result.faces, len(v)) == (2, 2, 0)
+    assert _sheets_thickened(result) is None  # an open scan's patch stays one-sided
+    thick = _sheets_thickened(result, open_body=True)
+    assert thick is not None
+    assert handle_count(thick.faces, len(thick.vertices)) == (1, 1, 0)
+    assert len(self_intersections(thick.vertices, thick.faces)) == 0
