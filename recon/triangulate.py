@@ -36,6 +36,7 @@ from .intersections import self_intersections
 from .kernels.circumsphere import circumsphere_kernel
 from .mesh import (
     boundary_loops,
+    capped_volume,
     edge_keys,
     face_area_vectors,
     face_components,
@@ -292,6 +293,13 @@ def _sheets_thickened(
         crease = crease[used]
     vertices_all, normals_all, faces_all = drop_unreferenced(vertices_all, normals_all, faces_all)
     faces_all = orient_consistently(vertices_all, normals_all, faces_all)
+    if open_body:
+        # an open component takes the winding its normals vote for, which on a thin part can
+        # be the inside: this one is a closed part's surface open only at its mended edge
+        _, label = face_components(faces_all, len(vertices_all))
+        body = label == np.argmax(np.bincount(label))
+        if capped_volume(vertices_all, faces_all[body]) < 0:
+            faces_all[body] = faces_all[body][:, ::-1]
     log.debug("thickened one-sided sheets at a thin edge: %d -> %d faces", len(f), len(faces_all))
     return TriangulationResult(vertices_all, faces_all, normals_all, dict(result.stats), crease)
 

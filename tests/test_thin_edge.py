@@ -5,10 +5,11 @@ from __future__ import annotations
 
 import numpy as np
 import open3d as o3d
+import pytest
 
 from recon.holes import loft_loops, loft_nearest_loops
 from recon.intersections import self_intersections
-from recon.mesh import boundary_loops, count_edge_faces, handle_count
+from recon.mesh import boundary_loops, capped_volume, count_edge_faces, handle_count
 from recon.topology import mesh_topology
 from recon.triangulate import TriangulationResult, _sheets_thickened, orient_consistently
 
@@ -161,17 +162,23 @@ def test_a_thin_edge_left_open_in_places_without_a_handle_is_closed(monkeypatch)
     assert mesh.is_watertight() and mesh.is_orientable()
 
 
-def test_a_sheet_beside_a_body_left_open_at_its_edge_joins_it_only_when_asked():
+@pytest.mark.parametrize("inward", [False, True])
+def test_a_sheet_beside_a_body_left_open_at_its_edge_joins_it_only_when_asked(inward):
     # regression (held-out knife, seed 0): after the opposed band was dropped and the two
     # faces' rims joined, the body kept one loop at the blade's tip, beside the one-sided
-    # sheets that continue the edge; sheets were taken only by a closed body (4 components)
+    # sheets that continue the edge; sheets were taken only by a closed body (4 components).
+    # There the particle normals pointed inward, and the open body followed them inside out
     result = _body_and_sheet(gap=0.5)
-    v, f = result.vertices, result.faces
+    v, f, normals = result.vertices, result.faces, result.normals
     cap = np.flatnonzero(v[f[: len(f) - 50]].mean(axis=1)[:, 2] < -4.5)  # open the south pole
-    result = TriangulationResult(v, np.delete(f, cap, axis=0), result.normals, {})
+    f = np.delete(f, cap, axis=0)
+    if inward:
+        f, normals = f[:, ::-1], -normals
+    result = TriangulationResult(v, f, normals, {})
     assert handle_count(result.faces, len(v)) == (2, 2, 0)
     assert _sheets_thickened(result) is None  # an open scan's patch stays one-sided
     thick = _sheets_thickened(result, open_body=True)
     assert thick is not None
     assert handle_count(thick.faces, len(thick.vertices)) == (1, 1, 0)
     assert len(self_intersections(thick.vertices, thick.faces)) == 0
+    assert capped_volume(thick.vertices, thick.faces) > 0  # outward
