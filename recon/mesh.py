@@ -49,6 +49,7 @@ __all__ = [
     "boundary_components",
     "boundary_loop_perimeters",
     "boundary_loops",
+    "capped_volume",
     "count_edge_faces",
     "edge_keys",
     "face_area_vectors",
@@ -144,6 +145,27 @@ def boundary_loops(faces: np.ndarray) -> list[np.ndarray]:
         if v == start and simple:
             loops.append(np.asarray(loop, dtype=np.int64))
     return loops
+
+
+def capped_volume(vertices: np.ndarray, faces: np.ndarray) -> float:
+    """Signed volume of the surface with each simple boundary loop (:func:`boundary_loops`)
+    capped by a fan from its centroid, wound as the faces are: positive when the faces point
+    out of the region they enclose, also for a closed surface left open in places.
+
+    Examples
+    --------
+    >>> v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], float)
+    >>> round(capped_volume(v, np.array([[0, 2, 1], [0, 1, 3], [1, 2, 3]])), 4)
+    0.1667
+    """
+    f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    p = vertices[f]
+    six = float(np.einsum("ij,ij->i", p[:, 0], np.cross(p[:, 1], p[:, 2])).sum())
+    for loop in boundary_loops(f):
+        c = vertices[loop].mean(axis=0)
+        a, b = vertices[np.roll(loop, -1)] - c, vertices[loop] - c  # cap (c, next, this)
+        six += float(np.einsum("ij,ij->i", np.broadcast_to(c, a.shape), np.cross(a, b)).sum())
+    return six / 6.0
 
 
 def boundary_components(edges: np.ndarray, counts: np.ndarray, n_vertices: int) -> int:

@@ -35,6 +35,8 @@ from .holes import fill_small_holes, loft_nearest_loops, neck_between, thicken_s
 from .intersections import self_intersections
 from .kernels.circumsphere import circumsphere_kernel
 from .mesh import (
+    boundary_loops,
+    capped_volume,
     edge_keys,
     face_area_vectors,
     face_components,
@@ -165,14 +167,14 @@ def triangulate_particles(
     stats: dict = {"method": cfg.method, "faces_raw": int(len(faces))}
     args = (cfg, max_hole, is_covered, scale, crease)
     result = _repair(positions, normals, faces, dict(stats), *args)
-    if _count(result)[2] == 0:  # without a handle there is none to remove
-        return result
+    if _count(result)[2] == 0 and not _open_along_opposed(result):
+        return result  # no handle, and no thin edge left open in places: nothing to mend
     # A tunnel between the two faces of a thin part (a bridge of faces joining opposed sheets
     # away from the part's rim) is a handle the surface does not have: drop the bridges that
     # carry one (:func:`recon.mesh.handle_bridges`, smallest first) and repair again; hole
     # filling caps their ends on each face.
-    bridges = handle_bridges(result.normals, result.faces)
-    if bridges.any():
+    bridges = handle_bridges(result.normals, result.faces) if _count(result)[2] else None
+    if bridges is not None and bridges.any():
         here = _spacing_at(scale, positions, result.vertices)
         alt = _repair(
             result.vertices,
@@ -204,18 +206,26 @@ def triangulate_particles(
             result = alt
         else:
             # the opposed band closed the edge of a part thinner than a spacing, and carried
-            # the handles: close the edge again with a plain strip between the two faces' rims
+            # the handles or left it open in places: close the edge again with a plain strip
+            # between the two faces' rims, judged with the edge's one-sided sheets made part of
+            # the body (the two steps mend one edge: alone, the strip can trade the handles
+            # for the rim the sheets continue)
             strip = _relofted(alt, positions, args)
-            if strip is not None and _better(strip, result):
-                log.debug("re-closed a thin edge without its %d opposed faces", int(opposed.sum()))
-                result = strip
+            thick = None if strip is None else _sheets_thickened(strip, open_body=True)
+            for mended in (thick, strip):
+                if mended is not None and _better(mended, result):
+                    log.debug("re-closed a thin edge without its %d opposed faces", opposed.sum())
+                    result = mended
+                    break
     thick = _sheets_thickened(result)
     if thick is not None and _better(thick, result):
         result = thick
     return result
 
 
-def _sheets_thickened(result: TriangulationResult) -> TriangulationResult | None:
+def _sheets_thickened(
+    result: TriangulationResult, open_body: bool = False
+) -> TriangulationResult | None:
     """``result`` with each one-sided open sheet beside the closed main body made a thin body
     of its own and joined to it; None when there is none.
 
@@ -225,57 +235,56 @@ def _sheets_thickened(result: TriangulationResult) -> TriangulationResult | None
     there is a closed part thinner than a spacing: the sheet becomes two copies
     ``SHEET_HALF_THICKNESS`` off it joined round its rim (:func:`recon.holes.thicken_sheet`),
     connected to the body by a short tube at their closest faces
-    (:func:`recon.holes.neck_between`). A sheet whose thick copy would cross a face stays.
+    (:func:`recon.holes.neck_between`). A sheet whose thick copy would cross the body stays.
+    A joined sheet is part of the body: a sheet that continues it (the edge's next stretch,
+    farther from the original body) is judged against the body with it, until none joins.
+    ``open_body``: the body may have boundary loops (where a thin edge's opposed band was
+    dropped and its rims joined, a loop left beside the sheets is the edge's rest); else only
+    a closed body takes sheets (an open scan's separate patch is one-sided data).
     """
     v, f = result.vertices, result.faces
     n, label = face_components(f, len(v))
     if n < 2:
         return None
     body = int(np.argmax(np.bincount(label)))
-    if handle_count(f[label == body], len(v))[1] != 0:
+    if not open_body and handle_count(f[label == body], len(v))[1] != 0:
         return None
-    tree = cKDTree(v[np.unique(f[label == body])])
-    vertices, normals, faces, changed = [v], [result.normals], [f[label == body]], False
-    count = len(v)
-    for k in range(n):
-        sheet = f[label == k]
-        if k == body:
-            continue
-        disc = handle_count(sheet, len(v)) == (1, 1, 0)
-        if not disc or tree.query(v[np.unique(sheet)])[0].min() > SHEET_NECK_GAP:
-            faces.append(sheet)
-            continue
-        new_v, new_f = thicken_sheet(v, sheet, SHEET_HALF_THICKNESS)
-        trial_v = np.concatenate([*vertices, new_v])
-        trial_f = np.concatenate([*faces, new_f + count])
-        crossing = self_intersections(
-            trial_v, trial_f, np.arange(len(trial_f) - len(new_f), len(trial_f))
-        )
-        joined = (
-            None
-            if len(crossing)
-            else neck_between(
-                trial_v,
-                trial_f,
-                np.arange(len(faces[0])),
-                np.arange(len(trial_f) - len(new_f), len(trial_f)),
+    sheets = [f[label == k] for k in range(n) if k != body]
+    discs = [handle_count(sheet, len(v)) == (1, 1, 0) for sheet in sheets]
+    vertices, normals, body_faces = [v], [result.normals], f[label == body]
+    count, joined_any = len(v), True
+    while joined_any:
+        joined_any = False
+        all_v = np.concatenate(vertices)
+        tree = cKDTree(all_v[np.unique(body_faces)])
+        for k, sheet in enumerate(sheets):
+            if sheet is None or not discs[k]:
+                continue
+            if tree.query(v[np.unique(sheet)])[0].min() > SHEET_NECK_GAP:
+                continue
+            new_v, new_f = thicken_sheet(v, sheet, SHEET_HALF_THICKNESS)
+            trial_v = np.concatenate([all_v, new_v])
+            trial_f = np.concatenate([body_faces, new_f + count])
+            new = np.arange(len(body_faces), len(trial_f))
+            crossing = self_intersections(trial_v, trial_f, new)
+            joined = (
+                None
+                if len(crossing)
+                else neck_between(trial_v, trial_f, np.arange(len(body_faces)), new)
             )
-        )
-        if joined is None:
-            faces.append(sheet)
-            continue
-        up = result.normals[np.unique(sheet)]
-        vertices.append(new_v)
-        normals.append(np.concatenate([up, -up]))
-        count += len(new_v)
-        # the body (joined to this sheet) first, then the other parts
-        faces = [joined]
-        changed = True
-    if not changed:
+            if joined is None:
+                continue
+            up = result.normals[np.unique(sheet)]
+            vertices.append(new_v)
+            normals.append(np.concatenate([up, -up]))
+            count += len(new_v)
+            body_faces, sheets[k], joined_any = joined, None, True
+            break  # the body grew: measure the other sheets' distances to it again
+    if count == len(v):
         return None
     vertices_all = np.concatenate(vertices)
     normals_all = np.concatenate(normals)
-    faces_all = np.concatenate(faces)
+    faces_all = np.concatenate([body_faces, *(s for s in sheets if s is not None)])
     crease = result.crease
     if crease is not None:
         crease = np.concatenate([crease, np.zeros(len(vertices_all) - len(crease), dtype=bool)])
@@ -284,8 +293,28 @@ def _sheets_thickened(result: TriangulationResult) -> TriangulationResult | None
         crease = crease[used]
     vertices_all, normals_all, faces_all = drop_unreferenced(vertices_all, normals_all, faces_all)
     faces_all = orient_consistently(vertices_all, normals_all, faces_all)
+    if open_body:
+        # an open component takes the winding its normals vote for, which on a thin part can
+        # be the inside: this one is a closed part's surface open only at its mended edge
+        _, label = face_components(faces_all, len(vertices_all))
+        body = label == np.argmax(np.bincount(label))
+        if capped_volume(vertices_all, faces_all[body]) < 0:
+            faces_all[body] = faces_all[body][:, ::-1]
     log.debug("thickened one-sided sheets at a thin edge: %d -> %d faces", len(f), len(faces_all))
     return TriangulationResult(vertices_all, faces_all, normals_all, dict(result.stats), crease)
+
+
+def _open_along_opposed(result: TriangulationResult) -> bool:
+    """Does a boundary loop of ``result`` touch a face whose corners face more than 90 deg
+    apart (:func:`recon.mesh.opposed_faces`)? Such a loop is where the band of opposed faces
+    across the edge of a part thinner than a spacing left the edge open; a real boundary (a
+    scan's rim) has one sheet's normals round it."""
+    loops = boundary_loops(result.faces)
+    if not loops:
+        return False
+    on_band = np.zeros(len(result.vertices), dtype=bool)
+    on_band[result.faces[opposed_faces(result.normals, result.faces)].reshape(-1)] = True
+    return any(on_band[loop].any() for loop in loops)
 
 
 def _relofted(

@@ -5,10 +5,11 @@ from __future__ import annotations
 
 import numpy as np
 import open3d as o3d
+import pytest
 
 from recon.holes import loft_loops, loft_nearest_loops
 from recon.intersections import self_intersections
-from recon.mesh import boundary_loops, count_edge_faces, handle_count
+from recon.mesh import boundary_loops, capped_volume, count_edge_faces, handle_count
 from recon.topology import mesh_topology
 from recon.triangulate import TriangulationResult, _sheets_thickened, orient_consistently
 
@@ -110,3 +111,74 @@ def test_a_one_sided_sheet_at_a_closed_body_becomes_part_of_it():
 
 def test_a_sheet_away_from_the_body_stays():
     assert _sheets_thickened(_body_and_sheet(gap=3.0)) is None
+
+
+def test_a_sheet_that_continues_a_joined_sheet_joins_too():
+    # regression (held-out knife, seed 2): the edge's last stretch was a second one-sided sheet
+    # 1.1 r0 from the body but 0.95 r0 from the first sheet, which had joined it: it was
+    # judged against the body without the first sheet and stayed open (2 components, 1 loop)
+    first = _body_and_sheet(gap=0.5)
+    sv, sf = _grid(6, 1.0, 0.0, np.random.default_rng(1))
+    sv[:, 0] += 5.0 + 0.5 + 5.0 + 0.5 + 2.5  # 0.5 beyond the first sheet, 6 from the body
+    v = np.concatenate([first.vertices, sv])
+    normals = np.concatenate([first.normals, np.tile([0.0, 0.0, 1.0], (len(sv), 1))])
+    faces = np.concatenate([first.faces, sf + len(first.vertices)])
+    assert handle_count(faces, len(v)) == (3, 2, 0)
+    thick = _sheets_thickened(TriangulationResult(v, faces, normals, {}))
+    assert thick is not None
+    topo = mesh_topology(thick.vertices, thick.faces)
+    assert topo["watertight"] and topo["components"] == 1 and topo["genus"] == 0, topo
+    assert len(self_intersections(thick.vertices, thick.faces)) == 0
+
+
+def test_a_thin_edge_left_open_in_places_without_a_handle_is_closed(monkeypatch):
+    # regression (held-out knife, seed 1): the band of opposed faces across a blade's edge
+    # closed most of it but left two stretches open; with no handle the first repair was
+    # returned as it was (1 component, 2 loops), although dropping the band and joining the
+    # two faces' rims by a strip closes it
+    import recon.triangulate as tri
+    from recon.config import TriangulationConfig
+
+    rng = np.random.default_rng(0)
+    vt, ft = _grid(10, 1.0, 0.4, rng)
+    vb, fb = _grid(10, 1.0, -0.4, rng)
+    v = np.concatenate([vt, vb])
+    normals = np.zeros_like(v)
+    normals[:, 2] = np.sign(v[:, 2])
+    (rim,) = boundary_loops(ft)
+    band = []
+    for k, (a, b) in enumerate(zip(rim, np.roll(rim, -1), strict=True)):
+        if k % 18 in (4, 5, 6):  # two stretches of three edges stay open
+            continue
+        band += [[a, b, b + len(vt)], [a, b + len(vt), a + len(vt)]]
+    faces = np.concatenate([ft, fb + len(vt), np.array(band)])
+    monkeypatch.setattr(tri, "ball_pivoting", lambda *_: faces)
+    result = tri.triangulate_particles(v, normals, TriangulationConfig(), 1.0, resign=False)
+    topo = mesh_topology(result.vertices, result.faces)
+    assert topo["watertight"] and topo["components"] == 1 and topo["genus"] == 0, topo
+    mesh = o3d.geometry.TriangleMesh(
+        o3d.utility.Vector3dVector(result.vertices), o3d.utility.Vector3iVector(result.faces)
+    )
+    assert mesh.is_watertight() and mesh.is_orientable()
+
+
+@pytest.mark.parametrize("inward", [False, True])
+def test_a_sheet_beside_a_body_left_open_at_its_edge_joins_it_only_when_asked(inward):
+    # regression (held-out knife, seed 0): after the opposed band was dropped and the two
+    # faces' rims joined, the body kept one loop at the blade's tip, beside the one-sided
+    # sheets that continue the edge; sheets were taken only by a closed body (4 components).
+    # There the particle normals pointed inward, and the open body followed them inside out
+    result = _body_and_sheet(gap=0.5)
+    v, f, normals = result.vertices, result.faces, result.normals
+    cap = np.flatnonzero(v[f[: len(f) - 50]].mean(axis=1)[:, 2] < -4.5)  # open the south pole
+    f = np.delete(f, cap, axis=0)
+    if inward:
+        f, normals = f[:, ::-1], -normals
+    result = TriangulationResult(v, f, normals, {})
+    assert handle_count(result.faces, len(v)) == (2, 2, 0)
+    assert _sheets_thickened(result) is None  # an open scan's patch stays one-sided
+    thick = _sheets_thickened(result, open_body=True)
+    assert thick is not None
+    assert handle_count(thick.faces, len(thick.vertices)) == (1, 1, 0)
+    assert len(self_intersections(thick.vertices, thick.faces)) == 0
+    assert capped_volume(thick.vertices, thick.faces) > 0  # outward
