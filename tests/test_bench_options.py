@@ -116,3 +116,46 @@ def test_bench_scale_runs_a_baseline_tree_first_on_the_path(monkeypatch, tmp_pat
     bench.run_oprecon(tmp_path / "in.ply", tmp_path / "o.ply", None, source=tmp_path / "base")
     assert "PYTHONPATH" not in envs[0]
     assert envs[1]["PYTHONPATH"].split(os.pathsep) == [str(tmp_path / "base"), "elsewhere"]
+
+
+def _bench_seeds():
+    spec = importlib.util.spec_from_file_location(
+        "bench_seeds", ROOT / "benchmarks" / "bench_seeds.py"
+    )
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def _row(loops, comps, watertight, genus=0, f=0.99, cd=0.001):
+    return {
+        "boundary_loops": loops,
+        "components": comps,
+        "watertight": watertight,
+        "genus": genus,
+        "fscore": f,
+        "chamfer_l1": cd,
+        "min_angle_mean": 54.0,
+        "seconds": 1.0,
+    }
+
+
+def test_bench_seeds_judges_the_totals_over_the_seeds():
+    """A branch passes when its topology totals over the seeds are no worse than the base's
+    (one seed may be worse if another is better) and its mean F@1% / Chamfer-L1 are within
+    the noise; each worse total is named."""
+    bs = _bench_seeds()
+    base = bs.summarise([_row(6, 2, False), _row(5, 1, False)], genus=None)
+    swapped = bs.summarise([_row(5, 1, False), _row(6, 2, False)], genus=None)
+    assert bs.verdict(base, swapped, 0.002, 0.05) == []
+    more = bs.summarise([_row(6, 2, False), _row(6, 1, False)], genus=None)
+    assert bs.verdict(base, more, 0.002, 0.05) == ["loops"]
+    closed = bs.summarise([_row(0, 1, True), _row(0, 1, True)], genus=0)
+    broken = bs.summarise([_row(0, 1, True, genus=1), _row(2, 1, False)], genus=0)
+    assert bs.verdict(closed, broken, 0.002, 0.05) == ["loops", "watertight", "genus"]
+    worse_fit = bs.summarise([_row(0, 1, True, f=0.99, cd=0.00106)] * 2, genus=0)
+    assert bs.verdict(closed, worse_fit, 0.002, 0.05) == ["CD-L1"]
+    text, failed = bs.table(
+        ["a", "b"], {"a": closed, "b": base}, {"a": broken, "b": swapped}, 0.002, 0.05
+    )
+    assert failed == 1 and "worse: loops, watertight, genus" in text and "| ok |" in text
