@@ -118,15 +118,6 @@ def test_bench_scale_runs_a_baseline_tree_first_on_the_path(monkeypatch, tmp_pat
     assert envs[1]["PYTHONPATH"].split(os.pathsep) == [str(tmp_path / "base"), "elsewhere"]
 
 
-def _bench_seeds():
-    spec = importlib.util.spec_from_file_location(
-        "bench_seeds", ROOT / "benchmarks" / "bench_seeds.py"
-    )
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
 def _row(loops, comps, watertight, genus=0, f=0.99, cd=0.001):
     return {
         "boundary_loops": loops,
@@ -144,7 +135,7 @@ def test_bench_seeds_judges_the_totals_over_the_seeds():
     """A branch passes when its topology totals over the seeds are no worse than the base's
     (one seed may be worse if another is better) and its mean F@1% / Chamfer-L1 are within
     the noise; each worse total is named."""
-    bs = _bench_seeds()
+    bs = _bench("bench_seeds")
     base = bs.summarise([_row(6, 2, False), _row(5, 1, False)], genus=None)
     swapped = bs.summarise([_row(5, 1, False), _row(6, 2, False)], genus=None)
     assert bs.verdict(base, swapped, 0.002, 0.05) == []
