@@ -192,12 +192,13 @@ def test_the_coordinator_holds_a_tile_not_the_scan(tmp_path):
 
 
 def test_the_stitch_holds_the_same_memory_for_4x_the_tiles(tmp_path, monkeypatch):
-    """The coordinator's stitch on 4 x 4 and 8 x 8 tiles: the same peak allocation, and the
-    same memory held when the topology is joined at the end (what waits for the end: the
-    used vertices and the components' links per block in the work folder, one row per
-    component). Before, it held one flag per vertex of the mesh, every link, the paths of
-    every tile's zone and rim files and the repair's added vertices: about 5 kB per tile of
-    this lattice (12 x 12 vertices), ~0.2 MiB per tile of a 50 m tile of the scale scene."""
+    """The coordinator's stitch on 4 x 4 and 8 x 8 tiles: about the same peak allocation (one
+    dual cell's repair), and the same memory held when the topology is joined at the end
+    (the used vertices and the components' links wait per block in the work folder; one row
+    per component). Before, it held one flag per vertex of the mesh, every link, the paths
+    of every tile's zone and rim files and the repair's added vertices: 280 kB more for the
+    48 more tiles of this small lattice (12 x 12 vertices a tile), ~70 kB now."""
+    import gc
     import tracemalloc
 
     import recon.tiling.measure as measure
@@ -208,6 +209,7 @@ def test_the_stitch_holds_the_same_memory_for_4x_the_tiles(tmp_path, monkeypatch
     topology = measure.TopologyAccumulator.topology
 
     def spy(self, n_vertices):
+        gc.collect()  # np.load's header parsing leaves reference cycles: count what is held
         held["at_end"] = tracemalloc.get_traced_memory()[0]
         return topology(self, n_vertices)
 
@@ -225,8 +227,9 @@ def test_the_stitch_holds_the_same_memory_for_4x_the_tiles(tmp_path, monkeypatch
         ends[n] = held["at_end"]
         assert out["n_faces"] == n_faces and out["topology"]["boundary_loops"] == 1
         assert out["topology"]["components"] == 1
-    assert peaks[8] < peaks[4] + 100_000, peaks
-    assert ends[8] < ends[4] + 100_000, ends
+    # held at the end: ~1 kB per tile left (the vertex blocks' loaders), ~6 kB before
+    assert ends[8] < ends[4] + 150_000, ends
+    assert peaks[8] < 1.25 * peaks[4], peaks  # one dual cell's repair, whatever the tiles
 
 
 def test_a_failing_write_leaves_nothing(tmp_path, monkeypatch):
