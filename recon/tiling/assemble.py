@@ -22,9 +22,12 @@ sub-mesh cuts off; no loop through them is closed). Then it measures the topolog
 (:class:`recon.tiling.measure.TopologyAccumulator`), and streams the mesh into the output
 file tile by tile (:func:`recon.tiling.writer.write_streamed`). What it holds at any moment
 is one unit's faces, or the zone and rim faces of 3 x 3 dual cells during the repair, the
-vertices they use (:class:`VertexStore` keeps a few tiles' vertices loaded), one byte per
-vertex of the scan (which vertices the mesh uses), and the boundary edges of the whole mesh
-(for the loop count).
+vertices they use (:class:`~recon.tiling.vertices.VertexStore` keeps a few tiles' vertices
+loaded), and the boundary edges of the whole mesh (for the loop count). Which vertices the
+mesh uses (:class:`~recon.tiling.vertices.UsedVertices`), the links between the units'
+components and the vertices the repair added wait in the work folder; per tile, a few
+hundred bytes of bookkeeping stay (the vertex blocks and their loaders, one flag per dual
+cell).
 """
 
 from __future__ import annotations
@@ -273,8 +276,9 @@ def stitch_streamed(
 ) -> dict[str, Any]:
     """Repair the seam zone cell by cell and measure the mesh unit by unit.
 
-    Returns a dict with ``store`` (:class:`VertexStore`), ``units`` (a list of callables
-    each returning one unit's final faces in global ids), ``used`` (vertices the mesh uses),
+    Returns a dict with ``store`` (:class:`VertexStore`), ``units`` (an iterable of the
+    units' final faces in global ids, read when iterated), ``used``
+    (:class:`~recon.tiling.vertices.UsedVertices`: the vertices the mesh uses),
     ``topology``, ``quality``, ``seams``, ``repair``, ``coordinate_type`` (the PLY coordinate
     type of the written vertices, :class:`recon.tiling.measure.CoordinateRange`) and ``memory``
     (the largest sub-meshes held, for the report and the tests). ``n_properties``: per-vertex
