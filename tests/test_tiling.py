@@ -145,6 +145,71 @@ def test_a_tile_failing_twice_is_reported_with_its_bounds(error, code):
     assert isinstance(err.value, OpreconError)
 
 
+class WindowRunner(ThreadRunner):
+    """A thread runner that counts the tasks submitted and not yet finished."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.open = self.most = 0
+
+    def submit(self, fn, *args):
+        self.open += 1
+        self.most = max(self.most, self.open)
+        future = self.pool.submit(fn, *args)
+        future.add_done_callback(lambda f: setattr(self, "open", self.open - 1))
+        return future
+
+
+def test_the_scheduling_loop_holds_a_few_tasks_not_the_scans():
+    """run_tasks submits a few tasks per job at a time (building each job when it is
+    submitted) and hands each result on as it arrives: 4x the tiles, each job and result
+    carrying 16 kB, the same peak allocation. Before, every tile's job was submitted at once
+    and every result kept (on a Dask LocalCluster, whose scheduler runs in the coordinator,
+    dummy tasks carrying a per-tile dict held 1.9 MB for 100 tiles, 16.6 MB for 400)."""
+    import tracemalloc
+
+    from recon.tiling.executors import IN_FLIGHT_PER_JOB, LazyTasks
+
+    def work(job):
+        return job[0], np.ones(2000)  # 16 kB back
+
+    peaks, seen = {}, {}
+    for n in (50, 200):
+        runner = WindowRunner()
+        seen[n] = 0
+
+        def handle(tile, result, n=n):
+            seen[n] += int(result[0] == tile)
+
+        tracemalloc.start()
+        tasks = LazyTasks(range(n), lambda t: (work, ((t, np.zeros(2000)),)))
+        out = run_tasks(runner, "fit", tasks, str, on_result=handle)
+        peaks[n] = tracemalloc.get_traced_memory()[1]
+        tracemalloc.stop()
+        runner.pool.shutdown()
+        assert out == {} and seen[n] == n
+        assert runner.most <= IN_FLIGHT_PER_JOB * runner.jobs
+    assert peaks[200] < peaks[50] + 100_000, peaks
+
+
+def test_a_tasks_arguments_do_not_grow_with_the_tile_count(tmp_path):
+    """Every task gets the tile store without its per-tile point counts (a task reads its
+    files): pickled per task, the counts made each task's arguments grow with the tiles, and
+    all of them together with their square (the mesh jobs carry their neighbours' particle
+    offsets and signs only)."""
+    import pickle
+
+    from recon.tiling.source import TileStore
+
+    sizes = {}
+    for n in (2, 20):
+        grid = TileGrid.cover(np.zeros(3), np.array([n * 5.0, n * 5.0, 1.0]), 5.0, 1.0)
+        store = TileStore(tmp_path, grid, {t: 1000 + t for t in range(grid.count)}, 3)
+        assert store.for_tasks().tiles() == [] and store.tiles() == list(range(grid.count))
+        sizes[n] = len(pickle.dumps(store.for_tasks()))
+    assert abs(sizes[20] - sizes[2]) < 64, sizes
+
+
 # -- the seam rules ---------------------------------------------------------------------------
 
 

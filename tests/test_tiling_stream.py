@@ -191,6 +191,47 @@ def test_the_coordinator_holds_a_tile_not_the_scan(tmp_path):
     assert large[0]["largest_unit_faces"] < 0.2 * large[1]
 
 
+def test_the_stitch_holds_the_same_memory_for_4x_the_tiles(tmp_path, monkeypatch):
+    """The coordinator's stitch on 4 x 4 and 8 x 8 tiles: about the same peak allocation (one
+    dual cell's repair), and the same memory held when the topology is joined at the end
+    (the used vertices and the components' links wait per block in the work folder; one row
+    per component). Before, it held one flag per vertex of the mesh, every link, the paths
+    of every tile's zone and rim files and the repair's added vertices: 280 kB more for the
+    48 more tiles of this small lattice (12 x 12 vertices a tile), ~70 kB now."""
+    import gc
+    import tracemalloc
+
+    import recon.tiling.measure as measure
+    import recon.tiling.vertices as vertices
+
+    monkeypatch.setattr(vertices, "CACHED_BLOCKS", 4)  # the cache full from 4 x 4 tiles on
+    held = {}
+    topology = measure.TopologyAccumulator.topology
+
+    def spy(self, n_vertices):
+        gc.collect()  # np.load's header parsing leaves reference cycles: count what is held
+        held["at_end"] = tracemalloc.get_traced_memory()[0]
+        return topology(self, n_vertices)
+
+    monkeypatch.setattr(measure.TopologyAccumulator, "topology", spy)
+    stitch(tmp_path / ".", 2, True)  # imports and caches
+    peaks, ends = {}, {}
+    for n in (4, 8):
+        d = tmp_path / str(n)
+        d.mkdir()
+        grid, counts, results, n_faces = tile_work(d, n, True)
+        tracemalloc.start()
+        out = stitch_streamed(d, grid, counts, {}, results, 1.0, 3.0, particles_path)
+        peaks[n] = tracemalloc.get_traced_memory()[1]
+        tracemalloc.stop()
+        ends[n] = held["at_end"]
+        assert out["n_faces"] == n_faces and out["topology"]["boundary_loops"] == 1
+        assert out["topology"]["components"] == 1
+    # held at the end: ~1 kB per tile left (the vertex blocks' loaders), ~6 kB before
+    assert ends[8] < ends[4] + 150_000, ends
+    assert peaks[8] < 1.25 * peaks[4], peaks  # one dual cell's repair, whatever the tiles
+
+
 def test_a_failing_write_leaves_nothing(tmp_path, monkeypatch):
     from recon.io import atomic_output
 
@@ -242,7 +283,7 @@ def test_the_coordinate_type_follows_the_written_vertices(tmp_path, offset, stra
     the same vertices (not one guessed from the input's bounds), and the written coordinates
     keep 1e-7 of the extent."""
     _, out, _ = stitch(tmp_path, 2, False, offset=offset, stray=stray)
-    used = np.flatnonzero(out["used"])
+    used = out["used"].global_ids()
     xyz, _ = out["store"].get(used)
     if stray:
         assert xyz[:, 1].min() < offset[1] - 20.0  # the stray vertex is written

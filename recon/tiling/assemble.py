@@ -22,15 +22,17 @@ sub-mesh cuts off; no loop through them is closed). Then it measures the topolog
 (:class:`recon.tiling.measure.TopologyAccumulator`), and streams the mesh into the output
 file tile by tile (:func:`recon.tiling.writer.write_streamed`). What it holds at any moment
 is one unit's faces, or the zone and rim faces of 3 x 3 dual cells during the repair, the
-vertices they use (:class:`VertexStore` keeps a few tiles' vertices loaded), one byte per
-vertex of the scan (which vertices the mesh uses), and the boundary edges of the whole mesh
-(for the loop count).
+vertices they use (:class:`~recon.tiling.vertices.VertexStore` keeps a few tiles' vertices
+loaded), and the boundary edges of the whole mesh (for the loop count). Which vertices the
+mesh uses (:class:`~recon.tiling.vertices.UsedVertices`), the links between the units'
+components and the vertices the repair added wait in the work folder; per tile, a few
+hundred bytes of bookkeeping stay (the vertex blocks and their loaders, one flag per dual
+cell).
 """
 
 from __future__ import annotations
 
 import itertools
-from collections import OrderedDict
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -40,6 +42,7 @@ import numpy as np
 from .grid import TileGrid
 from .measure import TopologyAccumulator
 from .stitch import repair_cell
+from .vertices import UsedVertices, VertexStore
 
 __all__ = [
     "RIM_BAND",
@@ -59,8 +62,6 @@ __all__ = [
 ZONE_BAND = 4.0
 #: ... and faces with a vertex within this many r0 are the frame those repairs see.
 RIM_BAND = 8.0
-#: Tiles' vertex blocks a :class:`VertexStore` keeps loaded.
-CACHED_BLOCKS = 48
 
 
 def mesh_path(work: Path, tile: int) -> Path:
@@ -161,101 +162,6 @@ def write_tile_mesh(
     }
 
 
-class VertexStore:
-    """Positions, normals, colours and properties by global vertex id, from blocks loaded on
-    demand.
-
-    A block is a contiguous id range with a loader (a tile's particles, a tile's new vertices)
-    or arrays held in memory (vertices the seam repair added). At most
-    :data:`CACHED_BLOCKS` loaded blocks are kept.
-    """
-
-    def __init__(self) -> None:
-        self.starts: list[int] = []
-        self.counts: list[int] = []
-        self.loaders: list[Callable[[], tuple]] = []
-        self.cache: OrderedDict[int, tuple] = OrderedDict()
-        self.total = 0
-        self.max_cached = 0
-
-    def add(self, count: int, loader: Callable[[], tuple]) -> int:
-        """A block of ``count`` vertices; ``loader()`` returns (positions, normals, colours,
-        properties): colours a (count, 3) uint8 array or empty when the scan has none,
-        properties a (count, m) float64 array (m: the names of
-        :func:`recon.tiling.tasks.property_names`)."""
-        start = self.total
-        self.starts.append(start)
-        self.counts.append(int(count))
-        self.loaders.append(loader)
-        self.total += int(count)
-        return start
-
-    def add_arrays(
-        self,
-        pos: np.ndarray,
-        nrm: np.ndarray,
-        rgb: np.ndarray | None = None,
-        props: np.ndarray | None = None,
-    ) -> int:
-        pos, nrm = np.asarray(pos, dtype=np.float64), np.asarray(nrm, dtype=np.float64)
-        rgb = np.zeros((0, 3), np.uint8) if rgb is None else rgb
-        props = np.zeros((len(pos), 0)) if props is None else props
-        return self.add(len(pos), lambda: (pos, nrm, rgb, props))
-
-    def block(self, b: int) -> tuple:
-        if b in self.cache:
-            self.cache.move_to_end(b)
-            return self.cache[b]
-        arrays = self.loaders[b]()
-        self.cache[b] = arrays
-        if len(self.cache) > CACHED_BLOCKS:
-            self.cache.popitem(last=False)
-        self.max_cached = max(self.max_cached, sum(len(a[0]) for a in self.cache.values()))
-        return arrays
-
-    def block_of(self, ids: np.ndarray) -> np.ndarray:
-        return np.searchsorted(np.asarray(self.starts), ids, side="right") - 1
-
-    def get(self, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        ids = np.asarray(ids, dtype=np.int64)
-        pos = np.empty((len(ids), 3))
-        nrm = np.empty((len(ids), 3))
-        if len(ids) == 0:
-            return pos, nrm
-        b = self.block_of(ids)
-        for k in np.unique(b):
-            sel = b == k
-            p, n = self.block(int(k))[:2]
-            j = ids[sel] - self.starts[k]
-            pos[sel] = p[j]
-            nrm[sel] = n[j]
-        return pos, nrm
-
-    def get_colors(self, ids: np.ndarray) -> np.ndarray:
-        """Colours (uint8) by global id; black where a block has none."""
-        ids = np.asarray(ids, dtype=np.int64)
-        rgb = np.zeros((len(ids), 3), dtype=np.uint8)
-        b = self.block_of(ids) if len(ids) else ids
-        for k in np.unique(b):
-            c = self.block(int(k))[2]
-            if len(c):
-                sel = b == k
-                rgb[sel] = c[ids[sel] - self.starts[k]]
-        return rgb
-
-    def get_properties(self, ids: np.ndarray, m: int) -> np.ndarray:
-        """The ``m`` properties by global id (0 where a block has none)."""
-        ids = np.asarray(ids, dtype=np.int64)
-        out = np.zeros((len(ids), m))
-        b = self.block_of(ids) if len(ids) else ids
-        for k in np.unique(b):
-            q = self.block(int(k))[3]
-            if q.shape[1] == m and len(q):
-                sel = b == k
-                out[sel] = q[ids[sel] - self.starts[k]]
-        return out
-
-
 # --- the coordinator's stitch ------------------------------------------------------------
 
 
@@ -296,9 +202,59 @@ def proper_faces(faces: np.ndarray) -> np.ndarray:
     return f[(f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 0] != f[:, 2])]
 
 
-def _load_faces(paths: list[Path]) -> np.ndarray:
-    parts = [np.load(p) for p in paths]
-    return np.vstack(parts) if parts else np.zeros((0, 3), dtype=np.int64)
+def cell_tiles(grid: TileGrid, cell: int) -> list[int]:
+    """The tiles that overlap a dual cell (the tiles around its grid corner), in index order:
+    the inverse of :func:`tile_dual_cells`."""
+    ijk = np.unravel_index(int(cell), dual_shape(grid))
+    ranges = [
+        [i for i in (c - 1, c) if 0 <= i < n] if n > 1 else [0]
+        for c, n in zip(ijk, grid.shape, strict=True)
+    ]
+    return sorted(int(np.ravel_multi_index(q, grid.shape)) for q in itertools.product(*ranges))
+
+
+def _filed(work: Path, name: str, cell: int, tile: int) -> Path:
+    """The zone or rim faces of a tile in a dual cell (global ids)."""
+    return Path(work) / f"{name}-{cell}-{tile}.npy"
+
+
+def _load_filed(work: Path, grid: TileGrid, name: str, cell: int) -> list[np.ndarray]:
+    """The ``name`` ("zone" or "rim") faces the tiles filed in ``cell``, tile by tile."""
+    out = []
+    for t in cell_tiles(grid, cell):
+        p = _filed(work, name, cell, t)
+        if p.exists():
+            out.append(np.load(p))
+    return out
+
+
+class _Units:
+    """The final faces (global ids) unit by unit: each meshed tile's interior, then each
+    repaired dual cell's zone, read from the work folder when iterated."""
+
+    def __init__(self, tile_faces: Callable[[int], np.ndarray], tiles: list[int], cells, work):
+        self.tile_faces, self.tiles, self.cells, self.work = tile_faces, tiles, cells, work
+
+    def __len__(self) -> int:
+        return len(self.tiles) + len(self.cells)
+
+    def __iter__(self):
+        for t in self.tiles:
+            yield self.tile_faces(t)
+        for c in self.cells:
+            yield np.load(_seam_path(self.work, int(c)))
+
+
+def _seam_path(work: Path, cell: int) -> Path:
+    return Path(work) / f"seam-{cell}.npy"
+
+
+def _extra_loader(path: Path) -> Callable[[], tuple]:
+    def load():
+        with np.load(path) as z:
+            return z["positions"], z["normals"], z["colors"], z["properties"]
+
+    return load
 
 
 def _touching(cand: np.ndarray, faces: np.ndarray) -> np.ndarray:
@@ -320,8 +276,9 @@ def stitch_streamed(
 ) -> dict[str, Any]:
     """Repair the seam zone cell by cell and measure the mesh unit by unit.
 
-    Returns a dict with ``store`` (:class:`VertexStore`), ``units`` (a list of callables
-    each returning one unit's final faces in global ids), ``used`` (vertices the mesh uses),
+    Returns a dict with ``store`` (:class:`VertexStore`), ``units`` (an iterable of the
+    units' final faces in global ids, read when iterated), ``used``
+    (:class:`~recon.tiling.vertices.UsedVertices`: the vertices the mesh uses),
     ``topology``, ``quality``, ``seams``, ``repair``, ``coordinate_type`` (the PLY coordinate
     type of the written vertices, :class:`recon.tiling.measure.CoordinateRange`) and ``memory``
     (the largest sub-meshes held, for the report and the tests). ``n_properties``: per-vertex
@@ -375,38 +332,32 @@ def stitch_streamed(
         return np.where(a < 0, newbase[t] + (-1 - a), a)
 
     # file the zone and rim faces by dual cell
-    zone_files: dict[int, list[Path]] = {}
-    rim_files: dict[int, list[tuple[int, Path]]] = {}
+    n_cells = int(np.prod(dual_shape(grid)))
+    has_zone = np.zeros(n_cells, dtype=bool)
     for t in sorted(mesh_results):
         with np.load(mesh_path(work, t)) as z:
             for name in ("zone", "rim"):
                 f, cell = convert(t, z[name]), z[f"{name}_cell"]
                 for c in np.unique(cell):
-                    p = Path(work) / f"{name}-{int(c)}-{t}.npy"
-                    np.save(p, f[cell == c])
+                    np.save(_filed(work, name, int(c), t), f[cell == c])
                     if name == "zone":
-                        zone_files.setdefault(int(c), []).append(p)
-                    else:
-                        rim_files.setdefault(int(c), []).append((t, p))
+                        has_zone[c] = True
 
-    def out_path(c: int) -> Path:
-        return Path(work) / f"seam-{c}.npy"
-
-    done: set[int] = set()
+    done = np.zeros(n_cells, dtype=bool)
     repair = {"faces_merged": 0, "faces_dropped": 0, "seam_loops_zipped": 0}
     repair["cut_orientation_conflicts"] = 0
     max_cell_faces = 0
-    for c in sorted(zone_files):
-        edit = _load_faces(zone_files[c])
+    for c in np.flatnonzero(has_zone).tolist():
+        edit = np.vstack(_load_filed(work, grid, "zone", c))
         repair["faces_merged"] += len(edit)
         zone_like, rims = [], []
         for c2 in dual_neighbours(grid, c):
             if c2 != c:
-                if c2 in done:
-                    zone_like.append(np.load(out_path(c2)))
-                elif c2 in zone_files:
-                    zone_like.append(_load_faces(zone_files[c2]))
-            rims += [np.load(p) for _, p in rim_files.get(c2, [])]
+                if done[c2]:
+                    zone_like.append(np.load(_seam_path(work, c2)))
+                elif has_zone[c2]:
+                    zone_like += _load_filed(work, grid, "zone", c2)
+            rims += _load_filed(work, grid, "rim", c2)
         # the frame: the zone and rim faces of the cells around (not only those touching the
         # cell's), so that a crack running from this cell into the next is seen whole
         frame = np.vstack([*zone_like, *rims]) if zone_like or rims else np.zeros((0, 3), int)
@@ -429,15 +380,18 @@ def stitch_streamed(
             from scipy.spatial import cKDTree
 
             src = cKDTree(pos).query(v2[extra])[1]
-            start = store.add_arrays(
-                v2[extra],
-                n2[extra],
-                store.get_colors(ids[src]),
-                store.get_properties(ids[src], n_properties),
+            path = Path(work) / f"extra-{c}.npz"  # on disk, as the tiles' vertices
+            np.savez(
+                path,
+                positions=np.asarray(v2[extra], dtype=np.float64),
+                normals=np.asarray(n2[extra], dtype=np.float64),
+                colors=store.get_colors(ids[src]),
+                properties=store.get_properties(ids[src], n_properties),
             )
+            start = store.add(len(extra), _extra_loader(path))
             gmap[extra] = start + np.arange(len(extra))
-        np.save(out_path(c), gmap[fl])
-        done.add(c)
+        np.save(_seam_path(work, c), gmap[fl])
+        done[c] = True
 
     n_tiles = grid.count
 
@@ -445,48 +399,48 @@ def stitch_streamed(
         with np.load(mesh_path(work, t)) as z:
             return convert(t, z["interior"])
 
-    acc = TopologyAccumulator(grid, r0, SEAM_BAND)
-    used = np.zeros(store.total, dtype=bool)
+    acc = TopologyAccumulator(grid, r0, SEAM_BAND, work)
+    used = UsedVertices(work, store)
     for t in sorted(mesh_results):
         faces = tile_faces(t)
         cand, units = [], []
         for c in tile_dual_cells(grid, t):
-            if c in done:
-                f = np.load(out_path(c))
+            if done[c]:
+                f = np.load(_seam_path(work, c))
                 cand.append(f)
                 units.append(np.full(len(f), n_tiles + c))
         cand_f = np.vstack(cand) if cand else np.zeros((0, 3), dtype=np.int64)
         cand_u = np.concatenate(units) if units else np.zeros(0, dtype=np.int64)
         touch = _touching(cand_f, faces)
         acc.add(t, faces, cand_f[touch], cand_u[touch], store)
-        used[proper_faces(faces).ravel()] = True
-    for c in sorted(done):
-        faces = np.load(out_path(c))
+        used.add(proper_faces(faces).ravel())
+    cells = np.flatnonzero(done)
+    for c in cells.tolist():
+        faces = np.load(_seam_path(work, c))
         cand, units = [], []
         for c2 in dual_neighbours(grid, c):
-            if c2 != c and c2 in done:
-                f = np.load(out_path(c2))
+            if c2 != c and done[c2]:
+                f = np.load(_seam_path(work, c2))
                 cand.append(f)
                 units.append(np.full(len(f), n_tiles + c2))
-            for t, p in rim_files.get(c2, []):
-                f = np.load(p)
-                cand.append(f)
-                units.append(np.full(len(f), t))
+            for t in cell_tiles(grid, c2):
+                p = _filed(work, "rim", c2, t)
+                if p.exists():
+                    f = np.load(p)
+                    cand.append(f)
+                    units.append(np.full(len(f), t))
         cand_f = np.vstack(cand) if cand else np.zeros((0, 3), dtype=np.int64)
         cand_u = np.concatenate(units) if units else np.zeros(0, dtype=np.int64)
         touch = _touching(cand_f, faces)
         acc.add(n_tiles + c, faces, cand_f[touch], cand_u[touch], store)
-        used[proper_faces(faces).ravel()] = True
-    units_out: list[Callable[[], np.ndarray]] = [
-        (lambda t=t: tile_faces(t)) for t in sorted(mesh_results)
-    ] + [(lambda c=c: np.load(out_path(c))) for c in sorted(done)]
-    n_used = int(used.sum())
+        used.add(proper_faces(faces).ravel())
+    used.finish()
     return {
         "store": store,
-        "units": units_out,
+        "units": _Units(tile_faces, sorted(mesh_results), cells, work),
         "used": used,
         "n_faces": acc.f,
-        "topology": acc.topology(n_used),
+        "topology": acc.topology(used.total),
         "coordinate_type": acc.coordinates.type(),
         "bounds": (acc.coordinates.lo, acc.coordinates.hi),
         "defects": acc.defects(),

@@ -1,8 +1,9 @@
 """Where the tiles run: a local process pool (``--jobs``) or a Dask cluster (``--executor dask``,
 a LocalCluster started here or a running scheduler), the executors of ``oprecon batch``.
 
-:func:`run_tasks` submits one task per tile, retries a failed task once, reports tiles done and
-in flight, and raises :class:`TileError` naming the tiles that failed twice with their bounds.
+:func:`run_tasks` submits one task per tile (a few per job at a time), retries a failed task
+once, reports tiles done and in flight, and raises :class:`TileError` naming the tiles that
+failed twice with their bounds.
 Ctrl-C cancels the tasks and stops the worker processes before it propagates.
 """
 
@@ -14,7 +15,7 @@ import multiprocessing
 import signal
 import time
 import traceback
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
@@ -25,11 +26,21 @@ from ..errors import OpreconError
 
 log = logging.getLogger(__name__)
 
-__all__ = ["EXECUTORS", "TileError", "TileEvent", "TileRunner", "run_tasks", "tile_runner"]
+__all__ = [
+    "EXECUTORS",
+    "LazyTasks",
+    "TileError",
+    "TileEvent",
+    "TileRunner",
+    "run_tasks",
+    "tile_runner",
+]
 
 EXECUTORS = ("local", "dask")
 #: Seconds between polls of the running tasks.
 POLL = 0.1
+#: Tasks submitted at a time per job (one running, one queued behind it).
+IN_FLIGHT_PER_JOB = 2
 
 
 class TileError(OpreconError):
@@ -133,11 +144,19 @@ def tile_runner(kind: str, jobs: int | None, scheduler: str | None = None) -> It
 def run_tasks(
     runner: TileRunner,
     phase: str,
-    tasks: dict[int, tuple[Callable[..., Any], tuple[Any, ...]]],
+    tasks: Mapping[int, tuple[Callable[..., Any], tuple[Any, ...]]],
     describe: Callable[[int], str],
     on_event: Callable[[TileEvent], None] | None = None,
+    on_result: Callable[[int, Any], None] | None = None,
 ) -> dict[int, Any]:
     """Run ``tasks`` (tile -> (function, args)); a task that fails is run once more.
+
+    At most :data:`IN_FLIGHT_PER_JOB` tasks per job are submitted at a time, the next as one
+    finishes, and a finished task's future is dropped once its result is handled, so what
+    the coordinator (and a LocalCluster's scheduler in it) holds does not grow with the tile
+    count. ``tasks[tile]`` is looked up when the tile is submitted (a mapping may build the
+    job then: :class:`LazyTasks`). With ``on_result``, each result is handed to it as it
+    arrives and not kept (the returned dict is empty); else the results are returned.
 
     Raises
     ------
@@ -146,20 +165,28 @@ def run_tasks(
     """
     emit = on_event or (lambda e: None)
     total = len(tasks)
-    attempts = dict.fromkeys(tasks, 0)
+    window = max(1, IN_FLIGHT_PER_JOB * int(runner.jobs))
+    pending = iter(tasks)
+    retried: set[int] = set()  # tiles run a second time
     futures: dict[Any, int] = {}
     results: dict[int, Any] = {}
     failed: dict[int, BaseException] = {}
+    finished = 0
 
     def submit(tile: int) -> None:
         fn, args = tasks[tile]
-        attempts[tile] += 1
         futures[runner.submit(fn, *args)] = tile
 
-    for tile in tasks:
-        submit(tile)
-    emit(TileEvent(phase, 0, min(runner.jobs, total), total))
+    def fill() -> None:
+        while len(futures) < window:
+            tile = next(pending, None)
+            if tile is None:
+                return
+            submit(tile)
+
     try:
+        fill()
+        emit(TileEvent(phase, 0, min(runner.jobs, total), total))
         while futures:
             done = [f for f in futures if f.done()]
             if not done:
@@ -168,18 +195,19 @@ def run_tasks(
             for f in done:
                 tile = futures.pop(f)
                 try:
-                    results[tile] = f.result()
+                    result = f.result()
                 except Exception as exc:  # noqa: BLE001 - a tile's failure is reported below
                     log.debug(
                         "%s failed: %s",
                         describe(tile),
                         "".join(traceback.format_exception(type(exc), exc, exc.__traceback__)),
                     )
-                    if attempts[tile] < 2:
+                    if tile not in retried:
+                        retried.add(tile)
                         emit(
                             TileEvent(
                                 phase,
-                                len(results) + len(failed),
+                                finished,
                                 min(runner.jobs, len(futures) + 1),
                                 total,
                                 f"{describe(tile)} failed ({_short(exc)}); retrying",
@@ -188,8 +216,16 @@ def run_tasks(
                         submit(tile)
                         continue
                     failed[tile] = exc
-                finished = len(results) + len(failed)
+                else:
+                    if on_result is None:
+                        results[tile] = result
+                    else:
+                        on_result(tile, result)
+                    del result
+                finished += 1
+                fill()
                 emit(TileEvent(phase, finished, min(runner.jobs, len(futures)), total))
+            del done, f
     except BaseException:
         runner.cancel(list(futures))
         raise
@@ -202,6 +238,26 @@ def run_tasks(
             code,
         )
     return results
+
+
+class LazyTasks(Mapping):
+    """tile -> (function, args) for :func:`run_tasks`, each built by ``make(tile)`` when the
+    tile is submitted, so that the jobs of every tile are never held at once."""
+
+    def __init__(
+        self, tiles: Iterable[int], make: Callable[[int], tuple[Callable[..., Any], tuple]]
+    ) -> None:
+        self.tiles = list(tiles)
+        self.make = make
+
+    def __getitem__(self, tile: int) -> tuple[Callable[..., Any], tuple]:
+        return self.make(tile)
+
+    def __iter__(self) -> Iterator[int]:
+        return iter(self.tiles)
+
+    def __len__(self) -> int:
+        return len(self.tiles)
 
 
 def _short(exc: BaseException) -> str:

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -13,8 +14,14 @@ from ..mesh import vertex_fans
 from ..topology import TRIANGLE_QUALITY_KEYS
 from .grid import TileGrid
 from .stitch import face_keys
+from .vertices import BlockFiles
 
-__all__ = ["CoordinateRange", "TopologyAccumulator"]
+__all__ = ["LINK_BATCH", "LINK_BUCKET", "CoordinateRange", "TopologyAccumulator"]
+
+#: Vertex ids per file of the components' links (see :class:`TopologyAccumulator`) ...
+LINK_BUCKET = 1 << 16
+#: ... and pairs of linked components joined at a time.
+LINK_BATCH = 1 << 20
 
 #: float32 coordinates when they keep this fraction of the extent (as recon.io.ply).
 FLOAT32_TOLERANCE = 1e-7
@@ -64,12 +71,18 @@ class TopologyAccumulator:
     whole star). A vertex or an edge is counted by the lowest-numbered unit among its faces, a
     face by its own; components are joined across units through shared vertices; boundary
     edges are kept (with their lengths) to count the loops at the end.
+
+    What grows with the scan waits in ``work`` (the tiled fit's work folder), not in memory:
+    the links of each unit's components to the vertices it shares with other units go to one
+    file per :data:`LINK_BUCKET` vertex ids and are joined bucket by bucket at the end; the
+    components' counts are one row each. Held to the end: the boundary edges (the mesh's
+    loops) and the non-manifold edges and vertices.
     """
 
     ANGLE_BINS = np.linspace(0.0, 60.0, 6001)
     RATIO_BINS = np.logspace(0.0, 8.0, 8001)
 
-    def __init__(self, grid: TileGrid, r0: float, seam_band: float) -> None:
+    def __init__(self, grid: TileGrid, r0: float, seam_band: float, work: Path) -> None:
         self.grid, self.r0, self.seam_band = grid, r0, seam_band
         self.v = self.e = self.f = 0
         self.nm_edges = self.nm_vertices = self.degenerate = self.duplicates = 0
@@ -79,8 +92,10 @@ class TopologyAccumulator:
         self.non_manifold: list[np.ndarray] = []  # (k, 2) edges, global ids
         self.bow_ties: list[np.ndarray] = []  # non-manifold vertices, global ids
         self.boundary_len: list[np.ndarray] = []
-        self.node_counts: list[np.ndarray] = []  # (k, 3): V, E, F per local component
-        self.links: list[np.ndarray] = []  # (vertex id, node) for vertices shared with others
+        self.node_counts = np.zeros((0, 3), dtype=np.int64)  # V, E, F per local component
+        # (vertex id, node) for vertices shared with other units, by vertex id bucket
+        self.links = BlockFiles(work, "links", 2)
+        self.link_buckets: set[int] = set()
         self.n_nodes = 0
         # triangle quality
         self.q_n = 0
@@ -195,16 +210,59 @@ class TopologyAccumulator:
         np.add.at(counts[:, 0], comp_of[owned_v], 1)
         np.add.at(counts[:, 1], comp_of[e_lo[owned_e]], 1)
         np.add.at(counts[:, 2], comp_of[of[:, 0]], 1)
-        self.node_counts.append(counts)
+        self._add_nodes(counts)
         shared = in_own & (v_owner != unit)
         in_frame = np.zeros(nv, dtype=bool)
         in_frame[local[~own].ravel()] = True
         shared |= in_own & in_frame
-        if shared.any():
-            self.links.append(
-                np.stack([ids[shared], self.n_nodes + comp_of[shared]], axis=1).astype(np.int64)
-            )
+        if shared.any():  # ids are sorted: one run per bucket
+            rows = np.stack([ids[shared], self.n_nodes + comp_of[shared]], axis=1)
+            bucket = rows[:, 0] // LINK_BUCKET
+            cuts = np.flatnonzero(np.diff(bucket)) + 1
+            for part in np.split(rows, cuts):
+                key = int(part[0, 0] // LINK_BUCKET)
+                self.links.append(key, part)
+                self.link_buckets.add(key)
         self.n_nodes += k
+
+    def _add_nodes(self, counts: np.ndarray) -> None:
+        """Append the components' (V, E, F) rows (the array doubles when full)."""
+        n, k = self.n_nodes, len(counts)
+        if n + k > len(self.node_counts):
+            grown = np.zeros((max(2 * len(self.node_counts), n + k, 64), 3), dtype=np.int64)
+            grown[:n] = self.node_counts[:n]
+            self.node_counts = grown
+        self.node_counts[n : n + k] = counts
+
+    def _components(self) -> np.ndarray:
+        """The component of each node: nodes that share a vertex are joined, one bucket of
+        links at a time, the pairs found joined every :data:`LINK_BATCH` pairs."""
+        label = np.arange(self.n_nodes)
+        pairs: list[np.ndarray] = []
+        held = 0
+
+        def join() -> None:
+            nonlocal label, pairs, held
+            if not pairs:
+                return
+            p = label[np.vstack(pairs)]
+            g = sparse.coo_matrix(
+                (np.ones(len(p), np.int8), (p[:, 0], p[:, 1])), (self.n_nodes, self.n_nodes)
+            )
+            label = csgraph.connected_components(g, directed=False)[1][label]
+            pairs, held = [], 0
+
+        for key in sorted(self.link_buckets):
+            links = self.links.read(key)
+            links = links[np.lexsort((links[:, 1], links[:, 0]))]
+            same = links[1:, 0] == links[:-1, 0]
+            if same.any():
+                pairs.append(np.stack([links[1:][same, 1], links[:-1][same, 1]], axis=1))
+                held += int(same.sum())
+            if held >= LINK_BATCH:
+                join()
+        join()
+        return label
 
     def _quality(self, p: np.ndarray, lengths: np.ndarray) -> None:
         if len(p) == 0:
@@ -256,23 +314,9 @@ class TopologyAccumulator:
 
     def topology(self, n_vertices_written: int) -> dict[str, Any]:
         """The report's ``topology`` (the keys of :func:`recon.topology.mesh_topology`)."""
-        counts = np.vstack(self.node_counts) if self.node_counts else np.zeros((0, 3), int)
+        counts = self.node_counts[: self.n_nodes]
         n_nodes = len(counts)
-        parent_rows: list[np.ndarray] = []
-        if self.links:
-            links = np.vstack(self.links)
-            order = np.lexsort((links[:, 1], links[:, 0]))
-            links = links[order]
-            same = links[1:, 0] == links[:-1, 0]
-            parent_rows = [links[1:][same, 1], links[:-1][same, 1]]
-        if parent_rows and len(parent_rows[0]):
-            g = sparse.coo_matrix(
-                (np.ones(len(parent_rows[0]), np.int8), (parent_rows[0], parent_rows[1])),
-                (n_nodes, n_nodes),
-            )
-            _, comp = csgraph.connected_components(g, directed=False)
-        else:
-            comp = np.arange(n_nodes)
+        comp = self._components()
         n_comp = len(np.unique(comp)) if n_nodes else 0
         n_boundary = int(sum(len(b) for b in self.boundary))
         n_loops, largest = 0, 0.0

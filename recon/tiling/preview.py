@@ -28,8 +28,8 @@ PREVIEW_FACES = 60_000
 
 def _unit_faces(stitched: dict[str, Any]):
     store = stitched["store"]
-    for unit in stitched["units"]:
-        f = proper_faces(unit())
+    for faces in stitched["units"]:
+        f = proper_faces(faces)
         if len(f):
             ids, local = np.unique(f, return_inverse=True)
             yield ids, store.get(ids)[0], local.reshape(-1, 3)

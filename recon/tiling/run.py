@@ -46,8 +46,9 @@ from ..geometry import SPACING_SAMPLE_SEED
 from ..serialize import dumps
 from ..version import __version__
 from .assemble import stitch_streamed
-from .executors import TileEvent, run_tasks, tile_runner
+from .executors import LazyTasks, TileEvent, run_tasks, tile_runner
 from .grid import TileGrid, choose_auto_tile_size
+from .records import TileRecords
 from .source import ScanHeader, scan_header, split_input
 from .stitch import agree_signs
 from .tasks import (
@@ -160,25 +161,26 @@ def _scan_scales(header: ScanHeader, store: Any, cfg: ReconConfig, runner: Any, 
         d6 = float(np.median(tree.query(pts, DENSITY_NEIGHBOURS + 1)[0][:, -1]))
         k = with_neighborhood_size(pts, cfg).normals.k
         return n_total, d_nn, d6, k
-    tasks = {
-        t: (
-            spacing_task,
-            (
-                store,
-                t,
-                max(1, math.ceil(SPACING_SAMPLE * store.counts[t] / n_total)),
-                cfg.normals.k,
-                cfg.normals.auto_scale,
-            ),
-        )
-        for t in store.tiles()
-    }
-    res = run_tasks(runner, "spacing", tasks, store.grid.describe, emit)
-    d1 = np.concatenate([r["d1"] for r in res.values()])
-    d6 = np.concatenate([r["d6"] for r in res.values()])
+    task_store = store.for_tasks()
+    d1s: list[np.ndarray] = []
+    d6s: list[np.ndarray] = []
+    ks: list[int] = []
+
+    def sample(t: int) -> tuple:
+        n = max(1, math.ceil(SPACING_SAMPLE * store.counts[t] / n_total))
+        return spacing_task, (task_store, t, n, cfg.normals.k, cfg.normals.auto_scale)
+
+    def keep(t: int, r: dict) -> None:
+        d1s.append(r["d1"])
+        d6s.append(r["d6"])
+        if "k" in r:
+            ks.append(r["k"])
+
+    tiles = store.tiles()
+    run_tasks(runner, "spacing", LazyTasks(tiles, sample), store.grid.describe, emit, keep)
+    d1, d6 = np.concatenate(d1s), np.concatenate(d6s)
     if len(d1) == 0:
         raise InputError(f"{header.path}: too few points per tile to measure the point spacing")
-    ks = [r["k"] for r in res.values() if "k" in r]
     k = int(np.median(ks)) if ks else cfg.normals.k
     return n_total, float(np.median(d1)), float(np.median(d6)), k
 
@@ -269,36 +271,54 @@ def fit_tiled(
 
             t0 = time.perf_counter()
             cfg_dict = config_to_dict(tile_cfg)
-            fits = run_tasks(
+            records = TileRecords(grid)
+            task_store = store.for_tasks()  # without the per-tile counts: one per task
+            run_tasks(
                 runner,
                 "fit",
-                {t: (fit_task, (FitJob(t, store, cfg_dict, r0, work),)) for t in store.tiles()},
+                LazyTasks(
+                    store.tiles(),
+                    lambda t: (fit_task, (FitJob(t, task_store, cfg_dict, r0, work),)),
+                ),
                 grid.describe,
                 on_event,
+                records.add_fit,
             )
             timings["fit"] = time.perf_counter() - t0
             peaks["fit"] = peak_rss_mib(reset=True)
+            fitted = records.fitted()
             flips, disagreeing = agree_signs(
-                grid, BorderFiles(work, fits, "in"), BorderFiles(work, fits, "out"), r0
+                grid, BorderFiles(work, fitted, "in"), BorderFiles(work, fitted, "out"), r0
             )
-            offsets: dict[int, int] = {}
-            total = 0
-            for t in sorted(fits):
-                if fits[t]["particles"] > 0:
-                    offsets[t] = total
-                    total += fits[t]["particles"]
+            offsets = records.offsets()
+            meshed = records.with_particles().tolist()
+            total = records.total("particles")
             if total == 0:
                 raise InputError(f"{input_path}: no tile produced particles")
+
+            def mesh_job(t: int) -> tuple:
+                near = [n for n in (t, *grid.neighbours(t)) if n in has_particles]
+                job = MeshJob(
+                    t,
+                    task_store,
+                    work,
+                    r0,
+                    cfg_dict,
+                    {n: int(offsets[n]) for n in near},  # the tile's and its neighbours' only
+                    {n: flips.get(n, 1.0) for n in near},
+                    d6,
+                )
+                return mesh_task, (job,)
+
+            has_particles = set(meshed)
             t0 = time.perf_counter()
-            meshes = run_tasks(
+            run_tasks(
                 runner,
                 "mesh",
-                {
-                    t: (mesh_task, (MeshJob(t, store, work, r0, cfg_dict, offsets, flips, d6),))
-                    for t in offsets
-                },
+                LazyTasks(meshed, mesh_job),
                 grid.describe,
                 on_event,
+                records.add_mesh,
             )
             timings["mesh"] = time.perf_counter() - t0
             peaks["mesh"] = peak_rss_mib(reset=True)
@@ -311,9 +331,9 @@ def fit_tiled(
         )
         stitch_args = (
             grid,
-            {t: fits[t]["particles"] for t in offsets},
+            records.particle_counts(),
             flips,
-            meshes,
+            records.new_vertices(),
             r0,
             max_hole,
             particles_path,
@@ -332,25 +352,8 @@ def fit_tiled(
         peaks["stitch"] = peak_rss_mib(reset=True)
         topology, quality = stitched["topology"], stitched["quality"]
         timings["total"] = time.perf_counter() - t_start
-        per_tile = []
-        for t in sorted(fits):
-            lo, hi = grid.bounds(t)
-            per_tile.append(
-                {
-                    "tile": t,
-                    "index": list(grid.ijk(t)),
-                    "bounds": [lo.tolist(), hi.tolist()],
-                    "points": fits[t]["points"],
-                    "points_with_halo": fits[t].get("points_with_halo", fits[t]["points"]),
-                    "particles": fits[t]["particles"],
-                    "fit_s": fits[t]["seconds"],
-                    "mesh_s": meshes[t]["seconds"] if t in meshes else 0.0,
-                    "crease_particles": meshes[t].get("crease_particles", 0) if t in meshes else 0,
-                    "sign_flipped": flips.get(t, 1.0) < 0,
-                }
-            )
-            warnings += [f"{grid.describe(t)}: {w}" for w in fits[t].get("warnings", [])]
-        tile_times = [r["fit_s"] + r["mesh_s"] for r in per_tile]
+        warnings += records.warnings()
+        tile_times = records.tile_times()
         report: dict[str, Any] = {
             "oprecon_version": __version__,
             "input": {
@@ -365,15 +368,15 @@ def fit_tiled(
             "triangle_quality": quality,
             "timings": timings,
             "tiles": {
-                "count": len(per_tile),
+                "count": len(fitted),
                 "grid": list(grid.shape),
                 "size": float(size),
                 "halo": float(grid.halo),
                 "executor": executor,
                 "jobs": n_jobs,
                 "time_per_tile": {
-                    "mean": float(np.mean(tile_times)) if tile_times else 0.0,
-                    "max": float(np.max(tile_times)) if tile_times else 0.0,
+                    "mean": float(np.mean(tile_times)) if len(tile_times) else 0.0,
+                    "max": float(np.max(tile_times)) if len(tile_times) else 0.0,
                 },
                 "sign_disagreements": disagreeing,
                 "seams": seams,
@@ -382,10 +385,10 @@ def fit_tiled(
                 # each tile untangles its own mesh (halo included, the neighbours' particles
                 # fixed); crossings the seam repair makes are not searched
                 "self_intersections": {
-                    "found": sum(m.get("self_intersections_found", 0) for m in meshes.values()),
-                    "left": sum(m.get("self_intersections_left", 0) for m in meshes.values()),
+                    "found": records.total("self_intersections_found"),
+                    "left": records.total("self_intersections_left"),
                 },
-                "per_tile": per_tile,
+                "per_tile": records.per_tile(flips),
             },
             "warnings": warnings,
             "config": config_to_dict(cfg),
@@ -411,7 +414,7 @@ def fit_tiled(
             peaks["write"] = peak_rss_mib(reset=True)
             if particles_path_out is not None:
                 with atomic_output(Path(particles_path_out), outputs) as tmp:
-                    write_particles_streamed(tmp, stitched["store"], len(offsets), cfg.io.ascii)
+                    write_particles_streamed(tmp, stitched["store"], len(meshed), cfg.io.ascii)
             if preview_path is not None:
                 from .preview import write_preview
 

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import itertools
 from collections.abc import Iterator, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -84,6 +84,11 @@ class TileStore:
     def tiles(self) -> list[int]:
         """The tiles that hold points, in index order."""
         return sorted(t for t, n in self.counts.items() if n > 0)
+
+    def for_tasks(self) -> TileStore:
+        """The store as the tasks get it: without the per-tile counts (a task reads its
+        files), so that a task's arguments do not grow with the tile count."""
+        return replace(self, counts={})
 
 
 def _is_las(path: Path) -> bool:

@@ -4,15 +4,14 @@ OBJ; the particles likewise (:func:`write_particles_streamed`)."""
 
 from __future__ import annotations
 
-from collections import OrderedDict
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, BinaryIO
 
 import numpy as np
 
-from .assemble import CACHED_BLOCKS, VertexStore
 from .measure import CoordinateRange
+from .vertices import UsedVertices, VertexStore
 
 __all__ = ["write_particles_streamed", "write_streamed"]
 
@@ -147,30 +146,24 @@ def write_streamed(
     if properties and path.suffix.lower() == ".obj":
         raise ValueError("OBJ has no vertex properties")
     store: VertexStore = stitched["store"]
-    used: np.ndarray = stitched["used"]
+    used: UsedVertices = stitched["used"]
     starts = np.asarray(store.starts)
-    blocks = list(zip(store.starts, store.counts, strict=True))
-    prefix = np.concatenate([[0], np.cumsum([int(used[s : s + n].sum()) for s, n in blocks])])
+    prefix = np.concatenate([[0], np.cumsum(used.counts)])
     fmt = "obj" if path.suffix.lower() == ".obj" else "ply"
-    ranks: OrderedDict[int, np.ndarray] = OrderedDict()
 
     def new_ids(ids: np.ndarray) -> np.ndarray:
+        """Global ids -> rows of the written vertices (the used ones, block by block)."""
         b = np.searchsorted(starts, ids, side="right") - 1
         out = np.empty(len(ids), dtype=np.int64)
         for k in np.unique(b):
             k = int(k)
-            if k not in ranks:
-                s, n = store.starts[k], store.counts[k]
-                ranks[k] = np.cumsum(used[s : s + n]) - 1
-                if len(ranks) > CACHED_BLOCKS:
-                    ranks.popitem(last=False)
             sel = b == k
-            out[sel] = prefix[k] + ranks[k][ids[sel] - store.starts[k]]
+            out[sel] = prefix[k] + np.searchsorted(used.local(k), ids[sel] - store.starts[k])
         return out
 
     with open(path, "wb") as fh:
         if fmt == "ply":
-            n_used = int(used.sum())
+            n_used = used.total
             fh.write(
                 ply_header(
                     n_used, stitched["n_faces"], coord_type, normals, ascii, colors, properties
@@ -178,9 +171,9 @@ def write_streamed(
             )
         else:
             fh.write(b"# written by oprecon\n")
-        for k, (s, n) in enumerate(zip(store.starts, store.counts, strict=True)):
-            sel = used[s : s + n]
-            if not sel.any():
+        for k in range(len(store.starts)):
+            sel = used.local(k)
+            if not len(sel):
                 continue
             p, nr, rgb, vals = store.block(k)
             if colors and len(rgb) != len(p):
@@ -199,12 +192,11 @@ def write_streamed(
                 vals[sel] if properties else None,
             )
         if fmt == "obj" and normals:
-            for k, (s, n) in enumerate(zip(store.starts, store.counts, strict=True)):
-                sel = used[s : s + n]
-                if sel.any():
+            for k in range(len(store.starts)):
+                sel = used.local(k)
+                if len(sel):
                     np.savetxt(fh, store.block(k)[1][sel], fmt="vn %.9g %.9g %.9g")
-        for unit in stitched["units"]:
-            f = unit()
+        for f in stitched["units"]:
             f = f[(f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 0] != f[:, 2])]
             if len(f):
                 write_face_rows(fh, fmt, new_ids(f.ravel()).reshape(-1, 3), ascii, normals)
