@@ -252,7 +252,8 @@ def repair_cell(
     ``n_frame`` (the frame: neighbouring cells' and tile interiors' faces around them) may not.
 
     The rules of the untiled fit: faces on over-shared edges
-    dropped (the frame's kept first), bow-ties split, seam cracks (loops along a seam, small or
+    dropped (the frame's kept first), bow-ties split (and the debris a split cuts loose
+    dropped: :func:`_debris`), seam cracks (loops along a seam, small or
     narrow) zipped, the winding made consistent (and agreeing with the frame), then the small
     holes orienting opened closed. Only loops through a vertex of an editable face are zipped,
     never one through a vertex whose star the sub-mesh cuts off: ``cut`` marks those (one
