@@ -367,3 +367,25 @@ def test_the_seam_repair_cuts_a_one_sided_zone_where_the_normals_turn_over():
     assert len(kept) >= len(f) - 2 * 2 * 2  # at most the faces at the turn (2 quads x 2 columns)
     agree = np.einsum("ij,ij->i", face_area_vectors(p, kept), nrm[kept].sum(axis=1))
     assert np.all(agree > 0)
+
+
+def test_a_triangle_a_bow_tie_split_cuts_loose_is_dropped_not_zipped():
+    """An editable face that meets the frame's surface at one vertex only (a flap: a bow-tie
+    there) is cut loose by the split of that vertex, a lone triangle in the zone. It is debris
+    (the untiled fit drops components under ``MIN_COMPONENT_FACES``) and its three edges are
+    no hole. Before, each round zipped a copy of it over itself (dropped again as a duplicate)
+    and the triangle stayed: on the 10M scale scene (225 tiles), two of the five boundary
+    loops were such triangles, 0.05 m and 0.07 m from a seam."""
+    from recon.tiling.stitch import repair_cell
+
+    grid = TileGrid.cover(np.zeros(3), np.array([24.0, 12.0, 1.0]), SIZE, 4.0)
+    ring = np.array([[np.cos(a), np.sin(a), 0.0] for a in np.arange(6) * np.pi / 3])
+    centre = np.array([SIZE + 0.2, 6.0, 0.0])
+    flap = centre + np.array([[0.3, 0.2, 0.8], [-0.3, 0.2, 0.8]])
+    v = np.vstack([[centre], ring + centre, flap])
+    star = np.array([[0, 1 + k, 1 + (k + 1) % 6] for k in range(6)])
+    faces = np.vstack([star, [[0, 7, 8]]])  # the frame: the whole star; editable: the flap
+    nrm = np.tile([0.0, 0, 1], (len(v), 1))
+    v2, _, out, stats = repair_cell(grid, v, nrm, faces, len(star), 1.0, 3.0)
+    assert len(v2) == len(v) + 1  # the bow-tie at the centre was split
+    assert len(out) == 0 and stats["seam_loops_zipped"] == 0

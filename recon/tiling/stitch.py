@@ -20,7 +20,12 @@ from scipy.spatial import cKDTree
 
 from ..holes import loop_width, zip_loop
 from ..mesh import boundary_loops
-from ..triangulate import orient_consistently, remove_non_manifold_faces, twisted_faces
+from ..triangulate import (
+    MIN_COMPONENT_FACES,
+    orient_consistently,
+    remove_non_manifold_faces,
+    twisted_faces,
+)
 from .grid import TileGrid
 
 __all__ = ["SEAM_BAND", "agree_signs", "face_keys", "repair_cell", "same_winding"]
@@ -164,6 +169,21 @@ def _open_vertices(faces: np.ndarray, is_frame: np.ndarray, n: int) -> np.ndarra
     return fr & ~ed
 
 
+def _debris(faces: np.ndarray, is_frame: np.ndarray, opened: np.ndarray) -> np.ndarray:
+    """The editable faces of components the sub-mesh holds whole (no frame face, no vertex
+    whose star it cuts off: ``opened``) with fewer than ``MIN_COMPONENT_FACES`` faces: debris
+    by the untiled fit's rule (:func:`remove_small_components`; its other bound, a fraction of
+    the largest component, is looser in any tile of more than 5,000 faces). Splitting a
+    bow-tie can cut one loose: a lone triangle, whose three edges are no hole to fill."""
+    from ..mesh import face_components
+
+    n, labels = face_components(faces, len(opened))
+    framed = np.bincount(labels[is_frame], minlength=n) > 0
+    framed[labels[opened[faces].any(axis=1)]] = True
+    small = np.bincount(labels, minlength=n) < MIN_COMPONENT_FACES
+    return (small & ~framed)[labels]
+
+
 def _orient_with_frame(
     vertices: np.ndarray,
     normals: np.ndarray,
@@ -232,7 +252,8 @@ def repair_cell(
     ``n_frame`` (the frame: neighbouring cells' and tile interiors' faces around them) may not.
 
     The rules of the untiled fit: faces on over-shared edges
-    dropped (the frame's kept first), bow-ties split, seam cracks (loops along a seam, small or
+    dropped (the frame's kept first), bow-ties split (and the debris a split cuts loose
+    dropped: :func:`_debris`), seam cracks (loops along a seam, small or
     narrow) zipped, the winding made consistent (and agreeing with the frame), then the small
     holes orienting opened closed. Only loops through a vertex of an editable face are zipped,
     never one through a vertex whose star the sub-mesh cuts off: ``cut`` marks those (one
@@ -275,7 +296,16 @@ def repair_cell(
         fr = np.sort(fr)[::-1]
         v, n, f, sources = _split_keeping_frame(v, n, f, fr)
         origin = np.concatenate([origin, origin[sources]])
-        return v, n, np.vstack([far, f]), np.concatenate([np.ones(len(far), bool), fr])
+        f, fr = np.vstack([far, f]), np.concatenate([np.ones(len(far), bool), fr])
+        junk = _debris(f, fr, opened_at(f, fr, len(v)))
+        return v, n, f[~junk], fr[~junk]
+
+    def opened_at(f, fr, n_v) -> np.ndarray:
+        """The vertices whose star the sub-mesh cuts off."""
+        if cut is None:
+            return _open_vertices(f, fr, n_v)
+        # bow-tie copies (appended) are where their sources were: cut as they are
+        return np.asarray(cut, dtype=bool)[origin]
 
     def orient(v, n, f, fr):
         keep = near(f, fr, len(v))
@@ -290,10 +320,7 @@ def repair_cell(
     stats["faces_dropped"] = int(n_edit - (~is_frame).sum())
 
     def close(v, f, fr, rule) -> list[np.ndarray]:
-        if cut is None:
-            opened = _open_vertices(f, fr, len(v))
-        else:  # bow-tie copies (appended) are where their sources were: cut as they are
-            opened = np.asarray(cut, dtype=bool)[origin]
+        opened = opened_at(f, fr, len(v))
         edited = np.zeros(len(v), dtype=bool)
         edited[f[~fr].ravel()] = True
         chosen = []
