@@ -19,7 +19,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ..holes import loop_width, zip_loop
-from ..mesh import boundary_loops
+from ..mesh import boundary_loops, face_components, orientation_flips
 from ..triangulate import (
     MIN_COMPONENT_FACES,
     orient_consistently,
@@ -175,8 +175,6 @@ def _debris(faces: np.ndarray, is_frame: np.ndarray, opened: np.ndarray) -> np.n
     by the untiled fit's rule (:func:`remove_small_components`; its other bound, a fraction of
     the largest component, is looser in any tile of more than 5,000 faces). Splitting a
     bow-tie can cut one loose: a lone triangle, whose three edges are no hole to fill."""
-    from ..mesh import face_components
-
     n, labels = face_components(faces, len(opened))
     framed = np.bincount(labels[is_frame], minlength=n) > 0
     framed[labels[opened[faces].any(axis=1)]] = True
@@ -198,8 +196,6 @@ def _orient_with_frame(
     orientable and drops no more faces than the conflicts, else the conflicting ones (which
     lie where the search's fronts met, possibly far from the cause). Returns faces, is_frame
     and the frame faces left disagreeing."""
-    from ..mesh import face_components, orientation_flips
-
     faces = faces.copy()
     for _ in range(3):
         flip, conflict = orientation_flips(faces)
