@@ -167,13 +167,14 @@ def triangulate_particles(
     stats: dict = {"method": cfg.method, "faces_raw": int(len(faces))}
     args = (cfg, max_hole, is_covered, scale, crease)
     result = _repair(positions, normals, faces, dict(stats), *args)
-    if _count(result)[2] == 0 and not _open_along_opposed(result):
+    handles = _count(result)[2]
+    if handles == 0 and not _open_along_opposed(result):
         return result  # no handle, and no thin edge left open in places: nothing to mend
     # A tunnel between the two faces of a thin part (a bridge of faces joining opposed sheets
     # away from the part's rim) is a handle the surface does not have: drop the bridges that
     # carry one (:func:`recon.mesh.handle_bridges`, smallest first) and repair again; hole
     # filling caps their ends on each face.
-    bridges = handle_bridges(result.normals, result.faces) if _count(result)[2] else None
+    bridges = handle_bridges(result.normals, result.faces) if handles else None
     if bridges is not None and bridges.any():
         here = _spacing_at(scale, positions, result.vertices)
         alt = _repair(
