@@ -22,8 +22,12 @@ issue 13's speed goal.
 
 Time: ``seconds`` is the reconstruction alone (the input read and the imports excluded, for
 every method alike), the median over ``--repeats`` runs; the methods of a case run alternately
-(A B A B ...) so that a change of machine load hits both. When ``oprecon`` and ``spsr`` both
-run, the last lines print the time ratio oprecon / spsr per case (goal for bunny-clean: <= 1).
+(A B A B ...) so that a change of machine load hits both. The package's byte code is compiled
+first (:func:`compile_sources`), as an installed package has it: with
+``PYTHONDONTWRITEBYTECODE`` set and an editable install, every worker would otherwise compile
+oprecon's modules from source inside the timed region (``--source-imports`` measures that).
+When ``oprecon`` and ``spsr`` both run, the last lines print the time ratio oprecon / spsr per
+case (goal for bunny-clean: <= 1).
 
 Examples::
 
@@ -43,6 +47,7 @@ every 0.1 % of the diagonal along the GT's sharp edges (dihedral turn > 30 deg) 
 from __future__ import annotations
 
 import argparse
+import compileall
 import json
 import os
 import resource
@@ -147,6 +152,13 @@ def _own_peak_mb() -> float:
     except OSError:
         pass
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def compile_sources(package: Path = ROOT / "recon") -> bool:
+    """Write the byte code of ``package``'s modules to ``__pycache__`` (what a non-editable
+    install and any first import do, unless ``PYTHONDONTWRITEBYTECODE`` is set; up-to-date
+    files are skipped). True when every module compiled."""
+    return bool(compileall.compile_dir(str(package), quiet=1))
 
 
 def reconstruct_once(
@@ -391,6 +403,12 @@ def main(argv: list[str] | None = None) -> int:
         help="OMP_WAIT_POLICY for every method (default: the OpenMP runtime's own, spinning, "
         "fastest on a quiet machine; PASSIVE helps on a loaded one)",
     )
+    ap.add_argument(
+        "--source-imports",
+        action="store_true",
+        help="do not compile oprecon's byte code first (with PYTHONDONTWRITEBYTECODE set, each "
+        "worker then compiles the modules it imports from source, in the timed region)",
+    )
     ap.add_argument("--out", type=Path, help="write the Markdown table here too")
     ap.add_argument("--json-out", type=Path)
     args = ap.parse_args(argv)
@@ -399,6 +417,8 @@ def main(argv: list[str] | None = None) -> int:
     # default, 9.4 s PASSIVE); on a loaded one spinning can cost 10x. The workers inherit it.
     if args.omp_wait_policy != "default":
         os.environ["OMP_WAIT_POLICY"] = args.omp_wait_policy
+    if not args.source_imports:
+        compile_sources()
     manifest = json.loads((args.data / "manifest.json").read_text())
     cases = [c for c in manifest["cases"] if not args.cases or c["id"] in args.cases]
     if not cases:

@@ -150,3 +150,19 @@ def test_bench_seeds_judges_the_totals_over_the_seeds():
         ["a", "b"], {"a": closed, "b": base}, {"a": broken, "b": swapped}, 0.002, 0.05
     )
     assert failed == 1 and "worse: loops, watertight, genus" in text and "| ok |" in text
+
+
+def test_bench_quality_compiles_byte_code_even_when_python_would_not(tmp_path, monkeypatch):
+    """The workers import oprecon from byte code: compile_sources writes it although
+    PYTHONDONTWRITEBYTECODE (sys.dont_write_bytecode) keeps imports from doing so."""
+    import importlib.util as util
+    import sys
+
+    package = tmp_path / "pkg"
+    package.mkdir()
+    module = package / "mod.py"
+    module.write_text("X = 1\n")
+    monkeypatch.setattr(sys, "dont_write_bytecode", True)
+    assert not Path(util.cache_from_source(str(module))).exists()
+    assert _bench_quality().compile_sources(package)
+    assert Path(util.cache_from_source(str(module))).exists()
