@@ -326,3 +326,26 @@ def test_a_large_mesh_is_measured_in_the_fits_thread(monkeypatch):
     monkeypatch.setattr(report, "CONCURRENT_REPORT_FACES", 10)
     reconstruct(read_points(SPHERE), apply_overrides(ReconConfig(), {"threads": 2}))
     assert where == [threading.current_thread().name]
+
+
+@pytest.mark.parametrize(
+    ("env", "expected"),
+    [
+        ({}, "omp"),  # OpenMP tried first: no TBB probe (30-60 ms, and a warning when too old)
+        ({"NUMBA_THREADING_LAYER_PRIORITY": "workqueue omp tbb"}, "workqueue"),  # the user's
+        ({"NUMBA_THREADING_LAYER": "workqueue"}, "tbb"),  # a named layer: numba's own order
+    ],
+)
+def test_threading_layer_order_prefers_openmp_unless_the_environment_says(env, expected):
+    """The layer numba tries first at the first threaded kernel of a process: OpenMP, unless
+    the user chose a layer or an order."""
+    import subprocess
+    import sys
+
+    base = {k: v for k, v in os.environ.items() if not k.startswith("NUMBA_THREADING_LAYER")}
+    code = "import numba, recon.kernels.options\nprint(numba.config.THREADING_LAYER_PRIORITY[0])"
+    out = subprocess.run(
+        [sys.executable, "-c", code], env={**base, **env}, capture_output=True, text=True
+    )
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.split()[-1] == expected

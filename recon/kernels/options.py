@@ -25,10 +25,20 @@ References
 from __future__ import annotations
 
 import contextlib
+import os
 import time
 from collections.abc import Iterator
 
 import numba
+
+#: numba's threading layers in the order tried at the first threaded kernel: GNU OpenMP
+#: first (numba's own order tries TBB first, whose probe took 30-60 ms of every process here
+#: and, with a TBB older than numba accepts, warned and fell back to OpenMP anyway). A layer
+#: set in the environment (``NUMBA_THREADING_LAYER`` or ``..._PRIORITY``) is kept.
+THREADING_LAYER_PRIORITY = "omp tbb workqueue"
+if "NUMBA_THREADING_LAYER" not in os.environ:
+    os.environ.setdefault("NUMBA_THREADING_LAYER_PRIORITY", THREADING_LAYER_PRIORITY)
+    numba.config.THREADING_LAYER_PRIORITY = os.environ["NUMBA_THREADING_LAYER_PRIORITY"].split()
 
 FASTMATH: frozenset[str] = frozenset({"nsz", "arcp", "afn"})
 """LLVM fast-math flags used by every kernel (see the module docstring)."""
