@@ -166,3 +166,18 @@ def test_bench_quality_compiles_byte_code_even_when_python_would_not(tmp_path, m
     assert not Path(util.cache_from_source(str(module))).exists()
     assert _bench_quality().compile_sources(package)
     assert Path(util.cache_from_source(str(module))).exists()
+
+
+def test_bench_startup_times_the_import_and_the_fit_of_a_fresh_process(capsys):
+    """bench_startup prints, per checkout, the import and import + fit medians of fresh
+    processes: the fit takes longer than the import alone, and both take some time."""
+    spec = importlib.util.spec_from_file_location(
+        "bench_startup", ROOT / "benchmarks" / "bench_startup.py"
+    )
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    assert module.main([str(ROOT / "sample_data" / "sphere-sparse.ply"), "--runs", "1"]) == 0
+    row = next(x for x in capsys.readouterr().out.splitlines() if x.startswith(f"| {ROOT}"))
+    import_wall, import_cpu, total_wall, total_cpu = map(float, row.strip("|").split("|")[1:])
+    assert 0.0 < import_wall < total_wall
+    assert 0.0 < import_cpu < total_cpu

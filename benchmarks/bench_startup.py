@@ -1,0 +1,102 @@
+"""Start-up inside a fit: a fresh process's import of the pipeline and its first fit.
+
+``bench_quality.py`` times ``from recon.fitting import reconstruct`` and ``reconstruct()`` in a
+fresh worker, so a fresh process's costs count: compiling modules without byte code, numba's
+set-up and its first cache loads. This runs that timed region in fresh processes, alternating
+between checkouts (``--trees``, each put first on ``PYTHONPATH`` and run as it is, with or
+without byte code; default: this one), and prints
+the medians of the import and of the whole region, wall and CPU (all threads), with the load.
+``--kernel-loads`` instead prints, for one fresh process, the time to load each of the fit's
+kernels from numba's cache in turn (:data:`recon.kernels.warm.FIT_KERNELS`).
+
+Examples::
+
+    NUMBA_NUM_THREADS=1 OMP_NUM_THREADS=1 python benchmarks/bench_startup.py \\
+        ../shared/data/cases/bunny-clean/input.ply --runs 5 --trees /tmp/base .
+    python benchmarks/bench_startup.py ../shared/data/cases/bunny-clean/input.ply --kernel-loads
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+
+#: The timed region, as in ``bench_quality.run_method`` (what it imports before its clock
+#: starts is imported first here too).
+_REGION = """
+import sys, time
+import open3d
+from recon.config import ReconConfig
+from recon.io import read_points
+cloud = read_points(sys.argv[1])
+t0, c0 = time.perf_counter(), time.process_time()
+from recon.fitting import reconstruct
+t1, c1 = time.perf_counter(), time.process_time()
+reconstruct(cloud, ReconConfig())
+t2, c2 = time.perf_counter(), time.process_time()
+print("TIMES", t1 - t0, c1 - c0, t2 - t0, c2 - c0)
+"""
+
+_LOADS = """
+import importlib, time
+from recon.fitting import reconstruct
+from recon.kernels import warm
+for name in warm.FIT_KERNELS:
+    module, function = name.rsplit(".", 1)
+    kernel = getattr(importlib.import_module("recon.kernels." + module), function)
+    t = time.perf_counter()
+    sigs = warm.cached_signatures(kernel)
+    index = time.perf_counter() - t
+    for sig in sigs:
+        kernel.compile(sig)
+    print(f"{name:40s} {len(sigs)} sig  index {index * 1e3:6.1f} ms  total "
+          f"{(time.perf_counter() - t) * 1e3:6.1f} ms")
+"""
+
+
+def _run(tree: Path, code: str, args: list[str]) -> str:
+    """stdout of ``code`` in a fresh interpreter with ``tree`` first on the import path."""
+    path = [str(tree), *filter(None, os.environ.get("PYTHONPATH", "").split(os.pathsep))]
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(path))
+    out = subprocess.run(
+        [sys.executable, "-c", code, *args], env=env, capture_output=True, text=True, check=False
+    )
+    if out.returncode != 0:
+        raise RuntimeError(out.stderr[-2000:])
+    return out.stdout
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("input", help="point file")
+    ap.add_argument("--runs", type=int, default=3, help="fresh processes per checkout")
+    ap.add_argument("--trees", nargs="*", type=Path, default=[ROOT], help="checkouts to compare")
+    ap.add_argument("--kernel-loads", action="store_true")
+    args = ap.parse_args(argv)
+    if args.kernel_loads:
+        print(_run(args.trees[0], _LOADS, []), end="")
+        return 0
+    times: dict[Path, list[list[float]]] = {t: [] for t in args.trees}
+    for _ in range(max(1, args.runs)):  # A B A B: a change of load hits every checkout
+        for tree in args.trees:
+            line = next(x for x in _run(tree, _REGION, [args.input]).splitlines() if "TIMES" in x)
+            times[tree].append([float(v) for v in line.split()[1:]])
+    threads = os.environ.get("NUMBA_NUM_THREADS", "default")
+    print(f"{args.input}: {args.runs} fresh processes each, NUMBA_NUM_THREADS={threads}, medians")
+    print("| checkout | import wall | import CPU | import + fit wall | import + fit CPU |")
+    print("|---|---:|---:|---:|---:|")
+    for tree, rows in times.items():
+        med = [statistics.median(col) for col in zip(*rows, strict=True)]
+        print(f"| {tree} | {med[0]:.3f} | {med[1]:.3f} | {med[2]:.3f} | {med[3]:.3f} |")
+    print(f"load average (1 min) at the end: {os.getloadavg()[0]:.1f}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
