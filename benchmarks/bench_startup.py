@@ -61,11 +61,17 @@ for name in warm.FIT_KERNELS:
 
 
 def _run(tree: Path, code: str, args: list[str]) -> str:
-    """stdout of ``code`` in a fresh interpreter with ``tree`` first on the import path."""
+    """stdout of ``code`` in a fresh interpreter with ``tree`` first on the import path (also
+    its working directory: ``python -c`` puts that before ``PYTHONPATH``)."""
     path = [str(tree), *filter(None, os.environ.get("PYTHONPATH", "").split(os.pathsep))]
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(path))
     out = subprocess.run(
-        [sys.executable, "-c", code, *args], env=env, capture_output=True, text=True, check=False
+        [sys.executable, "-c", code, *args],
+        env=env,
+        cwd=tree,
+        capture_output=True,
+        text=True,
+        check=False,
     )
     if out.returncode != 0:
         raise RuntimeError(out.stderr[-2000:])
@@ -82,10 +88,11 @@ def main(argv: list[str] | None = None) -> int:
     if args.kernel_loads:
         print(_run(args.trees[0], _LOADS, []), end="")
         return 0
-    times: dict[Path, list[list[float]]] = {t: [] for t in args.trees}
+    times: dict[Path, list[list[float]]] = {t.resolve(): [] for t in args.trees}
     for _ in range(max(1, args.runs)):  # A B A B: a change of load hits every checkout
-        for tree in args.trees:
-            line = next(x for x in _run(tree, _REGION, [args.input]).splitlines() if "TIMES" in x)
+        for tree in times:
+            out = _run(tree, _REGION, [str(Path(args.input).resolve())])
+            line = next(x for x in out.splitlines() if "TIMES" in x)
             times[tree].append([float(v) for v in line.split()[1:]])
     threads = os.environ.get("NUMBA_NUM_THREADS", "default")
     print(f"{args.input}: {args.runs} fresh processes each, NUMBA_NUM_THREADS={threads}, medians")
