@@ -584,3 +584,24 @@ def test_a_dask_coordinator_keeps_bounded_records_of_finished_tasks():
         assert second[key] == first[key], (key, held)
     assert first["transition_log"] == first["client_messages"] == cap, held
     assert first["computations"] <= DASK_RECORDS["distributed.diagnostics.computations.max-history"]
+
+
+def test_tiles_cover_a_holes_inside_as_the_untiled_fit_does(tmp_path):
+    """A tile's hole filling takes data as covering a hole's inside by the untiled fit's rule
+    (a sample k times sparser than the scan's median covers k times farther, and within
+    SAMPLING_REACH median spacings), not within r0 only. Before, a sparse body's thin ear
+    (tests/test_sparse_holes.py) came out closed untiled and open in 3 tiles (1 loop), and a
+    12-edge hole on a roof of the 10M bench scene, inside tile 78, was the tile's alone."""
+    from test_sparse_holes import EARED, union_points
+
+    src = tmp_path / "eared.ply"
+    write_points(src, union_points(EARED, 1500, 2))
+    whole = fit_file(src, tmp_path / "whole.ply", ReconConfig())
+    tiled = fit_tiled(
+        src, tmp_path / "tiled.ply", with_values(ReconConfig(), tiling={"size": 0.8}), jobs=1
+    )
+    assert tiled.report["tiles"]["count"] == 3
+    v, f = read_mesh(tmp_path / "tiled.ply")
+    topo = mesh_topology(v, f)
+    assert whole.report.topology.boundary_loops == 0
+    assert topo["boundary_loops"] == 0 and topo["watertight"], topo
