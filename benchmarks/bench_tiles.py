@@ -353,13 +353,20 @@ def scale(ns: argparse.Namespace) -> int:
             for loop in loop_table(out, lo, ns.tile_size):
                 print(f"  loop {json.dumps(loop)}", flush=True)
     print()
-    print("| points | tiles | wall s | points/s | coordinator peak GiB | worker peak GiB |")
-    print("|---|---|---|---|---|---|")
-    for r in rows:
-        print(
-            f"| {r['points']:,} | {r['tiles']} | {r['wall_s']:.0f} | {r['points_per_s']:,.0f} | "
-            f"{r['coordinator_gib']:.2f} | {', '.join(f'{w:.2f}' for w in r['worker_gib'])} |"
-        )
+    _table(
+        ["points", "tiles", "wall s", "points/s", "coordinator peak GiB", "worker peak GiB"],
+        [
+            [
+                f"{r['points']:,}",
+                r["tiles"],
+                f"{r['wall_s']:.0f}",
+                f"{r['points_per_s']:,.0f}",
+                f"{r['coordinator_gib']:.2f}",
+                ", ".join(f"{w:.2f}" for w in r["worker_gib"]),
+            ]
+            for r in rows
+        ],
+    )
     for a, b in zip(rows, rows[1:], strict=False):
         slope = math.log(b["wall_s"] / a["wall_s"]) / math.log(b["points"] / a["points"])
         print(f"slope {a['points']:,} -> {b['points']:,}: {slope:.2f} (goal <= 1.1)")
@@ -408,17 +415,30 @@ def tasks(ns: argparse.Namespace) -> int:
     print()
     records = "distributed's defaults" if ns.default_records else "DASK_RECORDS"
     print(f"records of finished tasks: {records}")
-    print("| tasks | coordinator RSS growth MiB | bytes / task | tasks/s |")
-    print("|---|---|---|---|")
-    for r in rows:
-        print(
-            f"| {r['tasks']:,} | {r['rss_growth_mib']:.1f} | {r['bytes_per_task']:,.0f} | "
-            f"{r['tasks_per_s']:.0f} |"
-        )
+    _table(
+        ["tasks", "coordinator RSS growth MiB", "bytes / task", "tasks/s"],
+        [
+            [
+                f"{r['tasks']:,}",
+                f"{r['rss_growth_mib']:.1f}",
+                f"{r['bytes_per_task']:,.0f}",
+                f"{r['tasks_per_s']:.0f}",
+            ]
+            for r in rows
+        ],
+    )
     for a, b in zip(rows, rows[1:], strict=False):
         per = (b["rss_growth_mib"] - a["rss_growth_mib"]) * 2**20 / (b["tasks"] - a["tasks"])
         print(f"growth {a['tasks']:,} -> {b['tasks']:,} tasks: {per:,.0f} bytes per task")
     return 0
+
+
+def _table(header: list[str], rows: list[list]) -> None:
+    """Print a Markdown table."""
+    print("| " + " | ".join(header) + " |")
+    print("|" + "---|" * len(header))
+    for r in rows:
+        print("| " + " | ".join(str(c) for c in r) + " |")
 
 
 def _tile_shares(per_tile: list[dict]) -> dict:
