@@ -15,6 +15,12 @@ density), fits it in tiles of a fixed side on a 2-worker Dask LocalCluster
 coordinating process and of each worker (sampled every 0.2 s over the process tree), every
 boundary loop of the mesh (as ``seams``), then the slope of log(time) against log(points).
 
+``tasks``: runs ``--count`` N trivial tasks (one per count, each on a fresh 2-worker Dask
+LocalCluster) through the tiled fit's scheduling loop (``recon.tiling.executors``) and
+prints the coordinating process's RSS growth per task after a warm-up and the records of
+finished tasks it holds (the scheduler runs in it); ``--default-records`` keeps Dask's own
+limits (``DASK_RECORDS`` not applied) for the comparison.
+
 Examples::
 
     python benchmarks/bench_tiles.py seams --points 1000000
@@ -26,6 +32,8 @@ Examples::
     python benchmarks/bench_tiles.py scale --points 10000000 --tile-size 100
     python benchmarks/bench_tiles.py scale --points 1000000 --keep-work out/scale
     python benchmarks/bench_tiles.py scale --points 300000 --untiled
+    python benchmarks/bench_tiles.py tasks --count 2000 8000
+    python benchmarks/bench_tiles.py tasks --count 2000 8000 --default-records
 """
 
 from __future__ import annotations
@@ -345,17 +353,92 @@ def scale(ns: argparse.Namespace) -> int:
             for loop in loop_table(out, lo, ns.tile_size):
                 print(f"  loop {json.dumps(loop)}", flush=True)
     print()
-    print("| points | tiles | wall s | points/s | coordinator peak GiB | worker peak GiB |")
-    print("|---|---|---|---|---|---|")
-    for r in rows:
-        print(
-            f"| {r['points']:,} | {r['tiles']} | {r['wall_s']:.0f} | {r['points_per_s']:,.0f} | "
-            f"{r['coordinator_gib']:.2f} | {', '.join(f'{w:.2f}' for w in r['worker_gib'])} |"
-        )
+    _table(
+        ["points", "tiles", "wall s", "points/s", "coordinator peak GiB", "worker peak GiB"],
+        [
+            [
+                f"{r['points']:,}",
+                r["tiles"],
+                f"{r['wall_s']:.0f}",
+                f"{r['points_per_s']:,.0f}",
+                f"{r['coordinator_gib']:.2f}",
+                ", ".join(f"{w:.2f}" for w in r["worker_gib"]),
+            ]
+            for r in rows
+        ],
+    )
     for a, b in zip(rows, rows[1:], strict=False):
         slope = math.log(b["wall_s"] / a["wall_s"]) / math.log(b["points"] / a["points"])
         print(f"slope {a['points']:,} -> {b['points']:,}: {slope:.2f} (goal <= 1.1)")
     return 0
+
+
+def tasks(ns: argparse.Namespace) -> int:
+    import gc
+
+    import psutil
+
+    from recon.batch import executors as batch_executors
+    from recon.tiling.executors import held_records, run_tasks, tile_runner
+
+    if ns.default_records:
+        batch_executors.DASK_RECORDS = {}
+    me = psutil.Process()
+
+    def rss() -> int:
+        gc.collect()
+        return me.memory_info().rss
+
+    rows = []
+    for n in ns.count:
+        with tile_runner("dask", 2) as runner:
+
+            def run(count: int, runner=runner) -> None:
+                jobs = {t: (abs, (-t,)) for t in range(count)}
+                run_tasks(runner, "tasks", jobs, str, on_result=lambda t, r: None)
+
+            run(ns.warmup)
+            base = rss()
+            t0 = time.perf_counter()
+            run(n)
+            wall = time.perf_counter() - t0
+            grown = rss() - base
+            row = {
+                "tasks": n,
+                "rss_growth_mib": grown / 2**20,
+                "bytes_per_task": grown / n,
+                "tasks_per_s": n / wall,
+                "held": held_records(runner),
+            }
+        rows.append(row)
+        print(json.dumps(row), flush=True)
+    print()
+    records = "distributed's defaults" if ns.default_records else "DASK_RECORDS"
+    print(f"records of finished tasks: {records}")
+    _table(
+        ["tasks", "coordinator RSS growth MiB", "bytes / task", "tasks/s"],
+        [
+            [
+                f"{r['tasks']:,}",
+                f"{r['rss_growth_mib']:.1f}",
+                f"{r['bytes_per_task']:,.0f}",
+                f"{r['tasks_per_s']:.0f}",
+            ]
+            for r in rows
+        ],
+    )
+    for a, b in zip(rows, rows[1:], strict=False):
+        per = (b["rss_growth_mib"] - a["rss_growth_mib"]) * 2**20 / (b["tasks"] - a["tasks"])
+        print(f"growth {a['tasks']:,} -> {b['tasks']:,} tasks: {per:,.0f} bytes per task")
+    return 0
+
+
+def _table(header: list[str], rows: list[list]) -> None:
+    """Print a Markdown table."""
+    print("| " + " | ".join(header) + " |")
+    print("|" + "---|" * len(header))
+    for r in rows:
+        print("| " + " | ".join(str(c) for c in r) + " |")
 
 
 def _tile_shares(per_tile: list[dict]) -> dict:
@@ -373,9 +456,18 @@ def _tile_shares(per_tile: list[dict]) -> dict:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("mode", choices=["seams", "restitch", "scale"], nargs="?", default="seams")
+    ap.add_argument(
+        "mode", choices=["seams", "restitch", "scale", "tasks"], nargs="?", default="seams"
+    )
     ap.add_argument("--points", type=int, nargs="+", default=None)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--count", type=int, nargs="+", default=[2000, 8000], help="tasks: task counts")
+    ap.add_argument("--warmup", type=int, default=50, help="tasks: tasks before the baseline")
+    ap.add_argument(
+        "--default-records",
+        action="store_true",
+        help="tasks: keep Dask's limits on the records of finished tasks",
+    )
     ap.add_argument("--noise", type=float, default=0.02, help="[m] along the normal")
     ap.add_argument("--truth", type=int, default=2_000_000, help="ground-truth points")
     ap.add_argument("--tiles-per-side", type=int, default=3, help="seams: tiles per side")
@@ -416,7 +508,7 @@ def main(argv: list[str] | None = None) -> int:
     if ns.points is None:
         ns.points = [1_000_000] if ns.mode != "scale" else [250_000, 500_000, 1_000_000]
     os.environ.setdefault("PYTHONWARNINGS", "ignore")
-    return {"seams": seams, "restitch": restitch, "scale": scale}[ns.mode](ns)
+    return {"seams": seams, "restitch": restitch, "scale": scale, "tasks": tasks}[ns.mode](ns)
 
 
 if __name__ == "__main__":

@@ -33,9 +33,28 @@ from .supervise import POLL, STOP_GRACE, supervise_item
 
 log = logging.getLogger(__name__)
 
-__all__ = ["DASK_MISSING", "default_jobs", "import_dask", "run_dask", "run_local"]
+__all__ = [
+    "DASK_MISSING",
+    "DASK_RECORDS",
+    "default_jobs",
+    "import_dask",
+    "run_dask",
+    "run_local",
+]
 
 DASK_MISSING = 'the dask executor needs the optional dependency: pip install "oprecon[distributed]"'
+
+#: How many records of finished tasks the Dask scheduler and client keep, set for the
+#: client and the LocalCluster started here (a running scheduler keeps its own settings).
+#: ``low-level-log-length`` bounds the scheduler's transition log, its event topics and
+#: every connection's recent messages (default 1000 each); ``computations.max-history``
+#: the past computations with their task groups (default 100). At the defaults these held
+#: about 15 MiB after 2,000 tiny tasks in the coordinating process; see ``bench_tiles.py
+#: tasks`` and README "Large scans".
+DASK_RECORDS = {
+    "distributed.admin.low-level-log-length": 100,
+    "distributed.diagnostics.computations.max-history": 10,
+}
 
 
 def default_jobs() -> int:
@@ -143,6 +162,7 @@ def dask_client(scheduler: str | None, jobs: int) -> Iterator[tuple[Any, dict[st
     """A Dask client, on the running ``scheduler`` or on a LocalCluster of ``jobs``
     single-threaded worker processes (started ignoring Ctrl-C, which the caller handles), with
     every worker checked to run this oprecon version. Client and cluster close on exit.
+    Both keep :data:`DASK_RECORDS` records of finished tasks.
 
     Yields
     ------
@@ -155,45 +175,48 @@ def dask_client(scheduler: str | None, jobs: int) -> Iterator[tuple[Any, dict[st
         Dask missing or unreachable, or its workers run another oprecon version.
     """
     dd = import_dask()
+    import dask
+
     cluster = None
     client = None
-    try:
-        if scheduler:
-            try:
-                client = dd.Client(scheduler, timeout="20s", set_as_default=False)
-            except (OSError, TimeoutError) as exc:
-                raise OpreconError(
-                    f"cannot connect to the Dask scheduler at {scheduler}: {exc}"
-                ) from None
-        else:
-            with _sigint_ignored():  # Ctrl-C is handled here, not in the workers
-                cluster = dd.LocalCluster(
-                    n_workers=jobs,
-                    processes=True,
-                    threads_per_worker=1,
-                    dashboard_address=None,
-                    silence_logs=logging.ERROR,
-                )
-            client = dd.Client(cluster, set_as_default=False)
+    with dask.config.set(DASK_RECORDS):  # read when the scheduler and the comms start
         try:
-            versions = client.run(_worker_version)
-        except Exception as exc:  # noqa: BLE001 - the workers cannot import oprecon
-            raise OpreconError(
-                "cannot run oprecon on the Dask workers (install the same "
-                f"oprecon version on every worker): {exc}"
-            ) from None
-        wrong = {w: v for w, v in versions.items() if v != __version__}
-        if wrong:
-            raise OpreconError(
-                f"Dask workers run other oprecon versions than {__version__}: "
-                + ", ".join(f"{w} has {v}" for w, v in sorted(wrong.items()))
-            )
-        yield client, versions
-    finally:
-        for obj in (client, cluster):
-            with contextlib.suppress(Exception):
-                if obj is not None:
-                    obj.close()
+            if scheduler:
+                try:
+                    client = dd.Client(scheduler, timeout="20s", set_as_default=False)
+                except (OSError, TimeoutError) as exc:
+                    raise OpreconError(
+                        f"cannot connect to the Dask scheduler at {scheduler}: {exc}"
+                    ) from None
+            else:
+                with _sigint_ignored():  # Ctrl-C is handled here, not in the workers
+                    cluster = dd.LocalCluster(
+                        n_workers=jobs,
+                        processes=True,
+                        threads_per_worker=1,
+                        dashboard_address=None,
+                        silence_logs=logging.ERROR,
+                    )
+                client = dd.Client(cluster, set_as_default=False)
+            try:
+                versions = client.run(_worker_version)
+            except Exception as exc:  # noqa: BLE001 - the workers cannot import oprecon
+                raise OpreconError(
+                    "cannot run oprecon on the Dask workers (install the same "
+                    f"oprecon version on every worker): {exc}"
+                ) from None
+            wrong = {w: v for w, v in versions.items() if v != __version__}
+            if wrong:
+                raise OpreconError(
+                    f"Dask workers run other oprecon versions than {__version__}: "
+                    + ", ".join(f"{w} has {v}" for w, v in sorted(wrong.items()))
+                )
+            yield client, versions
+        finally:
+            for obj in (client, cluster):
+                with contextlib.suppress(Exception):
+                    if obj is not None:
+                        obj.close()
 
 
 def _worker_version() -> str:

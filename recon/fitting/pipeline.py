@@ -231,6 +231,25 @@ def cover_reach(median_spacing: float) -> float:
     return SAMPLING_REACH * float(median_spacing)
 
 
+def sparse_cover(sampling: np.ndarray, median: float, max_density_scale: float) -> np.ndarray:
+    """How many times farther than ``HOLE_COVER_DISTANCE`` each data point covers a hole's
+    inside: a point ``k`` times sparser than the ``median`` sampling spacing (``sampling``:
+    :func:`data_spacing`) covers ``k`` times farther, up to the same limit as the ball radii
+    (``max_density_scale``; 1 when that is off)."""
+    ratio = sampling / max(float(median), 1e-12) if len(sampling) else sampling
+    return np.clip(ratio, 1.0, max(max_density_scale, 1.0))
+
+
+def covered(
+    dist: np.ndarray, sparser: np.ndarray, spacing: float | np.ndarray, reach: float
+) -> np.ndarray:
+    """Hole points whose nearest data point (at ``dist`` [r0], its :func:`sparse_cover`
+    ``sparser``) covers them: within ``HOLE_COVER_DISTANCE`` times the larger of the local
+    ``spacing`` and ``sparser``, or within ``reach`` (:func:`cover_reach`)."""
+    near = HOLE_COVER_DISTANCE * np.maximum(spacing, sparser)
+    return dist < np.maximum(near, reach)
+
+
 def _triangulate(
     state: ParticleState, surface: DataSurface, cfg: ReconConfig, median_spacing: float = 0.0
 ) -> TriangulationResult:
@@ -253,19 +272,13 @@ def _triangulate(
     if cfg.seeds.adaptive and state.n:
         rest = np.array(state.rest, dtype=float)
         spacing = rest if spacing is None else np.maximum(spacing, rest)
-    # a sample k times sparser than the median covers k times farther, up to the same limit
-    # as the ball radii (max_density_scale; 1 when that is off)
-    sparser = np.clip(
-        sampling / max(float(np.median(sampling)), 1e-12) if len(sampling) else sampling,
-        1.0,
-        max(tri_cfg.max_density_scale, 1.0),
-    )
+    median = float(np.median(sampling)) if len(sampling) else 0.0
+    sparser = sparse_cover(sampling, median, tri_cfg.max_density_scale)
 
     def mesh(reach: float) -> tuple[TriangulationResult, int, int]:
         def is_covered(c: np.ndarray, spacing: float | np.ndarray = 1.0) -> np.ndarray:
             dist, idx = surface.nearest(surface.project(c)[0])
-            near = HOLE_COVER_DISTANCE * np.maximum(spacing, sparser[idx])
-            return dist < np.maximum(near, reach)
+            return covered(dist, sparser[idx], spacing, reach)
 
         result = triangulate_particles(
             state.position,

@@ -13,10 +13,11 @@ import contextlib
 import logging
 import multiprocessing
 import signal
-import time
+import threading
 import traceback
 from collections.abc import Callable, Iterable, Iterator, Mapping
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor
+from concurrent.futures import wait as wait_futures
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from typing import Any
@@ -32,12 +33,13 @@ __all__ = [
     "TileError",
     "TileEvent",
     "TileRunner",
+    "held_records",
     "run_tasks",
     "tile_runner",
 ]
 
 EXECUTORS = ("local", "dask")
-#: Seconds between polls of the running tasks.
+#: Seconds at most between looks at the running tasks (one finishing ends the wait).
 POLL = 0.1
 #: Tasks submitted at a time per job (one running, one queued behind it).
 IN_FLIGHT_PER_JOB = 2
@@ -71,6 +73,7 @@ class TileRunner:
         self.jobs = jobs
         self.client = client
         self.pools: list[ProcessPoolExecutor] = []
+        self.finished = threading.Event()  # a Dask task finished
         if client is None:
             self._new_pool()
 
@@ -84,12 +87,22 @@ class TileRunner:
 
     def submit(self, fn: Callable[..., Any], *args: Any) -> Any:
         if self.client is not None:
-            return self.client.submit(fn, *args, pure=False)
+            future = self.client.submit(fn, *args, pure=False)
+            future.add_done_callback(lambda _: self.finished.set())
+            return future
         try:
             return self.pools[-1].submit(fn, *args)
         except BrokenProcessPool:  # a worker died (killed, out of memory): start new ones
             self._close_pool(self.pools[-1])
             return self._new_pool().submit(fn, *args)
+
+    def wait(self, futures: list[Any], timeout: float) -> None:
+        """Return when one of ``futures`` is done, or after ``timeout`` seconds."""
+        if self.client is None:
+            wait_futures(futures, timeout=timeout, return_when=FIRST_COMPLETED)
+            return
+        self.finished.wait(timeout)  # set by a task that finished (also before this call)
+        self.finished.clear()
 
     @staticmethod
     def _close_pool(pool: ProcessPoolExecutor) -> None:
@@ -190,7 +203,7 @@ def run_tasks(
         while futures:
             done = [f for f in futures if f.done()]
             if not done:
-                time.sleep(POLL)
+                runner.wait(list(futures), POLL)
                 continue
             for f in done:
                 tile = futures.pop(f)
@@ -238,6 +251,35 @@ def run_tasks(
             code,
         )
     return results
+
+
+def held_records(runner: TileRunner) -> dict[str, int]:
+    """The records of tasks this process holds on a Dask runner (empty for local
+    processes): the client's futures and recent messages and, when the scheduler runs
+    here (a LocalCluster), its task states, transition log, events, past computations and
+    the recent messages of its connections. Each is bounded (see
+    :data:`recon.batch.executors.DASK_RECORDS`), none grows with the task count, except
+    ``key_names``: Dask's own cache of every task key's name (``dask.utils.key_split``, at
+    most 100,000 entries, a few hundred bytes each)."""
+    client = runner.client
+    if client is None:
+        return {}
+    from dask.utils import key_split
+
+    out = {"futures": len(client.futures), "key_names": key_split.cache_info().currsize}
+    comm = getattr(client, "scheduler_comm", None)
+    out["client_messages"] = len(getattr(comm, "recent_message_log", ()))
+    scheduler = getattr(getattr(client, "cluster", None), "scheduler", None)
+    if scheduler is not None:
+        comms = [*scheduler.stream_comms.values(), *scheduler.client_comms.values()]
+        out.update(
+            tasks=len(scheduler.tasks),
+            transition_log=len(scheduler.transition_log),
+            events=sum(len(e) for e in scheduler.get_events().values()),
+            computations=len(scheduler.computations),
+            scheduler_messages=sum(len(c.recent_message_log) for c in comms),
+        )
+    return out
 
 
 class LazyTasks(Mapping):

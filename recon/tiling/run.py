@@ -307,6 +307,7 @@ def fit_tiled(
                     {n: int(offsets[n]) for n in near},  # the tile's and its neighbours' only
                     {n: flips.get(n, 1.0) for n in near},
                     d6,
+                    d_nn,
                 )
                 return mesh_task, (job,)
 

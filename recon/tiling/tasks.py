@@ -285,6 +285,7 @@ class MeshJob:
     offsets: dict[int, int]  # tile -> global id of its first particle
     flips: dict[int, float]  # tile -> +1 / -1 normal sign
     median_d6: float  # median 6th-neighbour distance of the scan [length]
+    median_spacing: float  # median nearest-neighbour distance of the scan [length]
 
 
 def _load_particles(
@@ -353,8 +354,16 @@ def mesh_task(job: MeshJob) -> dict:
     from scipy.spatial import cKDTree
 
     from ..config import config_from_dict
-    from ..fitting.pipeline import HOLE_COVER_DISTANCE, local_density_scale
-    from ..kernels.options import thread_count
+    from ..fitting.pipeline import (
+        DENSITY_NEIGHBOURS,
+        HOLE_COVER_DISTANCE,
+        cover_reach,
+        covered,
+        local_density_scale,
+        sparse_cover,
+    )
+    from ..intersections import untangle
+    from ..kernels.options import query_workers, thread_count
     from ..triangulate import triangulate_particles
 
     t0 = time.perf_counter()
@@ -374,19 +383,32 @@ def mesh_task(job: MeshJob) -> dict:
     tree = cKDTree(data) if len(data) else None
     tri_cfg = cfg.triangulation
     max_hole = tri_cfg.max_hole if tri_cfg.max_hole is not None else cfg.growth.max_gap
+    # the untiled fit's rules against the scan's medians (a tile's own would differ by tile)
+    median_d6 = job.median_d6 / r0
+    sampling = np.zeros(len(data))  # each data point's spacing (0: too few to tell)
+    spacing = None
     with thread_count(cfg.threads):
-        spacing = None
+        if len(data) > DENSITY_NEIGHBOURS:
+            sampling = tree.query(data, DENSITY_NEIGHBOURS + 1, workers=query_workers())[0][:, -1]
         if tri_cfg.max_density_scale > 1.0 and tree is not None:
             spacing = local_density_scale(
-                tree, data, x, tri_cfg.max_density_scale, job.median_d6 / r0
+                tree, data, x, tri_cfg.max_density_scale, median_d6, local=sampling
             )
-        if cfg.seeds.adaptive:
-            spacing = rest if spacing is None else np.maximum(spacing, rest)
+    if cfg.seeds.adaptive:
+        spacing = rest if spacing is None else np.maximum(spacing, rest)
+    sparser = sparse_cover(sampling, median_d6, tri_cfg.max_density_scale)
+
+    def mesh(reach: float) -> tuple[Any, np.ndarray, np.ndarray, int, int]:
+        """Triangulate with the coverage ``reach``, untangle over the tile's core and halo
+        moving only its own particles and new vertices (the neighbours' belong to their
+        tiles): the result, the vertices' global ids (``-1 - j`` for the ``j``-th new one),
+        the untangled vertices, crossings found and left."""
 
         def is_covered(c: np.ndarray, s: Any = 1.0) -> np.ndarray:
             if tree is None:
                 return np.zeros(len(c), dtype=bool)
-            return tree.query(c)[0] < HOLE_COVER_DISTANCE * np.asarray(s)
+            dist, idx = tree.query(c)
+            return covered(dist, sparser[idx], s, reach)
 
         tri = triangulate_particles(
             x,
@@ -397,25 +419,29 @@ def mesh_task(job: MeshJob) -> dict:
             local_spacing=spacing,
             crease=crease,
         )
+        if len(tri.faces) == 0:
+            return tri, np.zeros(0, dtype=np.int64), tri.vertices, 0, 0
+        # result vertices -> input particles (order kept; repair adds shifted copies at the end)
+        d, src = cKDTree(x).query(tri.vertices)
+        original = d <= 1e-9
+        code = np.empty(len(tri.vertices), dtype=np.int64)
+        code[original] = gid[src[original]]
+        code[~original] = -1 - np.arange(np.count_nonzero(~original))
+        own = ~original | (grid.cell_of(tri.vertices * r0 + centre) == job.tile)
+        fixed = ~own if tri.crease is None else ~own | np.asarray(tri.crease, dtype=bool)
+        return tri, code, *untangle(tri.vertices, tri.faces, fixed=fixed)
+
+    with thread_count(cfg.threads):
+        reach = cover_reach(job.median_spacing / r0)
+        tri, code, moved_x, found, left = mesh(reach)
+        if left and reach > HOLE_COVER_DISTANCE:  # as the untiled fit: see its _triangulate
+            tri, code, moved_x, found, left = mesh(0.0)
     faces = tri.faces
     if len(faces) == 0:
         write_tile_mesh(job.work, job.tile, grid, r0, *_no_mesh())
         return empty
-    # result vertices -> input particles (order kept; repair adds shifted copies at the end)
-    d, src = cKDTree(x).query(tri.vertices)
-    original = d <= 1e-9
-    new_ids = np.flatnonzero(~original)
-    code = np.empty(len(tri.vertices), dtype=np.int64)
-    code[original] = gid[src[original]]
-    code[new_ids] = -1 - np.arange(len(new_ids))
-    # untangle over the whole tile mesh (halo included); only the tile's own particles and its
-    # new vertices move (the neighbours' belong to their tiles); the moves go to the stitch
-    from ..intersections import untangle
-
-    own = ~original | (grid.cell_of(tri.vertices * r0 + centre) == job.tile)
-    fixed = ~own if tri.crease is None else ~own | np.asarray(tri.crease, dtype=bool)
-    moved_x, found, left = untangle(tri.vertices, faces, fixed=fixed)
-    moved = np.flatnonzero(np.any(moved_x != tri.vertices, axis=1) & original)
+    new_ids = np.flatnonzero(code < 0)
+    moved = np.flatnonzero(np.any(moved_x != tri.vertices, axis=1) & (code >= 0))
     absolute = moved_x * r0 + centre
     faces = faces[grid.in_core(job.tile, absolute[faces].mean(axis=1))]
     counts = write_tile_mesh(
