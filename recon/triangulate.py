@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import open3d as o3d
@@ -31,7 +31,13 @@ from scipy.spatial import cKDTree
 
 from .config import TriangulationConfig
 from .crease_mesh import flip_straddling_edges, insert_crease_edges, pivot_positions
-from .holes import fill_small_holes, loft_nearest_loops, neck_between, thicken_sheet
+from .holes import (
+    fill_small_holes,
+    loft_nearest_loops,
+    neck_between,
+    thicken_sheet,
+    zip_supported_loops,
+)
 from .intersections import self_intersections
 from .kernels.circumsphere import circumsphere_kernel
 from .mesh import (
@@ -213,7 +219,8 @@ def triangulate_particles(
             # for the rim the sheets continue)
             strip = _relofted(alt, positions, args)
             thick = None if strip is None else _sheets_thickened(strip, open_body=True)
-            for mended in (thick, strip):
+            zipped = None if thick is None else _rest_zipped(thick, strip, positions, args)
+            for mended in (zipped, thick, strip):
                 if mended is not None and _better(mended, result):
                     log.debug("re-closed a thin edge without its %d opposed faces", opposed.sum())
                     result = mended
@@ -303,6 +310,28 @@ def _sheets_thickened(
             faces_all[body] = faces_all[body][:, ::-1]
     log.debug("thickened one-sided sheets at a thin edge: %d -> %d faces", len(f), len(faces_all))
     return TriangulationResult(vertices_all, faces_all, normals_all, dict(result.stats), crease)
+
+
+def _rest_zipped(
+    thick: TriangulationResult, strip: TriangulationResult, positions: np.ndarray, args: tuple
+) -> TriangulationResult | None:
+    """``thick`` (``strip`` with the edge's one-sided sheets joined to its open body) with
+    the body's loops within ``SHEET_NECK_GAP`` of a joined sheet zipped where data lies
+    across them all round (:func:`recon.holes.zip_supported_loops`): the rest of the edge,
+    folded round the tip's merged faces; None when none is."""
+    is_covered, scale = args[2], args[3]
+    v, f = thick.vertices, thick.faces
+    joined = cKDTree(strip.vertices).query(v)[0] > 0  # the sheets' thick copies
+    if is_covered is None or not joined.any():
+        return None
+    sheets = cKDTree(v[joined])
+    _, label = face_components(f, len(v))
+    body = f[label == np.argmax(np.bincount(label))]
+    loops = [
+        loop for loop in boundary_loops(body) if sheets.query(v[loop])[0].min() <= SHEET_NECK_GAP
+    ]
+    faces = zip_supported_loops(v, f, loops, is_covered, _spacing_at(scale, positions, v))
+    return None if len(faces) == len(f) else replace(thick, faces=faces)
 
 
 def _open_along_opposed(result: TriangulationResult) -> bool:

@@ -182,3 +182,41 @@ def test_a_sheet_beside_a_body_left_open_at_its_edge_joins_it_only_when_asked(in
     assert handle_count(thick.faces, len(thick.vertices)) == (1, 1, 0)
     assert len(self_intersections(thick.vertices, thick.faces)) == 0
     assert capped_volume(thick.vertices, thick.faces) > 0  # outward
+
+
+def _body_open_beside_sheet() -> TriangulationResult:
+    """``_body_and_sheet(0.5)`` with the sphere open at a patch that reaches the sheet's side
+    (above the equator, y > 1, x > 3): the rest of a thin edge left open beside the one-sided
+    sheet that continues it."""
+    result = _body_and_sheet(gap=0.5)
+    v, f = result.vertices, result.faces
+    c = v[f].mean(axis=1)
+    on_body = np.arange(len(f)) < len(f) - 50
+    hole = on_body & (c[:, 0] > 3.0) & (c[:, 1] > 1.0) & (c[:, 2] > 0.0)
+    return TriangulationResult(v, f[~hole], result.normals, {})
+
+
+@pytest.mark.parametrize("data", [True, False])
+def test_the_body_loop_beside_a_joined_sheet_is_zipped_where_data_lies_across_it(data):
+    # regression (held-out knife, seed 0): after the edge's one-sided sheets joined the open
+    # body, the body kept one loop at the tip beside them (52 edges, 103 r0 round, 4.3 r0
+    # wide: neither a small hole nor a seam), with data all across it
+    from recon.triangulate import _rest_zipped
+
+    strip = _body_open_beside_sheet()
+    thick = _sheets_thickened(strip, open_body=True)
+    assert thick is not None and handle_count(thick.faces, len(thick.vertices)) == (1, 1, 0)
+    covered = lambda p: np.full(len(p), data)  # noqa: E731
+    zipped = _rest_zipped(thick, strip, strip.vertices, (None, 4.0, covered, None, None))
+    if not data:
+        assert zipped is None  # no data across the loop: a real boundary, kept
+        return
+    assert zipped is not None
+    topo = mesh_topology(zipped.vertices, zipped.faces)
+    assert topo["watertight"] and topo["components"] == 1 and topo["genus"] == 0, topo
+    assert len(self_intersections(zipped.vertices, zipped.faces)) == 0
+    assert capped_volume(zipped.vertices, zipped.faces) > 0  # outward
+    mesh = o3d.geometry.TriangleMesh(
+        o3d.utility.Vector3dVector(zipped.vertices), o3d.utility.Vector3iVector(zipped.faces)
+    )
+    assert mesh.is_watertight() and mesh.is_orientable()
