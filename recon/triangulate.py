@@ -77,6 +77,8 @@ COVERED_HOLE_FACTOR = 3.0
 #: (:func:`_sheets_thickened`): the widest gap a ball-pivoted face spans, had the normals
 #: agreed. (Ball pivoting's faces across such an edge are the ones the strip replaces.)
 EDGE_REACH = 1.0
+#: ... tried after strips between loops within this median distance [local spacings].
+LOFT_GAP = 2.0
 #: Elsewhere a one-sided open sheet this close [r0] to the closed main body continues its edge
 #: (:func:`_sheets_thickened`) ...
 SHEET_NECK_GAP = 1.0
@@ -220,14 +222,19 @@ def triangulate_particles(
             # between the two faces' rims, judged with the edge's one-sided sheets made part of
             # the body (the two steps mend one edge: alone, the strip can trade the handles
             # for the rim the sheets continue)
+            # for the edge's sheets, the strip first between the nearest rims only: a wider
+            # strip can join rims that are not the edge's two faces (knife, seed 7)
             reach = EDGE_REACH * 2.0 * max(cfg.radii)
-            strip = _relofted(alt, positions, reach, args)
-            thick = None if strip is None else _sheets_thickened(strip, reach, open_body=True)
-            zipped = None if thick is None else _rest_zipped(thick, strip, positions, reach, args)
-            for mended in (zipped, thick, strip):
-                if mended is not None and _better(mended, result):
+            for gap in (LOFT_GAP, reach):
+                strip = _relofted(alt, positions, gap, args)
+                thick = None if strip is None else _sheets_thickened(strip, reach, open_body=True)
+                zipped = (
+                    None if thick is None else _rest_zipped(thick, strip, positions, reach, args)
+                )
+                good = [m for m in (zipped, thick, strip) if m is not None and _better(m, result)]
+                if good:
                     log.debug("re-closed a thin edge without its %d opposed faces", opposed.sum())
-                    result = mended
+                    result = good[0]
                     break
     thick = _sheets_thickened(result)
     if thick is not None and _better(thick, result):
