@@ -131,14 +131,9 @@ def test_a_sheet_that_continues_a_joined_sheet_joins_too():
     assert len(self_intersections(thick.vertices, thick.faces)) == 0
 
 
-def test_a_thin_edge_left_open_in_places_without_a_handle_is_closed(monkeypatch):
-    # regression (held-out knife, seed 1): the band of opposed faces across a blade's edge
-    # closed most of it but left two stretches open; with no handle the first repair was
-    # returned as it was (1 component, 2 loops), although dropping the band and joining the
-    # two faces' rims by a strip closes it
-    import recon.triangulate as tri
-    from recon.config import TriangulationConfig
-
+def _edge_open_in_places() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Vertices, normals and ball-pivoted faces of a thin slab's two faces (0.8 apart) whose
+    band of faces across the edge leaves two stretches of three edges open."""
     rng = np.random.default_rng(0)
     vt, ft = _grid(10, 1.0, 0.4, rng)
     vb, fb = _grid(10, 1.0, -0.4, rng)
@@ -151,7 +146,18 @@ def test_a_thin_edge_left_open_in_places_without_a_handle_is_closed(monkeypatch)
         if k % 18 in (4, 5, 6):  # two stretches of three edges stay open
             continue
         band += [[a, b, b + len(vt)], [a, b + len(vt), a + len(vt)]]
-    faces = np.concatenate([ft, fb + len(vt), np.array(band)])
+    return v, normals, np.concatenate([ft, fb + len(vt), np.array(band)])
+
+
+def test_a_thin_edge_left_open_in_places_without_a_handle_is_closed(monkeypatch):
+    # regression (held-out knife, seed 1): the band of opposed faces across a blade's edge
+    # closed most of it but left two stretches open; with no handle the first repair was
+    # returned as it was (1 component, 2 loops), although dropping the band and joining the
+    # two faces' rims by a strip closes it
+    import recon.triangulate as tri
+    from recon.config import TriangulationConfig
+
+    v, normals, faces = _edge_open_in_places()
     monkeypatch.setattr(tri, "ball_pivoting", lambda *_: faces)
     result = tri.triangulate_particles(v, normals, TriangulationConfig(), 1.0, resign=False)
     topo = mesh_topology(result.vertices, result.faces)
@@ -253,3 +259,25 @@ def test_a_sheet_two_spacings_from_an_open_body_at_a_thin_edge_joins_it():
     assert thick is not None
     assert handle_count(thick.faces, len(thick.vertices)) == (1, 0, 0)
     assert len(self_intersections(thick.vertices, thick.faces)) == 0
+
+
+def test_the_nearest_rims_are_joined_first(monkeypatch):
+    # regression (held-out knife, seed 7): strips up to the largest ball's diameter, tried
+    # first, joined rims that are not the edge's two faces (2 components, 29 crossing pairs);
+    # the wide strips are for when those within LOFT_GAP close nothing
+    import recon.triangulate as tri
+    from recon.config import TriangulationConfig
+
+    v, normals, faces = _edge_open_in_places()
+    gaps = []
+    relofted = tri._relofted
+
+    def spy(alt, positions, gap, args):
+        gaps.append(gap)
+        return relofted(alt, positions, gap, args)
+
+    monkeypatch.setattr(tri, "ball_pivoting", lambda *_: faces)
+    monkeypatch.setattr(tri, "_relofted", spy)
+    result = tri.triangulate_particles(v, normals, TriangulationConfig(), 1.0, resign=False)
+    assert gaps == [tri.LOFT_GAP]  # closed by the nearest rims' strip: the wide one not tried
+    assert handle_count(result.faces, len(result.vertices)) == (1, 0, 0)
