@@ -38,6 +38,7 @@ __all__ = [
     "rezip_crossing_loops",
     "thicken_sheet",
     "zip_loop",
+    "zip_supported_loops",
 ]
 
 #: A loop whose rim faces point against its patch is kept open when its component's area is
@@ -160,6 +161,44 @@ def fill_small_holes(
         return vertices, normals, faces, 0
     new_faces = rezip_crossing_loops(vertices, normals, faces, zipped, new_faces, edge_set)
     return vertices, normals, np.vstack([faces, *new_faces]), len(new_faces)
+
+
+def zip_supported_loops(
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    loops: list[np.ndarray],
+    is_covered: Callable[..., np.ndarray],
+    scale: np.ndarray | None = None,
+) -> np.ndarray:
+    """``faces`` with each of ``loops`` (boundary loops of ``faces``) zipped (:func:`zip_loop`)
+    when data lies at ``SEAM_SUPPORT`` of the points across it (:func:`across_points`) and
+    untangling the mesh round the patch leaves no crossing (:func:`_left_after_untangle`),
+    whatever its width and perimeter.
+
+    For a loop already known to be a gap of a closed surface, not a real boundary: the rest
+    of a thin part's edge left open beside the one-sided sheets that continue it
+    (:func:`recon.triangulate.triangulate_particles`). Folded round the part's merged tip,
+    such a loop is wider than any seam, so :func:`fill_small_holes` keeps it. ``scale`` (per
+    vertex) is the local spacing, passed to ``is_covered`` as in :func:`fill_small_holes`.
+    """
+    he = faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
+    edges = set(map(tuple, np.sort(he, axis=1).tolist()))
+    patches = []
+    for loop in loops:
+        across = across_points(vertices[loop])
+        if scale is None:
+            support = np.mean(is_covered(across))
+        else:
+            support = np.mean(is_covered(across, np.full(len(across), scale[loop].mean())))
+        if support < SEAM_SUPPORT:
+            continue
+        patch = zip_loop(vertices, loop[::-1], set(edges))
+        if _left_after_untangle(vertices, np.concatenate([faces, *patches]), patch) == 0:
+            edges |= set(
+                map(tuple, np.sort(patch[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), 1).tolist())
+            )
+            patches.append(patch)
+    return np.concatenate([faces, *patches]) if patches else faces
 
 
 def loop_width(ring: np.ndarray) -> float:

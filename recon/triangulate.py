@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import open3d as o3d
@@ -31,7 +31,13 @@ from scipy.spatial import cKDTree
 
 from .config import TriangulationConfig
 from .crease_mesh import flip_straddling_edges, insert_crease_edges, pivot_positions
-from .holes import fill_small_holes, loft_nearest_loops, neck_between, thicken_sheet
+from .holes import (
+    fill_small_holes,
+    loft_nearest_loops,
+    neck_between,
+    thicken_sheet,
+    zip_supported_loops,
+)
 from .intersections import self_intersections
 from .kernels.circumsphere import circumsphere_kernel
 from .mesh import (
@@ -65,10 +71,15 @@ class TriangulationResult:
 #: Loops whose interior holds data are triangulation gaps: closed up to this many times the
 #: ``max_hole`` perimeter.
 COVERED_HOLE_FACTOR = 3.0
-#: Two boundary loops left where opposed faces closed a thin edge are joined by a strip when
-#: each lies within this median distance [local spacings] of the other.
+#: At a thin edge (where opposed faces closed it), two boundary loops are joined by a strip
+#: when each lies within this many ball diameters (of the largest ball, ``2 max(cfg.radii)``;
+#: local spacings) of the other in median, and a one-sided sheet that near the body joins it
+#: (:func:`_sheets_thickened`): the widest gap a ball-pivoted face spans, had the normals
+#: agreed. (Ball pivoting's faces across such an edge are the ones the strip replaces.)
+EDGE_REACH = 1.0
+#: ... tried after strips between loops within this median distance [local spacings].
 LOFT_GAP = 2.0
-#: A one-sided open sheet this close [r0] to the closed main body continues its edge
+#: Elsewhere a one-sided open sheet this close [r0] to the closed main body continues its edge
 #: (:func:`_sheets_thickened`) ...
 SHEET_NECK_GAP = 1.0
 #: ... and is made a closed body this far [r0] either side of it.
@@ -211,12 +222,19 @@ def triangulate_particles(
             # between the two faces' rims, judged with the edge's one-sided sheets made part of
             # the body (the two steps mend one edge: alone, the strip can trade the handles
             # for the rim the sheets continue)
-            strip = _relofted(alt, positions, args)
-            thick = None if strip is None else _sheets_thickened(strip, open_body=True)
-            for mended in (thick, strip):
-                if mended is not None and _better(mended, result):
+            # for the edge's sheets, the strip first between the nearest rims only: a wider
+            # strip can join rims that are not the edge's two faces (knife, seed 7)
+            reach = EDGE_REACH * 2.0 * max(cfg.radii)
+            for gap in (LOFT_GAP, reach):
+                strip = _relofted(alt, positions, gap, args)
+                thick = None if strip is None else _sheets_thickened(strip, reach, open_body=True)
+                zipped = (
+                    None if thick is None else _rest_zipped(thick, strip, positions, reach, args)
+                )
+                good = [m for m in (zipped, thick, strip) if m is not None and _better(m, result)]
+                if good:
                     log.debug("re-closed a thin edge without its %d opposed faces", opposed.sum())
-                    result = mended
+                    result = good[0]
                     break
     thick = _sheets_thickened(result)
     if thick is not None and _better(thick, result):
@@ -225,14 +243,14 @@ def triangulate_particles(
 
 
 def _sheets_thickened(
-    result: TriangulationResult, open_body: bool = False
+    result: TriangulationResult, reach: float = SHEET_NECK_GAP, open_body: bool = False
 ) -> TriangulationResult | None:
     """``result`` with each one-sided open sheet beside the closed main body made a thin body
     of its own and joined to it; None when there is none.
 
     Where a part is thinner than the normals' orientation resolves (the last spacings of a
     knife's edge), both faces' particles merge into one sheet, meshed as one layer: an open
-    disc within ``SHEET_NECK_GAP`` of the closed body whose edge it continues. The data
+    disc within ``reach`` [r0] of the closed body whose edge it continues. The data
     there is a closed part thinner than a spacing: the sheet becomes two copies
     ``SHEET_HALF_THICKNESS`` off it joined round its rim (:func:`recon.holes.thicken_sheet`),
     connected to the body by a short tube at their closest faces
@@ -261,7 +279,7 @@ def _sheets_thickened(
         for k, sheet in enumerate(sheets):
             if sheet is None or not discs[k]:
                 continue
-            if tree.query(v[np.unique(sheet)])[0].min() > SHEET_NECK_GAP:
+            if tree.query(v[np.unique(sheet)])[0].min() > reach:
                 continue
             new_v, new_f = thicken_sheet(v, sheet, SHEET_HALF_THICKNESS)
             trial_v = np.concatenate([all_v, new_v])
@@ -305,6 +323,30 @@ def _sheets_thickened(
     return TriangulationResult(vertices_all, faces_all, normals_all, dict(result.stats), crease)
 
 
+def _rest_zipped(
+    thick: TriangulationResult,
+    strip: TriangulationResult,
+    positions: np.ndarray,
+    reach: float,
+    args: tuple,
+) -> TriangulationResult | None:
+    """``thick`` (``strip`` with the edge's one-sided sheets joined to its open body) with
+    the body's loops within ``reach`` [r0] of a joined sheet zipped where data lies
+    across them all round (:func:`recon.holes.zip_supported_loops`): the rest of the edge,
+    folded round the tip's merged faces; None when none is."""
+    is_covered, scale = args[2], args[3]
+    v, f = thick.vertices, thick.faces
+    joined = cKDTree(strip.vertices).query(v)[0] > 0  # the sheets' thick copies
+    if is_covered is None or not joined.any():
+        return None
+    sheets = cKDTree(v[joined])
+    _, label = face_components(f, len(v))
+    body = f[label == np.argmax(np.bincount(label))]
+    loops = [loop for loop in boundary_loops(body) if sheets.query(v[loop])[0].min() <= reach]
+    faces = zip_supported_loops(v, f, loops, is_covered, _spacing_at(scale, positions, v))
+    return None if len(faces) == len(f) else replace(thick, faces=faces)
+
+
 def _open_along_opposed(result: TriangulationResult) -> bool:
     """Does a boundary loop of ``result`` touch a face whose corners face more than 90 deg
     apart (:func:`recon.mesh.opposed_faces`)? Such a loop is where the band of opposed faces
@@ -319,14 +361,14 @@ def _open_along_opposed(result: TriangulationResult) -> bool:
 
 
 def _relofted(
-    alt: TriangulationResult, positions: np.ndarray, args: tuple
+    alt: TriangulationResult, positions: np.ndarray, reach: float, args: tuple
 ) -> TriangulationResult | None:
-    """``alt`` with its pairs of nearby boundary loops joined by strips
-    (:func:`recon.holes.loft_nearest_loops`, ``LOFT_GAP``) and repaired again; None without
-    such a pair."""
+    """``alt`` with its pairs of boundary loops within ``reach`` (local spacings) of each
+    other joined by strips (:func:`recon.holes.loft_nearest_loops`) and repaired again; None
+    without such a pair."""
     scale = args[3]
     local = _spacing_at(scale, positions, alt.vertices)
-    faces = loft_nearest_loops(alt.vertices, alt.faces, LOFT_GAP, local)
+    faces = loft_nearest_loops(alt.vertices, alt.faces, reach, local)
     if len(faces) == len(alt.faces):
         return None
     return _repair(alt.vertices, alt.normals, faces, dict(alt.stats), *args[:3], local, alt.crease)

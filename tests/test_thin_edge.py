@@ -131,14 +131,9 @@ def test_a_sheet_that_continues_a_joined_sheet_joins_too():
     assert len(self_intersections(thick.vertices, thick.faces)) == 0
 
 
-def test_a_thin_edge_left_open_in_places_without_a_handle_is_closed(monkeypatch):
-    # regression (held-out knife, seed 1): the band of opposed faces across a blade's edge
-    # closed most of it but left two stretches open; with no handle the first repair was
-    # returned as it was (1 component, 2 loops), although dropping the band and joining the
-    # two faces' rims by a strip closes it
-    import recon.triangulate as tri
-    from recon.config import TriangulationConfig
-
+def _edge_open_in_places() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Vertices, normals and ball-pivoted faces of a thin slab's two faces (0.8 apart) whose
+    band of faces across the edge leaves two stretches of three edges open."""
     rng = np.random.default_rng(0)
     vt, ft = _grid(10, 1.0, 0.4, rng)
     vb, fb = _grid(10, 1.0, -0.4, rng)
@@ -151,7 +146,18 @@ def test_a_thin_edge_left_open_in_places_without_a_handle_is_closed(monkeypatch)
         if k % 18 in (4, 5, 6):  # two stretches of three edges stay open
             continue
         band += [[a, b, b + len(vt)], [a, b + len(vt), a + len(vt)]]
-    faces = np.concatenate([ft, fb + len(vt), np.array(band)])
+    return v, normals, np.concatenate([ft, fb + len(vt), np.array(band)])
+
+
+def test_a_thin_edge_left_open_in_places_without_a_handle_is_closed(monkeypatch):
+    # regression (held-out knife, seed 1): the band of opposed faces across a blade's edge
+    # closed most of it but left two stretches open; with no handle the first repair was
+    # returned as it was (1 component, 2 loops), although dropping the band and joining the
+    # two faces' rims by a strip closes it
+    import recon.triangulate as tri
+    from recon.config import TriangulationConfig
+
+    v, normals, faces = _edge_open_in_places()
     monkeypatch.setattr(tri, "ball_pivoting", lambda *_: faces)
     result = tri.triangulate_particles(v, normals, TriangulationConfig(), 1.0, resign=False)
     topo = mesh_topology(result.vertices, result.faces)
@@ -182,3 +188,96 @@ def test_a_sheet_beside_a_body_left_open_at_its_edge_joins_it_only_when_asked(in
     assert handle_count(thick.faces, len(thick.vertices)) == (1, 1, 0)
     assert len(self_intersections(thick.vertices, thick.faces)) == 0
     assert capped_volume(thick.vertices, thick.faces) > 0  # outward
+
+
+def _body_open_beside_sheet() -> TriangulationResult:
+    """``_body_and_sheet(0.5)`` with the sphere open at a patch that reaches the sheet's side
+    (above the equator, y > 1, x > 3): the rest of a thin edge left open beside the one-sided
+    sheet that continues it."""
+    result = _body_and_sheet(gap=0.5)
+    v, f = result.vertices, result.faces
+    c = v[f].mean(axis=1)
+    on_body = np.arange(len(f)) < len(f) - 50
+    hole = on_body & (c[:, 0] > 3.0) & (c[:, 1] > 1.0) & (c[:, 2] > 0.0)
+    return TriangulationResult(v, f[~hole], result.normals, {})
+
+
+@pytest.mark.parametrize("data", [True, False])
+def test_the_body_loop_beside_a_joined_sheet_is_zipped_where_data_lies_across_it(data):
+    # regression (held-out knife, seed 0): after the edge's one-sided sheets joined the open
+    # body, the body kept one loop at the tip beside them (52 edges, 103 r0 round, 4.3 r0
+    # wide: neither a small hole nor a seam), with data all across it
+    from recon.triangulate import _rest_zipped
+
+    strip = _body_open_beside_sheet()
+    thick = _sheets_thickened(strip, open_body=True)
+    assert thick is not None and handle_count(thick.faces, len(thick.vertices)) == (1, 1, 0)
+    covered = lambda p: np.full(len(p), data)  # noqa: E731
+    zipped = _rest_zipped(thick, strip, strip.vertices, 1.0, (None, 4.0, covered, None, None))
+    if not data:
+        assert zipped is None  # no data across the loop: a real boundary, kept
+        return
+    assert zipped is not None
+    topo = mesh_topology(zipped.vertices, zipped.faces)
+    assert topo["watertight"] and topo["components"] == 1 and topo["genus"] == 0, topo
+    assert len(self_intersections(zipped.vertices, zipped.faces)) == 0
+    assert capped_volume(zipped.vertices, zipped.faces) > 0  # outward
+    mesh = o3d.geometry.TriangleMesh(
+        o3d.utility.Vector3dVector(zipped.vertices), o3d.utility.Vector3iVector(zipped.faces)
+    )
+    assert mesh.is_watertight() and mesh.is_orientable()
+
+
+def _edge_reach() -> float:
+    """The thin-edge reach of :func:`recon.triangulate.triangulate_particles` at defaults."""
+    from recon.config import TriangulationConfig
+    from recon.triangulate import EDGE_REACH
+
+    return EDGE_REACH * 2.0 * max(TriangulationConfig().radii)
+
+
+def test_the_two_faces_of_a_thin_edge_join_within_the_largest_balls_diameter():
+    # regression (held-out knife, seed 5): the blade's two faces stayed two open discs (2
+    # components, 2 loops) because their rims lay 2.02 and 2.01 spacings apart in median,
+    # beyond the strip's old limit of 2; ball pivoting spans up to its largest ball's diameter
+    v, f = _two_faces(notch=False)
+    v[v[:, 2] < 0, 2] -= 1.6  # the faces 2.4 apart
+    assert len(loft_nearest_loops(v, f, max_gap=2.0)) == len(f)
+    closed = loft_nearest_loops(v, f, max_gap=_edge_reach())
+    normals = np.zeros_like(v)
+    normals[:, 2] = np.sign(v[:, 2])
+    topo = mesh_topology(v, orient_consistently(v, normals, closed))
+    assert topo["watertight"] and topo["components"] == 1 and topo["genus"] == 0, topo
+
+
+def test_a_sheet_two_spacings_from_an_open_body_at_a_thin_edge_joins_it():
+    # regression (held-out knife, seed 6): two of the tip's one-sided sheets lay 1.14 and
+    # 2.04 r0 from the body, beyond the 1 r0 a sheet joins a closed body from (3 components)
+    result = _body_and_sheet(gap=2.0)
+    assert _sheets_thickened(result) is None
+    thick = _sheets_thickened(result, _edge_reach(), open_body=True)
+    assert thick is not None
+    assert handle_count(thick.faces, len(thick.vertices)) == (1, 0, 0)
+    assert len(self_intersections(thick.vertices, thick.faces)) == 0
+
+
+def test_the_nearest_rims_are_joined_first(monkeypatch):
+    # regression (held-out knife, seed 7): strips up to the largest ball's diameter, tried
+    # first, joined rims that are not the edge's two faces (2 components, 29 crossing pairs);
+    # the wide strips are for when those within LOFT_GAP close nothing
+    import recon.triangulate as tri
+    from recon.config import TriangulationConfig
+
+    v, normals, faces = _edge_open_in_places()
+    gaps = []
+    relofted = tri._relofted
+
+    def spy(alt, positions, gap, args):
+        gaps.append(gap)
+        return relofted(alt, positions, gap, args)
+
+    monkeypatch.setattr(tri, "ball_pivoting", lambda *_: faces)
+    monkeypatch.setattr(tri, "_relofted", spy)
+    result = tri.triangulate_particles(v, normals, TriangulationConfig(), 1.0, resign=False)
+    assert gaps == [tri.LOFT_GAP]  # closed by the nearest rims' strip: the wide one not tried
+    assert handle_count(result.faces, len(result.vertices)) == (1, 0, 0)
