@@ -210,6 +210,9 @@ def run_schedule(
         "growth", state, params, lambda sim, st: schedule.grow(sim, st, seed_points)
     )
     clock.lap("grow")
+    beta = cfg.dynamics.release_damping
+    if beta is not None:  # the release's own damping
+        params = replace(params, damping_linear=beta, damping_angular=beta)
     state, params = schedule.run_phase("release", state, params, schedule.release)
     clock.lap("release")
     return ScheduleResult(
@@ -269,16 +272,52 @@ class _Schedule:
         _, idx = self.surface.nearest(positions)
         return self.target[idx]
 
-    def update_rest(self, sim: Simulation, state: ParticleState) -> None:
+    def update_rest(self, sim: Simulation, state: ParticleState) -> np.ndarray | None:
         """Move each rest spacing toward its target by at most ``seeds.spacing_step`` (held
-        fixed during the steps that follow, so the update injects little energy)."""
+        fixed during the steps that follow, so the update injects little energy); return the
+        mask of the particles whose rest changed (None: uniform spacing, none did)."""
         target = self.target_at(state.position)
         if target is None or state.n == 0:
-            return
+            return None
         step = self.cfg.seeds.spacing_step
         old = state.rest.copy()
         state.rest = np.clip(target, old * (1.0 - step), old * (1.0 + step))
         sim.notify_changed()
+        return state.rest != old
+
+    def hold_far(self, state: ParticleState, changed: np.ndarray | None) -> np.ndarray | None:
+        """Active set of a growth relaxation (``growth.active_radius`` > 0): pin the free
+        particles farther than the radius from the last round's additions whose rest spacing
+        did not change either; return the mask of those held (to free after the relaxation),
+        or None when every free particle moves."""
+        radius = self.cfg.growth.active_radius
+        added = self.added_positions
+        if radius <= 0.0 or added is None or state.n == 0:
+            return None
+        near = (
+            PointGrid(added, radius).covered(state.position, radius)
+            if len(added)
+            else np.zeros(state.n, dtype=bool)
+        )
+        if changed is not None:
+            near |= changed
+        held = ~(near | state.is_pinned)
+        state.is_pinned[held] = True  # at rest already: nothing to zero but float noise
+        state.velocity[held] = 0.0
+        state.angular_velocity[held] = 0.0
+        return held
+
+    def relax_growth(
+        self, sim: Simulation, state: ParticleState, changed: np.ndarray | None
+    ) -> float:
+        """A growth relaxation on the active set (:meth:`hold_far`); the held particles are
+        free again afterwards."""
+        held = self.hold_far(state, changed)
+        try:
+            return self.relax(sim, state, self.cfg.dynamics.relax_steps, "grow")
+        finally:
+            if held is not None:
+                state.is_pinned[held] = False
 
     # -- helpers -------------------------------------------------------------------------
     def total_steps(self) -> int:
@@ -495,6 +534,7 @@ class _Schedule:
             added = room
             self.stop_reason = f"particle cap dynamics.max_particles={dyn.max_particles} reached"
             self.warnings.append(self.stop_reason)
+        self.added_positions = acc.positions
         if added:
             new_rest = self.target_at(acc.positions)
             state.add(
@@ -525,10 +565,11 @@ class _Schedule:
         self.seed_tree = cKDTree(seed_points)
         sim.sort_particles()  # seeds come in input order: neighbours near in memory
         self.forget_anchors()
+        self.added_positions = None
         previous_added = None
         for rnd in range(g.max_rounds if g.enabled else 0):
-            self.update_rest(sim, state)
-            kinetic = self.relax(sim, state, dyn.relax_steps, "grow")
+            changed = self.update_rest(sim, state)
+            kinetic = self.relax_growth(sim, state, changed)
             if self.total_steps() >= dyn.max_steps:
                 self.stop_reason = f"step cap dynamics.max_steps={dyn.max_steps} reached"
                 self.warnings.append(self.stop_reason + " during growth")
@@ -552,7 +593,7 @@ class _Schedule:
             if g.enabled:
                 self.stop_reason = f"growth.max_rounds={g.max_rounds} reached"
         # settle what the last round added before the seeds let go
-        kinetic = self.relax(sim, state, dyn.relax_steps, "grow")
+        kinetic = self.relax_growth(sim, state, None)
         self.record("grow", state, kinetic, self.coverage(state.position))
 
     def release(self, sim: Simulation, state: ParticleState) -> None:

@@ -1,0 +1,98 @@
+"""The relaxation schedule: the release's own damping and the growth rounds' active set."""
+
+import numpy as np
+import pytest
+
+from recon.config import ReconConfig, apply_overrides, load_config
+from recon.dynamics import Simulation
+from recon.fitting import fit
+from recon.fitting.schedule import Clock, _Schedule
+from recon.state import ParticleState
+from recon.surface import DataSurface
+
+UP = np.array([0.0, 0.0, 1.0])
+
+
+def _plane_schedule(overrides: dict) -> _Schedule:
+    rng = np.random.default_rng(4)
+    xy = rng.uniform(-12, 12, (4000, 2))
+    data = np.column_stack([xy, np.zeros(len(xy))])
+    surface = DataSurface.build(data, np.tile(UP, (len(data), 1)), k=16)
+    cfg = apply_overrides(ReconConfig(), overrides)
+    return _Schedule(surface, cfg, np.random.default_rng(0), Clock(None), None)
+
+
+def _lattice(n_side: int) -> np.ndarray:
+    """A square lattice at spacing 1 on z = 0, centred on the origin, slightly perturbed."""
+    g = np.arange(n_side) - (n_side - 1) / 2.0
+    x, y = np.meshgrid(g, g)
+    pos = np.column_stack([x.ravel(), y.ravel(), np.zeros(x.size)])
+    pos[:, :2] += np.random.default_rng(1).normal(scale=0.08, size=(len(pos), 2))
+    return pos
+
+
+@pytest.mark.parametrize("beta", [None, 0.5])
+def test_the_release_runs_with_its_own_damping(beta, monkeypatch):
+    seen = []
+    init = Simulation.__init__
+
+    def spy(self, state, params, **kw):
+        seen.append(params)
+        init(self, state, params, **kw)
+
+    monkeypatch.setattr(Simulation, "__init__", spy)
+    rng = np.random.default_rng(0)
+    p = rng.normal(size=(600, 3))
+    cfg = load_config(
+        overrides=["seeds.min_particles=0", f"dynamics.release_damping={beta or 'null'}"]
+    )
+    fit(p / np.linalg.norm(p, axis=1, keepdims=True), cfg)
+    growth, release = seen[0], seen[-1]
+    assert (growth.damping_linear, growth.damping_angular) == (2.0, 2.0)
+    expected = 2.0 if beta is None else beta
+    assert (release.damping_linear, release.damping_angular) == (expected, expected)
+
+
+def test_the_active_set_holds_the_particles_far_from_the_additions():
+    sched = _plane_schedule({"growth.active_radius": 3.0})
+    pos = _lattice(15)  # 225 particles over [-7, 7]^2
+    state = ParticleState.from_points(pos, np.tile(UP, (len(pos), 1)))
+    seeds = np.linalg.norm(pos[:, :2] - [-5.0, -5.0], axis=1) < 2.0
+    state.set_pinned(seeds)
+    sched.added_positions = np.array([[5.0, 5.0, 0.0]])
+    d = np.linalg.norm(pos - sched.added_positions[0], axis=1)
+    held = sched.hold_far(state, None)
+    assert np.array_equal(held, (d > 3.0) & ~seeds)
+    assert np.all(state.is_pinned[held]) and np.all(state.is_pinned[seeds])
+    # a changed rest spacing makes a particle active wherever it is
+    state.is_pinned[held] = False
+    changed = np.zeros(state.n, dtype=bool)
+    changed[np.flatnonzero(held)[0]] = True
+    assert np.array_equal(sched.hold_far(state, changed), held & ~changed)
+    state.is_pinned[held] = False
+    # radius 0: every free particle moves
+    sched.cfg = apply_overrides(sched.cfg, {"growth.active_radius": 0.0})
+    assert sched.hold_far(state, None) is None
+
+
+def test_a_growth_relaxation_moves_only_the_active_set_and_frees_it_after():
+    sched = _plane_schedule({"growth.active_radius": 3.0, "dynamics.kinetic_tolerance": 0.0})
+    pos = _lattice(15)
+    state = ParticleState.from_points(pos, np.tile(UP, (len(pos), 1)))
+    seeds = np.linalg.norm(pos[:, :2] - [-5.0, -5.0], axis=1) < 2.0
+    state.set_pinned(seeds)
+    sched.added_positions = np.array([[5.0, 5.0, 0.0]])
+    near = np.linalg.norm(pos - sched.added_positions[0], axis=1) <= 3.0
+    sim = Simulation(state, _physics(sched.cfg))
+    before = state.position.copy()
+    sched.relax_growth(sim, state, None)
+    moved = np.linalg.norm(state.position - before, axis=1) > 0.0
+    assert np.array_equal(moved, near)  # the perturbed lattice relaxes where it may
+    assert np.array_equal(state.is_pinned, seeds)  # the held ones are free again
+    assert sched.steps["grow"] == sched.cfg.dynamics.relax_steps
+
+
+def _physics(cfg: ReconConfig):
+    from recon.params import PhysicsParams
+
+    return PhysicsParams.from_config(cfg, spacing=1.0)
