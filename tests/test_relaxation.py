@@ -85,11 +85,38 @@ def test_a_growth_relaxation_moves_only_the_active_set_and_frees_it_after():
     near = np.linalg.norm(pos - sched.added_positions[0], axis=1) <= 3.0
     sim = Simulation(state, _physics(sched.cfg))
     before = state.position.copy()
-    sched.relax_growth(sim, state, None)
+    sched.relax(sim, state, sched.cfg.dynamics.relax_steps, "grow", None)
     moved = np.linalg.norm(state.position - before, axis=1) > 0.0
     assert np.array_equal(moved, near)  # the perturbed lattice relaxes where it may
     assert np.array_equal(state.is_pinned, seeds)  # the held ones are free again
     assert sched.steps["grow"] == sched.cfg.dynamics.relax_steps
+
+
+@pytest.mark.parametrize("with_changed", [False, True])
+def test_the_active_set_follows_a_particle_count_the_crease_hook_changes(with_changed):
+    """The crease hook runs before every chunk and may drop or add particles: the held mask
+    is taken per chunk (a regression: a mask taken once for the whole relaxation no longer
+    matched the particles and raised an IndexError on lblock-clean)."""
+    sched = _plane_schedule({"growth.active_radius": 3.0, "dynamics.kinetic_tolerance": 0.0})
+    pos = _lattice(15)
+    state = ParticleState.from_points(pos, np.tile(UP, (len(pos), 1)))
+    seeds = np.linalg.norm(pos[:, :2] - [-5.0, -5.0], axis=1) < 2.0
+    state.set_pinned(seeds)
+    sched.added_positions = np.array([[5.0, 5.0, 0.0]])
+    sim = Simulation(state, _physics(sched.cfg))
+    calls = []
+
+    def drop_one(sim, state, settle=False):
+        calls.append(state.n)
+        if len(calls) == 2:  # the second chunk starts with one particle fewer
+            state.remove(np.arange(state.n) != state.n - 1)
+            sim.notify_changed()
+
+    sched.constrain_creases = drop_one
+    changed = np.zeros(state.n, dtype=bool) if with_changed else None
+    sched.relax(sim, state, sched.cfg.dynamics.relax_steps, "grow", changed)
+    assert calls == [225, 225, 224]
+    assert np.array_equal(state.is_pinned, seeds[:-1])  # the held ones are free again
 
 
 def _physics(cfg: ReconConfig):

@@ -288,11 +288,14 @@ class _Schedule:
     def hold_far(self, state: ParticleState, changed: np.ndarray | None) -> np.ndarray | None:
         """Active set of a growth relaxation (``growth.active_radius`` > 0): pin the free
         particles farther than the radius from the last round's additions whose rest spacing
-        did not change either; return the mask of those held (to free after the relaxation),
-        or None when every free particle moves."""
+        did not change either; return the mask of those held (to free after the steps), or
+        None when every free particle moves (also when the crease hook changed the particle
+        count since ``changed`` was taken)."""
         radius = self.cfg.growth.active_radius
         added = self.added_positions
         if radius <= 0.0 or added is None or state.n == 0:
+            return None
+        if changed is not None and len(changed) != state.n:
             return None
         near = (
             PointGrid(added, radius).covered(state.position, radius)
@@ -307,18 +310,6 @@ class _Schedule:
         state.angular_velocity[held] = 0.0
         return held
 
-    def relax_growth(
-        self, sim: Simulation, state: ParticleState, changed: np.ndarray | None
-    ) -> float:
-        """A growth relaxation on the active set (:meth:`hold_far`); the held particles are
-        free again afterwards."""
-        held = self.hold_far(state, changed)
-        try:
-            return self.relax(sim, state, self.cfg.dynamics.relax_steps, "grow")
-        finally:
-            if held is not None:
-                state.is_pinned[held] = False
-
     # -- helpers -------------------------------------------------------------------------
     def total_steps(self) -> int:
         return self.steps["grow"] + self.steps["release"]
@@ -329,20 +320,36 @@ class _Schedule:
         covered = PointGrid(positions, COVER_RADIUS).covered(self.cover_sample, COVER_RADIUS)
         return float(np.mean(covered))
 
-    def relax(self, sim: Simulation, state: ParticleState, n_steps: int, phase: str) -> float:
+    def relax(
+        self,
+        sim: Simulation,
+        state: ParticleState,
+        n_steps: int,
+        phase: str,
+        changed: np.ndarray | bool = False,
+    ) -> float:
+        """Relax up to ``n_steps`` steps in chunks of ``ANCHOR_REFRESH`` (anchors refreshed,
+        creases constrained before each); return the last kinetic energy per particle.
+        ``changed`` (a growth relaxation): the mask of :meth:`update_rest`, or None, and only
+        the active set of :meth:`hold_far` moves in each chunk; False: every free particle."""
         dyn = self.cfg.dynamics
         kinetic = 0.0
         done = 0
-        if state.n and bool(np.all(state.is_pinned)) and self.at_rest(0.0):
-            return kinetic  # only pinned seeds: at rest before any step, none would move
         while done < n_steps:
-            if self.total_steps() >= dyn.max_steps:
-                break
+            if self.total_steps() >= dyn.max_steps or self._all_held(state):
+                break  # (only pinned seeds: at rest before any step, none would move)
             chunk = min(ANCHOR_REFRESH, n_steps - done, dyn.max_steps - self.total_steps())
             self.constrain_creases(sim, state)
-            pts, nrm = self.refresh_anchors(state)
-            sim.set_anchors(pts, nrm, dyn.fidelity, dyn.fidelity_normal)
-            stats = sim.run(chunk)
+            held = None if changed is False else self.hold_far(state, changed)
+            try:
+                if held is not None and self._all_held(state):
+                    break
+                pts, nrm = self.refresh_anchors(state)
+                sim.set_anchors(pts, nrm, dyn.fidelity, dyn.fidelity_normal)
+                stats = sim.run(chunk)
+            finally:
+                if held is not None:
+                    state.is_pinned[held] = False
             if not (
                 math.isfinite(stats.kinetic)
                 and math.isfinite(stats.potential)
@@ -360,6 +367,10 @@ class _Schedule:
             if self.at_rest(kinetic):
                 break
         return kinetic
+
+    def _all_held(self, state: ParticleState) -> bool:
+        """Every particle is pinned or held, and at rest: no step would move any."""
+        return bool(state.n and np.all(state.is_pinned) and self.at_rest(0.0))
 
     def refresh_anchors(self, state: ParticleState) -> tuple[np.ndarray, np.ndarray]:
         """Anchor points and normals of every particle, recomputed only for the particles that
@@ -569,7 +580,7 @@ class _Schedule:
         previous_added = None
         for rnd in range(g.max_rounds if g.enabled else 0):
             changed = self.update_rest(sim, state)
-            kinetic = self.relax_growth(sim, state, changed)
+            kinetic = self.relax(sim, state, dyn.relax_steps, "grow", changed)
             if self.total_steps() >= dyn.max_steps:
                 self.stop_reason = f"step cap dynamics.max_steps={dyn.max_steps} reached"
                 self.warnings.append(self.stop_reason + " during growth")
@@ -593,7 +604,7 @@ class _Schedule:
             if g.enabled:
                 self.stop_reason = f"growth.max_rounds={g.max_rounds} reached"
         # settle what the last round added before the seeds let go
-        kinetic = self.relax_growth(sim, state, None)
+        kinetic = self.relax(sim, state, dyn.relax_steps, "grow", None)
         self.record("grow", state, kinetic, self.coverage(state.position))
 
     def release(self, sim: Simulation, state: ParticleState) -> None:
