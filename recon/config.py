@@ -207,6 +207,14 @@ class DynamicsConfig(Schema):
         0.0,
         None,
     )
+    release_quench_steps: int = option(
+        0,
+        "The release's last steps run with damping_linear and damping_angular again (with "
+        "release_damping set): a lightly damped release relaxes the sheet in fewer steps, "
+        "the heavy damping at its end then stops the particles' jitter.",
+        0,
+        100_000,
+    )
     max_displacement: float = option(
         0.1, "Per-step displacement cap [r0].", 0.0, 10.0, lo_open=True
     )

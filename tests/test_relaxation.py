@@ -53,6 +53,45 @@ def test_the_release_runs_with_its_own_damping(beta, monkeypatch):
     assert (release.damping_linear, release.damping_angular) == (expected, expected)
 
 
+@pytest.mark.parametrize("beta", [None, 0.5])
+def test_the_release_ends_with_the_heavy_damping_for_its_quench_steps(beta, monkeypatch):
+    calls = []
+    run = Simulation.run
+    set_damping = Simulation.set_damping
+
+    def spy_run(self, n_steps, callback=None):
+        calls.append(("run", n_steps, self.params.damping_linear, self.params.damping_angular))
+        return run(self, n_steps, callback)
+
+    def spy_damping(self, linear, angular):
+        calls.append(("damping", linear, angular))
+        set_damping(self, linear, angular)
+
+    monkeypatch.setattr(Simulation, "run", spy_run)
+    monkeypatch.setattr(Simulation, "set_damping", spy_damping)
+    rng = np.random.default_rng(0)
+    p = rng.normal(size=(600, 3))
+    cfg = load_config(
+        overrides=[
+            "seeds.min_particles=0",
+            "dynamics.kinetic_tolerance=0",
+            "dynamics.release_steps=45",
+            "dynamics.release_quench_steps=15",
+            "dynamics.damping_angular=1.5",
+            f"dynamics.release_damping={beta or 'null'}",
+        ]
+    )
+    rep = fit(p / np.linalg.norm(p, axis=1, keepdims=True), cfg).report
+    assert rep.steps.release == 45
+    switch = [i for i, c in enumerate(calls) if c[0] == "damping"]
+    release = [c[1:] for c in calls if c[0] == "run"][-9:]  # 45 steps in chunks of 5
+    if beta is None:  # no release damping, no quench
+        assert switch == [] and all(c[1:] == (2.0, 1.5) for c in release)
+        return
+    assert len(switch) == 1 and calls[switch[0]][1:] == (2.0, 1.5)
+    assert [c[1:] for c in release] == [(0.5, 0.5)] * 6 + [(2.0, 1.5)] * 3
+
+
 def test_the_active_set_holds_the_particles_far_from_the_additions():
     sched = _plane_schedule({"growth.active_radius": 3.0})
     pos = _lattice(15)  # 225 particles over [-7, 7]^2

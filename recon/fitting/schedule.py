@@ -614,8 +614,13 @@ class _Schedule:
         dyn = self.cfg.dynamics
         remaining = dyn.release_steps
         refills = RELEASE_REFILLS if self.cfg.growth.enabled else 0
+        quench = dyn.release_quench_steps if dyn.release_damping is not None else 0
         while remaining > 0:
             n = min(RELEASE_CHUNK, remaining)
+            if remaining > quench:
+                n = min(n, remaining - quench)
+            elif remaining == quench:  # the last steps: the configured heavy damping
+                sim.set_damping(dyn.damping_linear, dyn.damping_angular)
             kinetic = self.relax(sim, state, n, "release")
             remaining -= n
             if refills > 0 and remaining > 0 and not self.stop_reason.startswith("particle cap"):
