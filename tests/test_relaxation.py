@@ -31,6 +31,18 @@ def _lattice(n_side: int) -> np.ndarray:
     return pos
 
 
+def _seeded_lattice(overrides: dict):
+    """A 15 x 15 lattice (225 particles over [-7, 7]^2) with pinned seeds within 2 of
+    (-5, -5) and the last round's one addition at (5, 5), active radius 3."""
+    sched = _plane_schedule({"growth.active_radius": 3.0, **overrides})
+    pos = _lattice(15)
+    state = ParticleState.from_points(pos, np.tile(UP, (len(pos), 1)))
+    seeds = np.linalg.norm(pos[:, :2] - [-5.0, -5.0], axis=1) < 2.0
+    state.set_pinned(seeds)
+    sched.added_positions = np.array([[5.0, 5.0, 0.0]])
+    return sched, pos, state, seeds
+
+
 @pytest.mark.parametrize("beta", [None, 0.5])
 def test_the_release_runs_with_its_own_damping(beta, monkeypatch):
     seen = []
@@ -93,12 +105,7 @@ def test_the_release_ends_with_the_heavy_damping_for_its_quench_steps(beta, monk
 
 
 def test_the_active_set_holds_the_particles_far_from_the_additions():
-    sched = _plane_schedule({"growth.active_radius": 3.0})
-    pos = _lattice(15)  # 225 particles over [-7, 7]^2
-    state = ParticleState.from_points(pos, np.tile(UP, (len(pos), 1)))
-    seeds = np.linalg.norm(pos[:, :2] - [-5.0, -5.0], axis=1) < 2.0
-    state.set_pinned(seeds)
-    sched.added_positions = np.array([[5.0, 5.0, 0.0]])
+    sched, pos, state, seeds = _seeded_lattice({})
     d = np.linalg.norm(pos - sched.added_positions[0], axis=1)
     held = sched.hold_far(state, None)
     assert np.array_equal(held, (d > 3.0) & ~seeds)
@@ -115,12 +122,7 @@ def test_the_active_set_holds_the_particles_far_from_the_additions():
 
 
 def test_a_growth_relaxation_moves_only_the_active_set_and_frees_it_after():
-    sched = _plane_schedule({"growth.active_radius": 3.0, "dynamics.kinetic_tolerance": 0.0})
-    pos = _lattice(15)
-    state = ParticleState.from_points(pos, np.tile(UP, (len(pos), 1)))
-    seeds = np.linalg.norm(pos[:, :2] - [-5.0, -5.0], axis=1) < 2.0
-    state.set_pinned(seeds)
-    sched.added_positions = np.array([[5.0, 5.0, 0.0]])
+    sched, pos, state, seeds = _seeded_lattice({"dynamics.kinetic_tolerance": 0.0})
     near = np.linalg.norm(pos - sched.added_positions[0], axis=1) <= 3.0
     sim = Simulation(state, _physics(sched.cfg))
     before = state.position.copy()
@@ -136,12 +138,7 @@ def test_the_active_set_follows_a_particle_count_the_crease_hook_changes(with_ch
     """The crease hook runs before every chunk and may drop or add particles: the held mask
     is taken per chunk (a regression: a mask taken once for the whole relaxation no longer
     matched the particles and raised an IndexError on lblock-clean)."""
-    sched = _plane_schedule({"growth.active_radius": 3.0, "dynamics.kinetic_tolerance": 0.0})
-    pos = _lattice(15)
-    state = ParticleState.from_points(pos, np.tile(UP, (len(pos), 1)))
-    seeds = np.linalg.norm(pos[:, :2] - [-5.0, -5.0], axis=1) < 2.0
-    state.set_pinned(seeds)
-    sched.added_positions = np.array([[5.0, 5.0, 0.0]])
+    sched, pos, state, seeds = _seeded_lattice({"dynamics.kinetic_tolerance": 0.0})
     sim = Simulation(state, _physics(sched.cfg))
     calls = []
 
