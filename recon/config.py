@@ -201,14 +201,14 @@ class DynamicsConfig(Schema):
     )
     damping_relative_angular: float = option(0.0, "beta_3: relative angular damping.", 0.0, None)
     release_damping: float | None = option(
-        0.5,
+        None,
         "beta_0 and beta_2 during the release (the smoothing after the seeds let go); null = "
         "damping_linear and damping_angular.",
         0.0,
         None,
     )
     release_quench_steps: int = option(
-        20,
+        0,
         "The release's last steps run with damping_linear and damping_angular again (with "
         "release_damping set): a lightly damped release relaxes the sheet in fewer steps, "
         "the heavy damping at its end then stops the particles' jitter.",
@@ -229,7 +229,7 @@ class DynamicsConfig(Schema):
         lo_open=True,
     )
     relax_steps: int = option(15, "Relaxation steps after each growth round.", 1, 10_000)
-    release_steps: int = option(70, "Steps after the seeds are released (smoothing).", 0, 100_000)
+    release_steps: int = option(100, "Steps after the seeds are released (smoothing).", 0, 100_000)
     kinetic_tolerance: float = option(
         1e-4,
         "The sheet is at rest when its kinetic energy per particle falls below this "
@@ -327,7 +327,7 @@ class GrowthConfig(Schema):
         0.005, "Stop growing when a round adds fewer than this fraction of the particles.", 0.0, 1.0
     )
     active_radius: float = option(
-        3.0,
+        0.0,
         "Active set of a growth round's relaxation [r0]: only free particles within this "
         "distance of the last round's additions (or whose rest spacing changed) move, the "
         "relaxed rest of the sheet is held like the seeds. 0 = all free particles move.",

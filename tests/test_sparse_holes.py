@@ -66,9 +66,8 @@ def _topology(res):
 
 
 # cases where the old coverage test (at r0) left one seam open (the fit's Morton order of the
-# points changed which samples do: at 2000 points seed 4 now closes without the reach too;
-# with the lightly damped release and the growth's active set seed 6 does, seed 5 does not)
-@pytest.mark.parametrize(("n", "seed"), [(1500, 2), (2000, 5)])
+# points changed which samples do: at 2000 points seed 4 now closes without the reach too)
+@pytest.mark.parametrize(("n", "seed"), [(1500, 2), (2000, 6)])
 def test_a_sparse_thin_part_comes_out_closed(n, seed, monkeypatch):
     points = union_points(EARED, n, seed)
     res = recon.fit(points)
