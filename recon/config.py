@@ -200,6 +200,21 @@ class DynamicsConfig(Schema):
         0.0, "beta_1: relative damping between neighbours (T-thesis eq. 4.10 sign).", 0.0, None
     )
     damping_relative_angular: float = option(0.0, "beta_3: relative angular damping.", 0.0, None)
+    release_damping: float | None = option(
+        None,
+        "beta_0 and beta_2 during the release (the smoothing after the seeds let go); null = "
+        "damping_linear and damping_angular.",
+        0.0,
+        None,
+    )
+    release_quench_steps: int = option(
+        0,
+        "The release's last steps run with damping_linear and damping_angular again (with "
+        "release_damping set): a lightly damped release relaxes the sheet in fewer steps, "
+        "the heavy damping at its end then stops the particles' jitter.",
+        0,
+        100_000,
+    )
     max_displacement: float = option(
         0.1, "Per-step displacement cap [r0].", 0.0, 10.0, lo_open=True
     )
@@ -310,6 +325,14 @@ class GrowthConfig(Schema):
     )
     min_add_fraction: float = option(
         0.005, "Stop growing when a round adds fewer than this fraction of the particles.", 0.0, 1.0
+    )
+    active_radius: float = option(
+        0.0,
+        "Active set of a growth round's relaxation [r0]: only free particles within this "
+        "distance of the last round's additions (or whose rest spacing changed) move, the "
+        "relaxed rest of the sheet is held like the seeds. 0 = all free particles move.",
+        0.0,
+        None,
     )
 
     def check(self, prefix: str) -> None:

@@ -24,7 +24,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -178,6 +178,11 @@ class Simulation:
             if not np.all(np.isfinite(arr)):
                 raise ValueError("external_force: contains non-finite values")
             self._external_force = arr
+        self._refresh_coefficients()
+
+    def set_damping(self, linear: float, angular: float) -> None:
+        """Change β0 and β2 (the linear and angular damping) for the steps that follow."""
+        self.params = replace(self.params, damping_linear=linear, damping_angular=angular)
         self._refresh_coefficients()
 
     def _refresh_coefficients(self) -> None:

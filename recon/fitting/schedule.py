@@ -210,6 +210,9 @@ def run_schedule(
         "growth", state, params, lambda sim, st: schedule.grow(sim, st, seed_points)
     )
     clock.lap("grow")
+    beta = cfg.dynamics.release_damping
+    if beta is not None:  # the release's own damping
+        params = replace(params, damping_linear=beta, damping_angular=beta)
     state, params = schedule.run_phase("release", state, params, schedule.release)
     clock.lap("release")
     return ScheduleResult(
@@ -269,16 +272,43 @@ class _Schedule:
         _, idx = self.surface.nearest(positions)
         return self.target[idx]
 
-    def update_rest(self, sim: Simulation, state: ParticleState) -> None:
+    def update_rest(self, sim: Simulation, state: ParticleState) -> np.ndarray | None:
         """Move each rest spacing toward its target by at most ``seeds.spacing_step`` (held
-        fixed during the steps that follow, so the update injects little energy)."""
+        fixed during the steps that follow, so the update injects little energy); return the
+        mask of the particles whose rest changed (None: uniform spacing, none did)."""
         target = self.target_at(state.position)
         if target is None or state.n == 0:
-            return
+            return None
         step = self.cfg.seeds.spacing_step
         old = state.rest.copy()
         state.rest = np.clip(target, old * (1.0 - step), old * (1.0 + step))
         sim.notify_changed()
+        return state.rest != old
+
+    def hold_far(self, state: ParticleState, changed: np.ndarray | None) -> np.ndarray | None:
+        """Active set of a growth relaxation (``growth.active_radius`` > 0): pin the free
+        particles farther than the radius from the last round's additions whose rest spacing
+        did not change either; return the mask of those held (to free after the steps), or
+        None when every free particle moves (also when the crease hook changed the particle
+        count since ``changed`` was taken)."""
+        radius = self.cfg.growth.active_radius
+        added = self.added_positions
+        if radius <= 0.0 or added is None or state.n == 0:
+            return None
+        if changed is not None and len(changed) != state.n:
+            return None
+        near = (
+            PointGrid(added, radius).covered(state.position, radius)
+            if len(added)
+            else np.zeros(state.n, dtype=bool)
+        )
+        if changed is not None:
+            near |= changed
+        held = ~(near | state.is_pinned)
+        state.is_pinned[held] = True  # at rest already: nothing to zero but float noise
+        state.velocity[held] = 0.0
+        state.angular_velocity[held] = 0.0
+        return held
 
     # -- helpers -------------------------------------------------------------------------
     def total_steps(self) -> int:
@@ -290,20 +320,36 @@ class _Schedule:
         covered = PointGrid(positions, COVER_RADIUS).covered(self.cover_sample, COVER_RADIUS)
         return float(np.mean(covered))
 
-    def relax(self, sim: Simulation, state: ParticleState, n_steps: int, phase: str) -> float:
+    def relax(
+        self,
+        sim: Simulation,
+        state: ParticleState,
+        n_steps: int,
+        phase: str,
+        changed: np.ndarray | bool = False,
+    ) -> float:
+        """Relax up to ``n_steps`` steps in chunks of ``ANCHOR_REFRESH`` (anchors refreshed,
+        creases constrained before each); return the last kinetic energy per particle.
+        ``changed`` (a growth relaxation): the mask of :meth:`update_rest`, or None, and only
+        the active set of :meth:`hold_far` moves in each chunk; False: every free particle."""
         dyn = self.cfg.dynamics
         kinetic = 0.0
         done = 0
-        if state.n and bool(np.all(state.is_pinned)) and self.at_rest(0.0):
-            return kinetic  # only pinned seeds: at rest before any step, none would move
         while done < n_steps:
-            if self.total_steps() >= dyn.max_steps:
-                break
+            if self.total_steps() >= dyn.max_steps or self._all_held(state):
+                break  # (only pinned seeds: at rest before any step, none would move)
             chunk = min(ANCHOR_REFRESH, n_steps - done, dyn.max_steps - self.total_steps())
             self.constrain_creases(sim, state)
-            pts, nrm = self.refresh_anchors(state)
-            sim.set_anchors(pts, nrm, dyn.fidelity, dyn.fidelity_normal)
-            stats = sim.run(chunk)
+            held = None if changed is False else self.hold_far(state, changed)
+            try:
+                if held is not None and self._all_held(state):
+                    break
+                pts, nrm = self.refresh_anchors(state)
+                sim.set_anchors(pts, nrm, dyn.fidelity, dyn.fidelity_normal)
+                stats = sim.run(chunk)
+            finally:
+                if held is not None:
+                    state.is_pinned[held] = False
             if not (
                 math.isfinite(stats.kinetic)
                 and math.isfinite(stats.potential)
@@ -321,6 +367,10 @@ class _Schedule:
             if self.at_rest(kinetic):
                 break
         return kinetic
+
+    def _all_held(self, state: ParticleState) -> bool:
+        """Every particle is pinned or held, and at rest: no step would move any."""
+        return bool(state.n and np.all(state.is_pinned) and self.at_rest(0.0))
 
     def refresh_anchors(self, state: ParticleState) -> tuple[np.ndarray, np.ndarray]:
         """Anchor points and normals of every particle, recomputed only for the particles that
@@ -495,6 +545,7 @@ class _Schedule:
             added = room
             self.stop_reason = f"particle cap dynamics.max_particles={dyn.max_particles} reached"
             self.warnings.append(self.stop_reason)
+        self.added_positions = acc.positions
         if added:
             new_rest = self.target_at(acc.positions)
             state.add(
@@ -525,10 +576,11 @@ class _Schedule:
         self.seed_tree = cKDTree(seed_points)
         sim.sort_particles()  # seeds come in input order: neighbours near in memory
         self.forget_anchors()
+        self.added_positions = None
         previous_added = None
         for rnd in range(g.max_rounds if g.enabled else 0):
-            self.update_rest(sim, state)
-            kinetic = self.relax(sim, state, dyn.relax_steps, "grow")
+            changed = self.update_rest(sim, state)
+            kinetic = self.relax(sim, state, dyn.relax_steps, "grow", changed)
             if self.total_steps() >= dyn.max_steps:
                 self.stop_reason = f"step cap dynamics.max_steps={dyn.max_steps} reached"
                 self.warnings.append(self.stop_reason + " during growth")
@@ -552,7 +604,7 @@ class _Schedule:
             if g.enabled:
                 self.stop_reason = f"growth.max_rounds={g.max_rounds} reached"
         # settle what the last round added before the seeds let go
-        kinetic = self.relax(sim, state, dyn.relax_steps, "grow")
+        kinetic = self.relax(sim, state, dyn.relax_steps, "grow", None)
         self.record("grow", state, kinetic, self.coverage(state.position))
 
     def release(self, sim: Simulation, state: ParticleState) -> None:
@@ -562,8 +614,13 @@ class _Schedule:
         dyn = self.cfg.dynamics
         remaining = dyn.release_steps
         refills = RELEASE_REFILLS if self.cfg.growth.enabled else 0
+        quench = dyn.release_quench_steps if dyn.release_damping is not None else 0
         while remaining > 0:
             n = min(RELEASE_CHUNK, remaining)
+            if remaining > quench:
+                n = min(n, remaining - quench)
+            elif remaining == quench:  # the last steps: the configured heavy damping
+                sim.set_damping(dyn.damping_linear, dyn.damping_angular)
             kinetic = self.relax(sim, state, n, "release")
             remaining -= n
             if refills > 0 and remaining > 0 and not self.stop_reason.startswith("particle cap"):
