@@ -9,10 +9,10 @@ the medians of the import and of the whole region, wall and CPU (all threads), w
 ``--kernel-loads`` instead prints, for one fresh process, the time to load each of the fit's
 kernels from numba's cache in turn (:data:`recon.kernels.warm.FIT_KERNELS`).
 
-Examples::
+Examples (``BASE``: another checkout to compare with, e.g. ``git worktree add BASE main``)::
 
     NUMBA_NUM_THREADS=1 OMP_NUM_THREADS=1 python benchmarks/bench_startup.py \\
-        ../shared/data/cases/bunny-clean/input.ply --runs 5 --trees /tmp/base .
+        ../shared/data/cases/bunny-clean/input.ply --runs 5 --trees BASE .
     python benchmarks/bench_startup.py ../shared/data/cases/bunny-clean/input.ply --kernel-loads
 """
 
