@@ -106,9 +106,7 @@ def fill_small_holes(
     )
 
     def covered(points: np.ndarray, s: float) -> np.ndarray:
-        if scale is None:
-            return np.asarray(is_covered(points))  # type: ignore[misc]
-        return np.asarray(is_covered(points, np.full(len(points), s)))  # type: ignore[misc]
+        return _covered_at(is_covered, points, None if scale is None else s)
 
     new_faces, zipped = [], []
     for loop in loops:
@@ -185,11 +183,8 @@ def zip_supported_loops(
     edges = set(map(tuple, np.sort(he, axis=1).tolist()))
     patches = []
     for loop in loops:
-        across = across_points(vertices[loop])
-        if scale is None:
-            support = np.mean(is_covered(across))
-        else:
-            support = np.mean(is_covered(across, np.full(len(across), scale[loop].mean())))
+        s = None if scale is None else float(scale[loop].mean())
+        support = np.mean(_covered_at(is_covered, across_points(vertices[loop]), s))
         if support < SEAM_SUPPORT:
             continue
         patch = zip_loop(vertices, loop[::-1], set(edges))
@@ -199,6 +194,15 @@ def zip_supported_loops(
             )
             patches.append(patch)
     return np.concatenate([faces, *patches]) if patches else faces
+
+
+def _covered_at(
+    is_covered: Callable[..., np.ndarray], points: np.ndarray, s: float | None
+) -> np.ndarray:
+    """``is_covered`` of ``points``, at the local spacing ``s`` when one is given."""
+    if s is None:
+        return np.asarray(is_covered(points))
+    return np.asarray(is_covered(points, np.full(len(points), s)))
 
 
 def loop_width(ring: np.ndarray) -> float:

@@ -163,11 +163,17 @@ def _trim(state: ParticleState, surface: DataSurface, cfg: ReconConfig) -> int:
 
 
 def data_spacing(surface: DataSurface) -> np.ndarray:
-    """Each data point's sampling spacing [r0]: the distance to its ``DENSITY_NEIGHBOURS``-th
-    nearest neighbour (0 when the data holds too few points)."""
-    if surface.n_points <= DENSITY_NEIGHBOURS:
-        return np.zeros(surface.n_points)
-    dk, _ = surface.tree.query(surface.points, DENSITY_NEIGHBOURS + 1, workers=query_workers())
+    """Each data point's sampling spacing [r0] (:func:`sampling_spacing` of the surface's
+    points)."""
+    return sampling_spacing(surface.tree, surface.points)
+
+
+def sampling_spacing(tree: Any, points: np.ndarray) -> np.ndarray:
+    """Each of ``points``' distance to its ``DENSITY_NEIGHBOURS``-th nearest neighbour in
+    their k-d ``tree`` (0 when there are too few points to tell)."""
+    if len(points) <= DENSITY_NEIGHBOURS:
+        return np.zeros(len(points))
+    dk, _ = tree.query(points, DENSITY_NEIGHBOURS + 1, workers=query_workers())
     return dk[:, -1]
 
 
@@ -202,8 +208,7 @@ def local_density_scale(
     if max_scale <= 1.0 or len(points) <= DENSITY_NEIGHBOURS:
         return np.ones(len(positions))
     if local is None:
-        dk, _ = tree.query(points, DENSITY_NEIGHBOURS + 1, workers=query_workers())
-        local = dk[:, -1]
+        local = sampling_spacing(tree, points)
     _, nearest = tree.query(positions, workers=query_workers())
     if median is None:
         median = float(np.median(local))

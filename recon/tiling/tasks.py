@@ -355,15 +355,15 @@ def mesh_task(job: MeshJob) -> dict:
 
     from ..config import config_from_dict
     from ..fitting.pipeline import (
-        DENSITY_NEIGHBOURS,
         HOLE_COVER_DISTANCE,
         cover_reach,
         covered,
         local_density_scale,
+        sampling_spacing,
         sparse_cover,
     )
     from ..intersections import untangle
-    from ..kernels.options import query_workers, thread_count
+    from ..kernels.options import thread_count
     from ..triangulate import triangulate_particles
 
     t0 = time.perf_counter()
@@ -385,11 +385,9 @@ def mesh_task(job: MeshJob) -> dict:
     max_hole = tri_cfg.max_hole if tri_cfg.max_hole is not None else cfg.growth.max_gap
     # the untiled fit's rules against the scan's medians (a tile's own would differ by tile)
     median_d6 = job.median_d6 / r0
-    sampling = np.zeros(len(data))  # each data point's spacing (0: too few to tell)
     spacing = None
     with thread_count(cfg.threads):
-        if len(data) > DENSITY_NEIGHBOURS:
-            sampling = tree.query(data, DENSITY_NEIGHBOURS + 1, workers=query_workers())[0][:, -1]
+        sampling = sampling_spacing(tree, data)  # each data point's (0: too few to tell)
         if tri_cfg.max_density_scale > 1.0 and tree is not None:
             spacing = local_density_scale(
                 tree, data, x, tri_cfg.max_density_scale, median_d6, local=sampling
