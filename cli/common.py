@@ -129,7 +129,7 @@ def set_thread_env(threads: int | None) -> None:
     imported: OpenBLAS, GNU OpenMP and Open3D read these variables when they load.
 
     The OpenMP wait policy is left alone: ``OMP_WAIT_POLICY=PASSIVE`` made no measurable
-    difference to ``oprecon fit`` (README, Performance).
+    difference to ``oprecon fit`` (README, Performance, "Threads").
     """
     if threads is not None:
         for var in THREAD_ENV:

@@ -50,7 +50,7 @@ DASK_MISSING = 'the dask executor needs the optional dependency: pip install "op
 #: every connection's recent messages (default 1000 each); ``computations.max-history``
 #: the past computations with their task groups (default 100). At the defaults these held
 #: about 15 MiB after 2,000 tiny tasks in the coordinating process; see ``bench_tiles.py
-#: tasks`` and README "Large scans".
+#: tasks`` and docs/large-scans.md, "Dask's records of finished tasks".
 DASK_RECORDS = {
     "distributed.admin.low-level-log-length": 100,
     "distributed.diagnostics.computations.max-history": 10,
