@@ -12,6 +12,14 @@ processing approach to fair surface design", with lambda = 1/2): a flap
 folded over its neighbour unfolds, and where two sheets cross, the dent that crosses flattens
 back to its side. Only those vertices move; the rest of the mesh is untouched.
 
+Smoothing cannot part two smooth sheets that cross at a shallow angle (the two sides of a part
+that thins to an edge, a wide gentle dent): their vertices already sit at their neighbours'
+mean. When the umbrella passes leave crossings, the faces of each crossing pair whose normals
+are opposed (the two sides of a thin part, which face away from each other) are pushed apart,
+each side along its own outward normal, a small step per pass, until they no longer cross
+(:func:`separate_opposed`). Two sides of a part keep their order along their normals, so this
+is the direction that parts them, whichever of the two had crossed over.
+
 Candidate pairs come from a cell grid over face centroids (bounding spheres that overlap,
 :func:`recon.kernels.sphere_pairs.sphere_pairs`; a k-d tree when no grid fits); the exact test
 is :func:`recon.kernels.tri_intersect.pairs_intersect`. Pairs sharing a vertex are not tested,
@@ -26,14 +34,18 @@ from scipy.spatial import cKDTree
 from .kernels.options import query_workers, thread_limit
 from .kernels.sphere_pairs import sphere_pairs
 from .kernels.tri_intersect import pairs_intersect
+from .mesh import face_normals
 from .neighbors import PARALLEL_MIN_PARTICLES
 
 __all__ = [
     "UNTANGLE_PASSES",
     "UNTANGLE_STEP",
+    "SEPARATE_PASSES",
+    "SEPARATE_STEP",
     "face_spheres",
     "faces_near_balls",
     "self_intersections",
+    "separate_opposed",
     "untangle",
 ]
 
@@ -41,6 +53,11 @@ __all__ = [
 UNTANGLE_PASSES = 30
 #: Weight of the neighbours' mean in one umbrella step (1/2: halfway).
 UNTANGLE_STEP = 0.5
+#: Passes of :func:`separate_opposed` after the umbrella passes (each pushes once).
+SEPARATE_PASSES = 20
+#: How far one :func:`separate_opposed` pass moves a vertex along its crossing faces' normal,
+#: in median edge lengths of the mesh (20 passes: at most one edge length in all).
+SEPARATE_STEP = 0.05
 #: Faces larger than this many times the median bounding radius are paired one by one rather
 #: than through the common search radius (which would then hold too many pairs).
 LARGE_FACE = 3.0
@@ -234,8 +251,10 @@ def untangle(
     passes: int = UNTANGLE_PASSES,
     step: float = UNTANGLE_STEP,
     fixed: np.ndarray | None = None,
+    separate_passes: int = SEPARATE_PASSES,
 ) -> tuple[np.ndarray, int, int]:
-    """Smooth around crossing faces until the mesh no longer crosses itself.
+    """Smooth around crossing faces until the mesh no longer crosses itself; then part the
+    opposed sheets that still cross (:func:`separate_opposed`).
 
     Parameters
     ----------
@@ -245,6 +264,8 @@ def untangle(
         Pass budget, and the weight of the neighbours' mean in each umbrella step.
     fixed : (V,) bool, optional
         Vertices that never move (e.g. on a crease line: smoothing would round it).
+    separate_passes : int
+        Pass budget of :func:`separate_opposed` (0: smoothing only).
 
     Returns
     -------
@@ -260,10 +281,7 @@ def untangle(
     if found == 0:
         return vertices, 0, 0
     mean_of_neighbours = _umbrella(faces, len(vertices))
-    vertex_faces = sparse.csr_matrix(
-        (np.ones(faces.size), (faces.ravel(), np.repeat(np.arange(len(faces)), 3))),
-        shape=(len(vertices), len(faces)),
-    )
+    vertex_faces = _vertex_faces(faces, len(vertices))
     moved = np.zeros(len(vertices), dtype=bool)
     first = pairs
     best, best_left = vertices.copy(), found
@@ -286,9 +304,109 @@ def untangle(
     # the passes re-test only pairs with a face that moved: count what is left over all faces
     # (a crossing between fixed vertices, for one, never moves). A pair of faces that ``best``
     # did not move crosses as it did at the start; the others are searched again.
-    shifted = np.flatnonzero(np.any(best != start, axis=1))
+    left = len(_pairs_after_moving(start, best, faces, vertex_faces, first))
+    if left:
+        # smooth sheets crossing at a shallow angle: part the opposed ones
+        parted, parted_left = separate_opposed(best, faces, separate_passes, fixed=fixed)
+        if parted_left < left:
+            return parted, found, parted_left
+    return best, found, left
+
+
+def _vertex_faces(faces: np.ndarray, n_vertices: int) -> sparse.csr_matrix:
+    """Vertex-face incidence: row v holds the faces with corner v."""
+    return sparse.csr_matrix(
+        (np.ones(faces.size), (faces.ravel(), np.repeat(np.arange(len(faces)), 3))),
+        shape=(n_vertices, len(faces)),
+    )
+
+
+def _pairs_after_moving(
+    start: np.ndarray,
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    vertex_faces: sparse.csr_matrix,
+    first: np.ndarray,
+) -> np.ndarray:
+    """Crossing pairs of ``vertices`` over all faces, given the pairs ``first`` of ``start``:
+    a pair of faces that did not move crosses as it did; around the moved ones, a search."""
+    shifted = np.flatnonzero(np.any(vertices != start, axis=1))
     touched = np.unique(vertex_faces[shifted].indices)
     was_moved = np.zeros(len(faces), dtype=bool)
     was_moved[touched] = True
-    kept = int(np.count_nonzero(~was_moved[first].any(axis=1)))
-    return best, found, kept + int(len(self_intersections(best, faces, touched)))
+    return np.vstack(
+        [first[~was_moved[first].any(axis=1)], self_intersections(vertices, faces, touched)]
+    )
+
+
+def separate_opposed(
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    passes: int = SEPARATE_PASSES,
+    step: float = SEPARATE_STEP,
+    fixed: np.ndarray | None = None,
+) -> tuple[np.ndarray, int]:
+    """Push crossing faces with opposed normals apart, each along its own normal.
+
+    Each pass finds the crossing pairs, keeps those whose unit face normals point away from
+    each other (n_a · n_b < 0: the two sides of a thin part) and moves every corner of their
+    faces by ``step`` median edge lengths along the mean normal of its crossing faces there.
+    Pairs with agreeing normals (a folded flap) are left to the umbrella passes of
+    :func:`untangle`.
+
+    Parameters
+    ----------
+    vertices : (V, 3) float64
+    faces : (F, 3) int64, consistently oriented
+    passes, step
+        Pass budget, and the push of one pass [median edge lengths].
+    fixed : (V,) bool, optional
+        Vertices that never move.
+
+    Returns
+    -------
+    vertices, left
+        The state with the fewest crossing pairs over all faces (a copy) and that count.
+
+    Examples
+    --------
+    Two sides of a thin part (top facing +z, bottom facing -z) whose dent crosses over:
+
+    >>> v = np.array([[0, 0, 0], [2, 0, 0], [0, 2, 0],
+    ...               [.5, .5, .1], [.5, 1.5, .1], [1.5, .5, -.3]], dtype=float)
+    >>> f = np.array([[0, 1, 2], [3, 4, 5]])
+    >>> len(self_intersections(v, f)), separate_opposed(v, f)[1]
+    (1, 0)
+    """
+    vertices = np.array(vertices, dtype=np.float64)
+    faces = np.ascontiguousarray(faces, dtype=np.int64)
+    first = pairs = self_intersections(vertices, faces)
+    start = vertices.copy()
+    best, best_left = start, len(pairs)
+    if best_left == 0:
+        return best, best_left
+    vertex_faces = _vertex_faces(faces, len(vertices))
+    edges = vertices[faces[:, [1, 2, 0]]] - vertices[faces]
+    push = step * float(np.median(np.linalg.norm(edges, axis=2)))
+    for _ in range(passes):
+        normals = face_normals(vertices, faces)
+        opposed = np.einsum("ij,ij->i", normals[pairs[:, 0]], normals[pairs[:, 1]]) < 0.0
+        if not opposed.any():
+            break
+        crossing = pairs[opposed].ravel()
+        corners = faces[crossing].ravel()
+        direction = np.zeros_like(vertices)
+        np.add.at(direction, corners, np.repeat(normals[crossing], 3, axis=0))
+        count = np.bincount(corners, minlength=len(vertices))
+        move = count > 0
+        if fixed is not None:
+            move &= ~fixed
+        if not move.any():
+            break
+        vertices[move] += push * direction[move] / count[move, None]
+        pairs = _pairs_after_moving(start, vertices, faces, vertex_faces, first)
+        if len(pairs) < best_left:
+            best, best_left = vertices.copy(), len(pairs)
+        if best_left == 0:
+            break
+    return best, best_left

@@ -7,7 +7,12 @@ import open3d as o3d
 import pytest
 from mesh_shapes import icosphere
 
-from recon.intersections import candidate_pairs, self_intersections, untangle
+from recon.intersections import (
+    candidate_pairs,
+    self_intersections,
+    separate_opposed,
+    untangle,
+)
 from recon.topology import mesh_topology
 
 
@@ -185,3 +190,56 @@ def test_untangle_counts_what_is_left_as_a_search_of_the_whole_mesh(passes):
     out2, found2, left2 = untangle(v2, f2, passes=passes, fixed=fixed2)
     assert found2 == 2 * found and left2 == left + found
     assert left2 == len(self_intersections(out2, f2))
+
+
+def grid_sheet(n: int, height, facing_up: bool) -> tuple[np.ndarray, np.ndarray]:
+    """An n x n grid of unit spacing centred on the origin at z = height(x, y), its faces
+    wound to face +z (``facing_up``) or -z."""
+    xs = np.arange(n, dtype=float) - (n - 1) / 2
+    x, y = (a.ravel() for a in np.meshgrid(xs, xs, indexing="ij"))
+    v = np.c_[x, y, height(x, y)]
+    i, j = (a.ravel() for a in np.meshgrid(np.arange(n - 1), np.arange(n - 1), indexing="ij"))
+    a, b, c, d = i * n + j, (i + 1) * n + j, (i + 1) * n + j + 1, i * n + j + 1
+    f = np.r_[np.c_[a, b, c], np.c_[a, c, d]]
+    return v, (f if facing_up else f[:, ::-1])
+
+
+def thin_part_with_a_wide_dent() -> tuple[np.ndarray, np.ndarray, int]:
+    """The two sides of a thin part 0.3 apart (top facing +z at z = 0, bottom facing -z),
+    the bottom bulging through the top in a wide, gentle dome (width 5 spacings): smooth
+    sheets crossing at a shallow angle. Returns vertices, faces and the top's vertex count."""
+    top_v, top_f = grid_sheet(13, lambda x, y: 0.0 * x, facing_up=True)
+    bottom_v, bottom_f = grid_sheet(
+        13, lambda x, y: -0.3 + 0.5 * np.exp(-(x**2 + y**2) / 50.0), facing_up=False
+    )
+    return np.vstack([top_v, bottom_v]), np.vstack([top_f, bottom_f + len(top_v)]), len(top_v)
+
+
+def test_untangle_parts_opposed_sheets_that_smoothing_cannot():
+    """Regression (knife seed 6 kept 4 crossing pairs): the umbrella passes alone leave most
+    of the dome's crossings; pushing each side along its own normal clears them, top above
+    bottom again, each vertex pushed by at most one spacing."""
+    v, f, n_top = thin_part_with_a_wide_dent()
+    found = len(self_intersections(v, f))
+    assert found > 100
+    smoothed, _, umbrella_left = untangle(v, f, separate_passes=0)
+    assert umbrella_left > found // 3
+    out, found_again, left = untangle(v, f)
+    assert found_again == found and left == 0
+    assert len(self_intersections(out, f)) == 0 and not open3d_pairs(out, f)
+    centre_top, centre_bottom = n_top // 2, n_top + n_top // 2
+    assert out[centre_top, 2] > out[centre_bottom, 2]
+    # the push after the smoothing: at most SEPARATE_PASSES x SEPARATE_STEP = 1 spacing
+    assert 0 < np.linalg.norm(out - smoothed, axis=1).max() <= 1.0 + 1e-9
+
+
+def test_separate_opposed_leaves_sheets_facing_the_same_way_alone():
+    """Two crossing sheets that face the same way are a fold, not the sides of a thin part:
+    pushing both along +z would not part them, so nothing moves."""
+    top_v, top_f = grid_sheet(7, lambda x, y: 0.0 * x, facing_up=True)
+    tilted_v, tilted_f = grid_sheet(7, lambda x, y: 0.2 * x, facing_up=True)
+    v, f = np.vstack([top_v, tilted_v]), np.vstack([top_f, tilted_f + len(top_v)])
+    before = len(self_intersections(v, f))
+    assert before > 0
+    out, left = separate_opposed(v, f)
+    assert left == before and np.array_equal(out, v)
