@@ -102,3 +102,30 @@ def test_no_points_or_no_spacing_give_no_votes():
     assert exterior_votes(np.zeros((0, 3)), np.zeros((0, 3)), 1.0).shape == (0,)
     p = np.eye(3)
     assert np.all(exterior_votes(p, p, 0.0) == 0)
+
+
+#: A body on four thin legs, as the legs shape of ``bench_thin_parts.py`` (legs here are
+#: ellipsoids 0.07 across: about 5 median spacings at 3,000 points).
+LEGS = [((0.0, 0.0, 0.3), (0.6, 0.3, 0.2))] + [
+    ((sx * 0.42, sy * 0.17, -0.1), (0.035, 0.035, 0.36)) for sx in (-1, 1) for sy in (-1, 1)
+]
+
+
+def test_a_sparse_body_on_thin_legs_comes_out_closed():
+    """Before (``normals.exterior_signs`` off): 6 loops, 3 components, 8 crossing face pairs;
+    after: watertight, one component, genus 0, no crossing (standard definition and Open3D)."""
+    import open3d as o3d
+
+    import recon
+    from recon.intersections import self_intersections
+    from recon.topology import mesh_topology
+
+    res = recon.fit(union_points(LEGS, 3000, 0))
+    t = mesh_topology(res.mesh.vertices, res.mesh.faces)
+    assert t["watertight"] and t["components"] == 1 and t["genus"] == 0, t
+    assert len(self_intersections(res.mesh.vertices, res.mesh.faces)) == 0
+    m = o3d.geometry.TriangleMesh(
+        o3d.utility.Vector3dVector(res.mesh.vertices),
+        o3d.utility.Vector3iVector(res.mesh.faces.astype(np.int32)),
+    )
+    assert m.is_vertex_manifold() and m.is_edge_manifold(allow_boundary_edges=False)
