@@ -115,6 +115,12 @@ class NormalsConfig(Schema):
         0.0,
         5.0,
     )
+    exterior_signs: bool = option(
+        True,
+        "Orientation: on a closed scan, turn over the estimated normals that point away from "
+        "the side from which a ball coming from outside reaches the point first (thin parts "
+        "a few spacings thick whose faces the propagation got inside out).",
+    )
     orientation: str = option(
         "auto",
         "Global sign: auto (outward if the surface looks closed, else "

@@ -31,6 +31,7 @@ log = logging.getLogger(__name__)
 __all__ = [
     "across_points",
     "fill_small_holes",
+    "join_closed_parts",
     "loft_loops",
     "loft_nearest_loops",
     "neck_between",
@@ -513,3 +514,39 @@ def neck_between(
         if len(self_intersections(vertices, joined, subset)) == 0:
             return joined
     return None
+
+
+def join_closed_parts(vertices: np.ndarray, faces: np.ndarray, reach: float) -> np.ndarray | None:
+    """``faces`` with each closed component that comes within ``reach`` of the main body (the
+    largest component) joined to it by a short tube (:func:`neck_between`, where the tube
+    crosses no face); None when none is.
+
+    A sparse thin part (a leg or an ear 2-5 point spacings thick) whose particles did not
+    grow into the concave corner at its root is meshed as a closed part of its own, capped
+    within a spacing of the body, which closed over the root. A closed part that near the
+    body is the same surface: the data runs on from one to the other. An open part (the
+    patches of an open scan) is left as it is. A joined part is part of the body for the
+    next.
+    """
+    faces = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    n_v, joined_any, out = len(vertices), False, faces
+    while True:
+        n, label = face_components(out, n_v)
+        if n < 2:
+            break
+        body = int(np.argmax(np.bincount(label)))
+        tree = cKDTree(vertices[np.unique(out[label == body])])
+        joined = None
+        for k in range(n):
+            part = np.flatnonzero(label == k)
+            if k == body or boundary_loops(out[part]):
+                continue
+            if tree.query(vertices[np.unique(out[part])])[0].min() > reach:
+                continue
+            joined = neck_between(vertices, out, np.flatnonzero(label == body), part)
+            if joined is not None:
+                break
+        if joined is None:
+            break
+        out, joined_any = joined, True
+    return out if joined_any else None

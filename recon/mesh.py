@@ -51,6 +51,7 @@ __all__ = [
     "boundary_loops",
     "capped_volume",
     "count_edge_faces",
+    "drop_unreferenced",
     "edge_keys",
     "face_area_vectors",
     "face_components",
@@ -541,3 +542,13 @@ def handle_bridges(normals: np.ndarray, faces: np.ndarray) -> np.ndarray:
             if handles == 0:
                 break
     return marked
+
+
+def drop_unreferenced(
+    vertices: np.ndarray, normals: np.ndarray, faces: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Remove vertices no face uses (isolated particles) and renumber faces."""
+    used = np.zeros(len(vertices), dtype=bool)
+    used[faces.reshape(-1)] = True
+    remap = np.cumsum(used) - 1
+    return vertices[used], normals[used], remap[faces].astype(np.int64)

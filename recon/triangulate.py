@@ -33,6 +33,7 @@ from .config import TriangulationConfig
 from .crease_mesh import flip_straddling_edges, insert_crease_edges, pivot_positions
 from .holes import (
     fill_small_holes,
+    join_closed_parts,
     loft_nearest_loops,
     neck_between,
     thicken_sheet,
@@ -43,6 +44,7 @@ from .kernels.circumsphere import circumsphere_kernel
 from .mesh import (
     boundary_loops,
     capped_volume,
+    drop_unreferenced,
     edge_keys,
     face_area_vectors,
     face_components,
@@ -84,6 +86,8 @@ LOFT_GAP = 2.0
 SHEET_NECK_GAP = 1.0
 #: ... and is made a closed body this far [r0] either side of it.
 SHEET_HALF_THICKNESS = 0.15
+#: A closed part this close [r0] to the closed body joins it (the largest ball's diameter).
+PART_NECK_GAP = 4.0
 #: Debris removal: components with fewer faces than this and than ``MIN_COMPONENT_FRACTION``
 #: of the largest component are dropped.
 MIN_COMPONENT_FACES = 50
@@ -180,7 +184,7 @@ def triangulate_particles(
     result = _repair(positions, normals, faces, dict(stats), *args)
     handles = _count(result)[2]
     if handles == 0 and not _open_along_opposed(result):
-        return result  # no handle, and no thin edge left open in places: nothing to mend
+        return _parts_joined(result, resign)  # no handle, no thin edge left open in places
     # A tunnel between the two faces of a thin part (a bridge of faces joining opposed sheets
     # away from the part's rim) is a handle the surface does not have: drop the bridges that
     # carry one (:func:`recon.mesh.handle_bridges`, smallest first) and repair again; hole
@@ -239,7 +243,19 @@ def triangulate_particles(
     thick = _sheets_thickened(result)
     if thick is not None and _better(thick, result):
         result = thick
-    return result
+    return _parts_joined(result, resign)
+
+
+def _parts_joined(result: TriangulationResult, cloud: bool = True) -> TriangulationResult:
+    """``result`` with the closed parts beside its body joined to it, when that has fewer
+    components (:func:`recon.holes.join_closed_parts`: a sparse thin part meshed on its own);
+    else ``result``. Only for a point cloud's particles (``cloud``): a remeshed input's
+    components are its own."""
+    joined = join_closed_parts(result.vertices, result.faces, PART_NECK_GAP) if cloud else None
+    if joined is None:
+        return result
+    alt = replace(result, faces=orient_consistently(result.vertices, result.normals, joined))
+    return alt if _better(alt, result) else result
 
 
 def _sheets_thickened(
@@ -780,13 +796,3 @@ def remove_small_components(
     if not small.any():
         return faces, 0
     return faces[~small[labels]], int(small.sum())
-
-
-def drop_unreferenced(
-    vertices: np.ndarray, normals: np.ndarray, faces: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Remove vertices no face uses (isolated particles) and renumber faces."""
-    used = np.zeros(len(vertices), dtype=bool)
-    used[faces.reshape(-1)] = True
-    remap = np.cumsum(used) - 1
-    return vertices[used], normals[used], remap[faces].astype(np.int64)

@@ -42,6 +42,7 @@ from ..crease_orient import orient_across_creases
 from ..crease_surface import CreaseField
 from ..creases import Creases, detect_creases
 from ..errors import InputError
+from ..exterior_signs import resign_by_exterior
 from ..geometry import bbox_diagonal
 from ..intersections import untangle
 from ..kernels.options import query_workers, thread_count
@@ -495,10 +496,11 @@ def _fit_sheet(cloud: PointCloud, cfg: ReconConfig, on_progress: ProgressFn | No
     found, creases = _detect_creases(points, normals, cfg, bbox_diagonal(points), knn, tree)
     if found is not None:  # a crease fixes the normals' orientation across it
         normals, found, _ = orient_across_creases(points, normals, found, k=cfg.creases.k)
+    r0, d_nn = choose_spacing(points, cfg, tree)
     if normals_info.get("source") == "estimated":  # signs where a thin part's faces meet
         normals, _ = resign_thin_parts(points, normals, cfg.normals.k, tree)
-
-    r0, d_nn = choose_spacing(points, cfg, tree)
+        if cfg.normals.exterior_signs:  # signs of a closed scan's thin parts from outside
+            normals, _ = resign_by_exterior(points, normals, d_nn)
     del tree
     check_grid_size(points, r0)
     cfg = with_max_gap(cfg, r0, d_nn)
