@@ -15,7 +15,7 @@ from scipy.spatial import cKDTree
 from test_sparse_holes import union_points
 
 from recon.config import ReconConfig
-from recon.exterior_signs import exterior_votes, resign_by_exterior
+from recon.exterior_signs import MAX_CELLS, exterior_votes, resign_by_exterior
 from recon.fitting.scale import with_neighborhood_size
 from recon.io import cloud_from_arrays
 from recon.normal_signs import resign_thin_parts
@@ -95,6 +95,21 @@ def test_an_open_sheet_gives_no_decision_and_keeps_its_signs():
     votes = exterior_votes(u, -u, spacing(u))
     assert np.count_nonzero(votes) < 0.5 * len(u)
     out, flipped = resign_by_exterior(u, -u, spacing(u))
+    assert flipped == 0 and np.array_equal(out, -u)
+
+
+def test_a_scan_longer_than_the_grid_gives_no_votes():
+    """Dense or large: a sphere spanning more than MAX_CELLS point spacings gets no vote (and
+    keeps its signs), where the same sphere sampled sparsely votes everywhere."""
+    rng = np.random.default_rng(3)
+    u = rng.normal(size=(2000, 3))
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    s = spacing(u)
+    assert 2.0 / s < MAX_CELLS - 20  # the sparse sphere fits the grid
+    assert np.all(exterior_votes(u, u, s) == 1)
+    dense = s * 2.0 / (MAX_CELLS + 1)  # as if the sphere held ~(MAX_CELLS s / 2)^2 more points
+    assert np.all(exterior_votes(u, u, dense) == 0)
+    out, flipped = resign_by_exterior(u, -u, dense)
     assert flipped == 0 and np.array_equal(out, -u)
 
 
