@@ -116,10 +116,11 @@ def exterior_votes(points: np.ndarray, normals: np.ndarray, spacing: float) -> n
 
 
 def resign_by_exterior(
-    points: np.ndarray, normals: np.ndarray, spacing: float
+    points: np.ndarray, normals: np.ndarray, spacing: float, tree: cKDTree | None = None
 ) -> tuple[np.ndarray, int]:
     """Normals turned over where the exterior votes against them, when the data looks
-    closed (``MIN_DECIDED``, ``MIN_AGREE``); and how many were turned over."""
+    closed (``MIN_DECIDED``, ``MIN_AGREE``); and how many were turned over. ``tree``: a
+    k-d tree of ``points`` (the fit's shared one; built here when None)."""
     votes = exterior_votes(points, normals, spacing)
     decided = int(np.count_nonzero(votes))
     n_for = int(np.count_nonzero(votes > 0))
@@ -130,7 +131,7 @@ def resign_by_exterior(
     # wrong vote near a thin part's rim is as likely as a lone wrong sign, which later stages
     # outvote; a body with one ear at 2,000 points lost its watertightness to one such flip)
     k = min(PATCH_K, len(points))
-    _, idx = cKDTree(points).query(points, k=k)
+    _, idx = (cKDTree(points) if tree is None else tree).query(points, k=k)
     flip = (votes < 0) & (np.mean(votes[idx.reshape(len(points), k)] < 0, axis=1) >= 0.5)
     n_flip = int(np.count_nonzero(flip))
     log.debug("exterior signs: %d of %d normals turned over", n_flip, len(votes))

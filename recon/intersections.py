@@ -304,13 +304,15 @@ def untangle(
     # the passes re-test only pairs with a face that moved: count what is left over all faces
     # (a crossing between fixed vertices, for one, never moves). A pair of faces that ``best``
     # did not move crosses as it did at the start; the others are searched again.
-    left = len(_pairs_after_moving(start, best, faces, vertex_faces, first))
-    if left:
+    left_pairs = _pairs_after_moving(start, best, faces, vertex_faces, first)
+    if len(left_pairs):
         # smooth sheets crossing at a shallow angle: part the opposed ones
-        parted, parted_left = separate_opposed(best, faces, separate_passes, fixed=fixed)
-        if parted_left < left:
+        parted, parted_left = separate_opposed(
+            best, faces, separate_passes, fixed=fixed, pairs=left_pairs
+        )
+        if parted_left < len(left_pairs):
             return parted, found, parted_left
-    return best, found, left
+    return best, found, len(left_pairs)
 
 
 def _vertex_faces(faces: np.ndarray, n_vertices: int) -> sparse.csr_matrix:
@@ -345,6 +347,7 @@ def separate_opposed(
     passes: int = SEPARATE_PASSES,
     step: float = SEPARATE_STEP,
     fixed: np.ndarray | None = None,
+    pairs: np.ndarray | None = None,
 ) -> tuple[np.ndarray, int]:
     """Push crossing faces with opposed normals apart, each along its own normal.
 
@@ -362,6 +365,9 @@ def separate_opposed(
         Pass budget, and the push of one pass [median edge lengths].
     fixed : (V,) bool, optional
         Vertices that never move.
+    pairs : (m, 2) int, optional
+        The crossing pairs of ``vertices`` over all faces, when the caller has them
+        (:func:`self_intersections`; searched here when None).
 
     Returns
     -------
@@ -380,7 +386,9 @@ def separate_opposed(
     """
     vertices = np.array(vertices, dtype=np.float64)
     faces = np.ascontiguousarray(faces, dtype=np.int64)
-    first = pairs = self_intersections(vertices, faces)
+    if pairs is None:
+        pairs = self_intersections(vertices, faces)
+    first = pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
     start = vertices.copy()
     best, best_left = start, len(pairs)
     if best_left == 0:

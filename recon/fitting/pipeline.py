@@ -500,7 +500,7 @@ def _fit_sheet(cloud: PointCloud, cfg: ReconConfig, on_progress: ProgressFn | No
     if normals_info.get("source") == "estimated":  # signs where a thin part's faces meet
         normals, _ = resign_thin_parts(points, normals, cfg.normals.k, tree)
         if cfg.normals.exterior_signs:  # signs of a closed scan's thin parts from outside
-            normals, _ = resign_by_exterior(points, normals, d_nn)
+            normals, _ = resign_by_exterior(points, normals, d_nn, tree)
     del tree
     check_grid_size(points, r0)
     cfg = with_max_gap(cfg, r0, d_nn)
