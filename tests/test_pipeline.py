@@ -317,3 +317,56 @@ def test_the_stages_up_to_r0_share_one_kd_tree_of_the_data(monkeypatch):
     of_data = [d for d in built if d.shape == pts.shape and np.allclose(np.sort(d, axis=0), data)]
     assert len(of_data) == 1
     assert res.report.input.normals["source"] == "estimated"
+
+
+def test_polishing_raises_the_angles_and_keeps_the_surface_and_topology():
+    pts = _sphere(noise=0.01)
+    raw = fit(pts, load_config(overrides=FAST + ["triangulation.smooth_rounds=0"]))
+    pol = fit(pts, load_config(overrides=FAST))
+    assert pol.report.triangulation.polish_flips > 0
+    assert raw.report.triangulation.polish_flips == 0
+    q_raw, q_pol = raw.report.triangle_quality, pol.report.triangle_quality
+    assert q_pol.min_angle_mean_deg > q_raw.min_angle_mean_deg + 0.5, (q_raw, q_pol)
+    assert pol.report.topology.watertight and pol.report.topology.genus == 0
+    # projected onto the local data surface: as close to the sphere as the particles were
+    dev_raw = np.abs(np.linalg.norm(raw.mesh.vertices, axis=1) - 1.0)
+    dev_pol = np.abs(np.linalg.norm(pol.mesh.vertices, axis=1) - 1.0)
+    assert np.median(dev_pol) <= np.median(dev_raw) + 1e-3
+
+
+def test_polishing_leaves_boundary_vertices_where_they_are():
+    pts = _square_with_hole()
+    raw = fit(pts, load_config(overrides=FAST + ["triangulation.smooth_rounds=0"]))
+    pol = fit(pts, load_config(overrides=FAST))
+    v0, f0 = raw.mesh.vertices, raw.mesh.faces
+    v1 = pol.mesh.vertices
+    assert len(v0) == len(v1)
+    edges = np.sort(np.concatenate([f0[:, [0, 1]], f0[:, [1, 2]], f0[:, [2, 0]]]), axis=1)
+    uniq, count = np.unique(edges, axis=0, return_counts=True)
+    boundary = np.unique(uniq[count == 1])
+    assert len(boundary) > 20
+    np.testing.assert_array_equal(v1[boundary], v0[boundary])
+    inner = np.setdiff1d(np.arange(len(v0)), boundary)
+    assert np.abs(v1[inner] - v0[inner]).max() > 1e-3  # the inside was polished
+    assert np.abs(v1[:, 2]).max() < 1e-6  # and stayed on the plane
+    assert pol.report.topology.boundary_loops == 2
+
+
+def test_polish_without_a_surface_moves_in_the_tangent_planes_only():
+    from recon.fitting.pipeline import polish
+    from recon.triangulate import TriangulationResult
+    from tests.mesh_shapes import grid
+
+    v, f = grid(8, 8)
+    rng = np.random.default_rng(3)
+    v[:, :2] += rng.uniform(-0.02, 0.02, size=(len(v), 2))
+    normals = np.tile([0.0, 0.0, 1.0], (len(v), 1))
+    held = np.zeros(len(v), bool)
+    held[:5] = True
+    res = polish(TriangulationResult(v, f, normals), None, 2, flips=False, fixed=held)
+    np.testing.assert_array_equal(res.faces, f)
+    np.testing.assert_array_equal(res.vertices[:5], v[:5])
+    assert np.all(res.vertices[:, 2] == 0.0)
+    rim = (np.min(v[:, :2], axis=1) < 0.05) | (np.max(v[:, :2], axis=1) > 0.95)
+    np.testing.assert_array_equal(res.vertices[rim], v[rim])  # boundary vertices stay
+    assert np.abs(res.vertices - v).max() > 1e-3

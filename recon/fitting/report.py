@@ -227,6 +227,8 @@ class TriangulationStats(_Section):
     holes_filled: int
     small_components_removed: int
     vertices_split: int = 0
+    #: edges flipped by the polishing rounds (``triangulation.smooth_rounds``)
+    polish_flips: int = 0
     #: crossing face pairs found after the repair, and left after untangling
     self_intersections_found: int = 0
     self_intersections_left: int = 0

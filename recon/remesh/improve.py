@@ -14,6 +14,8 @@ References
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 from scipy import sparse
 
@@ -25,6 +27,7 @@ __all__ = [
     "FLIP_MIN_NORMAL_DOT",
     "SMOOTH_STEP",
     "EdgeFlipper",
+    "flip_and_smooth",
     "flip_edges",
     "improve",
     "neighbour_centroids",
@@ -153,18 +156,53 @@ def improve(
     weights: np.ndarray | None = None,
     line_edges: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, dict[str, int]]:
-    """``rounds`` rounds of flips and tangential smoothing (module docstring).
+    """``rounds`` rounds of flips and tangential smoothing (module docstring), each moved vertex
+    back on ``surface`` (its closest point).
 
     ``fixed`` vertices do not move; ``line_edges`` (k, 2): see :func:`flip_edges`.
     ``weights`` (V,), optional: each neighbour counts with this weight in the centroid (e.g.
     1/spacing² for adaptive meshes, so that vertices drift toward the dense side less).
     """
+
+    def closest(target: np.ndarray, _moved: np.ndarray) -> np.ndarray:
+        return surface.closest(target)[0]
+
+    return flip_and_smooth(
+        vertices, faces, fixed, closest, rounds, weights=weights, line_edges=line_edges
+    )
+
+
+def flip_and_smooth(
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    fixed: np.ndarray,
+    project: Callable[[np.ndarray, np.ndarray], np.ndarray],
+    rounds: int,
+    step: float = SMOOTH_STEP,
+    weights: np.ndarray | None = None,
+    line_edges: np.ndarray | None = None,
+    flips: bool = True,
+    fix_boundary: bool = False,
+) -> tuple[np.ndarray, np.ndarray, dict[str, int]]:
+    """``rounds`` rounds of (with ``flips``) angle-raising flips and tangential smoothing.
+
+    Each round moves every free vertex ``step`` of the way to its neighbours' centroid, within
+    its tangent plane (the area-weighted vertex normal), and then onto the surface:
+    ``project(target, moved)`` returns the surface point for each target, ``moved`` being the
+    moved vertices' indices. With ``flips``, a last flip pass follows the last round.
+    ``fixed``, ``weights``, ``line_edges``: see :func:`improve`; with ``fix_boundary`` the
+    vertices on the mesh's boundary are fixed too.
+    """
     v = np.array(vertices, dtype=np.float64, copy=True)
     flipper = EdgeFlipper(len(v), faces, line_edges)
-    free = ~fixed
+    held = np.array(fixed, dtype=bool)
+    if fix_boundary:
+        held[flipper.faces.ravel()[flipper.twin < 0]] = True
+    free = np.flatnonzero(~held)
     n_flips = 0
     for _ in range(rounds):
-        n_flips += flipper.flip(v, VALENCE_MIN_ANGLE)
+        if flips:
+            n_flips += flipper.flip(v, VALENCE_MIN_ANGLE)
         f = flipper.faces
         if weights is None:
             centroid = neighbour_centroids(v, f)
@@ -177,9 +215,7 @@ def improve(
         move = centroid - v
         vn = _vertex_normals(v, f)
         move -= np.einsum("ij,ij->i", move, vn)[:, None] * vn
-        target = v[free] + SMOOTH_STEP * move[free]
-        foot, _, _ = surface.closest(target)
-        v[free] = foot
-    n_flips += flipper.flip(v)
-    f = flipper.faces
-    return v, f, {"flips": n_flips, "smoothing_rounds": rounds}
+        v[free] = project(v[free] + step * move[free], free)
+    if flips:
+        n_flips += flipper.flip(v)
+    return v, flipper.faces, {"flips": n_flips, "smoothing_rounds": rounds}

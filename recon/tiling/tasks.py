@@ -359,6 +359,7 @@ def mesh_task(job: MeshJob) -> dict:
         cover_reach,
         covered,
         local_density_scale,
+        polish,
         sampling_spacing,
         sparse_cover,
     )
@@ -427,7 +428,10 @@ def mesh_task(job: MeshJob) -> dict:
         code[~original] = -1 - np.arange(np.count_nonzero(~original))
         own = ~original | (grid.cell_of(tri.vertices * r0 + centre) == job.tile)
         fixed = ~own if tri.crease is None else ~own | np.asarray(tri.crease, dtype=bool)
-        return tri, code, *untangle(tri.vertices, tri.faces, fixed=fixed)
+        # the untiled fit's polish without flips (the faces near the core's edge must stay
+        # those the neighbour tiles see) and in the tangent planes (no data surface here)
+        polished = polish(tri, None, tri_cfg.smooth_rounds, flips=False, fixed=fixed)
+        return tri, code, *untangle(polished.vertices, tri.faces, fixed=fixed)
 
     with thread_count(cfg.threads):
         reach = cover_reach(job.median_spacing / r0)
