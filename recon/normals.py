@@ -645,7 +645,11 @@ THIN_VARIATION = 0.05
 
 
 def choose_neighborhood_size(
-    points: np.ndarray, k: int, sample: int = 4000, tree: cKDTree | None = None
+    points: np.ndarray,
+    k: int,
+    sample: int = 4000,
+    tree: cKDTree | None = None,
+    variations: dict[int, float] | None = None,
 ) -> int:
     """Neighbourhood size for normals and local surfaces: k, doubled while the data is noisy.
 
@@ -654,6 +658,9 @@ def choose_neighborhood_size(
     k, 2k, 4k whose median variation is below ``THIN_VARIATION`` (4k at most: wider
     neighbourhoods mix the two sides of thin parts; measured on the 1 %-noise bunny, sign
     consistency 99.3 % at k = 80 but 94.6 % at k = 160). ``tree``: one of ``points`` if built.
+    ``variations``: a dict that receives each measured median variation under its k (the
+    chosen k's is among them: :func:`recon.normal_signs.resign_thin_parts` takes it from
+    there instead of measuring it again).
     """
     n = len(points)
     tree = cKDTree(points) if tree is None else tree
@@ -661,7 +668,10 @@ def choose_neighborhood_size(
     for factor in (1, 2, 4):
         kk = min(k * factor, n)
         chosen = kk
-        if median_variation(points, kk, sample, tree) < THIN_VARIATION or kk >= n:
+        variation = median_variation(points, kk, sample, tree)
+        if variations is not None:
+            variations[kk] = variation
+        if variation < THIN_VARIATION or kk >= n:
             break
     return int(chosen)
 

@@ -106,7 +106,9 @@ def all_agree(dots: np.ndarray) -> bool:
     return not bool(np.any(dots < 0.0))
 
 
-def consistent_normals(positions: np.ndarray, normals: np.ndarray) -> np.ndarray:
+def consistent_normals(
+    positions: np.ndarray, normals: np.ndarray, tree: cKDTree | None = None
+) -> np.ndarray:
     """The particles' normals, with patches of wrong sign re-signed over the particle sheet.
 
     Ball pivoting needs consistently oriented normals: it does not join a patch whose normals
@@ -124,13 +126,15 @@ def consistent_normals(positions: np.ndarray, normals: np.ndarray) -> np.ndarray
     a proposed patch (connected particles it would flip) is flipped only where that makes
     its neighbours agree more: more of the patch's edges to the rest disagree in sign than
     agree, by :func:`reflected_dots`, counting only edges where it is decisive
-    (``|r| > PARTICLE_SIGN_DOT``). Directions never change, only signs.
+    (``|r| > PARTICLE_SIGN_DOT``). Directions never change, only signs. ``tree``: a k-d
+    tree of ``positions`` when one is built already (the same query, no second tree).
     """
     n = len(positions)
     k = PARTICLE_ORIENT_K
     if n <= k:
         return normals
-    _, idx = cKDTree(positions).query(positions, k + 1, workers=query_workers())
+    tree = cKDTree(positions) if tree is None else tree
+    _, idx = tree.query(positions, k + 1, workers=query_workers())
     rows, cols = np.repeat(np.arange(n), k), idx[:, 1:].ravel()
     keep = rows != cols  # duplicate positions can reorder self
     rows, cols = rows[keep], cols[keep]

@@ -488,7 +488,8 @@ def _fit_sheet(cloud: PointCloud, cfg: ReconConfig, on_progress: ProgressFn | No
     points = np.asarray(cloud.points, dtype=np.float64)
 
     tree = cKDTree(points)  # one k-d tree of the data for the stages up to r0 (same queries)
-    cfg = with_neighborhood_size(points, cfg, tree)
+    variations: dict[int, float] = {}  # median surface variation by k, measured once
+    cfg = with_neighborhood_size(points, cfg, tree, variations)
     knn = shared_neighbors(points, cfg, tree)
     normals, normals_info = compute_normals(cloud, cfg.normals, neighbors=knn)
     clock.lap("normals")
@@ -498,7 +499,8 @@ def _fit_sheet(cloud: PointCloud, cfg: ReconConfig, on_progress: ProgressFn | No
         normals, found, _ = orient_across_creases(points, normals, found, k=cfg.creases.k)
     r0, d_nn = choose_spacing(points, cfg, tree)
     if normals_info.get("source") == "estimated":  # signs where a thin part's faces meet
-        normals, _ = resign_thin_parts(points, normals, cfg.normals.k, tree)
+        variation = variations.get(cfg.normals.k)
+        normals, _ = resign_thin_parts(points, normals, cfg.normals.k, tree, variation)
         if cfg.normals.exterior_signs:  # signs of a closed scan's thin parts from outside
             normals, _ = resign_by_exterior(points, normals, d_nn, tree)
     del tree

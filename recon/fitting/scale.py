@@ -56,16 +56,21 @@ MIN_AUTO_GAP = 1.0
 
 
 def with_neighborhood_size(
-    points: np.ndarray, cfg: ReconConfig, tree: cKDTree | None = None
+    points: np.ndarray,
+    cfg: ReconConfig,
+    tree: cKDTree | None = None,
+    variations: dict[int, float] | None = None,
 ) -> ReconConfig:
     """``cfg`` with ``normals.k`` resolved when ``normals.auto_scale`` is on (else ``cfg``);
-    ``tree``: a k-d tree of ``points`` when one is built already.
+    ``tree``: a k-d tree of ``points`` when one is built already; ``variations``: a dict
+    that receives the median surface variations measured on the way, by k
+    (:func:`recon.normals.choose_neighborhood_size`).
 
     Resolved once so that the normals and the local data surfaces share the neighbourhood size.
     """
     if not cfg.normals.auto_scale:
         return cfg
-    k = choose_neighborhood_size(points, cfg.normals.k, tree=tree)
+    k = choose_neighborhood_size(points, cfg.normals.k, tree=tree, variations=variations)
     return with_values(cfg, normals={"k": k, "auto_scale": False})
 
 
