@@ -61,6 +61,7 @@ from scipy.spatial import cKDTree
 from .geometry import as_points
 from .kernels.gauss_map import gauss_map_kernel
 from .kernels.options import query_workers
+from .kernels.pca import scatter_matrices
 from .row_blocks import for_row_blocks
 
 __all__ = ["SMOOTH", "CREASE", "CORNER", "Creases", "detect_creases"]
@@ -496,9 +497,9 @@ def _pca(
 
     def rows(b: slice) -> None:  # a (block, k, 3) gather at a time
         idx = nearest[b, :k] if nearest is not None else tree.query(pts[b], k, workers=workers)[1]
-        nb = pts[idx]
-        nb = nb - nb.mean(axis=1, keepdims=True)
-        cov = np.einsum("nki,nkj->nij", nb, nb)
+        idx = idx.reshape(b.stop - b.start, k)
+        cov = np.empty((len(idx), 3, 3))
+        scatter_matrices(pts, idx, pts[b], False, cov)  # about the mean, as numpy: one sweep
         w, v = np.linalg.eigh(cov)
         total = w.sum(axis=1)
         variation[b] = np.where(total > 0, w[:, 0] / np.where(total > 0, total, 1.0), 0.0)

@@ -64,6 +64,7 @@ from scipy.spatial import cKDTree
 from .errors import ConfigError, InputError
 from .geometry import as_points, median_variation
 from .kernels.options import query_workers
+from .kernels.pca import scatter_matrices
 from .kernels.thin_sides import split_sides_kernel
 from .orientation_graph import edge_costs
 from .row_blocks import for_row_blocks, row_blocks
@@ -237,12 +238,12 @@ def _pca_normals(
     pts: np.ndarray, query: np.ndarray, idx: np.ndarray, weights: np.ndarray | None
 ) -> np.ndarray:
     """Smallest-eigenvalue eigenvectors of the (0/1-weighted) neighbourhood covariances."""
-    nb = pts[idx]
-    nb -= query[:, None, :]  # local frame: keeps precision far from the origin
-    if weights is None:
-        nb -= nb.mean(axis=1, keepdims=True)
-        cov = np.einsum("nki,nkj->nij", nb, nb)
+    if weights is None:  # in the local frame (keeps precision far from the origin), one sweep
+        cov = np.empty((len(query), 3, 3))
+        scatter_matrices(pts, idx, np.ascontiguousarray(query), True, cov)
     else:
+        nb = pts[idx]
+        nb -= query[:, None, :]  # local frame: keeps precision far from the origin
         w = weights / weights.sum(axis=1, keepdims=True)
         nb -= np.einsum("nk,nki->ni", w, nb)[:, None, :]
         cov = np.einsum("nki,nkj->nij", nb * w[:, :, None], nb)

@@ -27,6 +27,7 @@ from numba.core.dispatcher import Dispatcher
 FIT_KERNELS: tuple[str, ...] = (
     "grid_query.grid_build",
     "grid_query.knn_grid_kernel",
+    "pca.scatter_matrices",
     "thin_sides.split_sides_kernel",
     "gauss_map.gauss_map_kernel",
     "local_surface.select_agreeing",
