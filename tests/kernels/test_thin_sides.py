@@ -74,3 +74,23 @@ def test_split_is_the_numpy_split_bit_for_bit(seed, threads):
         numba.set_num_threads(before)
     np.testing.assert_array_equal(sided, want_sided)
     np.testing.assert_array_equal(across, want_across)
+
+
+@pytest.mark.parametrize("scale", [1e-3, 1.0, 1e5])
+def test_rows_at_the_span_screen_match_the_numpy_split(scale):
+    """Two exact faces ``g`` apart (the point itself on the near one), radii just either side
+    of ``g / GAP``: the rows that the span screen answers without a split (span well below
+    ``GAP`` radii) and those just past it decide as the full numpy split does."""
+    g = 0.37 * scale
+    k_wide = 30
+    row = np.where(np.arange(k_wide) % 3 == 0, g, 0.0)  # 10 on the far face, 20 on the near
+    factors = np.array([1 - 1e-3, 1 - 1e-8, 1 - 1e-12, 1.0, 1 + 1e-12, 1 + 1e-8, 1 + 1e-3, 2.0])
+    offsets = np.tile(row, (len(factors), 1))
+    radius = g / GAP * factors
+    want_across, want_sided = numpy_split(offsets, radius, k_wide)
+    assert want_sided[:2].all() and not want_sided[-2:].any()
+    across = np.zeros((len(offsets), k_wide), dtype=bool)
+    sided = np.ones(len(offsets), dtype=bool)  # every row must be written
+    split_sides_kernel(offsets, radius, k_wide, SIDES_MIN, SEPARATION, GAP, across, sided)
+    np.testing.assert_array_equal(sided, want_sided)
+    np.testing.assert_array_equal(across, want_across)
