@@ -430,7 +430,11 @@ def _propagate_signs(
     """
     n = normals.shape[0]
     n_comp, labels = csgraph.connected_components(graph, directed=False)
-    tree = csgraph.minimum_spanning_tree(graph)
+    # the upper triangle of the symmetric graph gives the same tree at half the sort: Kruskal
+    # (scipy sorts the entries stably) meets each edge first in the upper triangle, row i < j,
+    # and its lower twin, of the same cost and later, joins nothing; the tree's entries are
+    # those upper ones either way
+    tree = csgraph.minimum_spanning_tree(sparse.triu(graph, format="csr"))
     parent = tree_parents(tree, labels)
     across = _edge_values(flip, np.arange(n), parent) > 0
     dots = np.einsum("ij,ij->i", normals, normals[parent])
