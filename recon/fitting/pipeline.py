@@ -497,7 +497,7 @@ def _fit_sheet(cloud: PointCloud, cfg: ReconConfig, on_progress: ProgressFn | No
     found, creases = _detect_creases(points, normals, cfg, bbox_diagonal(points), knn, tree)
     if found is not None:  # a crease fixes the normals' orientation across it
         normals, found, _ = orient_across_creases(points, normals, found, k=cfg.creases.k)
-    r0, d_nn = choose_spacing(points, cfg, tree)
+    r0, d_nn = choose_spacing(points, cfg, tree, None if knn is None else knn[0][:, 1])
     if normals_info.get("source") == "estimated":  # signs where a thin part's faces meet
         variation = variations.get(cfg.normals.k)
         normals, _ = resign_thin_parts(points, normals, cfg.normals.k, tree, variation)
