@@ -26,6 +26,7 @@ from scipy.sparse import csgraph
 from scipy.spatial import cKDTree
 
 from .kernels.options import query_workers
+from .kernels.signs import surely_agree
 from .normals import path_products, tree_parents
 
 __all__ = ["all_agree", "consistent_normals", "reflected_dots"]
@@ -38,6 +39,10 @@ PARTICLE_ORIENT_K = 6
 PARTICLE_SIGN_DOT = 0.5
 #: Added to every spanning-tree edge cost so that exactly consistent neighbours keep their edge.
 _EDGE_EPSILON = 1e-6
+#: :func:`consistent_normals` returns at once when every reflected dot product exceeds this
+#: many times ``|n_i| |n_j|`` in the screen's own arithmetic (:mod:`recon.kernels.signs`):
+#: far above the rounding, so numpy's values are all >= 0 too (:func:`all_agree`).
+_SURE_MARGIN = 1e-9
 
 
 def reflected_dots(
@@ -135,6 +140,9 @@ def consistent_normals(
         return normals
     tree = cKDTree(positions) if tree is None else tree
     _, idx = tree.query(positions, k + 1, workers=query_workers())
+    pos = np.ascontiguousarray(positions, dtype=np.float64)
+    if surely_agree(pos, np.ascontiguousarray(normals, dtype=np.float64), idx, _SURE_MARGIN):
+        return normals  # all_agree below holds: a certified screen, one sweep, no gathers
     rows, cols = np.repeat(np.arange(n), k), idx[:, 1:].ravel()
     keep = rows != cols  # duplicate positions can reorder self
     rows, cols = rows[keep], cols[keep]

@@ -30,6 +30,7 @@ FIT_KERNELS: tuple[str, ...] = (
     "pca.scatter_matrices",
     "thin_sides.split_sides_kernel",
     "gauss_map.gauss_map_kernel",
+    "signs.surely_agree",
     "local_surface.select_agreeing",
     "local_surface.fit_quadrics_kernel",
     "poisson_disk.poisson_disk_kernel",
