@@ -65,7 +65,7 @@ from .errors import ConfigError, InputError
 from .geometry import as_points, median_variation
 from .kernels.options import query_workers
 from .kernels.pca import scatter_matrices
-from .kernels.thin_sides import split_sides_kernel
+from .kernels.thin_sides import span_screen, split_sides_kernel
 from .orientation_graph import edge_costs
 from .row_blocks import for_row_blocks, row_blocks
 
@@ -294,12 +294,23 @@ def _across_neighbours(
     n, k_wide = idx.shape
     if k_wide < _SIDES_K:  # too few neighbours: a split would be chance
         return np.zeros((n, k), dtype=bool), np.zeros(n, dtype=bool)
-    rel = points[idx] - points[start : start + n, None, :]
-    offsets = np.einsum("ijk,ik->ij", rel, normals[start : start + n])
-    radius = np.linalg.norm(rel[:, -1], axis=1)
     across, two_sided = np.zeros((n, k), dtype=bool), np.zeros(n, dtype=bool)
-    args = (_SIDES_MIN, _SIDES_SEPARATION, _SIDES_GAP, across, two_sided)
+    # rows whose offsets certainly span too little to split are one-sided with nothing across
+    # (most of a smooth scan): only the others are gathered and split
+    sure = np.zeros(n, dtype=bool)
+    span_screen(points, normals, idx, start, _SIDES_GAP, sure)
+    rows = np.flatnonzero(~sure)
+    if len(rows) == 0:
+        return across, two_sided
+    if 2 * len(rows) > n:  # mostly unsure (noisy data): all rows, no sub-gathers (same rows)
+        rows = np.arange(n)
+    rel = points[idx[rows]] - points[start + rows, None, :]
+    offsets = np.einsum("ijk,ik->ij", rel, normals[start + rows])
+    radius = np.linalg.norm(rel[:, -1], axis=1)
+    part, part_sided = np.zeros((len(rows), k), dtype=bool), np.zeros(len(rows), dtype=bool)
+    args = (_SIDES_MIN, _SIDES_SEPARATION, _SIDES_GAP, part, part_sided)
     split_sides_kernel(offsets, radius, k, *args)  # the split, row by row
+    across[rows], two_sided[rows] = part, part_sided
     return across, two_sided
 
 

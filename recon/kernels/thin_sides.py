@@ -147,3 +147,51 @@ def split_sides_kernel(
         two_sided[i] = _split_row(
             offsets[i], radius[i], k, sides_min, separation, gap_ratio, across, i, s, c1, c2
         )
+
+
+#: :func:`span_screen`'s margin, relative to the neighbourhood's extent: far above the
+#: rounding of the offsets and the radius in either arithmetic (~1e-15 of it).
+_SCREEN_MARGIN = 1e-6
+
+
+@njit(**_PARALLEL)
+def span_screen(points, normals, idx, start, gap_ratio, sure):  # pragma: no cover - numba
+    r"""Rows that certainly stay one-sided, before any offset is gathered: ``sure[r]`` when
+    the offsets ``(points[idx[r, q]] - points[i]) . normals[i]`` of point ``i = start + r``
+    (the point's own 0 included) span less than ``gap_ratio`` times the radius
+    ``|points[idx[r, K - 1]] - points[i]|``, by ``_SCREEN_MARGIN`` of the neighbourhood's
+    extent (its farthest point's distance times ``|n_i|``) on each side.
+
+    The arithmetic here is not numpy's bit for bit (numpy's three-term dot products sum in a
+    machine-dependent order), but both lie within a few roundings (~1e-15 of the extent) of
+    the exact values, and the split's group means within ~1e-12 of the values (the margin of
+    :func:`_split_row`): a sure row's split, from numpy's offsets, fails the gap test, so it
+    is one-sided with no neighbour across, which is what the caller records without the
+    gather. A NaN is never sure."""
+    n, kw = idx.shape
+    for r in prange(n):
+        i = start + r
+        px = points[i, 0]
+        py = points[i, 1]
+        pz = points[i, 2]
+        nx = normals[i, 0]
+        ny = normals[i, 1]
+        nz = normals[i, 2]
+        lo = 0.0
+        hi = 0.0
+        far = 0.0
+        dx = 0.0
+        dy = 0.0
+        dz = 0.0
+        for q in range(kw):
+            j = idx[r, q]
+            dx = points[j, 0] - px
+            dy = points[j, 1] - py
+            dz = points[j, 2] - pz
+            v = dx * nx + dy * ny + dz * nz
+            lo = min(lo, v)
+            hi = max(hi, v)
+            far = max(far, dx * dx + dy * dy + dz * dz)
+        rad = np.sqrt(dx * dx + dy * dy + dz * dz)
+        extent = np.sqrt(far) * np.sqrt(nx * nx + ny * ny + nz * nz) + rad
+        sure[r] = (hi - lo) + _SCREEN_MARGIN * extent < gap_ratio * rad - _SCREEN_MARGIN * extent

@@ -28,6 +28,7 @@ FIT_KERNELS: tuple[str, ...] = (
     "grid_query.grid_build",
     "grid_query.knn_grid_kernel",
     "pca.scatter_matrices",
+    "thin_sides.span_screen",
     "thin_sides.split_sides_kernel",
     "gauss_map.gauss_map_kernel",
     "signs.surely_agree",
