@@ -380,16 +380,20 @@ def _long_folds(
         sharpness[is_crease] = np.sqrt(np.maximum(res_q**2 - res_p**2, 0.0)) / np.maximum(
             res_i, 1e-300
         )
-    floor = _noise_floor(pts, idx, radius)
+    floor = None  # the noise floor, measured when a line first needs it (not on smooth scans)
     for c, long_line in enumerate(long_enough):
         m = comp == c
         mc = m & is_crease  # not empty on a long line
+        # (the three tests are pure: their order does not change the verdict, and the one
+        # that needs the floor comes last)
         fold = (
             long_line
             and float(np.median(ratio[mc])) >= FOLD_RATIO
-            and float(np.median(plane_res[mc])) <= NOISE_RATIO * floor
             and float(np.median(sharpness[mc])) >= SHARPNESS
         )
+        if fold and floor is None:
+            floor = _noise_floor(pts, idx, radius)
+        fold = fold and float(np.median(plane_res[mc])) <= NOISE_RATIO * floor
         if not fold:
             out[feat[m]] = SMOOTH
     return out
