@@ -26,7 +26,7 @@ from scipy.sparse import csgraph
 from scipy.spatial import cKDTree
 
 from .kernels.options import query_workers
-from .kernels.signs import surely_agree
+from .kernels.signs import surely_agree, surely_agree_within
 from .normals import path_products, tree_parents
 
 __all__ = ["all_agree", "consistent_normals", "reflected_dots"]
@@ -112,7 +112,10 @@ def all_agree(dots: np.ndarray) -> bool:
 
 
 def consistent_normals(
-    positions: np.ndarray, normals: np.ndarray, tree: cKDTree | None = None
+    positions: np.ndarray,
+    normals: np.ndarray,
+    tree: cKDTree | None = None,
+    neighbors: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> np.ndarray:
     """The particles' normals, with patches of wrong sign re-signed over the particle sheet.
 
@@ -132,12 +135,21 @@ def consistent_normals(
     its neighbours agree more: more of the patch's edges to the rest disagree in sign than
     agree, by :func:`reflected_dots`, counting only edges where it is decisive
     (``|r| > PARTICLE_SIGN_DOT``). Directions never change, only signs. ``tree``: a k-d
-    tree of ``positions`` when one is built already (the same query, no second tree).
+    tree of ``positions`` when one is built already (the same query, no second tree);
+    ``neighbors``: (distances, indices) of each position's m > ``PARTICLE_ORIENT_K + 1``
+    nearest, nearest first (the fit's shared query of the data): when every edge that the
+    query could hold surely agrees (:func:`recon.kernels.signs.surely_agree_within`), the
+    normals come back at once, without a query.
     """
     n = len(positions)
     k = PARTICLE_ORIENT_K
     if n <= k:
         return normals
+    if neighbors is not None and neighbors[1].shape[1] > k + 1:
+        pos = np.ascontiguousarray(positions, dtype=np.float64)
+        nrm = np.ascontiguousarray(normals, dtype=np.float64)
+        if surely_agree_within(pos, nrm, neighbors[0], neighbors[1], k, _SURE_MARGIN):
+            return normals  # a superset of the query's edges all agree: all_agree holds
     tree = cKDTree(positions) if tree is None else tree
     _, idx = tree.query(positions, k + 1, workers=query_workers())
     pos = np.ascontiguousarray(positions, dtype=np.float64)

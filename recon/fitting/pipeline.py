@@ -500,7 +500,7 @@ def _fit_sheet(cloud: PointCloud, cfg: ReconConfig, on_progress: ProgressFn | No
     r0, d_nn = choose_spacing(points, cfg, tree, None if knn is None else knn[0][:, 1])
     if normals_info.get("source") == "estimated":  # signs where a thin part's faces meet
         variation = variations.get(cfg.normals.k)
-        normals, _ = resign_thin_parts(points, normals, cfg.normals.k, tree, variation)
+        normals, _ = resign_thin_parts(points, normals, cfg.normals.k, tree, variation, knn)
         if cfg.normals.exterior_signs:  # signs of a closed scan's thin parts from outside
             normals, _ = resign_by_exterior(points, normals, d_nn, tree)
     del tree

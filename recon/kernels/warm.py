@@ -31,7 +31,7 @@ FIT_KERNELS: tuple[str, ...] = (
     "thin_sides.span_screen",
     "thin_sides.split_sides_kernel",
     "gauss_map.gauss_map_kernel",
-    "signs.surely_agree",
+    "signs.surely_agree_within",
     "local_surface.select_agreeing",
     "local_surface.fit_quadrics_kernel",
     "poisson_disk.poisson_disk_kernel",
@@ -43,6 +43,7 @@ FIT_KERNELS: tuple[str, ...] = (
     "grid_query.covered_kernel",
     "pair_loop.step_particles",
     "cell_list.list_covers",
+    "signs.surely_agree",
     "sphere_pairs.sphere_pairs",
     "tri_intersect.pairs_intersect",
 )

@@ -63,3 +63,26 @@ def test_an_edge_at_zero_is_not_sure():
     dup = np.array([[0.0, 0, 0], [0.0, 0, 0]])  # duplicate positions: u = 0, r = n_i . n_j
     same = np.array([[0.0, 0, 1], [0.0, 0, 1]])
     assert surely_agree(dup, same, idx, MARGIN)
+
+
+def test_within_covers_every_edge_a_query_could_hold():
+    """From a wider table: every point within the (k+1)-th distance counts, whichever of the
+    tied ones a query picks. A grid (many exact ties) with one normal flipped just outside
+    the k nearest but tied with the last of them is caught; rows whose ties may run past the
+    table are not claimed."""
+    from recon.kernels.signs import surely_agree_within
+
+    g = np.stack(np.meshgrid(np.arange(9.0), np.arange(9.0), [0.0]), -1).reshape(-1, 3)
+    nrm = np.tile([0.0, 0.0, 1.0], (len(g), 1))
+    tree = cKDTree(g)
+    dist, idx = tree.query(g, 13)
+    assert surely_agree_within(g, nrm, dist, idx, 6, MARGIN)
+    # the centre's 4 neighbours at 1 and 4 at sqrt(2): the 7th distance (sqrt 2) ties with
+    # the 8th; a flipped diagonal neighbour is some query's 7-nearest, whatever the order
+    centre = 4 * 9 + 4
+    diagonal = np.flatnonzero(np.isclose(np.linalg.norm(g - g[centre], axis=1), np.sqrt(2)))
+    flipped = nrm.copy()
+    flipped[diagonal[-1]] *= -1.0
+    assert not surely_agree_within(g, flipped, dist, idx, 6, MARGIN)
+    # a table no wider than the ties: not claimed
+    assert not surely_agree_within(g, nrm, dist[:, :8], idx[:, :8], 6, MARGIN)
