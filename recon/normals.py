@@ -295,13 +295,9 @@ def _across_neighbours(
     if k_wide < _SIDES_K:  # too few neighbours: a split would be chance
         return np.zeros((n, k), dtype=bool), np.zeros(n, dtype=bool)
     across, two_sided = np.zeros((n, k), dtype=bool), np.zeros(n, dtype=bool)
-    # rows whose offsets certainly span too little to split are one-sided with nothing across
-    # (most of a smooth scan): only the others are gathered and split
-    sure = np.zeros(n, dtype=bool)
+    sure = np.zeros(n, dtype=bool)  # certainly one-sided (most of a smooth scan): not gathered
     span_screen(points, normals, idx, start, _SIDES_GAP, sure)
     rows = np.flatnonzero(~sure)
-    if len(rows) == 0:
-        return across, two_sided
     if 2 * len(rows) > n:  # mostly unsure (noisy data): all rows, no sub-gathers (same rows)
         rows = np.arange(n)
     rel = points[idx[rows]] - points[start + rows, None, :]
@@ -441,10 +437,8 @@ def _propagate_signs(
     """
     n = normals.shape[0]
     n_comp, labels = csgraph.connected_components(graph, directed=False)
-    # the upper triangle of the symmetric graph gives the same tree at half the sort: Kruskal
-    # (scipy sorts the entries stably) meets each edge first in the upper triangle, row i < j,
-    # and its lower twin, of the same cost and later, joins nothing; the tree's entries are
-    # those upper ones either way
+    # the upper triangle, the same tree at half the sort: scipy's Kruskal sorts stably, so an
+    # edge's upper entry (row i < j) comes first and its lower twin then joins nothing
     tree = csgraph.minimum_spanning_tree(sparse.triu(graph, format="csr"))
     parent = tree_parents(tree, labels)
     across = _edge_values(flip, np.arange(n), parent) > 0
@@ -674,19 +668,17 @@ def choose_neighborhood_size(
     k, 2k, 4k whose median variation is below ``THIN_VARIATION`` (4k at most: wider
     neighbourhoods mix the two sides of thin parts; measured on the 1 %-noise bunny, sign
     consistency 99.3 % at k = 80 but 94.6 % at k = 160). ``tree``: one of ``points`` if built.
-    ``variations``: a dict that receives each measured median variation under its k (the
-    chosen k's is among them: :func:`recon.normal_signs.resign_thin_parts` takes it from
-    there instead of measuring it again).
+    ``variations``: a dict that receives each median variation measured, by k (the chosen k's
+    among them, which :func:`recon.normal_signs.resign_thin_parts` need not measure again).
     """
     n = len(points)
     tree = cKDTree(points) if tree is None else tree
+    variations = {} if variations is None else variations
     chosen = k
     for factor in (1, 2, 4):
         kk = min(k * factor, n)
         chosen = kk
-        variation = median_variation(points, kk, sample, tree)
-        if variations is not None:
-            variations[kk] = variation
+        variations[kk] = variation = median_variation(points, kk, sample, tree)
         if variation < THIN_VARIATION or kk >= n:
             break
     return int(chosen)
