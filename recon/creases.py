@@ -61,6 +61,7 @@ from scipy.spatial import cKDTree
 from .geometry import as_points
 from .kernels.gauss_map import gauss_map_kernel
 from .kernels.options import query_workers
+from .kernels.pca import scatter_matrices
 from .row_blocks import for_row_blocks
 
 __all__ = ["SMOOTH", "CREASE", "CORNER", "Creases", "detect_creases"]
@@ -379,16 +380,20 @@ def _long_folds(
         sharpness[is_crease] = np.sqrt(np.maximum(res_q**2 - res_p**2, 0.0)) / np.maximum(
             res_i, 1e-300
         )
-    floor = _noise_floor(pts, idx, radius)
+    floor = None  # the noise floor, measured when a line first needs it (not on smooth scans)
     for c, long_line in enumerate(long_enough):
         m = comp == c
         mc = m & is_crease  # not empty on a long line
+        # (the three tests are pure: their order does not change the verdict, and the one
+        # that needs the floor comes last)
         fold = (
             long_line
             and float(np.median(ratio[mc])) >= FOLD_RATIO
-            and float(np.median(plane_res[mc])) <= NOISE_RATIO * floor
             and float(np.median(sharpness[mc])) >= SHARPNESS
         )
+        if fold and floor is None:
+            floor = _noise_floor(pts, idx, radius)
+        fold = fold and float(np.median(plane_res[mc])) <= NOISE_RATIO * floor
         if not fold:
             out[feat[m]] = SMOOTH
     return out
@@ -496,9 +501,9 @@ def _pca(
 
     def rows(b: slice) -> None:  # a (block, k, 3) gather at a time
         idx = nearest[b, :k] if nearest is not None else tree.query(pts[b], k, workers=workers)[1]
-        nb = pts[idx]
-        nb = nb - nb.mean(axis=1, keepdims=True)
-        cov = np.einsum("nki,nkj->nij", nb, nb)
+        idx = idx.reshape(b.stop - b.start, k)
+        cov = np.empty((len(idx), 3, 3))
+        scatter_matrices(pts, idx, pts[b], False, cov)  # about the mean, as numpy: one sweep
         w, v = np.linalg.eigh(cov)
         total = w.sum(axis=1)
         variation[b] = np.where(total > 0, w[:, 0] / np.where(total > 0, total, 1.0), 0.0)

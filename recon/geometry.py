@@ -122,6 +122,7 @@ def median_nearest_neighbor_distance(
     *,
     rng: np.random.Generator,
     tree: cKDTree | None = None,
+    nearest: np.ndarray | None = None,
 ) -> float:
     """Median distance from a point to its nearest other point (the data spacing).
 
@@ -136,6 +137,10 @@ def median_nearest_neighbor_distance(
         ``np.random.default_rng(SPACING_SAMPLE_SEED)``).
     tree : scipy.spatial.cKDTree, optional
         A k-d tree of ``points`` already built (the fit shares one); built here when None.
+    nearest : (n,) float64 [length], optional
+        Each point's distance to its nearest other point when already known (the second
+        column of the fit's shared k-nearest query: the values a k = 2 query gives, whoever
+        the nearest is); the same sample is taken from it and no tree is queried.
 
     Returns
     -------
@@ -152,12 +157,13 @@ def median_nearest_neighbor_distance(
     n = pts.shape[0]
     if n < 2:
         raise ValueError(f"points: need at least 2 points for a spacing, got {n}")
-    tree = cKDTree(pts) if tree is None else tree
+    rows = None
     if sample is not None and n > sample:
-        query = pts[np.sort(rng.choice(n, size=sample, replace=False))]
-    else:
-        query = pts
-    dist, _ = tree.query(query, k=2, workers=query_workers())
+        rows = np.sort(rng.choice(n, size=sample, replace=False))
+    if nearest is not None:
+        return float(np.median(nearest if rows is None else nearest[rows]))
+    tree = cKDTree(pts) if tree is None else tree
+    dist, _ = tree.query(pts if rows is None else pts[rows], k=2, workers=query_workers())
     return float(np.median(dist[:, 1]))
 
 

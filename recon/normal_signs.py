@@ -32,14 +32,26 @@ CLEAN_VARIATION = 0.02
 
 
 def resign_thin_parts(
-    points: np.ndarray, normals: np.ndarray, k: int, tree: cKDTree | None = None
+    points: np.ndarray,
+    normals: np.ndarray,
+    k: int,
+    tree: cKDTree | None = None,
+    variation: float | None = None,
+    neighbors: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> tuple[np.ndarray, int]:
     """Estimated normals with wrongly signed patches re-signed (clean data only), and how
-    many normals were turned over (``tree``: a k-d tree of ``points`` if one is built).
-    Directions never change."""
-    if len(points) <= k or median_variation(points, k, tree=tree) >= CLEAN_VARIATION:
+    many normals were turned over (``tree``: a k-d tree of ``points`` if one is built;
+    ``variation``: ``median_variation(points, k)`` when already measured, e.g. by
+    :func:`recon.normals.choose_neighborhood_size`; ``neighbors``: the shared k-nearest
+    query of ``points``, see :func:`recon.particle_signs.consistent_normals`). Directions
+    never change."""
+    if len(points) <= k:
         return normals, 0
-    out = consistent_normals(points, normals)
+    if variation is None:
+        variation = median_variation(points, k, tree=tree)
+    if variation >= CLEAN_VARIATION:
+        return normals, 0
+    out = consistent_normals(points, normals, tree=tree, neighbors=neighbors)
     n_flipped = int(np.count_nonzero(np.einsum("ij,ij->i", out, normals) < 0))
     log.debug("data normals re-signed across thin parts: %d", n_flipped)
     return out, n_flipped

@@ -64,7 +64,8 @@ from scipy.spatial import cKDTree
 from .errors import ConfigError, InputError
 from .geometry import as_points, median_variation
 from .kernels.options import query_workers
-from .kernels.thin_sides import split_sides_kernel
+from .kernels.pca import scatter_matrices
+from .kernels.thin_sides import span_screen, split_sides_kernel
 from .orientation_graph import edge_costs
 from .row_blocks import for_row_blocks, row_blocks
 
@@ -237,12 +238,12 @@ def _pca_normals(
     pts: np.ndarray, query: np.ndarray, idx: np.ndarray, weights: np.ndarray | None
 ) -> np.ndarray:
     """Smallest-eigenvalue eigenvectors of the (0/1-weighted) neighbourhood covariances."""
-    nb = pts[idx]
-    nb -= query[:, None, :]  # local frame: keeps precision far from the origin
-    if weights is None:
-        nb -= nb.mean(axis=1, keepdims=True)
-        cov = np.einsum("nki,nkj->nij", nb, nb)
+    if weights is None:  # in the local frame (keeps precision far from the origin), one sweep
+        cov = np.empty((len(query), 3, 3))
+        scatter_matrices(pts, idx, np.ascontiguousarray(query), True, cov)
     else:
+        nb = pts[idx]
+        nb -= query[:, None, :]  # local frame: keeps precision far from the origin
         w = weights / weights.sum(axis=1, keepdims=True)
         nb -= np.einsum("nk,nki->ni", w, nb)[:, None, :]
         cov = np.einsum("nki,nkj->nij", nb * w[:, :, None], nb)
@@ -293,12 +294,19 @@ def _across_neighbours(
     n, k_wide = idx.shape
     if k_wide < _SIDES_K:  # too few neighbours: a split would be chance
         return np.zeros((n, k), dtype=bool), np.zeros(n, dtype=bool)
-    rel = points[idx] - points[start : start + n, None, :]
-    offsets = np.einsum("ijk,ik->ij", rel, normals[start : start + n])
-    radius = np.linalg.norm(rel[:, -1], axis=1)
     across, two_sided = np.zeros((n, k), dtype=bool), np.zeros(n, dtype=bool)
-    args = (_SIDES_MIN, _SIDES_SEPARATION, _SIDES_GAP, across, two_sided)
+    sure = np.zeros(n, dtype=bool)  # certainly one-sided (most of a smooth scan): not gathered
+    span_screen(points, normals, idx, start, _SIDES_GAP, sure)
+    rows = np.flatnonzero(~sure)
+    if 2 * len(rows) > n:  # mostly unsure (noisy data): all rows, no sub-gathers (same rows)
+        rows = np.arange(n)
+    rel = points[idx[rows]] - points[start + rows, None, :]
+    offsets = np.einsum("ijk,ik->ij", rel, normals[start + rows])
+    radius = np.linalg.norm(rel[:, -1], axis=1)
+    part, part_sided = np.zeros((len(rows), k), dtype=bool), np.zeros(len(rows), dtype=bool)
+    args = (_SIDES_MIN, _SIDES_SEPARATION, _SIDES_GAP, part, part_sided)
     split_sides_kernel(offsets, radius, k, *args)  # the split, row by row
+    across[rows], two_sided[rows] = part, part_sided
     return across, two_sided
 
 
@@ -353,12 +361,12 @@ def _knn_graph(
     w_rows, w_cols = np.nonzero(across)
     w_other = wide[w_rows, 1 + w_cols]
     w_rows, w_other = w_rows[w_rows != w_other], w_other[w_rows != w_other]  # duplicates
-    one_way = np.sort(w_rows * np.int64(n) + w_other)
+    one_way = np.sort(w_rows * np.int64(n) + w_other, kind="stable")  # integers: any sort
     seen_back = one_way[np.isin(one_way, (one_way % n) * np.int64(n) + one_way // n)]
     # np.union1d, sort-based: numpy >= 2.3's hash-based np.unique took ~1 s on these ~10^5-10^6
     # keys where sorting takes milliseconds (numpy issue #28375)
     key = np.concatenate([rows * np.int64(n) + cols, seen_back])
-    key.sort()
+    key.sort(kind="stable")  # the same order (integers); numpy's radix sort: 4x faster here
     key = key[np.r_[True, key[1:] != key[:-1]]]
     rows, cols = (key // n).astype(np.int32), (key % n).astype(np.int32)  # n < 2^31
     both = np.zeros(len(key), dtype=bool)  # key is sorted and holds seen_back: no np.isin
@@ -429,7 +437,9 @@ def _propagate_signs(
     """
     n = normals.shape[0]
     n_comp, labels = csgraph.connected_components(graph, directed=False)
-    tree = csgraph.minimum_spanning_tree(graph)
+    # the upper triangle, the same tree at half the sort: scipy's Kruskal sorts stably, so an
+    # edge's upper entry (row i < j) comes first and its lower twin then joins nothing
+    tree = csgraph.minimum_spanning_tree(sparse.triu(graph, format="csr"))
     parent = tree_parents(tree, labels)
     across = _edge_values(flip, np.arange(n), parent) > 0
     dots = np.einsum("ij,ij->i", normals, normals[parent])
@@ -645,7 +655,11 @@ THIN_VARIATION = 0.05
 
 
 def choose_neighborhood_size(
-    points: np.ndarray, k: int, sample: int = 4000, tree: cKDTree | None = None
+    points: np.ndarray,
+    k: int,
+    sample: int = 4000,
+    tree: cKDTree | None = None,
+    variations: dict[int, float] | None = None,
 ) -> int:
     """Neighbourhood size for normals and local surfaces: k, doubled while the data is noisy.
 
@@ -654,14 +668,18 @@ def choose_neighborhood_size(
     k, 2k, 4k whose median variation is below ``THIN_VARIATION`` (4k at most: wider
     neighbourhoods mix the two sides of thin parts; measured on the 1 %-noise bunny, sign
     consistency 99.3 % at k = 80 but 94.6 % at k = 160). ``tree``: one of ``points`` if built.
+    ``variations``: a dict that receives each median variation measured, by k (the chosen k's
+    among them, which :func:`recon.normal_signs.resign_thin_parts` need not measure again).
     """
     n = len(points)
     tree = cKDTree(points) if tree is None else tree
+    variations = {} if variations is None else variations
     chosen = k
     for factor in (1, 2, 4):
         kk = min(k * factor, n)
         chosen = kk
-        if median_variation(points, kk, sample, tree) < THIN_VARIATION or kk >= n:
+        variations[kk] = variation = median_variation(points, kk, sample, tree)
+        if variation < THIN_VARIATION or kk >= n:
             break
     return int(chosen)
 

@@ -26,6 +26,7 @@ from scipy.sparse import csgraph
 from scipy.spatial import cKDTree
 
 from .kernels.options import query_workers
+from .kernels.signs import surely_agree, surely_agree_within
 from .normals import path_products, tree_parents
 
 __all__ = ["all_agree", "consistent_normals", "reflected_dots"]
@@ -38,6 +39,10 @@ PARTICLE_ORIENT_K = 6
 PARTICLE_SIGN_DOT = 0.5
 #: Added to every spanning-tree edge cost so that exactly consistent neighbours keep their edge.
 _EDGE_EPSILON = 1e-6
+#: :func:`consistent_normals` returns at once when every reflected dot product exceeds this
+#: many times ``|n_i| |n_j|`` in the screen's own arithmetic (:mod:`recon.kernels.signs`):
+#: far above the rounding, so numpy's values are all >= 0 too (:func:`all_agree`).
+_SURE_MARGIN = 1e-9
 
 
 def reflected_dots(
@@ -106,7 +111,12 @@ def all_agree(dots: np.ndarray) -> bool:
     return not bool(np.any(dots < 0.0))
 
 
-def consistent_normals(positions: np.ndarray, normals: np.ndarray) -> np.ndarray:
+def consistent_normals(
+    positions: np.ndarray,
+    normals: np.ndarray,
+    tree: cKDTree | None = None,
+    neighbors: tuple[np.ndarray, np.ndarray] | None = None,
+) -> np.ndarray:
     """The particles' normals, with patches of wrong sign re-signed over the particle sheet.
 
     Ball pivoting needs consistently oriented normals: it does not join a patch whose normals
@@ -124,13 +134,27 @@ def consistent_normals(positions: np.ndarray, normals: np.ndarray) -> np.ndarray
     a proposed patch (connected particles it would flip) is flipped only where that makes
     its neighbours agree more: more of the patch's edges to the rest disagree in sign than
     agree, by :func:`reflected_dots`, counting only edges where it is decisive
-    (``|r| > PARTICLE_SIGN_DOT``). Directions never change, only signs.
+    (``|r| > PARTICLE_SIGN_DOT``). Directions never change, only signs. ``tree``: a k-d
+    tree of ``positions`` when one is built already (the same query, no second tree);
+    ``neighbors``: (distances, indices) of each position's m > ``PARTICLE_ORIENT_K + 1``
+    nearest, nearest first (the fit's shared query of the data): when every edge that the
+    query could hold surely agrees (:func:`recon.kernels.signs.surely_agree_within`), the
+    normals come back at once, without a query.
     """
     n = len(positions)
     k = PARTICLE_ORIENT_K
     if n <= k:
         return normals
-    _, idx = cKDTree(positions).query(positions, k + 1, workers=query_workers())
+    if neighbors is not None and neighbors[1].shape[1] > k + 1:
+        pos = np.ascontiguousarray(positions, dtype=np.float64)
+        nrm = np.ascontiguousarray(normals, dtype=np.float64)
+        if surely_agree_within(pos, nrm, neighbors[0], neighbors[1], k, _SURE_MARGIN):
+            return normals  # a superset of the query's edges all agree: all_agree holds
+    tree = cKDTree(positions) if tree is None else tree
+    _, idx = tree.query(positions, k + 1, workers=query_workers())
+    pos = np.ascontiguousarray(positions, dtype=np.float64)
+    if surely_agree(pos, np.ascontiguousarray(normals, dtype=np.float64), idx, _SURE_MARGIN):
+        return normals  # all_agree below holds: a certified screen, one sweep, no gathers
     rows, cols = np.repeat(np.arange(n), k), idx[:, 1:].ravel()
     keep = rows != cols  # duplicate positions can reorder self
     rows, cols = rows[keep], cols[keep]

@@ -77,3 +77,24 @@ def test_as_points_is_the_one_validator():
     as_points(bad)  # finiteness is checked only when asked
     with pytest.raises(InputError, match=r"points: row 2 is not finite"):
         as_points(bad, finite=True, error=InputError)
+
+
+def test_median_spacing_from_known_nearest_distances_is_the_queried_one():
+    """Given each point's distance to its nearest other point (the fit's shared query), the
+    median spacing takes the same sample of them and gives the tree's value, exactly."""
+    from scipy.spatial import cKDTree
+
+    rng = np.random.default_rng(5)
+    pts = rng.normal(size=(3000, 3))
+    pts[1] = pts[0]  # a repeated point: distance 0
+    nearest = cKDTree(pts).query(pts, k=2)[0][:, 1]
+    for sample in (None, 500):
+        want = median_nearest_neighbor_distance(pts, sample, rng=np.random.default_rng(1))
+        got = median_nearest_neighbor_distance(
+            pts, sample, rng=np.random.default_rng(1), nearest=nearest
+        )
+        assert got == want
+    wrong = median_nearest_neighbor_distance(
+        pts, 500, rng=np.random.default_rng(1), nearest=2 * nearest
+    )
+    assert wrong == 2 * want  # the given distances are used, not queried again

@@ -373,3 +373,28 @@ def test_two_sided_neighbourhoods_are_found_on_thin_parts_only():
         p = p + np.random.default_rng(3).normal(scale=noise, size=p.shape)
         _, two_sided = flags(p, n)
         assert two_sided.mean() < 0.002
+
+
+def test_spanning_tree_of_the_upper_triangle_is_that_of_the_symmetric_graph():
+    """The orientation takes the spanning tree of its symmetric graph's upper triangle (half
+    the sort): the same tree entry for entry, also where many costs tie (a grid with exactly
+    parallel normals: every cost is the epsilon) and where they do not (a noisy sphere)."""
+    from scipy import sparse
+    from scipy.sparse import csgraph
+
+    from recon.normals import _knn_graph
+
+    g = np.stack(np.meshgrid(np.arange(30.0), np.arange(30.0), [0.0]), -1).reshape(-1, 3)
+    flat = np.tile([0.0, 0.0, 1.0], (len(g), 1))
+    rng = np.random.default_rng(2)
+    sphere = rng.normal(size=(2000, 3))
+    sphere /= np.linalg.norm(sphere, axis=1, keepdims=True)
+    for pts, nrm in ((g, flat), (sphere, estimate_normals(sphere, k=12))):
+        for across in (0.0, 0.3):
+            graph, _, _ = _knn_graph(pts, nrm, 10, across)
+            assert (graph != graph.T).nnz == 0
+            whole = csgraph.minimum_spanning_tree(graph)
+            upper = csgraph.minimum_spanning_tree(sparse.triu(graph, format="csr"))
+            np.testing.assert_array_equal(upper.indptr, whole.indptr)
+            np.testing.assert_array_equal(upper.indices, whole.indices)
+            np.testing.assert_array_equal(upper.data, whole.data)

@@ -549,7 +549,8 @@ def _fit_sheet(cloud: PointCloud, cfg: ReconConfig, on_progress: ProgressFn | No
     points = np.asarray(cloud.points, dtype=np.float64)
 
     tree = cKDTree(points)  # one k-d tree of the data for the stages up to r0 (same queries)
-    cfg = with_neighborhood_size(points, cfg, tree)
+    variations: dict[int, float] = {}  # median surface variation by k, measured once
+    cfg = with_neighborhood_size(points, cfg, tree, variations)
     knn = shared_neighbors(points, cfg, tree)
     normals, normals_info = compute_normals(cloud, cfg.normals, neighbors=knn)
     clock.lap("normals")
@@ -557,9 +558,10 @@ def _fit_sheet(cloud: PointCloud, cfg: ReconConfig, on_progress: ProgressFn | No
     found, creases = _detect_creases(points, normals, cfg, bbox_diagonal(points), knn, tree)
     if found is not None:  # a crease fixes the normals' orientation across it
         normals, found, _ = orient_across_creases(points, normals, found, k=cfg.creases.k)
-    r0, d_nn = choose_spacing(points, cfg, tree)
+    r0, d_nn = choose_spacing(points, cfg, tree, None if knn is None else knn[0][:, 1])
     if normals_info.get("source") == "estimated":  # signs where a thin part's faces meet
-        normals, _ = resign_thin_parts(points, normals, cfg.normals.k, tree)
+        variation = variations.get(cfg.normals.k)
+        normals, _ = resign_thin_parts(points, normals, cfg.normals.k, tree, variation, knn)
         if cfg.normals.exterior_signs:  # signs of a closed scan's thin parts from outside
             normals, _ = resign_by_exterior(points, normals, d_nn, tree)
     del tree

@@ -56,21 +56,29 @@ MIN_AUTO_GAP = 1.0
 
 
 def with_neighborhood_size(
-    points: np.ndarray, cfg: ReconConfig, tree: cKDTree | None = None
+    points: np.ndarray,
+    cfg: ReconConfig,
+    tree: cKDTree | None = None,
+    variations: dict[int, float] | None = None,
 ) -> ReconConfig:
     """``cfg`` with ``normals.k`` resolved when ``normals.auto_scale`` is on (else ``cfg``);
-    ``tree``: a k-d tree of ``points`` when one is built already.
+    ``tree``: a k-d tree of ``points`` when one is built already; ``variations``: a dict
+    that receives the median surface variations measured on the way, by k
+    (:func:`recon.normals.choose_neighborhood_size`).
 
     Resolved once so that the normals and the local data surfaces share the neighbourhood size.
     """
     if not cfg.normals.auto_scale:
         return cfg
-    k = choose_neighborhood_size(points, cfg.normals.k, tree=tree)
+    k = choose_neighborhood_size(points, cfg.normals.k, tree=tree, variations=variations)
     return with_values(cfg, normals={"k": k, "auto_scale": False})
 
 
 def choose_spacing(
-    points: np.ndarray, cfg: ReconConfig, tree: cKDTree | None = None
+    points: np.ndarray,
+    cfg: ReconConfig,
+    tree: cKDTree | None = None,
+    nearest: np.ndarray | None = None,
 ) -> tuple[float, float]:
     """Rest spacing r0 [length] and the median nearest-neighbour distance of the data.
 
@@ -88,6 +96,9 @@ def choose_spacing(
         diagonal) or ``seeds.spacing_factor`` with ``seeds.min_particles``.
     tree : scipy.spatial.cKDTree, optional
         A k-d tree of ``points`` (the fit's shared one).
+    nearest : (n,) float64 [length], optional
+        Each point's distance to its nearest other point, when known (the fit's shared
+        k-nearest query; see :func:`recon.geometry.median_nearest_neighbor_distance`).
 
     Returns
     -------
@@ -100,7 +111,7 @@ def choose_spacing(
         No positive finite spacing can be derived (e.g. mostly duplicate points).
     """
     rng = np.random.default_rng(SPACING_SAMPLE_SEED)
-    d_nn = median_nearest_neighbor_distance(points, rng=rng, tree=tree)
+    d_nn = median_nearest_neighbor_distance(points, rng=rng, tree=tree, nearest=nearest)
     return spacing_from_median(d_nn, len(points), bbox_diagonal(points), cfg), float(d_nn)
 
 

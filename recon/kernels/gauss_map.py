@@ -159,9 +159,11 @@ def _planes(pts, centres, m, assign, centroid, plane):  # pragma: no cover - num
         if cnt < 3:
             continue
         cov = np.zeros((3, 3))
+        r = np.empty(3)
         for j in range(kk):
             if assign[j] == c:
-                r = pts[j] - centroid[c]
+                for a in range(3):  # pts[j] - centroid[c], without a temporary per member
+                    r[a] = pts[j, a] - centroid[c, a]
                 for a in range(3):
                     for b in range(3):
                         cov[a, b] += r[a] * r[b]
@@ -191,30 +193,50 @@ def _pair(p, na, nb_, ca, cb, out_d, out_x0):  # pragma: no cover - numba
     rb = nb_[0] * (cb[0] - p[0]) + nb_[1] * (cb[1] - p[1]) + nb_[2] * (cb[2] - p[2])
     a = (ra - c * rb) / det
     b = (rb - c * ra) / det
-    x0 = np.empty(3)
-    for t in range(3):
-        x0[t] = p[t] + a * na[t] + b * nb_[t]
-    d = np.array([dx, dy, dz])
-    ua = ca - x0
-    ub = cb - x0
-    ua -= (ua[0] * dx + ua[1] * dy + ua[2] * dz) * d
-    ub -= (ub[0] * dx + ub[1] * dy + ub[2] * dz) * d
-    la = np.sqrt(ua[0] ** 2 + ua[1] ** 2 + ua[2] ** 2)
-    lb = np.sqrt(ub[0] ** 2 + ub[1] ** 2 + ub[2] ** 2)
+    # scalars, not small arrays: the same operations in the same order, no allocations
+    x0x = p[0] + a * na[0] + b * nb_[0]
+    x0y = p[1] + a * na[1] + b * nb_[1]
+    x0z = p[2] + a * na[2] + b * nb_[2]
+    uax = ca[0] - x0x
+    uay = ca[1] - x0y
+    uaz = ca[2] - x0z
+    ubx = cb[0] - x0x
+    uby = cb[1] - x0y
+    ubz = cb[2] - x0z
+    sa = uax * dx + uay * dy + uaz * dz
+    sb = ubx * dx + uby * dy + ubz * dz
+    uax -= sa * dx
+    uay -= sa * dy
+    uaz -= sa * dz
+    ubx -= sb * dx
+    uby -= sb * dy
+    ubz -= sb * dz
+    la = np.sqrt(uax**2 + uay**2 + uaz**2)
+    lb = np.sqrt(ubx**2 + uby**2 + ubz**2)
     if la == 0.0 or lb == 0.0:
         return 0.0, np.inf, np.inf
-    ua /= la
-    ub /= lb
-    cw = min(1.0, max(-1.0, ua[0] * ub[0] + ua[1] * ub[1] + ua[2] * ub[2]))
+    uax /= la
+    uay /= la
+    uaz /= la
+    ubx /= lb
+    uby /= lb
+    ubz /= lb
+    cw = min(1.0, max(-1.0, uax * ubx + uay * uby + uaz * ubz))
     turn = np.pi - np.arccos(cw)
-    r = p - x0
+    rx = p[0] - x0x
+    ry = p[1] - x0y
+    rz = p[2] - x0z
     dist = np.sqrt(a * a + b * b + 2.0 * a * b * c)
     inface = max(
-        abs(r[0] * ua[0] + r[1] * ua[1] + r[2] * ua[2]),
-        abs(r[0] * ub[0] + r[1] * ub[1] + r[2] * ub[2]),
+        abs(rx * uax + ry * uay + rz * uaz),
+        abs(rx * ubx + ry * uby + rz * ubz),
     )
-    out_d[:] = d
-    out_x0[:] = x0
+    out_d[0] = dx
+    out_d[1] = dy
+    out_d[2] = dz
+    out_x0[0] = x0x
+    out_x0[1] = x0y
+    out_x0[2] = x0z
     return turn, dist, inface
 
 

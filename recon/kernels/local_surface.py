@@ -80,16 +80,26 @@ def fit_quadrics_kernel(
     """
     n, k = idx.shape
     for i in prange(n):
+        # (scalar loops: the array expressions' arithmetic in the same order, without a
+        # temporary array per neighbour)
         c = np.zeros(3)
         for a in range(k):
-            c += points[idx[i, a]]
+            q = idx[i, a]
+            for r in range(3):
+                c[r] += points[q, r]
         c /= k
         cov = np.zeros((3, 3))
+        d = np.empty(3)
         for a in range(k):
-            d = points[idx[i, a]] - c
+            q = idx[i, a]
             for r in range(3):
-                for s in range(3):
+                d[r] = points[q, r] - c[r]
+            for r in range(3):
+                for s in range(r, 3):  # d[s] * d[r] is the same product: mirrored below
                     cov[r, s] += d[r] * d[s]
+        for r in range(3):
+            for s in range(r):
+                cov[r, s] = cov[s, r]
         cov /= k
         w, vec = np.linalg.eigh(cov)
         nn = vec[:, 0].copy()
@@ -103,7 +113,9 @@ def fit_quadrics_kernel(
         row = np.zeros(6)
         scale = max(np.sqrt(w[2]), 1e-12)
         for a in range(k):
-            d = points[idx[i, a]] - c
+            q = idx[i, a]
+            for r in range(3):
+                d[r] = points[q, r] - c[r]
             x = (d[0] * u[0] + d[1] * u[1] + d[2] * u[2]) / scale
             y = (d[0] * v[0] + d[1] * v[1] + d[2] * v[2]) / scale
             z = d[0] * nn[0] + d[1] * nn[1] + d[2] * nn[2]
@@ -115,8 +127,11 @@ def fit_quadrics_kernel(
             row[5] = y * y
             for r in range(6):
                 atb[r] += row[r] * z
-                for s in range(6):
+                for s in range(r, 6):  # row[s] * row[r] is the same product: mirrored
                     ata[r, s] += row[r] * row[s]
+        for r in range(6):
+            for s in range(r):
+                ata[r, s] = ata[s, r]
         ridge = 1e-6 * (ata[0, 0] + 1e-12)
         for r in range(6):
             ata[r, r] += ridge
@@ -129,7 +144,9 @@ def fit_quadrics_kernel(
         coef[5] /= scale * scale
         res = 0.0
         for a in range(k):
-            d = points[idx[i, a]] - c
+            q = idx[i, a]
+            for r in range(3):
+                d[r] = points[q, r] - c[r]
             x = d[0] * u[0] + d[1] * u[1] + d[2] * u[2]
             y = d[0] * v[0] + d[1] * v[1] + d[2] * v[2]
             z = d[0] * nn[0] + d[1] * nn[1] + d[2] * nn[2]

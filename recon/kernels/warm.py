@@ -27,8 +27,11 @@ from numba.core.dispatcher import Dispatcher
 FIT_KERNELS: tuple[str, ...] = (
     "grid_query.grid_build",
     "grid_query.knn_grid_kernel",
+    "pca.scatter_matrices",
+    "thin_sides.span_screen",
     "thin_sides.split_sides_kernel",
     "gauss_map.gauss_map_kernel",
+    "signs.surely_agree_within",
     "local_surface.select_agreeing",
     "local_surface.fit_quadrics_kernel",
     "poisson_disk.poisson_disk_kernel",
@@ -40,6 +43,7 @@ FIT_KERNELS: tuple[str, ...] = (
     "grid_query.covered_kernel",
     "pair_loop.step_particles",
     "cell_list.list_covers",
+    "signs.surely_agree",
     "sphere_pairs.sphere_pairs",
     "tri_intersect.pairs_intersect",
 )

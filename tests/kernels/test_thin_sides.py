@@ -74,3 +74,54 @@ def test_split_is_the_numpy_split_bit_for_bit(seed, threads):
         numba.set_num_threads(before)
     np.testing.assert_array_equal(sided, want_sided)
     np.testing.assert_array_equal(across, want_across)
+
+
+@pytest.mark.parametrize("scale", [1e-3, 1.0, 1e5])
+def test_rows_at_the_span_screen_match_the_numpy_split(scale):
+    """Two exact faces ``g`` apart (the point itself on the near one), radii just either side
+    of ``g / GAP``: the rows that the span screen answers without a split (span well below
+    ``GAP`` radii) and those just past it decide as the full numpy split does."""
+    g = 0.37 * scale
+    k_wide = 30
+    row = np.where(np.arange(k_wide) % 3 == 0, g, 0.0)  # 10 on the far face, 20 on the near
+    factors = np.array([1 - 1e-3, 1 - 1e-8, 1 - 1e-12, 1.0, 1 + 1e-12, 1 + 1e-8, 1 + 1e-3, 2.0])
+    offsets = np.tile(row, (len(factors), 1))
+    radius = g / GAP * factors
+    want_across, want_sided = numpy_split(offsets, radius, k_wide)
+    assert want_sided[:2].all() and not want_sided[-2:].any()
+    across = np.zeros((len(offsets), k_wide), dtype=bool)
+    sided = np.ones(len(offsets), dtype=bool)  # every row must be written
+    split_sides_kernel(offsets, radius, k_wide, SIDES_MIN, SEPARATION, GAP, across, sided)
+    np.testing.assert_array_equal(sided, want_sided)
+    np.testing.assert_array_equal(across, want_across)
+
+
+def test_span_screen_is_sure_only_of_rows_the_split_keeps_one_sided():
+    """Sheets with curvature and noise, and two faces a gap apart: rows that the screen is
+    sure of are one-sided by the numpy split of numpy's offsets; flat rows are sure, rows
+    that span two faces are not, and a NaN row never is."""
+    from recon.kernels.thin_sides import span_screen
+
+    rng = np.random.default_rng(4)
+    n, k_wide = 600, 30
+    pts = rng.uniform(-1.0, 1.0, (n, 3)) * np.array([1.0, 1.0, 0.0])
+    pts[:, 2] = 0.2 * pts[:, 0] ** 2 + rng.normal(0.0, 0.01, n)
+    pts[n // 2 :, 0] += 4.0  # apart from the first sheet: a thin part, two faces 0.3 apart
+    pts[n // 2 :, 2] += rng.choice([0.0, 0.3], n - n // 2)
+    pts[7, 2] = np.nan
+    nrm = np.tile([0.0, 0.0, 1.0], (n, 1))
+    idx = np.argsort(np.linalg.norm(pts[:, None, :2] - pts[None, :, :2], axis=2), axis=1)
+    idx = idx[:, 1 : k_wide + 1].astype(np.int32)
+    rel = pts[idx] - pts[:, None, :]
+    offsets = np.einsum("ijk,ik->ij", rel, nrm)
+    radius = np.linalg.norm(rel[:, -1], axis=1)
+    _, want_sided = numpy_split(offsets, radius, 10)
+    sure = np.zeros(n, dtype=bool)
+    span_screen(pts, nrm, idx, 0, GAP, sure)
+    assert not (sure & want_sided).any()
+    assert sure[: n // 2].sum() > n // 4  # the flat half is mostly sure
+    assert want_sided.any() and not sure[want_sided].any()
+    assert not sure[7]
+    part = np.zeros(n - 100, dtype=bool)  # a block of rows: row r is the point start + r
+    span_screen(pts, nrm, idx[100:], 100, GAP, part)
+    np.testing.assert_array_equal(part, sure[100:])
