@@ -52,6 +52,7 @@ from typing import Any
 import numpy as np
 
 from .errors import InputError
+from .kernels.mesh_tables import half_edge_order
 from .mesh import (
     boundary_components,
     boundary_loop_perimeters,
@@ -63,6 +64,8 @@ from .mesh import (
 
 __all__ = ["count_edge_faces", "mesh_topology", "triangle_quality", "validate_mesh"]
 
+#: Below this many vertices a face's sorted vertex triple fits one int64 key (n^3 < 2^63).
+DUPLICATE_KEY_LIMIT = 2_000_000
 #: A face is degenerate when ``2 * area <= DEGENERATE_AREA_RATIO * longest_edge**2``.
 DEGENERATE_AREA_RATIO = 1e-12
 #: The fields of :func:`triangle_quality` (also measured tile by tile by ``recon.tiling``).
@@ -224,7 +227,7 @@ def mesh_topology(vertices: Any, faces: Any) -> dict[str, Any]:
     hi = np.maximum(he_from, he_to)
     forward = he_from < he_to  # direction of the half-edge along its undirected edge
 
-    order = np.lexsort((he_face, hi, lo))
+    order = half_edge_order(f, n_vertices)  # = np.lexsort((he_face, hi, lo))
     lo_s, hi_s = lo[order], hi[order]
     is_new = np.ones(len(order), dtype=bool)
     is_new[1:] = (lo_s[1:] != lo_s[:-1]) | (hi_s[1:] != hi_s[:-1])
@@ -261,9 +264,10 @@ def mesh_topology(vertices: Any, faces: Any) -> dict[str, Any]:
     n_loops = boundary_components(np.stack([edge_lo, edge_hi], axis=1), edge_count, n_vertices)
 
     # Non-manifold vertices: count fans of corners around each vertex (recon.mesh).
-    fan = vertex_fans(f).ravel()
-    fan_keys = np.unique(f.ravel() * np.int64(3 * nf) + fan)  # distinct (vertex, fan)
-    fans_per_vertex = np.bincount(fan_keys // (3 * nf), minlength=n_vertices)
+    fan = vertex_fans(f).ravel()  # labels 0 .. n_fans - 1, each at one vertex
+    vertex_of_fan = np.empty(int(fan.max()) + 1, dtype=np.int64)
+    vertex_of_fan[fan] = f.ravel()
+    fans_per_vertex = np.bincount(vertex_of_fan, minlength=n_vertices)
     n_non_manifold_vertices = int((fans_per_vertex > 1).sum())
 
     chi = int(len(ref_idx) - n_edges + nf)
@@ -277,8 +281,12 @@ def mesh_topology(vertices: Any, faces: Any) -> dict[str, Any]:
 
     perimeters = boundary_loop_perimeters(v, f) if n_boundary else np.zeros(0)
     sf = np.sort(f, axis=1)
-    sf = sf[np.lexsort(sf.T[::-1])]
-    duplicates = int(np.all(sf[1:] == sf[:-1], axis=1).sum())
+    if n_vertices < DUPLICATE_KEY_LIMIT:  # one int64 key per sorted vertex triple
+        key = np.sort((sf[:, 0] * n_vertices + sf[:, 1]) * n_vertices + sf[:, 2])
+        duplicates = int(np.count_nonzero(key[1:] == key[:-1]))
+    else:
+        sf = sf[np.lexsort(sf.T[::-1])]
+        duplicates = int(np.all(sf[1:] == sf[:-1], axis=1).sum())
 
     return {
         "n_vertices": n_vertices,

@@ -53,6 +53,7 @@ from .mesh import (
     opposed_faces,
     orientation_flips,
     overlapping_faces,
+    unique_edges,
     vertex_fans,
 )
 from .neighbors import build_neighbor_list
@@ -638,10 +639,8 @@ def orient_consistently(vertices: np.ndarray, normals: np.ndarray, faces: np.nda
     # signed volume (x6) of each component; meaningful for closed ones
     p = vertices[faces]
     vol = np.bincount(labels, weights=np.einsum("ij,ij->i", p[:, 0], fn), minlength=n)
-    # 1-D edge keys: np.unique(axis=0) on the (3F, 2) pairs was most of this function's time
-    _, inv, cnt = np.unique(
-        edge_keys(faces, len(vertices)), return_inverse=True, return_counts=True
-    )
+    # distinct edges by counting sorts (np.unique(axis=0) on the (3F, 2) pairs was slowest)
+    _, inv, cnt = unique_edges(faces, len(vertices))
     open_face = (cnt[inv.reshape(-1)] == 1).reshape(-1, 3).any(axis=1)
     closed = np.bincount(labels, weights=open_face, minlength=n) == 0
     turn = np.where(closed, vol < 0, vote < 0)
@@ -666,8 +665,7 @@ def remove_non_manifold_faces(faces: np.ndarray, n_vertices: int) -> np.ndarray:
     _, first = np.unique(key, axis=0 if key.ndim == 2 else None, return_index=True)
     faces = faces[np.sort(first)]
     for _ in range(NON_MANIFOLD_EDGE_ROUNDS):
-        keys = edge_keys(faces, n_vertices)
-        uniq, inv, cnt = np.unique(keys, return_inverse=True, return_counts=True)
+        uniq, inv, cnt = unique_edges(faces, n_vertices)
         over = cnt[inv] > 2
         if not over.any():
             break
@@ -703,6 +701,8 @@ def split_non_manifold_vertices(
         return vertices, normals, faces, 0
     fans = vertex_fans(faces).ravel()
     corner_v = faces.ravel()
+    if int(fans.max()) + 1 == np.count_nonzero(np.bincount(corner_v)):
+        return vertices, normals, faces, 0  # one fan per used vertex: no bow-tie
     # (vertex, fan) pairs as 1-D keys in the same (lexicographic) order; fan labels < 3F
     span = np.int64(3 * len(faces))
     key, corner_pair, size = np.unique(
