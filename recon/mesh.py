@@ -3,7 +3,8 @@
 Used by mesh repair (:mod:`recon.triangulate`) and by the report (:mod:`recon.topology`,
 :mod:`recon.metrics`), so both see the same edges and the same components. Faces are
 ``(F, 3)`` integer vertex indices; everything is vectorised NumPy and ``scipy.sparse.csgraph``
-(except the loop walk).
+(except the loop walk), and the connectivity tables (edges, fans, components, the overlap
+prefilter) come from the counting-sort kernels of :mod:`recon.kernels.mesh_tables`.
 
 Definitions:
 
@@ -45,7 +46,14 @@ import numpy as np
 from scipy import sparse
 from scipy.sparse import csgraph
 
-from .kernels.mesh_tables import edge_table, fan_labels, half_edge_order, overlap_candidates
+from .kernels.mesh_tables import (
+    area_vectors,
+    edge_table,
+    fan_labels,
+    half_edge_order,
+    overlap_candidates,
+    vertex_component_labels,
+)
 
 __all__ = [
     "boundary_components",
@@ -228,19 +236,13 @@ def vertex_components(faces: np.ndarray, n_vertices: int) -> tuple[int, np.ndarr
         Component of each vertex, ``0 .. count - 1`` in order of the components' lowest vertex;
         -1 for vertices no face uses.
     """
-    labels = np.full(n_vertices, -1, dtype=np.int64)
     if len(faces) == 0:
-        return 0, labels
-    rows = np.concatenate([faces[:, 0], faces[:, 1]])
-    cols = np.concatenate([faces[:, 1], faces[:, 2]])
-    graph = sparse.coo_matrix((np.ones(len(rows), np.int8), (rows, cols)), (n_vertices,) * 2)
-    _, vertex_label = csgraph.connected_components(graph, directed=False)
-    referenced = np.zeros(n_vertices, dtype=bool)
-    referenced[faces.ravel()] = True
-    ref_idx = np.flatnonzero(referenced)
-    comp_of_ref, compact = np.unique(vertex_label[ref_idx], return_inverse=True)
-    labels[ref_idx] = compact
-    return len(comp_of_ref), labels
+        return 0, np.full(n_vertices, -1, dtype=np.int64)
+    f = np.ascontiguousarray(faces, dtype=np.int64).reshape(-1, 3)
+    if int(f.min()) < 0 or int(f.max()) >= n_vertices:
+        raise ValueError(f"face indices must lie in [0, {n_vertices})")
+    count, labels = vertex_component_labels(f, int(n_vertices))
+    return int(count), labels
 
 
 def face_components(faces: np.ndarray, n_vertices: int) -> tuple[int, np.ndarray]:
@@ -259,8 +261,12 @@ def face_area_vectors(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
 
     For sign tests (their direction is the winding's) and area weights.
     """
-    p = vertices[faces]
-    return np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    v = np.asarray(vertices)
+    f = np.asarray(faces)
+    if v.dtype != np.float64 or v.ndim != 2 or f.ndim != 2 or f.dtype.kind not in "iu":
+        p = v[f]
+        return np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    return area_vectors(np.ascontiguousarray(v), np.ascontiguousarray(f, dtype=np.int64))
 
 
 def face_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
@@ -506,7 +512,7 @@ def handle_count(faces: np.ndarray, n_vertices: int) -> tuple[int, int, int]:
     edges = np.stack([keys // n_vertices, keys % n_vertices], axis=1)
     c, _ = vertex_components(f, n_vertices)
     b = boundary_components(edges, counts, n_vertices)
-    chi = len(np.unique(f)) - len(keys) + len(f)
+    chi = int(np.count_nonzero(np.bincount(f.ravel()))) - len(keys) + len(f)
     return c, b, (2 * c - b - chi) // 2
 
 

@@ -41,6 +41,7 @@ from .holes import (
 )
 from .intersections import self_intersections
 from .kernels.circumsphere import circumsphere_kernel
+from .kernels.mesh_tables import circumradii
 from .mesh import (
     boundary_loops,
     capped_volume,
@@ -426,6 +427,7 @@ def _repair(
     clean, faces = len(oriented) == len(faces), oriented
     stats["faces_manifold"] = int(len(faces))
     stats["holes_filled"] = 0
+    trees: dict = {}  # the particles' k-d tree for _extend, built once
     for _ in range(FILL_PASSES if cfg.fill_holes else 0):
         # a fill can meet an edge that already exists elsewhere; repair, then fill what opened
         vertices, vnormals, faces, n_filled = fill_small_holes(
@@ -435,7 +437,7 @@ def _repair(
             np.pi * max_hole,
             is_covered,
             COVERED_HOLE_FACTOR * np.pi * max_hole,
-            scale=_extend(scale, positions, vertices),
+            scale=_extend(scale, positions, vertices, trees),
         )
         stats["holes_filled"] += n_filled
         if n_filled == 0 and clean:
@@ -487,14 +489,10 @@ def ball_radii(radii: list[float], scale: np.ndarray | None = None) -> list[floa
 
 
 def circumradius(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """Circumradius of every face ``(F,)`` [units of ``vertices``]; inf for degenerate faces."""
-    p = vertices[faces]
-    a = np.linalg.norm(p[:, 1] - p[:, 2], axis=1)
-    b = np.linalg.norm(p[:, 2] - p[:, 0], axis=1)
-    c = np.linalg.norm(p[:, 0] - p[:, 1], axis=1)
-    area2 = np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return np.where(area2 > 0, a * b * c / (2.0 * area2), np.inf)
+    """Circumradius of every face ``(F,)`` [units of ``vertices``]; inf for degenerate faces
+    (:func:`recon.kernels.mesh_tables.circumradii`)."""
+    v = np.ascontiguousarray(vertices, dtype=np.float64)
+    return circumradii(v, np.ascontiguousarray(faces, dtype=np.int64).reshape(-1, 3))
 
 
 def _spacing_at(
@@ -505,12 +503,14 @@ def _spacing_at(
     return scale if scale is None else scale[cKDTree(positions).query(vertices)[1]]
 
 
-def _extend(scale: np.ndarray | None, positions: np.ndarray, vertices: np.ndarray):
+def _extend(scale: np.ndarray | None, positions: np.ndarray, vertices: np.ndarray, trees: dict):
     """The per-vertex spacing after repair added vertices: a new vertex takes its nearest
-    particle's."""
+    particle's. ``trees`` keeps the particles' k-d tree between calls (same ``positions``)."""
     if scale is None or len(vertices) == len(positions):
         return scale
-    _, nearest = cKDTree(positions).query(vertices[len(positions) :])
+    if "positions" not in trees:
+        trees["positions"] = cKDTree(positions)
+    _, nearest = trees["positions"].query(vertices[len(positions) :])
     return np.concatenate([scale, scale[nearest]])
 
 

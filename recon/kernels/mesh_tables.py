@@ -1,5 +1,6 @@
-"""Connectivity tables of a triangle mesh: half-edges sorted by edge, corner fans, and the
-corner pairs that may overlap.
+"""Connectivity tables of a triangle mesh: half-edges sorted by edge, corner fans, vertex
+components and the corner pairs that may overlap; and per-face measures (area vectors,
+circumradii, bounding spheres) in the bits of their NumPy expressions.
 
 Faces are ``(F, 3)`` int64 vertex indices. Half-edge ``h = 3 i + k`` runs from corner k of
 face i to corner k + 1; its undirected edge is ``(lo, hi)`` = its two vertices, smaller first.
@@ -23,6 +24,12 @@ from .options import EXACT_JIT_OPTIONS
 #: angle sums four angle differences, so it is within ``8 ATAN_ERROR``).
 OVERLAP_DOT_MARGIN = 1e-9
 OVERLAP_ANGLE_MARGIN = 1e-4
+#: Two faces that follow each other round the vertex (one's last edge is the other's first)
+#: have sectors that only touch; their pair is passed over when each corner is a proper angle
+#: (sine above this) ...
+WELL_SHAPED_SINE = 1e-3
+#: ... in a plane whose normal is within arccos(this) of the pair's mean normal.
+WELL_SHAPED_COSINE = 0.1
 #: Largest error [rad] of :func:`fast_atan2` (the polynomial's is 1.7e-6).
 ATAN_ERROR = 2e-6
 #: ... and a pair with an edge shorter than this [length] at the shared vertex is always
@@ -104,6 +111,79 @@ def edge_table(faces, n_vertices):  # pragma: no cover - numba
         inverse[h] = n
         counts[n] += 1
     return keys[: n + 1].copy(), inverse, counts[: n + 1].copy()
+
+
+@njit(**EXACT_JIT_OPTIONS)
+def area_vectors(vertices, faces):  # pragma: no cover - numba
+    """Twice each face's area vector, ``(F, 3)``: ``(b - a) x (c - a)`` for face ``(a, b, c)``,
+    with the operations of ``np.cross`` (no fused multiply-add), so the same bits."""
+    nf = faces.shape[0]
+    out = np.empty((nf, 3))
+    for i in range(nf):
+        a, b, c = faces[i, 0], faces[i, 1], faces[i, 2]
+        p0 = vertices[b, 0] - vertices[a, 0]
+        p1 = vertices[b, 1] - vertices[a, 1]
+        p2 = vertices[b, 2] - vertices[a, 2]
+        q0 = vertices[c, 0] - vertices[a, 0]
+        q1 = vertices[c, 1] - vertices[a, 1]
+        q2 = vertices[c, 2] - vertices[a, 2]
+        out[i, 0] = p1 * q2 - p2 * q1
+        out[i, 1] = p2 * q0 - p0 * q2
+        out[i, 2] = p0 * q1 - p1 * q0
+    return out
+
+
+@njit(**EXACT_JIT_OPTIONS)
+def circumradii(vertices, faces):  # pragma: no cover - numba
+    """Circumradius ``a b c / (2 |(p1 - p0) x (p2 - p0)|)`` of every face ``(F,)``, inf where
+    the area is 0; lengths as ``np.linalg.norm`` sums the squares (in coordinate order), so
+    the same bits as the NumPy expression of :func:`recon.triangulate.circumradius`."""
+    nf = faces.shape[0]
+    out = np.empty(nf)
+    for i in range(nf):
+        i0, i1, i2 = faces[i, 0], faces[i, 1], faces[i, 2]
+        x0, y0, z0 = vertices[i0, 0], vertices[i0, 1], vertices[i0, 2]
+        x1, y1, z1 = vertices[i1, 0], vertices[i1, 1], vertices[i1, 2]
+        x2, y2, z2 = vertices[i2, 0], vertices[i2, 1], vertices[i2, 2]
+        dx, dy, dz = x1 - x2, y1 - y2, z1 - z2
+        a = np.sqrt(dx * dx + dy * dy + dz * dz)
+        dx, dy, dz = x2 - x0, y2 - y0, z2 - z0
+        b = np.sqrt(dx * dx + dy * dy + dz * dz)
+        dx, dy, dz = x0 - x1, y0 - y1, z0 - z1
+        c = np.sqrt(dx * dx + dy * dy + dz * dz)
+        px, py, pz = x1 - x0, y1 - y0, z1 - z0
+        qx, qy, qz = x2 - x0, y2 - y0, z2 - z0
+        nx = py * qz - pz * qy
+        ny = pz * qx - px * qz
+        nz = px * qy - py * qx
+        area2 = np.sqrt(nx * nx + ny * ny + nz * nz)
+        out[i] = a * b * c / (2.0 * area2) if area2 > 0 else np.inf
+    return out
+
+
+@njit(**EXACT_JIT_OPTIONS)
+def bounding_spheres(vertices, faces):  # pragma: no cover - numba
+    """Each face's centroid ``(F, 3)`` and the distance from it to the farthest corner
+    ``(F,)``, summed and divided as ``corners.mean(axis=1)`` and ``np.linalg.norm`` do, so
+    the same bits as :func:`recon.intersections.face_spheres`."""
+    nf = faces.shape[0]
+    centroid = np.empty((nf, 3))
+    radius = np.empty(nf)
+    for i in range(nf):
+        for k in range(3):
+            centroid[i, k] = (
+                vertices[faces[i, 0], k] + vertices[faces[i, 1], k] + vertices[faces[i, 2], k]
+            ) / 3.0
+        far = -np.inf
+        for c in range(3):
+            dx = vertices[faces[i, c], 0] - centroid[i, 0]
+            dy = vertices[faces[i, c], 1] - centroid[i, 1]
+            dz = vertices[faces[i, c], 2] - centroid[i, 2]
+            d = np.sqrt(dx * dx + dy * dy + dz * dz)
+            if d > far or np.isnan(d):
+                far = d
+        radius[i] = far
+    return centroid, radius
 
 
 @njit(**EXACT_JIT_OPTIONS)
@@ -209,6 +289,36 @@ def fast_atan2(y, x):  # pragma: no cover - numba
 
 
 @njit(**EXACT_JIT_OPTIONS)
+def vertex_component_labels(faces, n_vertices):  # pragma: no cover - numba
+    """Connected components of the vertices that faces use (a face joins its three corners):
+    ``(count, labels)``, ``labels`` ``(n_vertices,)`` int64 numbered ``0 .. count - 1`` in
+    order of each component's lowest vertex, -1 for a vertex no face uses (the numbering of
+    ``scipy.sparse.csgraph.connected_components`` restricted to the used vertices).
+    """
+    parent = np.arange(n_vertices)
+    used = np.zeros(n_vertices, dtype=np.bool_)
+    for i in range(faces.shape[0]):
+        a, b, c = faces[i, 0], faces[i, 1], faces[i, 2]
+        used[a] = True
+        used[b] = True
+        used[c] = True
+        _union(parent, a, b)
+        _union(parent, b, c)
+    labels = np.full(n_vertices, -1, dtype=np.int64)
+    n = 0
+    for v in range(n_vertices):
+        if not used[v]:
+            continue
+        r = _root(parent, v)
+        if r == v:
+            labels[v] = n
+            n += 1
+        else:
+            labels[v] = labels[r]
+    return n, labels
+
+
+@njit(**EXACT_JIT_OPTIONS)
 def _angle(vertices, w, v, ux, uy, uz, wx, wy, wz):  # pragma: no cover - numba
     """Angle (:func:`fast_atan2`) of ``vertices[w] - vertices[v]`` in the frame
     ``e1 = (ux, uy, uz)``, ``e2 = (wx, wy, wz)``, and its squared length."""
@@ -218,6 +328,33 @@ def _angle(vertices, w, v, ux, uy, uz, wx, wy, wz):  # pragma: no cover - numba
     y = dx * wx + dy * wy + dz * wz
     x = dx * ux + dy * uy + dz * uz
     return fast_atan2(y, x), dx * dx + dy * dy + dz * dz
+
+
+@njit(**EXACT_JIT_OPTIONS)
+def _well_shaped(vertices, v, x, y, mx, my, mz, min_d2):  # pragma: no cover - numba
+    """Is the corner ``(v, x, y)`` a proper angle (edges of length^2 >= ``min_d2``, sine of
+    the angle above ``WELL_SHAPED_SINE``) whose plane is tilted less than
+    ``arccos(WELL_SHAPED_COSINE)`` from the direction ``m``? Projected along ``m`` its
+    sector is then a convex angle, measured the same way round, by any rounding."""
+    dx = vertices[x, 0] - vertices[v, 0]
+    dy = vertices[x, 1] - vertices[v, 1]
+    dz = vertices[x, 2] - vertices[v, 2]
+    ex = vertices[y, 0] - vertices[v, 0]
+    ey = vertices[y, 1] - vertices[v, 1]
+    ez = vertices[y, 2] - vertices[v, 2]
+    dd = dx * dx + dy * dy + dz * dz
+    ee = ex * ex + ey * ey + ez * ez
+    if dd < min_d2 or ee < min_d2:
+        return False
+    nx = dy * ez - dz * ey
+    ny = dz * ex - dx * ez
+    nz = dx * ey - dy * ex
+    nn = nx * nx + ny * ny + nz * nz
+    if not nn > WELL_SHAPED_SINE * WELL_SHAPED_SINE * dd * ee:
+        return False
+    t = nx * mx + ny * my + nz * mz
+    mm = mx * mx + my * my + mz * mz
+    return t > 0.0 and t * t > WELL_SHAPED_COSINE * WELL_SHAPED_COSINE * nn * mm
 
 
 @njit(**EXACT_JIT_OPTIONS)
@@ -238,6 +375,9 @@ def overlap_candidates(vertices, faces, fn, agreement, min_angle):  # pragma: no
     ``OVERLAP_ANGLE_MARGIN``), no sector width is within ``OVERLAP_ANGLE_MARGIN`` of 0 or
     2 pi and no edge at the vertex is shorter than ``OVERLAP_MIN_EDGE``; the pairs
     kept (the overlaps and the near misses) are tested again by the caller's exact test.
+    Faces that follow each other round the vertex, wound alike, are passed over when both
+    corners are well shaped (:func:`_well_shaped`): projected, two convex sectors that share
+    a bounding ray share no angle, and the exact test measures that ray the same for both.
     Pairs come vertex by vertex in ascending corner order.
     """
     nf = faces.shape[0]
@@ -272,10 +412,20 @@ def overlap_candidates(vertices, faces, fn, agreement, min_angle):  # pragma: no
                 if dot <= agreement - dot_margin:
                     continue
                 keep = dot <= agreement + dot_margin
+                mx = fn[fa, 0] + fn[fb, 0]
+                my = fn[fa, 1] + fn[fb, 1]
+                mz = fn[fa, 2] + fn[fb, 2]
+                ka, kb = a % 3, b % 3
+                xa, ya = faces[fa, (ka + 1) % 3], faces[fa, (ka + 2) % 3]
+                xb, yb = faces[fb, (kb + 1) % 3], faces[fb, (kb + 2) % 3]
+                if (
+                    not keep
+                    and (ya == xb or yb == xa)
+                    and _well_shaped(vertices, v, xa, ya, mx, my, mz, min_d2)
+                    and _well_shaped(vertices, v, xb, yb, mx, my, mz, min_d2)
+                ):
+                    continue  # neighbours in the fan, wound alike: their sectors only touch
                 if not keep:
-                    mx = fn[fa, 0] + fn[fb, 0]
-                    my = fn[fa, 1] + fn[fb, 1]
-                    mz = fn[fa, 2] + fn[fb, 2]
                     norm = np.sqrt(mx * mx + my * my + mz * mz)
                     mx, my, mz = mx / norm, my / norm, mz / norm
                     if abs(mx) < 0.9:  # e1 = m x (1, 0, 0)
@@ -287,15 +437,10 @@ def overlap_candidates(vertices, faces, fn, agreement, min_angle):  # pragma: no
                     wx = my * uz - mz * uy  # e2 = m x e1
                     wy = mz * ux - mx * uz
                     wz = mx * uy - my * ux
-                    ka, kb = a % 3, b % 3
-                    start_a, d1 = _angle(
-                        vertices, faces[fa, (ka + 1) % 3], h, ux, uy, uz, wx, wy, wz
-                    )
-                    end_a, d2 = _angle(vertices, faces[fa, (ka + 2) % 3], h, ux, uy, uz, wx, wy, wz)
-                    start_b, d3 = _angle(
-                        vertices, faces[fb, (kb + 1) % 3], h, ux, uy, uz, wx, wy, wz
-                    )
-                    end_b, d4 = _angle(vertices, faces[fb, (kb + 2) % 3], h, ux, uy, uz, wx, wy, wz)
+                    start_a, d1 = _angle(vertices, xa, h, ux, uy, uz, wx, wy, wz)
+                    end_a, d2 = _angle(vertices, ya, h, ux, uy, uz, wx, wy, wz)
+                    start_b, d3 = _angle(vertices, xb, h, ux, uy, uz, wx, wy, wz)
+                    end_b, d4 = _angle(vertices, yb, h, ux, uy, uz, wx, wy, wz)
                     # differences of angles in [-pi, pi], taken to [0, 2 pi)
                     width_a = _turn(end_a - start_a, two_pi)
                     width_b = _turn(end_b - start_b, two_pi)
