@@ -53,6 +53,7 @@ from .kernels.mesh_tables import (
     half_edge_order,
     overlap_candidates,
     vertex_component_labels,
+    winding_consistent,
 )
 
 __all__ = [
@@ -357,6 +358,8 @@ def orientation_flips(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     if n_faces == 0:
         return np.zeros(0, dtype=bool), np.zeros(0, dtype=bool)
     f = np.ascontiguousarray(faces, dtype=np.int64)
+    if winding_consistent(f, int(f.max()) + 1):  # the forest would flip nothing
+        return np.zeros(n_faces, dtype=bool), np.zeros(n_faces, dtype=bool)
     he_from = f.ravel()
     he_to = np.roll(f, -1, axis=1).ravel()
     he_face = np.repeat(np.arange(n_faces), 3)
@@ -373,8 +376,6 @@ def orientation_flips(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     a, b = order[:-1][same], order[1:][same]
     fa, fb = he_face[a], he_face[b]
     parity = forward[a] == forward[b]  # True: the pair disagrees, one of them must flip
-    if not parity.any():  # consistent already: the forest would flip nothing
-        return np.zeros(n_faces, dtype=bool), np.zeros(n_faces, dtype=bool)
     root = n_faces
     face_graph = sparse.coo_matrix((np.ones(len(fa), np.int8), (fa, fb)), (n_faces,) * 2)
     _, labels = csgraph.connected_components(face_graph, directed=False)

@@ -573,7 +573,10 @@ def quality_report(
     report: dict[str, Any] = {
         "topology": topology,
         "triangle_quality": quality,
-        "mesh_bbox_diag": _bbox_diag(v[np.unique(f)]) if len(f) else _bbox_diag(v),
+        # the used vertices (np.unique(f), without its sort)
+        "mesh_bbox_diag": (
+            _bbox_diag(v[np.bincount(f.ravel(), minlength=len(v)) > 0]) if len(f) else _bbox_diag(v)
+        ),
         "fidelity": None,
     }
     if intersections:

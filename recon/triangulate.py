@@ -701,15 +701,17 @@ def split_non_manifold_vertices(
         return vertices, normals, faces, 0
     fans = vertex_fans(faces).ravel()
     corner_v = faces.ravel()
-    if int(fans.max()) + 1 == np.count_nonzero(np.bincount(corner_v)):
+    n_fans = int(fans.max()) + 1  # labels 0 .. n_fans - 1, each at one vertex
+    if n_fans == np.count_nonzero(np.bincount(corner_v)):
         return vertices, normals, faces, 0  # one fan per used vertex: no bow-tie
-    # (vertex, fan) pairs as 1-D keys in the same (lexicographic) order; fan labels < 3F
-    span = np.int64(3 * len(faces))
-    key, corner_pair, size = np.unique(
-        corner_v * span + fans, return_inverse=True, return_counts=True
-    )
-    pair = np.stack([key // span, key % span], axis=1)
-    corner_pair = corner_pair.reshape(-1)
+    # the distinct (vertex, fan) pairs in lexicographic order (np.unique's), by fan label
+    at = np.empty(n_fans, dtype=np.int64)
+    at[fans] = corner_v
+    by_vertex = np.argsort(at, kind="stable")
+    pair = np.stack([at[by_vertex], by_vertex], axis=1)
+    slot = np.empty(n_fans, dtype=np.int64)
+    slot[by_vertex] = np.arange(n_fans)
+    corner_pair, size = slot[fans], np.bincount(fans, minlength=n_fans)[by_vertex]
     # rank the fans of each vertex: largest first, then by label (deterministic)
     order = np.lexsort((pair[:, 1], -size, pair[:, 0]))
     first = np.searchsorted(pair[order, 0], pair[order, 0])

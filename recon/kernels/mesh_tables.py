@@ -38,13 +38,13 @@ OVERLAP_MIN_EDGE = 1e-4
 
 
 @njit(**EXACT_JIT_OPTIONS)
-def half_edge_order(faces, n_vertices):  # pragma: no cover - numba
-    """Half-edges sorted by undirected edge, then by face: ``(3 F,)`` int64.
+def _sort_half_edges(faces, n_vertices):  # pragma: no cover - numba
+    """Half-edges sorted by ``(lo, hi, face)``: ``(order, start, hi_sorted)``.
 
-    The same permutation as ``np.lexsort((he_face, hi, lo))`` over the half-edges (``lo``,
-    ``hi`` their smaller and larger vertex, ``he_face`` their face): a stable counting sort by
-    ``lo``, then a stable insertion sort by ``hi`` within each ``lo`` (a few half-edges per
-    vertex). Half-edge ``h`` is edge ``h % 3`` of face ``h // 3``.
+    A stable counting sort by ``lo`` (``start[v]`` .. ``start[v + 1]`` hold the half-edges
+    whose smaller vertex is v), then a stable insertion sort by ``hi`` within each ``lo`` (a
+    few half-edges per vertex) on a contiguous copy of their ``hi`` (``hi_sorted``, in the
+    order of ``order``). Half-edge ``h`` is edge ``h % 3`` of face ``h // 3``.
     """
     nf = faces.shape[0]
     nh = 3 * nf
@@ -68,19 +68,35 @@ def half_edge_order(faces, n_vertices):  # pragma: no cover - numba
         start[v + 1] += start[v]
     fill = start[:-1].copy()
     order = np.empty(nh, dtype=np.int64)
+    hs = np.empty(nh, dtype=np.int64)
     for h in range(nh):  # ascending h: stable in the face (h // 3 is monotone in h)
-        order[fill[lo[h]]] = h
-        fill[lo[h]] += 1
+        slot = fill[lo[h]]
+        order[slot] = h
+        hs[slot] = hi[h]
+        fill[lo[h]] = slot + 1
     for v in range(n_vertices):
         for i in range(start[v] + 1, start[v + 1]):  # stable insertion sort by hi
             h = order[i]
-            key = hi[h]
+            key = hs[i]
             j = i - 1
-            while j >= start[v] and hi[order[j]] > key:
+            while j >= start[v] and hs[j] > key:
                 order[j + 1] = order[j]
+                hs[j + 1] = hs[j]
                 j -= 1
             order[j + 1] = h
-    return order
+            hs[j + 1] = key
+    return order, start, hs
+
+
+@njit(**EXACT_JIT_OPTIONS)
+def half_edge_order(faces, n_vertices):  # pragma: no cover - numba
+    """Half-edges sorted by undirected edge, then by face: ``(3 F,)`` int64.
+
+    The same permutation as ``np.lexsort((he_face, hi, lo))`` over the half-edges (``lo``,
+    ``hi`` their smaller and larger vertex, ``he_face`` their face), by counting sorts
+    (:func:`_sort_half_edges`). Half-edge ``h`` is edge ``h % 3`` of face ``h // 3``.
+    """
+    return _sort_half_edges(faces, n_vertices)[0]
 
 
 @njit(**EXACT_JIT_OPTIONS)
@@ -90,27 +106,47 @@ def edge_table(faces, n_vertices):  # pragma: no cover - numba
     ``keys`` ``(E,)`` int64 are ``lo * n_vertices + hi`` in ascending order, ``inverse``
     ``(3 F,)`` the index into ``keys`` of half-edge ``3 i + k``, and ``counts`` ``(E,)`` the
     number of half-edges (faces) on each edge: what ``np.unique(keys_of_half_edges,
-    return_inverse=True, return_counts=True)`` gives, from :func:`half_edge_order`.
+    return_inverse=True, return_counts=True)`` gives, from :func:`_sort_half_edges`.
     """
-    order = half_edge_order(faces, n_vertices)
+    order, start, hs = _sort_half_edges(faces, n_vertices)
     nh = order.shape[0]
     inverse = np.empty(nh, dtype=np.int64)
     keys = np.empty(nh, dtype=np.int64)
     counts = np.zeros(nh, dtype=np.int64)
     n = -1
     last = -1
-    for i in range(nh):
-        h = order[i]
-        a = faces[h // 3, h % 3]
-        b = faces[h // 3, (h % 3 + 1) % 3]
-        key = min(a, b) * n_vertices + max(a, b)
-        if i == 0 or key != last:
-            n += 1
-            keys[n] = key
-            last = key
-        inverse[h] = n
-        counts[n] += 1
+    for v in range(n_vertices):
+        for i in range(start[v], start[v + 1]):
+            key = v * n_vertices + hs[i]
+            if n < 0 or key != last:
+                n += 1
+                keys[n] = key
+                last = key
+            inverse[order[i]] = n
+            counts[n] += 1
     return keys[: n + 1].copy(), inverse, counts[: n + 1].copy()
+
+
+@njit(**EXACT_JIT_OPTIONS)
+def winding_consistent(faces, n_vertices):  # pragma: no cover - numba
+    """Do the two faces of every edge in exactly two faces run it in opposite directions?
+    (:func:`recon.mesh.orientation_flips` then flips nothing.) Edges in one face or in more
+    than two are not looked at."""
+    order, start, hs = _sort_half_edges(faces, n_vertices)
+    for v in range(n_vertices):
+        i = start[v]
+        while i < start[v + 1]:
+            j = i + 1
+            while j < start[v + 1] and hs[j] == hs[i]:
+                j += 1
+            if j - i == 2:
+                h, g = order[i], order[i + 1]
+                fh = faces[h // 3, h % 3] < faces[h // 3, (h % 3 + 1) % 3]
+                fg = faces[g // 3, g % 3] < faces[g // 3, (g % 3 + 1) % 3]
+                if fh == fg:
+                    return False
+            i = j
+    return True
 
 
 @njit(**EXACT_JIT_OPTIONS)

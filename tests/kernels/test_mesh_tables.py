@@ -18,8 +18,10 @@ from recon.kernels.mesh_tables import (
     half_edge_order,
     overlap_candidates,
     vertex_component_labels,
+    winding_consistent,
 )
 from recon.mesh import face_normals
+from tests.mesh_shapes import grid
 
 
 def _sheet(seed: int, n: int = 5, extra: int = 6) -> tuple[np.ndarray, np.ndarray]:
@@ -208,3 +210,15 @@ def test_circumradii_and_bounding_spheres_are_the_bits_of_numpy():
     got_c, got_r = bounding_spheres(v, f)
     assert np.array_equal(got_c.view(np.int64), centroid.view(np.int64))
     assert np.array_equal(got_r.view(np.int64), radius.view(np.int64))
+
+
+def test_winding_consistent_sees_one_flipped_face():
+    v, f = grid(3, 3)  # consistently wound, facing +z
+    f = np.ascontiguousarray(f, dtype=np.int64)
+    assert winding_consistent(f, len(v))
+    flipped = f.copy()
+    flipped[4] = flipped[4, ::-1]
+    assert not winding_consistent(flipped, len(v))
+    # a face on an over-shared edge is not looked at there
+    fin = np.vstack([f, [[f[4, 1], f[4, 0], len(v)]]])
+    assert winding_consistent(fin, len(v) + 1)
