@@ -41,7 +41,7 @@ from .holes import (
 )
 from .intersections import self_intersections
 from .kernels.circumsphere import circumsphere_kernel
-from .kernels.mesh_tables import circumradii
+from .kernels.mesh_tables import circumradii, winding_and_open
 from .mesh import (
     boundary_loops,
     capped_volume,
@@ -618,7 +618,8 @@ def orient_consistently(vertices: np.ndarray, normals: np.ndarray, faces: np.nda
     if len(faces) == 0:
         return faces
     faces = faces.copy()
-    for _ in range(ORIENTATION_ROUNDS):
+    same, open_face = winding_and_open(faces.astype(np.int64), max(len(vertices), faces.max() + 1))
+    for _ in range(0 if same else ORIENTATION_ROUNDS):  # consistent: orientation_flips flips none
         flip, conflict = orientation_flips(faces)
         if conflict.any():
             # cut where the surface turns over, if that is a smaller cut that works: the
@@ -639,9 +640,9 @@ def orient_consistently(vertices: np.ndarray, normals: np.ndarray, faces: np.nda
     # signed volume (x6) of each component; meaningful for closed ones
     p = vertices[faces]
     vol = np.bincount(labels, weights=np.einsum("ij,ij->i", p[:, 0], fn), minlength=n)
-    # distinct edges by counting sorts (np.unique(axis=0) on the (3F, 2) pairs was slowest)
-    _, inv, cnt = unique_edges(faces, len(vertices))
-    open_face = (cnt[inv.reshape(-1)] == 1).reshape(-1, 3).any(axis=1)
+    if not same:  # the loop flipped or dropped faces: their edges again
+        _, inv, cnt = unique_edges(faces, len(vertices))
+        open_face = (cnt[inv.reshape(-1)] == 1).reshape(-1, 3).any(axis=1)
     closed = np.bincount(labels, weights=open_face, minlength=n) == 0
     turn = np.where(closed, vol < 0, vote < 0)
     bad = turn[labels]
@@ -704,10 +705,9 @@ def split_non_manifold_vertices(
     n_fans = int(fans.max()) + 1  # labels 0 .. n_fans - 1, each at one vertex
     if n_fans == np.count_nonzero(np.bincount(corner_v)):
         return vertices, normals, faces, 0  # one fan per used vertex: no bow-tie
-    # the distinct (vertex, fan) pairs in lexicographic order (np.unique's), by fan label
     at = np.empty(n_fans, dtype=np.int64)
     at[fans] = corner_v
-    by_vertex = np.argsort(at, kind="stable")
+    by_vertex = np.argsort(at, kind="stable")  # the (vertex, fan) pairs in np.unique's order
     pair = np.stack([at[by_vertex], by_vertex], axis=1)
     slot = np.empty(n_fans, dtype=np.int64)
     slot[by_vertex] = np.arange(n_fans)

@@ -150,6 +150,30 @@ def winding_consistent(faces, n_vertices):  # pragma: no cover - numba
 
 
 @njit(**EXACT_JIT_OPTIONS)
+def winding_and_open(faces, n_vertices):  # pragma: no cover - numba
+    """:func:`winding_consistent`, and which faces have an edge in no other face (a
+    boundary edge): ``(consistent, open_face (F,) bool)``, from one sort of the half-edges."""
+    order, start, hs = _sort_half_edges(faces, n_vertices)
+    open_face = np.zeros(faces.shape[0], dtype=np.bool_)
+    consistent = True
+    for v in range(n_vertices):
+        i = start[v]
+        while i < start[v + 1]:
+            j = i + 1
+            while j < start[v + 1] and hs[j] == hs[i]:
+                j += 1
+            if j - i == 1:
+                open_face[order[i] // 3] = True
+            elif j - i == 2 and consistent:
+                h, g = order[i], order[i + 1]
+                fh = faces[h // 3, h % 3] < faces[h // 3, (h % 3 + 1) % 3]
+                fg = faces[g // 3, g % 3] < faces[g // 3, (g % 3 + 1) % 3]
+                consistent = fh != fg
+            i = j
+    return consistent, open_face
+
+
+@njit(**EXACT_JIT_OPTIONS)
 def area_vectors(vertices, faces):  # pragma: no cover - numba
     """Twice each face's area vector, ``(F, 3)``: ``(b - a) x (c - a)`` for face ``(a, b, c)``,
     with the operations of ``np.cross`` (no fused multiply-add), so the same bits."""

@@ -47,6 +47,7 @@ FIT_KERNELS: tuple[str, ...] = (
     "mesh_tables.half_edge_order",
     "mesh_tables.fan_labels",
     "mesh_tables.winding_consistent",
+    "mesh_tables.winding_and_open",
     "mesh_tables.vertex_component_labels",
     "mesh_tables.bounding_spheres",
     "sphere_pairs.sphere_pairs",

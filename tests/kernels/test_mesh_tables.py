@@ -18,6 +18,7 @@ from recon.kernels.mesh_tables import (
     half_edge_order,
     overlap_candidates,
     vertex_component_labels,
+    winding_and_open,
     winding_consistent,
 )
 from recon.mesh import face_normals
@@ -222,3 +223,17 @@ def test_winding_consistent_sees_one_flipped_face():
     # a face on an over-shared edge is not looked at there
     fin = np.vstack([f, [[f[4, 1], f[4, 0], len(v)]]])
     assert winding_consistent(fin, len(v) + 1)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_winding_and_open_agree_with_the_edge_counts(seed):
+    v, f = _sheet(seed)
+    consistent, open_face = winding_and_open(f, len(v))
+    assert consistent == winding_consistent(f, len(v))
+    _, inverse, counts = np.unique(
+        np.sort(f[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1) @ [len(v), 1],
+        return_inverse=True,
+        return_counts=True,
+    )
+    want = (counts[inverse] == 1).reshape(-1, 3).any(axis=1)
+    assert np.array_equal(open_face, want) and want.any() and not want.all()
