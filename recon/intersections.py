@@ -31,6 +31,7 @@ import numpy as np
 from scipy import sparse
 from scipy.spatial import cKDTree
 
+from .kernels.mesh_tables import bounding_spheres
 from .kernels.options import query_workers, thread_limit
 from .kernels.sphere_pairs import sphere_pairs
 from .kernels.tri_intersect import pairs_intersect
@@ -98,6 +99,10 @@ def _face_pairs(
 
 def face_spheres(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Each face's bounding sphere: its centroid and the distance to its farthest corner."""
+    v, f = np.asarray(vertices), np.asarray(faces)
+    if v.dtype == np.float64 and v.ndim == 2 and f.ndim == 2 and f.dtype.kind in "iu":
+        # a kernel with the bits of the NumPy expression below, without its (F, 3, 3) arrays
+        return bounding_spheres(np.ascontiguousarray(v), np.ascontiguousarray(f, dtype=np.int64))
     corners = vertices[faces]
     centroid = corners.mean(axis=1)
     return centroid, np.linalg.norm(corners - centroid[:, None, :], axis=2).max(axis=1)

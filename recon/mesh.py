@@ -3,7 +3,8 @@
 Used by mesh repair (:mod:`recon.triangulate`) and by the report (:mod:`recon.topology`,
 :mod:`recon.metrics`), so both see the same edges and the same components. Faces are
 ``(F, 3)`` integer vertex indices; everything is vectorised NumPy and ``scipy.sparse.csgraph``
-(except the loop walk).
+(except the loop walk), and the connectivity tables (edges, fans, components, the overlap
+prefilter) come from the counting-sort kernels of :mod:`recon.kernels.mesh_tables`.
 
 Definitions:
 
@@ -45,6 +46,16 @@ import numpy as np
 from scipy import sparse
 from scipy.sparse import csgraph
 
+from .kernels.mesh_tables import (
+    area_vectors,
+    edge_table,
+    fan_labels,
+    half_edge_order,
+    overlap_candidates,
+    vertex_component_labels,
+    winding_consistent,
+)
+
 __all__ = [
     "boundary_components",
     "boundary_loop_perimeters",
@@ -61,6 +72,7 @@ __all__ = [
     "opposed_faces",
     "orientation_flips",
     "overlapping_faces",
+    "unique_edges",
     "vertex_components",
     "vertex_fans",
 ]
@@ -73,6 +85,27 @@ def edge_keys(faces: np.ndarray, n_vertices: int) -> np.ndarray:
     """
     e = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
     return e[:, 0] * n_vertices + e[:, 1]
+
+
+def unique_edges(faces: np.ndarray, n_vertices: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``np.unique(edge_keys(faces, n_vertices), return_inverse=True, return_counts=True)``:
+    the sorted distinct edge keys, the edge of every face edge ``(3 F,)`` and the number of
+    faces on each edge, by counting sorts (:func:`recon.kernels.mesh_tables.edge_table`).
+
+    Examples
+    --------
+    >>> keys, inverse, counts = unique_edges(np.array([[0, 1, 2], [2, 1, 3]]), 4)
+    >>> keys.tolist(), inverse.tolist(), counts.tolist()
+    ([1, 2, 6, 7, 11], [0, 2, 1, 2, 3, 4], [1, 1, 2, 1, 1])
+    """
+    f = np.ascontiguousarray(faces, dtype=np.int64).reshape(-1, 3)
+    if len(f) == 0:
+        empty = np.zeros(0, dtype=np.int64)
+        return empty, empty, empty
+    if int(f.min()) < 0 or int(f.max()) >= n_vertices:  # keys as edge_keys makes them
+        keys = edge_keys(f, n_vertices)
+        return np.unique(keys, return_inverse=True, return_counts=True)
+    return edge_table(f, int(n_vertices))
 
 
 def count_edge_faces(faces: Any) -> tuple[np.ndarray, np.ndarray]:
@@ -121,8 +154,7 @@ def boundary_loops(faces: np.ndarray) -> list[np.ndarray]:
         return []
     he = faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
     n_v = int(faces.max()) + 1
-    keys = edge_keys(faces, n_v)
-    _, inv, cnt = np.unique(keys, return_inverse=True, return_counts=True)
+    _, inv, cnt = unique_edges(faces, n_v)
     bnd = he[cnt[inv] == 1]
     if len(bnd) == 0:
         return []
@@ -205,19 +237,13 @@ def vertex_components(faces: np.ndarray, n_vertices: int) -> tuple[int, np.ndarr
         Component of each vertex, ``0 .. count - 1`` in order of the components' lowest vertex;
         -1 for vertices no face uses.
     """
-    labels = np.full(n_vertices, -1, dtype=np.int64)
     if len(faces) == 0:
-        return 0, labels
-    rows = np.concatenate([faces[:, 0], faces[:, 1]])
-    cols = np.concatenate([faces[:, 1], faces[:, 2]])
-    graph = sparse.coo_matrix((np.ones(len(rows), np.int8), (rows, cols)), (n_vertices,) * 2)
-    _, vertex_label = csgraph.connected_components(graph, directed=False)
-    referenced = np.zeros(n_vertices, dtype=bool)
-    referenced[faces.ravel()] = True
-    ref_idx = np.flatnonzero(referenced)
-    comp_of_ref, compact = np.unique(vertex_label[ref_idx], return_inverse=True)
-    labels[ref_idx] = compact
-    return len(comp_of_ref), labels
+        return 0, np.full(n_vertices, -1, dtype=np.int64)
+    f = np.ascontiguousarray(faces, dtype=np.int64).reshape(-1, 3)
+    if int(f.min()) < 0 or int(f.max()) >= n_vertices:
+        raise ValueError(f"face indices must lie in [0, {n_vertices})")
+    count, labels = vertex_component_labels(f, int(n_vertices))
+    return int(count), labels
 
 
 def face_components(faces: np.ndarray, n_vertices: int) -> tuple[int, np.ndarray]:
@@ -236,8 +262,12 @@ def face_area_vectors(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
 
     For sign tests (their direction is the winding's) and area weights.
     """
-    p = vertices[faces]
-    return np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    v = np.asarray(vertices)
+    f = np.asarray(faces)
+    if v.dtype != np.float64 or v.ndim != 2 or f.ndim != 2 or f.dtype.kind not in "iu":
+        p = v[f]
+        return np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    return area_vectors(np.ascontiguousarray(v), np.ascontiguousarray(f, dtype=np.int64))
 
 
 def face_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
@@ -270,30 +300,9 @@ def vertex_fans(faces: np.ndarray) -> np.ndarray:
     nf = len(faces)
     if nf == 0:
         return np.zeros((0, 3), dtype=np.int64)
-    f = np.asarray(faces, dtype=np.int64)
-    he_from = f.ravel()
-    he_to = np.roll(f, -1, axis=1).ravel()
-    he_face = np.repeat(np.arange(nf), 3)
-    he_corner = np.tile(np.arange(3), nf)
-    lo = np.minimum(he_from, he_to)
-    hi = np.maximum(he_from, he_to)
-    forward = he_from < he_to
-    order = np.lexsort((he_face, hi, lo))
-    lo_s, hi_s = lo[order], hi[order]
-    same = (lo_s[1:] == lo_s[:-1]) & (hi_s[1:] == hi_s[:-1])
-    a, b = order[:-1][same], order[1:][same]
-    # the corner of half-edge h at vertex lo (resp. hi) of its edge
-    c_next = he_face * 3 + (he_corner + 1) % 3
-    c_here = he_face * 3 + he_corner
-    wedge_lo = np.where(forward, c_here, c_next)
-    wedge_hi = np.where(forward, c_next, c_here)
-    del he_to, he_face, he_corner, lo, hi, forward, order, lo_s, hi_s, same, c_next, c_here
-    rows = np.concatenate([wedge_lo[a], wedge_hi[a]])
-    cols = np.concatenate([wedge_lo[b], wedge_hi[b]])
-    del wedge_lo, wedge_hi, a, b  # the graph's build holds a few copies of rows and cols
-    graph = sparse.coo_matrix((np.ones(len(rows), np.int8), (rows, cols)), (3 * nf,) * 2)
-    _, label = csgraph.connected_components(graph, directed=False)
-    return label.reshape(nf, 3).astype(np.int64)
+    f = np.ascontiguousarray(faces, dtype=np.int64)
+    n_v = int(f.max()) + 1
+    return fan_labels(f, half_edge_order(f, n_v)).reshape(nf, 3)
 
 
 def boundary_loop_perimeters(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
@@ -348,14 +357,16 @@ def orientation_flips(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     n_faces = len(faces)
     if n_faces == 0:
         return np.zeros(0, dtype=bool), np.zeros(0, dtype=bool)
-    f = np.asarray(faces, dtype=np.int64)
+    f = np.ascontiguousarray(faces, dtype=np.int64)
+    if winding_consistent(f, int(f.max()) + 1):  # the forest would flip nothing
+        return np.zeros(n_faces, dtype=bool), np.zeros(n_faces, dtype=bool)
     he_from = f.ravel()
     he_to = np.roll(f, -1, axis=1).ravel()
     he_face = np.repeat(np.arange(n_faces), 3)
     lo = np.minimum(he_from, he_to)
     hi = np.maximum(he_from, he_to)
     forward = he_from < he_to
-    order = np.lexsort((he_face, hi, lo))
+    order = half_edge_order(f, int(f.max()) + 1)  # = np.lexsort((he_face, hi, lo))
     lo_s, hi_s = lo[order], hi[order]
     is_new = np.ones(len(order), dtype=bool)
     is_new[1:] = (lo_s[1:] != lo_s[:-1]) | (hi_s[1:] != hi_s[:-1])
@@ -422,55 +433,51 @@ def overlapping_faces(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     >>> overlapping_faces(v, np.array([[0, 1, 2], [0, 2, 3], [0, 1, 3]])).tolist()  # both
     [[0, 2], [1, 2]]
     """
-    f = np.asarray(faces, dtype=np.int64)
+    f = np.ascontiguousarray(faces, dtype=np.int64)
     if len(f) < 2:
         return np.zeros((0, 2), dtype=np.int64)
     corner_v = f.ravel()
     corner_f = np.repeat(np.arange(len(f)), 3)
     ahead = np.roll(f, -1, axis=1).ravel()
     behind = np.roll(f, -2, axis=1).ravel()
-    order = np.argsort(corner_v, kind="stable")
-    sorted_v = corner_v[order]
     fn = face_normals(vertices, f)
+    # every pair of corners at one vertex: a kernel passes over the pairs that miss the test
+    # by a margin (most of them) and hands on the rest, which the test below decides
+    candidates = overlap_candidates(
+        np.ascontiguousarray(vertices, dtype=np.float64),
+        f,
+        fn,
+        OVERLAP_NORMAL_AGREEMENT,
+        OVERLAP_ANGLE,
+    )
     found = [np.zeros((0, 2), dtype=np.int64)]
-    # every pair of corners at one vertex, by rank distance: a corner that has no partner
-    # ``step`` ranks on has none further on either, so only the survivors are tested again
-    # and the cost is the number of pairs, not 3F times the largest valence
-    pos = np.arange(len(order))
-    step = 1
-    while True:
-        pos = pos[pos + step < len(order)]
-        pos = pos[sorted_v[pos + step] == sorted_v[pos]]
-        if not len(pos):
-            break
-        pa, pb = order[pos], order[pos + step]
-        for lo in range(0, len(pa), OVERLAP_BLOCK):  # ~20 (block, 3) arrays per block
-            a, b = pa[lo : lo + OVERLAP_BLOCK], pb[lo : lo + OVERLAP_BLOCK]
-            fa, fb = corner_f[a], corner_f[b]
-            m = fn[fa] + fn[fb]
-            agree = np.einsum("ij,ij->i", fn[fa], fn[fb]) > OVERLAP_NORMAL_AGREEMENT
-            a, b, fa, fb, m = a[agree], b[agree], fa[agree], fb[agree], m[agree]
-            m /= np.linalg.norm(m, axis=1, keepdims=True)
-            helper = np.where(np.abs(m[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
-            e1 = np.cross(m, helper)
-            e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
-            e2 = np.cross(m, e1)
-            here = vertices[corner_v[a]]
+    pa, pb = candidates[:, 0], candidates[:, 1]
+    for lo in range(0, len(pa), OVERLAP_BLOCK):  # ~20 (block, 3) arrays per block
+        a, b = pa[lo : lo + OVERLAP_BLOCK], pb[lo : lo + OVERLAP_BLOCK]
+        fa, fb = corner_f[a], corner_f[b]
+        m = fn[fa] + fn[fb]
+        agree = np.einsum("ij,ij->i", fn[fa], fn[fb]) > OVERLAP_NORMAL_AGREEMENT
+        a, b, fa, fb, m = a[agree], b[agree], fa[agree], fb[agree], m[agree]
+        m /= np.linalg.norm(m, axis=1, keepdims=True)
+        helper = np.where(np.abs(m[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
+        e1 = np.cross(m, helper)
+        e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
+        e2 = np.cross(m, e1)
+        here = vertices[corner_v[a]]
 
-            def angle(w: np.ndarray, here=here, e1=e1, e2=e2) -> np.ndarray:
-                d = vertices[w] - here
-                return np.arctan2(np.einsum("ij,ij->i", d, e2), np.einsum("ij,ij->i", d, e1))
+        def angle(w: np.ndarray, here=here, e1=e1, e2=e2) -> np.ndarray:
+            d = vertices[w] - here
+            return np.arctan2(np.einsum("ij,ij->i", d, e2), np.einsum("ij,ij->i", d, e1))
 
-            start_a, start_b = angle(ahead[a]), angle(ahead[b])
-            width_a = (angle(behind[a]) - start_a) % (2 * np.pi)
-            width_b = (angle(behind[b]) - start_b) % (2 * np.pi)
-            rel = (start_b - start_a) % (2 * np.pi)  # b's sector starts this far into a's turn
-            shared = np.maximum(0.0, np.minimum(width_a - rel, width_b)) + np.maximum(
-                0.0, np.minimum(width_a, rel + width_b - 2 * np.pi)
-            )
-            hit = shared > OVERLAP_ANGLE
-            found.append(np.stack([np.minimum(fa, fb)[hit], np.maximum(fa, fb)[hit]], axis=1))
-        step += 1
+        start_a, start_b = angle(ahead[a]), angle(ahead[b])
+        width_a = (angle(behind[a]) - start_a) % (2 * np.pi)
+        width_b = (angle(behind[b]) - start_b) % (2 * np.pi)
+        rel = (start_b - start_a) % (2 * np.pi)  # b's sector starts this far into a's turn
+        shared = np.maximum(0.0, np.minimum(width_a - rel, width_b)) + np.maximum(
+            0.0, np.minimum(width_a, rel + width_b - 2 * np.pi)
+        )
+        hit = shared > OVERLAP_ANGLE
+        found.append(np.stack([np.minimum(fa, fb)[hit], np.maximum(fa, fb)[hit]], axis=1))
     return np.unique(np.vstack(found), axis=0)
 
 
@@ -502,11 +509,11 @@ def handle_count(faces: np.ndarray, n_vertices: int) -> tuple[int, int, int]:
     f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
     if len(f) == 0:
         return 0, 0, 0
-    keys, counts = np.unique(edge_keys(f, n_vertices), return_counts=True)
+    keys, _, counts = unique_edges(f, n_vertices)
     edges = np.stack([keys // n_vertices, keys % n_vertices], axis=1)
     c, _ = vertex_components(f, n_vertices)
     b = boundary_components(edges, counts, n_vertices)
-    chi = len(np.unique(f)) - len(keys) + len(f)
+    chi = int(np.count_nonzero(np.bincount(f.ravel()))) - len(keys) + len(f)
     return c, b, (2 * c - b - chi) // 2
 
 

@@ -59,7 +59,7 @@ import numpy as np
 from .errors import InputError
 from .geometry import as_points
 from .mesh import face_area_vectors, face_normals
-from .topology import mesh_topology, triangle_quality, validate_mesh
+from .topology import mesh_topology, topology_and_quality, triangle_quality, validate_mesh
 
 __all__ = [
     "check_comparison",
@@ -569,10 +569,14 @@ def quality_report(
         ``intersections``, ``self_intersections``.
     """
     v, f = validate_mesh(vertices, faces)
+    topology, quality = topology_and_quality(v, f)
     report: dict[str, Any] = {
-        "topology": mesh_topology(v, f),
-        "triangle_quality": triangle_quality(v, f),
-        "mesh_bbox_diag": _bbox_diag(v[np.unique(f)]) if len(f) else _bbox_diag(v),
+        "topology": topology,
+        "triangle_quality": quality,
+        # the used vertices (np.unique(f), without its sort)
+        "mesh_bbox_diag": (
+            _bbox_diag(v[np.bincount(f.ravel(), minlength=len(v)) > 0]) if len(f) else _bbox_diag(v)
+        ),
         "fidelity": None,
     }
     if intersections:

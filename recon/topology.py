@@ -52,17 +52,25 @@ from typing import Any
 import numpy as np
 
 from .errors import InputError
+from .kernels.mesh_tables import fan_labels, half_edge_order
 from .mesh import (
     boundary_components,
     boundary_loop_perimeters,
     count_edge_faces,
     orientation_flips,
     vertex_components,
-    vertex_fans,
 )
 
-__all__ = ["count_edge_faces", "mesh_topology", "triangle_quality", "validate_mesh"]
+__all__ = [
+    "count_edge_faces",
+    "mesh_topology",
+    "topology_and_quality",
+    "triangle_quality",
+    "validate_mesh",
+]
 
+#: Below this many vertices a face's sorted vertex triple fits one int64 key (n^3 < 2^63).
+DUPLICATE_KEY_LIMIT = 2_000_000
 #: A face is degenerate when ``2 * area <= DEGENERATE_AREA_RATIO * longest_edge**2``.
 DEGENERATE_AREA_RATIO = 1e-12
 #: The fields of :func:`triangle_quality` (also measured tile by tile by ``recon.tiling``).
@@ -131,12 +139,17 @@ def _face_geometry(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray,
     return area2, lengths
 
 
-def _degenerate_mask(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(repeated-index mask, degenerate mask) of the faces, both ``(F,)`` bool."""
+def _degenerate_mask(
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    geometry: tuple[np.ndarray, np.ndarray] | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """(repeated-index mask, degenerate mask) of the faces, both ``(F,)`` bool; ``geometry``:
+    their :func:`_face_geometry` when already computed."""
     repeated = (
         (faces[:, 0] == faces[:, 1]) | (faces[:, 1] == faces[:, 2]) | (faces[:, 2] == faces[:, 0])
     )
-    area2, lengths = _face_geometry(vertices, faces)
+    area2, lengths = _face_geometry(vertices, faces) if geometry is None else geometry
     longest = lengths.max(axis=1) if len(faces) else np.zeros(0)
     flat = area2 <= DEGENERATE_AREA_RATIO * longest**2
     return repeated, repeated | flat
@@ -205,8 +218,15 @@ def mesh_topology(vertices: Any, faces: Any) -> dict[str, Any]:
     (True, 2, 0)
     """
     v, f = validate_mesh(vertices, faces)
+    return _mesh_topology(v, f, _degenerate_mask(v, f))
+
+
+def _mesh_topology(
+    v: np.ndarray, f: np.ndarray, masks: tuple[np.ndarray, np.ndarray]
+) -> dict[str, Any]:
+    """:func:`mesh_topology` of a validated mesh, given its :func:`_degenerate_mask`."""
     n_vertices, n_faces = len(v), len(f)
-    repeated, degenerate = _degenerate_mask(v, f)
+    repeated, degenerate = masks
     n_degenerate = int(degenerate.sum())
     f = f[~repeated]
     if len(f) == 0:
@@ -224,7 +244,7 @@ def mesh_topology(vertices: Any, faces: Any) -> dict[str, Any]:
     hi = np.maximum(he_from, he_to)
     forward = he_from < he_to  # direction of the half-edge along its undirected edge
 
-    order = np.lexsort((he_face, hi, lo))
+    order = half_edge_order(f, n_vertices)  # = np.lexsort((he_face, hi, lo))
     lo_s, hi_s = lo[order], hi[order]
     is_new = np.ones(len(order), dtype=bool)
     is_new[1:] = (lo_s[1:] != lo_s[:-1]) | (hi_s[1:] != hi_s[:-1])
@@ -249,7 +269,7 @@ def mesh_topology(vertices: Any, faces: Any) -> dict[str, Any]:
     orientable = consistent or not orientation_flips(f)[1].any()
     # the half-edge arrays are done with: free them before the component and fan passes
     # (at a million faces each is 24 MB and they held ~0.4 GB at the report's peak)
-    del he_to, he_face, lo, hi, forward, order, lo_s, hi_s, is_new, edge_id_sorted
+    del he_to, he_face, lo, hi, forward, lo_s, hi_s, is_new, edge_id_sorted
     del same, a, b, pair_edge, manifold_pair, flip_parity
 
     # Components over vertices (faces link their three vertices).
@@ -261,9 +281,11 @@ def mesh_topology(vertices: Any, faces: Any) -> dict[str, Any]:
     n_loops = boundary_components(np.stack([edge_lo, edge_hi], axis=1), edge_count, n_vertices)
 
     # Non-manifold vertices: count fans of corners around each vertex (recon.mesh).
-    fan = vertex_fans(f).ravel()
-    fan_keys = np.unique(f.ravel() * np.int64(3 * nf) + fan)  # distinct (vertex, fan)
-    fans_per_vertex = np.bincount(fan_keys // (3 * nf), minlength=n_vertices)
+    fan = fan_labels(f, order)  # vertex_fans(f).ravel(): 0 .. n_fans - 1, each at one vertex
+    del order
+    vertex_of_fan = np.empty(int(fan.max()) + 1, dtype=np.int64)
+    vertex_of_fan[fan] = f.ravel()
+    fans_per_vertex = np.bincount(vertex_of_fan, minlength=n_vertices)
     n_non_manifold_vertices = int((fans_per_vertex > 1).sum())
 
     chi = int(len(ref_idx) - n_edges + nf)
@@ -277,8 +299,12 @@ def mesh_topology(vertices: Any, faces: Any) -> dict[str, Any]:
 
     perimeters = boundary_loop_perimeters(v, f) if n_boundary else np.zeros(0)
     sf = np.sort(f, axis=1)
-    sf = sf[np.lexsort(sf.T[::-1])]
-    duplicates = int(np.all(sf[1:] == sf[:-1], axis=1).sum())
+    if n_vertices < DUPLICATE_KEY_LIMIT:  # one int64 key per sorted vertex triple
+        key = np.sort((sf[:, 0] * n_vertices + sf[:, 1]) * n_vertices + sf[:, 2])
+        duplicates = int(np.count_nonzero(key[1:] == key[:-1]))
+    else:
+        sf = sf[np.lexsort(sf.T[::-1])]
+        duplicates = int(np.all(sf[1:] == sf[:-1], axis=1).sum())
 
     return {
         "n_vertices": n_vertices,
@@ -299,6 +325,24 @@ def mesh_topology(vertices: Any, faces: Any) -> dict[str, Any]:
         "unreferenced_vertices": int(n_vertices - len(ref_idx)),
         "largest_hole_perimeter": float(perimeters[0]) if len(perimeters) else 0.0,
     }
+
+
+def topology_and_quality(vertices: Any, faces: Any) -> tuple[dict[str, Any], dict[str, Any]]:
+    """``(mesh_topology(vertices, faces), triangle_quality(vertices, faces))``, validating the
+    mesh and measuring its faces' areas and edge lengths once for both.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> v = np.array([[0, 0, 0], [1, 0, 0], [0.5, 3**0.5 / 2, 0]])
+    >>> topo, quality = topology_and_quality(v, [[0, 1, 2]])
+    >>> topo["boundary_loops"], round(quality["min_angle_min_deg"], 6)
+    (1, 60.0)
+    """
+    v, f = validate_mesh(vertices, faces)
+    geometry = _face_geometry(v, f)
+    masks = _degenerate_mask(v, f, geometry)
+    return _mesh_topology(v, f, masks), _triangle_quality(v, f, geometry, masks[1])
 
 
 def triangle_quality(vertices: Any, faces: Any) -> dict[str, Any]:
@@ -334,13 +378,25 @@ def triangle_quality(vertices: Any, faces: Any) -> dict[str, Any]:
     (60.0, 1.0)
     """
     v, f = validate_mesh(vertices, faces)
-    _, degenerate = _degenerate_mask(v, f)
-    f = f[~degenerate]
+    geometry = _face_geometry(v, f)
+    return _triangle_quality(v, f, geometry, _degenerate_mask(v, f, geometry)[1])
+
+
+def _triangle_quality(
+    v: np.ndarray,
+    f: np.ndarray,
+    geometry: tuple[np.ndarray, np.ndarray],
+    degenerate: np.ndarray,
+) -> dict[str, Any]:
+    """:func:`triangle_quality` of a validated mesh, given its :func:`_face_geometry` and
+    degenerate mask (the measured faces' geometry is their rows of it)."""
+    keep = ~degenerate
+    f = f[keep]
     keys = TRIANGLE_QUALITY_KEYS
     if len(f) == 0:
         return {"n_measured": 0, **dict.fromkeys(keys)}
 
-    area2, lengths = _face_geometry(v, f)
+    area2, lengths = geometry[0][keep], geometry[1][keep]
     # Angle at corner k lies between edges k (k -> k+1) and k-1 reversed (k -> k-1).
     p = v[f]
     e_next = np.roll(p, -1, axis=1) - p

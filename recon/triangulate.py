@@ -41,6 +41,7 @@ from .holes import (
 )
 from .intersections import self_intersections
 from .kernels.circumsphere import circumsphere_kernel
+from .kernels.mesh_tables import circumradii, winding_and_open
 from .mesh import (
     boundary_loops,
     capped_volume,
@@ -53,6 +54,7 @@ from .mesh import (
     opposed_faces,
     orientation_flips,
     overlapping_faces,
+    unique_edges,
     vertex_fans,
 )
 from .neighbors import build_neighbor_list
@@ -425,6 +427,7 @@ def _repair(
     clean, faces = len(oriented) == len(faces), oriented
     stats["faces_manifold"] = int(len(faces))
     stats["holes_filled"] = 0
+    trees: dict = {}  # the particles' k-d tree for _extend, built once
     for _ in range(FILL_PASSES if cfg.fill_holes else 0):
         # a fill can meet an edge that already exists elsewhere; repair, then fill what opened
         vertices, vnormals, faces, n_filled = fill_small_holes(
@@ -434,7 +437,7 @@ def _repair(
             np.pi * max_hole,
             is_covered,
             COVERED_HOLE_FACTOR * np.pi * max_hole,
-            scale=_extend(scale, positions, vertices),
+            scale=_extend(scale, positions, vertices, trees),
         )
         stats["holes_filled"] += n_filled
         if n_filled == 0 and clean:
@@ -486,14 +489,10 @@ def ball_radii(radii: list[float], scale: np.ndarray | None = None) -> list[floa
 
 
 def circumradius(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """Circumradius of every face ``(F,)`` [units of ``vertices``]; inf for degenerate faces."""
-    p = vertices[faces]
-    a = np.linalg.norm(p[:, 1] - p[:, 2], axis=1)
-    b = np.linalg.norm(p[:, 2] - p[:, 0], axis=1)
-    c = np.linalg.norm(p[:, 0] - p[:, 1], axis=1)
-    area2 = np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return np.where(area2 > 0, a * b * c / (2.0 * area2), np.inf)
+    """Circumradius of every face ``(F,)`` [units of ``vertices``]; inf for degenerate faces
+    (:func:`recon.kernels.mesh_tables.circumradii`)."""
+    v = np.ascontiguousarray(vertices, dtype=np.float64)
+    return circumradii(v, np.ascontiguousarray(faces, dtype=np.int64).reshape(-1, 3))
 
 
 def _spacing_at(
@@ -504,12 +503,14 @@ def _spacing_at(
     return scale if scale is None else scale[cKDTree(positions).query(vertices)[1]]
 
 
-def _extend(scale: np.ndarray | None, positions: np.ndarray, vertices: np.ndarray):
+def _extend(scale: np.ndarray | None, positions: np.ndarray, vertices: np.ndarray, trees: dict):
     """The per-vertex spacing after repair added vertices: a new vertex takes its nearest
-    particle's."""
+    particle's. ``trees`` keeps the particles' k-d tree between calls (same ``positions``)."""
     if scale is None or len(vertices) == len(positions):
         return scale
-    _, nearest = cKDTree(positions).query(vertices[len(positions) :])
+    if "positions" not in trees:
+        trees["positions"] = cKDTree(positions)
+    _, nearest = trees["positions"].query(vertices[len(positions) :])
     return np.concatenate([scale, scale[nearest]])
 
 
@@ -617,7 +618,8 @@ def orient_consistently(vertices: np.ndarray, normals: np.ndarray, faces: np.nda
     if len(faces) == 0:
         return faces
     faces = faces.copy()
-    for _ in range(ORIENTATION_ROUNDS):
+    same, open_face = winding_and_open(faces.astype(np.int64), max(len(vertices), faces.max() + 1))
+    for _ in range(0 if same else ORIENTATION_ROUNDS):  # consistent: orientation_flips flips none
         flip, conflict = orientation_flips(faces)
         if conflict.any():
             # cut where the surface turns over, if that is a smaller cut that works: the
@@ -638,11 +640,9 @@ def orient_consistently(vertices: np.ndarray, normals: np.ndarray, faces: np.nda
     # signed volume (x6) of each component; meaningful for closed ones
     p = vertices[faces]
     vol = np.bincount(labels, weights=np.einsum("ij,ij->i", p[:, 0], fn), minlength=n)
-    # 1-D edge keys: np.unique(axis=0) on the (3F, 2) pairs was most of this function's time
-    _, inv, cnt = np.unique(
-        edge_keys(faces, len(vertices)), return_inverse=True, return_counts=True
-    )
-    open_face = (cnt[inv.reshape(-1)] == 1).reshape(-1, 3).any(axis=1)
+    if not same:  # the loop flipped or dropped faces: their edges again
+        _, inv, cnt = unique_edges(faces, len(vertices))
+        open_face = (cnt[inv.reshape(-1)] == 1).reshape(-1, 3).any(axis=1)
     closed = np.bincount(labels, weights=open_face, minlength=n) == 0
     turn = np.where(closed, vol < 0, vote < 0)
     bad = turn[labels]
@@ -666,8 +666,7 @@ def remove_non_manifold_faces(faces: np.ndarray, n_vertices: int) -> np.ndarray:
     _, first = np.unique(key, axis=0 if key.ndim == 2 else None, return_index=True)
     faces = faces[np.sort(first)]
     for _ in range(NON_MANIFOLD_EDGE_ROUNDS):
-        keys = edge_keys(faces, n_vertices)
-        uniq, inv, cnt = np.unique(keys, return_inverse=True, return_counts=True)
+        uniq, inv, cnt = unique_edges(faces, n_vertices)
         over = cnt[inv] > 2
         if not over.any():
             break
@@ -703,13 +702,16 @@ def split_non_manifold_vertices(
         return vertices, normals, faces, 0
     fans = vertex_fans(faces).ravel()
     corner_v = faces.ravel()
-    # (vertex, fan) pairs as 1-D keys in the same (lexicographic) order; fan labels < 3F
-    span = np.int64(3 * len(faces))
-    key, corner_pair, size = np.unique(
-        corner_v * span + fans, return_inverse=True, return_counts=True
-    )
-    pair = np.stack([key // span, key % span], axis=1)
-    corner_pair = corner_pair.reshape(-1)
+    n_fans = int(fans.max()) + 1  # labels 0 .. n_fans - 1, each at one vertex
+    if n_fans == np.count_nonzero(np.bincount(corner_v)):
+        return vertices, normals, faces, 0  # one fan per used vertex: no bow-tie
+    at = np.empty(n_fans, dtype=np.int64)
+    at[fans] = corner_v
+    by_vertex = np.argsort(at, kind="stable")  # the (vertex, fan) pairs in np.unique's order
+    pair = np.stack([at[by_vertex], by_vertex], axis=1)
+    slot = np.empty(n_fans, dtype=np.int64)
+    slot[by_vertex] = np.arange(n_fans)
+    corner_pair, size = slot[fans], np.bincount(fans, minlength=n_fans)[by_vertex]
     # rank the fans of each vertex: largest first, then by label (deterministic)
     order = np.lexsort((pair[:, 1], -size, pair[:, 0]))
     first = np.searchsorted(pair[order, 0], pair[order, 0])

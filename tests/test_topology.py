@@ -7,7 +7,7 @@ import pytest
 from mesh_shapes import grid, icosphere, mobius, open_cylinder, tetrahedron, torus
 
 from recon.errors import InputError
-from recon.topology import mesh_topology, triangle_quality, validate_mesh
+from recon.topology import mesh_topology, topology_and_quality, triangle_quality, validate_mesh
 
 TRIANGLE = (np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], float), np.array([[0, 1, 2]]))
 
@@ -193,3 +193,13 @@ def test_pinched_closed_surfaces_are_not_watertight():
     assert t["boundary_edges"] == 0 and t["non_manifold_edges"] == 0
     assert t["non_manifold_vertices"] == 1
     assert t["watertight"] is False and t["genus"] is None
+
+
+@pytest.mark.parametrize("shape", [tetrahedron, lambda: icosphere(2), lambda: grid(4, 3)])
+def test_topology_and_quality_is_both_measures(shape):
+    v, f = shape()
+    f = np.vstack([f, f[:1], [[0, 0, 1]]])  # a duplicate and a repeated-index face
+    topo, quality = topology_and_quality(v, f)
+    assert topo == mesh_topology(v, f)
+    assert quality == triangle_quality(v, f)
+    assert topo["duplicate_faces"] == 1 and topo["degenerate_faces"] == 1

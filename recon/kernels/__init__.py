@@ -9,8 +9,9 @@ Geometry kernels of the stages: :mod:`.poisson_disk` (seed and candidate thinnin
 :mod:`.local_surface` (tangent frames, local quadrics, angular gaps), :mod:`.growth_rules` (the
 growing rule, S&T92 §6), :mod:`.grid_query` (k-nearest and radius queries on a cell grid built
 once, and the anchor refresh: nearest agreeing data point and its quadric foot point),
-:mod:`.thin_sides` (the two-means split across a thin part, for the normal orientation) and
-:mod:`.circumsphere` (S&T92 §8). They are compiled with
+:mod:`.thin_sides` (the two-means split across a thin part, for the normal orientation),
+:mod:`.circumsphere` (S&T92 §8) and :mod:`.mesh_tables` (edge, fan and component tables of a
+mesh by counting sorts, for its repair and its report). They are compiled with
 :data:`.options.EXACT_JIT_OPTIONS` (no fast-math); the particle kernels with
 :data:`.options.JIT_OPTIONS`. The packed coefficients the pair loop reads are laid out by
 :class:`recon.params.Coefficients`.

@@ -1,7 +1,7 @@
 """Load a fit's compiled kernels from numba's cache in a background thread.
 
 Every kernel is compiled with ``cache=True``, so a new process does not compile it, but its
-first call still loads the machine code from ``__pycache__`` and links it: 17 kernels on a
+first call still loads the machine code from ``__pycache__`` and links it: the kernels of a
 fit, about 10 ms each and 0.2-0.3 s for the first (numba sets up its typing and target
 registries then), measured on bunny-clean in a fresh process. Those loads happen one by one
 on the fit's critical path, the first inside the normal estimate.
@@ -44,6 +44,17 @@ FIT_KERNELS: tuple[str, ...] = (
     "pair_loop.step_particles",
     "cell_list.list_covers",
     "signs.surely_agree",
+    "mesh_tables.circumradii",
+    "mesh_tables.area_vectors",
+    "mesh_tables.overlap_candidates",
+    "mesh_tables.edge_table",
+    "mesh_tables.half_edge_order",
+    "mesh_tables.fan_labels",
+    "mesh_tables.winding_consistent",
+    "mesh_tables.winding_and_open",
+    "mesh_tables.vertex_component_labels",
+    "mesh_tables.bounding_spheres",
+    "edge_flip.flip_edges_kernel",
     "sphere_pairs.sphere_pairs",
     "tri_intersect.pairs_intersect",
 )
