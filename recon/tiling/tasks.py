@@ -359,12 +359,12 @@ def mesh_task(job: MeshJob) -> dict:
         cover_reach,
         covered,
         local_density_scale,
-        polish,
         sampling_spacing,
         sparse_cover,
     )
     from ..intersections import untangle
     from ..kernels.options import thread_count
+    from ..polish import polish
     from ..triangulate import triangulate_particles
 
     t0 = time.perf_counter()
