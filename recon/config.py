@@ -383,7 +383,8 @@ class TriangulationConfig(Schema):
         2,
         "Rounds of mesh polishing after triangulation: angle-raising edge flips, then every "
         "vertex moved part of the way to its neighbours' centroid within its tangent plane and "
-        "back onto the local data surface (crease and boundary vertices stay). It does the "
+        "back onto the local data surface (with project_to_data; crease and boundary vertices "
+        "stay). It does the "
         "work of the release's last smoothing steps in a fraction of their time. 0 = the "
         "particles as they are.",
         0,

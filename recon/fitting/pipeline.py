@@ -296,7 +296,9 @@ def _triangulate(
             local_spacing=spacing,
             crease=None if surface.creases is None else ~np.asarray(state.is_oriented, dtype=bool),
         )
-        result = polish(result, surface, tri_cfg.smooth_rounds, tri_cfg.smooth_flips)
+        # without project_to_data (noisy scans) the polish stays in the tangent planes too
+        onto = surface if tri_cfg.project_to_data else None
+        result = polish(result, onto, tri_cfg.smooth_rounds, tri_cfg.smooth_flips)
         vertices, found, left = untangle(result.vertices, result.faces, fixed=result.crease)
         return replace(result, vertices=vertices), found, left
 
