@@ -56,6 +56,8 @@ def polish(
         normals[moved] = nrm * side[:, None]
         return foot
 
+    # no last pass of angle flips: on the evenly spaced particles it changed nothing measurable
+    # (bunny-clean: the same mean minimum angle) and cost more than the rounds' flips
     vertices, faces, stats = flip_and_smooth(
         result.vertices,
         faces,
@@ -65,6 +67,7 @@ def polish(
         step=POLISH_STEP,
         flips=flips,
         fix_boundary=True,
+        final_flips=False,
     )
     return replace(
         result,

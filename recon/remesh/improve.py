@@ -183,13 +183,15 @@ def flip_and_smooth(
     line_edges: np.ndarray | None = None,
     flips: bool = True,
     fix_boundary: bool = False,
+    final_flips: bool = True,
 ) -> tuple[np.ndarray, np.ndarray, dict[str, int]]:
     """``rounds`` rounds of (with ``flips``) angle-raising flips and tangential smoothing.
 
     Each round moves every free vertex ``step`` of the way to its neighbours' centroid, within
     its tangent plane (the area-weighted vertex normal), and then onto the surface:
     ``project(target, moved)`` returns the surface point for each target, ``moved`` being the
-    moved vertices' indices. With ``flips``, a last flip pass follows the last round.
+    moved vertices' indices. With ``flips`` and ``final_flips``, a last pass of angle flips
+    follows the last round.
     ``fixed``, ``weights``, ``line_edges``: see :func:`improve`; with ``fix_boundary`` the
     vertices on the mesh's boundary are fixed too.
     """
@@ -216,6 +218,6 @@ def flip_and_smooth(
         vn = _vertex_normals(v, f)
         move -= np.einsum("ij,ij->i", move, vn)[:, None] * vn
         v[free] = project(v[free] + step * move[free], free)
-    if flips:
+    if flips and final_flips:
         n_flips += flipper.flip(v)
     return v, flipper.faces, {"flips": n_flips, "smoothing_rounds": rounds}

@@ -445,7 +445,9 @@ def mesh_task(job: MeshJob) -> dict:
     new_ids = np.flatnonzero(code < 0)
     moved = np.flatnonzero(np.any(moved_x != tri.vertices, axis=1) & (code >= 0))
     absolute = moved_x * r0 + centre
-    faces = faces[grid.in_core(job.tile, absolute[faces].mean(axis=1))]
+    # each face goes to the tile whose core holds its centroid at the particles' positions,
+    # which every tile sees alike (the moved positions are known only to the owner's tile)
+    faces = faces[grid.in_core(job.tile, (tri.vertices * r0 + centre)[faces].mean(axis=1))]
     counts = write_tile_mesh(
         job.work,
         job.tile,
