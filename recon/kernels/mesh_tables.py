@@ -127,6 +127,15 @@ def edge_table(faces, n_vertices):  # pragma: no cover - numba
     return keys[: n + 1].copy(), inverse, counts[: n + 1].copy()
 
 
+@njit(inline="always", **EXACT_JIT_OPTIONS)
+def _same_way(faces, h, g):  # pragma: no cover - numba
+    """Do half-edges ``h`` and ``g`` (face ``h // 3``, corner ``h % 3``) of one edge run it
+    in the same direction (lower to higher vertex, or both the other way)?"""
+    up_h = faces[h // 3, h % 3] < faces[h // 3, (h % 3 + 1) % 3]
+    up_g = faces[g // 3, g % 3] < faces[g // 3, (g % 3 + 1) % 3]
+    return up_h == up_g
+
+
 @njit(**EXACT_JIT_OPTIONS)
 def winding_consistent(faces, n_vertices):  # pragma: no cover - numba
     """Do the two faces of every edge in exactly two faces run it in opposite directions?
@@ -139,12 +148,8 @@ def winding_consistent(faces, n_vertices):  # pragma: no cover - numba
             j = i + 1
             while j < start[v + 1] and hs[j] == hs[i]:
                 j += 1
-            if j - i == 2:
-                h, g = order[i], order[i + 1]
-                fh = faces[h // 3, h % 3] < faces[h // 3, (h % 3 + 1) % 3]
-                fg = faces[g // 3, g % 3] < faces[g // 3, (g % 3 + 1) % 3]
-                if fh == fg:
-                    return False
+            if j - i == 2 and _same_way(faces, order[i], order[i + 1]):
+                return False
             i = j
     return True
 
@@ -165,10 +170,7 @@ def winding_and_open(faces, n_vertices):  # pragma: no cover - numba
             if j - i == 1:
                 open_face[order[i] // 3] = True
             elif j - i == 2 and consistent:
-                h, g = order[i], order[i + 1]
-                fh = faces[h // 3, h % 3] < faces[h // 3, (h % 3 + 1) % 3]
-                fg = faces[g // 3, g % 3] < faces[g // 3, (g % 3 + 1) % 3]
-                consistent = fh != fg
+                consistent = not _same_way(faces, order[i], order[i + 1])
             i = j
     return consistent, open_face
 
