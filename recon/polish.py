@@ -1,9 +1,10 @@
 """Polish the triangulated particles of a fit: flips and tangential smoothing on the data.
 
-The particles are already evenly spaced when they are triangulated; a few rounds of
-:func:`recon.remesh.improve.flip_and_smooth` do what the release's last smoothing steps would
-do to the triangles, in a fraction of their time, and each moved vertex goes back onto the local
-data surface the dynamics pulled it toward (:meth:`recon.surface.DataSurface.anchors`).
+The particles are already evenly spaced when they are triangulated; two rounds of
+:func:`recon.remesh.improve.flip_and_smooth` take out what is left of their irregularity
+(ball pivoting's odd diagonal, a particle a little off its neighbours' centre, most of all on
+noisy scans), and each moved vertex goes back onto the local data surface the dynamics pulled
+it toward (:meth:`recon.surface.DataSurface.anchors`).
 """
 
 from __future__ import annotations
