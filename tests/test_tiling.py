@@ -625,5 +625,6 @@ def test_tiles_polish_their_triangles_as_the_untiled_fit_does(fits):
     for name in ("whole", "tiled"):
         v, f = read_mesh(d / f"{name}.ply")
         angle[name] = triangle_quality(v, f)["min_angle_mean_deg"]
-    # the tiles' polish has no flips and no data surface, but smooths all the same
-    assert angle["tiled"] > angle["whole"] - 1.0, angle
+    # the tiles' polish has no flips and no data surface, but smooths all the same (measured:
+    # whole 55.54, tiled 55.56; unpolished tiles gave 55.05)
+    assert angle["tiled"] > angle["whole"] - 0.25, angle
