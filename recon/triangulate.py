@@ -618,8 +618,10 @@ def orient_consistently(vertices: np.ndarray, normals: np.ndarray, faces: np.nda
     if len(faces) == 0:
         return faces
     faces = faces.copy()
-    same, open_face = winding_and_open(faces.astype(np.int64), max(len(vertices), faces.max() + 1))
-    for _ in range(0 if same else ORIENTATION_ROUNDS):  # consistent: orientation_flips flips none
+    consistent, open_face = winding_and_open(
+        faces.astype(np.int64), max(len(vertices), faces.max() + 1)
+    )
+    for _ in range(0 if consistent else ORIENTATION_ROUNDS):
         flip, conflict = orientation_flips(faces)
         if conflict.any():
             # cut where the surface turns over, if that is a smaller cut that works: the
@@ -640,7 +642,7 @@ def orient_consistently(vertices: np.ndarray, normals: np.ndarray, faces: np.nda
     # signed volume (x6) of each component; meaningful for closed ones
     p = vertices[faces]
     vol = np.bincount(labels, weights=np.einsum("ij,ij->i", p[:, 0], fn), minlength=n)
-    if not same:  # the loop flipped or dropped faces: their edges again
+    if not consistent:  # the loop flipped or dropped faces: their edges again
         _, inv, cnt = unique_edges(faces, len(vertices))
         open_face = (cnt[inv.reshape(-1)] == 1).reshape(-1, 3).any(axis=1)
     closed = np.bincount(labels, weights=open_face, minlength=n) == 0
@@ -717,9 +719,7 @@ def split_non_manifold_vertices(
     first = np.searchsorted(pair[order, 0], pair[order, 0])
     rank = np.empty(len(pair), dtype=np.int64)
     rank[order] = np.arange(len(pair)) - first
-    extra = np.flatnonzero(rank > 0)
-    if len(extra) == 0:
-        return vertices, normals, faces, 0
+    extra = np.flatnonzero(rank > 0)  # not empty: some vertex has two fans (above)
     new_id = np.full(len(pair), -1, dtype=np.int64)
     new_id[extra] = len(vertices) + np.arange(len(extra))
     # centroid of each extra fan: mean of its faces' centroids

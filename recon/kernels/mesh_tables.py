@@ -41,10 +41,11 @@ OVERLAP_MIN_EDGE = 1e-4
 def _sort_half_edges(faces, n_vertices):  # pragma: no cover - numba
     """Half-edges sorted by ``(lo, hi, face)``: ``(order, start, hi_sorted)``.
 
-    A stable counting sort by ``lo`` (``start[v]`` .. ``start[v + 1]`` hold the half-edges
-    whose smaller vertex is v), then a stable insertion sort by ``hi`` within each ``lo`` (a
-    few half-edges per vertex) on a contiguous copy of their ``hi`` (``hi_sorted``, in the
-    order of ``order``). Half-edge ``h`` is edge ``h % 3`` of face ``h // 3``.
+    Two stable counting sorts (least significant key first): by ``hi``, then by ``lo``
+    (``start[v]`` .. ``start[v + 1]`` hold the half-edges whose smaller vertex is v); linear
+    in the half-edges and vertices however many faces share a vertex. ``hi_sorted`` is the
+    ``hi`` of each half-edge in the order of ``order``. Half-edge ``h`` is edge ``h % 3`` of
+    face ``h // 3``.
     """
     nf = faces.shape[0]
     nh = 3 * nf
@@ -61,30 +62,31 @@ def _sort_half_edges(faces, n_vertices):  # pragma: no cover - numba
             else:
                 lo[h] = b
                 hi[h] = a
+    # by hi, ascending h within a key (h // 3 is monotone in h: stable in the face)
+    fill = np.zeros(n_vertices + 1, dtype=np.int64)
+    for h in range(nh):
+        fill[hi[h] + 1] += 1
+    for v in range(n_vertices):
+        fill[v + 1] += fill[v]
+    by_hi = np.empty(nh, dtype=np.int64)
+    for h in range(nh):
+        by_hi[fill[hi[h]]] = h
+        fill[hi[h]] += 1
+    # then by lo, keeping that order within a key
     start = np.zeros(n_vertices + 1, dtype=np.int64)
     for h in range(nh):
         start[lo[h] + 1] += 1
     for v in range(n_vertices):
         start[v + 1] += start[v]
-    fill = start[:-1].copy()
+    fill[:n_vertices] = start[:-1]
     order = np.empty(nh, dtype=np.int64)
     hs = np.empty(nh, dtype=np.int64)
-    for h in range(nh):  # ascending h: stable in the face (h // 3 is monotone in h)
+    for p in range(nh):
+        h = by_hi[p]
         slot = fill[lo[h]]
         order[slot] = h
         hs[slot] = hi[h]
         fill[lo[h]] = slot + 1
-    for v in range(n_vertices):
-        for i in range(start[v] + 1, start[v + 1]):  # stable insertion sort by hi
-            h = order[i]
-            key = hs[i]
-            j = i - 1
-            while j >= start[v] and hs[j] > key:
-                order[j + 1] = order[j]
-                hs[j + 1] = hs[j]
-                j -= 1
-            order[j + 1] = h
-            hs[j + 1] = key
     return order, start, hs
 
 
@@ -463,7 +465,6 @@ def overlap_candidates(vertices, faces, fn, agreement, min_angle):  # pragma: no
     out = np.empty((max(16, nf // 8), 2), dtype=np.int64)
     m_out = 0
     for v in range(n_vertices):
-        h = v
         for i in range(start[v], start[v + 1]):
             a = corners[i]
             fa = a // 3
@@ -499,10 +500,10 @@ def overlap_candidates(vertices, faces, fn, agreement, min_angle):  # pragma: no
                     wx = my * uz - mz * uy  # e2 = m x e1
                     wy = mz * ux - mx * uz
                     wz = mx * uy - my * ux
-                    start_a, d1 = _angle(vertices, xa, h, ux, uy, uz, wx, wy, wz)
-                    end_a, d2 = _angle(vertices, ya, h, ux, uy, uz, wx, wy, wz)
-                    start_b, d3 = _angle(vertices, xb, h, ux, uy, uz, wx, wy, wz)
-                    end_b, d4 = _angle(vertices, yb, h, ux, uy, uz, wx, wy, wz)
+                    start_a, d1 = _angle(vertices, xa, v, ux, uy, uz, wx, wy, wz)
+                    end_a, d2 = _angle(vertices, ya, v, ux, uy, uz, wx, wy, wz)
+                    start_b, d3 = _angle(vertices, xb, v, ux, uy, uz, wx, wy, wz)
+                    end_b, d4 = _angle(vertices, yb, v, ux, uy, uz, wx, wy, wz)
                     # differences of angles in [-pi, pi], taken to [0, 2 pi)
                     width_a = _turn(end_a - start_a, two_pi)
                     width_b = _turn(end_b - start_b, two_pi)

@@ -66,12 +66,14 @@ def _split_row(
     lo = 0.0
     hi = 0.0
     big = 0.0
+    finite = True
     for q in range(kw):
         v = off[q]
+        finite = finite and v == v  # min and max below would pass a NaN over
         lo = min(lo, v)
         hi = max(hi, v)
         big = max(big, abs(v))
-    if (hi - lo) + _SPAN_MARGIN * big < gap_ratio * rad:
+    if finite and (hi - lo) + _SPAN_MARGIN * big < gap_ratio * rad:
         for q in range(k):
             across[i, q] = False
         return False
@@ -183,15 +185,19 @@ def span_screen(points, normals, idx, start, gap_ratio, sure):  # pragma: no cov
         dx = 0.0
         dy = 0.0
         dz = 0.0
+        finite = True
         for q in range(kw):
             j = idx[r, q]
             dx = points[j, 0] - px
             dy = points[j, 1] - py
             dz = points[j, 2] - pz
             v = dx * nx + dy * ny + dz * nz
+            finite = finite and v == v  # min and max below would pass a NaN over
             lo = min(lo, v)
             hi = max(hi, v)
             far = max(far, dx * dx + dy * dy + dz * dz)
         rad = np.sqrt(dx * dx + dy * dy + dz * dz)
         extent = np.sqrt(far) * np.sqrt(nx * nx + ny * ny + nz * nz) + rad
-        sure[r] = (hi - lo) + _SCREEN_MARGIN * extent < gap_ratio * rad - _SCREEN_MARGIN * extent
+        sure[r] = finite and (
+            (hi - lo) + _SCREEN_MARGIN * extent < gap_ratio * rad - _SCREEN_MARGIN * extent
+        )
