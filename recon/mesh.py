@@ -57,6 +57,7 @@ from .kernels.mesh_tables import (
 )
 
 __all__ = [
+    "FACE_KEY_LIMIT",
     "boundary_components",
     "boundary_loop_perimeters",
     "boundary_loops",
@@ -64,6 +65,7 @@ __all__ = [
     "count_edge_faces",
     "drop_unreferenced",
     "edge_keys",
+    "face_keys",
     "face_area_vectors",
     "face_components",
     "face_normals",
@@ -85,6 +87,20 @@ def edge_keys(faces: np.ndarray, n_vertices: int) -> np.ndarray:
     """
     e = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
     return e[:, 0] * n_vertices + e[:, 1]
+
+
+#: Below this many vertices a face's sorted vertex triple fits one int64 key (n^3 < 2^63).
+FACE_KEY_LIMIT = 2_000_000
+
+
+def face_keys(faces: np.ndarray, n_vertices: int) -> np.ndarray:
+    """One key per face, equal for two faces with the same vertices in any order: below
+    ``FACE_KEY_LIMIT`` vertices an int64 ``(F,)`` of the sorted triple (``np.unique`` of rows
+    is ~7x slower), else the sorted triples ``(F, 3)`` themselves."""
+    key = np.sort(faces, axis=1)
+    if n_vertices < FACE_KEY_LIMIT:
+        return (key[:, 0] * n_vertices + key[:, 1]) * n_vertices + key[:, 2]
+    return key
 
 
 def unique_edges(faces: np.ndarray, n_vertices: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -57,6 +57,7 @@ from .mesh import (
     boundary_components,
     boundary_loop_perimeters,
     count_edge_faces,
+    face_keys,
     orientation_flips,
     vertex_components,
 )
@@ -69,8 +70,6 @@ __all__ = [
     "validate_mesh",
 ]
 
-#: Below this many vertices a face's sorted vertex triple fits one int64 key (n^3 < 2^63).
-DUPLICATE_KEY_LIMIT = 2_000_000
 #: A face is degenerate when ``2 * area <= DEGENERATE_AREA_RATIO * longest_edge**2``.
 DEGENERATE_AREA_RATIO = 1e-12
 #: The fields of :func:`triangle_quality` (also measured tile by tile by ``recon.tiling``).
@@ -298,13 +297,13 @@ def _mesh_topology(
         genus = int(np.sum((2 - (v_c - e_c + f_c)) // 2))
 
     perimeters = boundary_loop_perimeters(v, f) if n_boundary else np.zeros(0)
-    sf = np.sort(f, axis=1)
-    if n_vertices < DUPLICATE_KEY_LIMIT:  # one int64 key per sorted vertex triple
-        key = np.sort((sf[:, 0] * n_vertices + sf[:, 1]) * n_vertices + sf[:, 2])
+    key = face_keys(f, n_vertices)
+    if key.ndim == 1:
+        key = np.sort(key)
         duplicates = int(np.count_nonzero(key[1:] == key[:-1]))
     else:
-        sf = sf[np.lexsort(sf.T[::-1])]
-        duplicates = int(np.all(sf[1:] == sf[:-1], axis=1).sum())
+        key = key[np.lexsort(key.T[::-1])]
+        duplicates = int(np.all(key[1:] == key[:-1], axis=1).sum())
 
     return {
         "n_vertices": n_vertices,

@@ -49,6 +49,7 @@ from .mesh import (
     edge_keys,
     face_area_vectors,
     face_components,
+    face_keys,
     handle_bridges,
     handle_count,
     opposed_faces,
@@ -93,8 +94,6 @@ PART_NECK_GAP = 4.0
 #: Debris removal: components with fewer faces than this and than ``MIN_COMPONENT_FRACTION``
 #: of the largest component are dropped.
 MIN_COMPONENT_FACES = 50
-#: Below this many vertices a face's sorted vertex triple fits one int64 key (n^3 < 2^63).
-FACE_KEY_LIMIT = 2_000_000
 MIN_COMPONENT_FRACTION = 0.01
 #: Hole-filling passes: a fill can meet an edge that already exists elsewhere; the repair after
 #: it can open a new small loop, which the second pass closes.
@@ -662,9 +661,7 @@ def remove_non_manifold_faces(faces: np.ndarray, n_vertices: int) -> np.ndarray:
         return faces
     ok = (faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 0] != faces[:, 2])
     faces = faces[ok]
-    key = np.sort(faces, axis=1)
-    if n_vertices < FACE_KEY_LIMIT:  # one int64 per vertex triple: np.unique(axis=0) is ~7x slower
-        key = (key[:, 0] * n_vertices + key[:, 1]) * n_vertices + key[:, 2]
+    key = face_keys(faces, n_vertices)
     _, first = np.unique(key, axis=0 if key.ndim == 2 else None, return_index=True)
     faces = faces[np.sort(first)]
     for _ in range(NON_MANIFOLD_EDGE_ROUNDS):

@@ -52,3 +52,15 @@ def test_face_normals_are_unit_and_follow_the_winding():
     assert np.allclose(n * np.linalg.norm(area, axis=1, keepdims=True), area)
     flat = face_normals(np.zeros((3, 3)), np.array([[0, 1, 2]]))
     assert flat.tolist() == [[0.0, 0.0, 0.0]]
+
+
+def test_face_keys_are_equal_for_the_same_vertices_in_any_order_on_both_paths():
+    from recon.mesh import FACE_KEY_LIMIT, face_keys
+
+    f = np.array([[0, 1, 2], [2, 0, 1], [1, 0, 2], [0, 1, 3], [3, 2, 1]])
+    for n in (4, FACE_KEY_LIMIT):  # one int64 per face, and the sorted rows above the limit
+        k = face_keys(f, n)
+        assert k.ndim == (1 if n < FACE_KEY_LIMIT else 2)
+        same = [[bool(np.all(k[i] == k[j])) for j in range(len(f))] for i in range(len(f))]
+        assert same[0][:3] == [True, True, True] and not any(same[0][3:])
+        assert not same[3][4]

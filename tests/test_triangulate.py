@@ -90,7 +90,7 @@ def test_non_manifold_edge_faces_are_removed():
 def test_duplicate_faces_are_found_by_one_key_per_triple_as_by_rows():
     """Below FACE_KEY_LIMIT vertices a face's sorted triple is one int64 key; the result is
     the same as comparing rows (the path taken above the limit)."""
-    from recon.triangulate import FACE_KEY_LIMIT
+    from recon.mesh import FACE_KEY_LIMIT
 
     rng = np.random.default_rng(4)
     faces = rng.integers(0, 30, (400, 3))
