@@ -74,6 +74,7 @@ __all__ = [
     "opposed_faces",
     "orientation_flips",
     "overlapping_faces",
+    "ranked_fans",
     "unique_edges",
     "vertex_components",
     "vertex_fans",
@@ -319,6 +320,48 @@ def vertex_fans(faces: np.ndarray) -> np.ndarray:
     f = np.ascontiguousarray(faces, dtype=np.int64)
     n_v = int(f.max()) + 1
     return fan_labels(f, half_edge_order(f, n_v)).reshape(nf, 3)
+
+
+def ranked_fans(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Every vertex's fans (:func:`vertex_fans`), ranked at their vertex: the largest (most
+    corners) first, ties by the lowest fan label, so the ranking is deterministic.
+
+    Returns
+    -------
+    fan_vertex : (P,) int64
+        The vertex of each of the ``P`` fans; fans are ordered by vertex, then by label (the
+        rows of ``np.unique`` over the (vertex, label) pairs).
+    corner_fan : (3 F,) int64
+        The fan (index into ``fan_vertex``) of every face corner, corner ``3 i + k``.
+    rank : (P,) int64
+        0 for the fan that keeps its vertex, 1, 2, ... for a bow-tie vertex's extra fans.
+
+    Examples
+    --------
+    >>> fan_vertex, corner_fan, rank = ranked_fans(np.array([[0, 1, 2], [0, 2, 3], [0, 4, 5]]))
+    >>> rank[corner_fan].reshape(-1, 3).tolist()  # vertex 0's lone face is its extra fan
+    [[0, 0, 0], [0, 0, 0], [1, 0, 0]]
+    """
+    if len(faces) == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64)
+    fans = vertex_fans(faces).ravel()
+    corner_v = faces.ravel()
+    n_fans = int(fans.max()) + 1  # labels 0 .. n_fans - 1, each at one vertex
+    at = np.empty(n_fans, dtype=np.int64)
+    at[fans] = corner_v
+    by_vertex = np.argsort(at, kind="stable")  # the (vertex, label) pairs in np.unique's order
+    fan_vertex = at[by_vertex]
+    corner_fan = np.empty(n_fans, dtype=np.int64)
+    corner_fan[by_vertex] = np.arange(n_fans)
+    corner_fan = corner_fan[fans]
+    rank = np.zeros(n_fans, dtype=np.int64)
+    if n_fans == np.count_nonzero(np.bincount(corner_v)):
+        return fan_vertex, corner_fan, rank  # one fan per used vertex: no bow-tie
+    size = np.bincount(fans, minlength=n_fans)[by_vertex]
+    order = np.lexsort((by_vertex, -size, fan_vertex))
+    first = np.searchsorted(fan_vertex[order], fan_vertex[order])
+    rank[order] = np.arange(n_fans) - first
+    return fan_vertex, corner_fan, rank
 
 
 def boundary_loop_perimeters(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:

@@ -55,8 +55,8 @@ from .mesh import (
     opposed_faces,
     orientation_flips,
     overlapping_faces,
+    ranked_fans,
     unique_edges,
-    vertex_fans,
 )
 from .neighbors import build_neighbor_list
 from .particle_signs import consistent_normals
@@ -699,40 +699,26 @@ def split_non_manifold_vertices(
     """
     if len(faces) == 0:
         return vertices, normals, faces, 0
-    fans = vertex_fans(faces).ravel()
-    corner_v = faces.ravel()
-    n_fans = int(fans.max()) + 1  # labels 0 .. n_fans - 1, each at one vertex
-    if n_fans == np.count_nonzero(np.bincount(corner_v)):
+    fan_vertex, corner_fan, rank = ranked_fans(faces)
+    extra = np.flatnonzero(rank > 0)
+    if len(extra) == 0:
         return vertices, normals, faces, 0  # one fan per used vertex: no bow-tie
-    at = np.empty(n_fans, dtype=np.int64)
-    at[fans] = corner_v
-    by_vertex = np.argsort(at, kind="stable")  # the (vertex, fan) pairs in np.unique's order
-    pair = np.stack([at[by_vertex], by_vertex], axis=1)
-    slot = np.empty(n_fans, dtype=np.int64)
-    slot[by_vertex] = np.arange(n_fans)
-    corner_pair, size = slot[fans], np.bincount(fans, minlength=n_fans)[by_vertex]
-    # rank the fans of each vertex: largest first, then by label (deterministic)
-    order = np.lexsort((pair[:, 1], -size, pair[:, 0]))
-    first = np.searchsorted(pair[order, 0], pair[order, 0])
-    rank = np.empty(len(pair), dtype=np.int64)
-    rank[order] = np.arange(len(pair)) - first
-    extra = np.flatnonzero(rank > 0)  # not empty: some vertex has two fans (above)
-    new_id = np.full(len(pair), -1, dtype=np.int64)
+    new_id = np.full(len(fan_vertex), -1, dtype=np.int64)
     new_id[extra] = len(vertices) + np.arange(len(extra))
     # centroid of each extra fan: mean of its faces' centroids
     face_centre = vertices[faces].mean(axis=1)
     corner_face = np.repeat(np.arange(len(faces)), 3)
-    sel = new_id[corner_pair] >= 0
-    slot = np.searchsorted(extra, corner_pair[sel])
+    sel = new_id[corner_fan] >= 0
+    slot = np.searchsorted(extra, corner_fan[sel])
     acc = np.zeros((len(extra), 3))
     np.add.at(acc, slot, face_centre[corner_face[sel]])
     cnt = np.bincount(slot, minlength=len(extra))[:, None]
-    base = vertices[pair[extra, 0]]
+    base = vertices[fan_vertex[extra]]
     new_v = base + SPLIT_SHIFT * (acc / cnt - base)
     faces = faces.copy().reshape(-1)
-    faces[sel] = new_id[corner_pair[sel]]
+    faces[sel] = new_id[corner_fan[sel]]
     vertices = np.vstack([vertices, new_v])
-    normals = np.vstack([normals, normals[pair[extra, 0]]])
+    normals = np.vstack([normals, normals[fan_vertex[extra]]])
     return vertices, normals, faces.reshape(-1, 3), len(extra)
 
 
@@ -740,21 +726,12 @@ def extra_fan_faces(faces: np.ndarray) -> np.ndarray:
     """Faces of every fan but the largest at each bow-tie vertex: a boolean mask over faces.
 
     Fans come from :func:`recon.mesh.vertex_fans`, so a vertex where two closed fans touch (a
-    pinch between two sheets) is found as well as one where open fans meet.
+    pinch between two sheets) is found as well as one where open fans meet; they are ranked by
+    :func:`recon.mesh.ranked_fans`, as :func:`split_non_manifold_vertices` ranks them.
     """
     drop = np.zeros(len(faces), dtype=bool)
-    if len(faces) == 0:
-        return drop
-    fans = vertex_fans(faces).ravel()
-    pair, corner_pair, size = np.unique(
-        np.stack([faces.ravel(), fans], axis=1), axis=0, return_inverse=True, return_counts=True
-    )
-    corner_pair = corner_pair.reshape(-1)
-    order = np.lexsort((pair[:, 1], -size, pair[:, 0]))
-    first = np.searchsorted(pair[order, 0], pair[order, 0])
-    rank = np.empty(len(pair), dtype=np.int64)
-    rank[order] = np.arange(len(pair)) - first
-    drop[np.flatnonzero(rank[corner_pair] > 0) // 3] = True
+    _, corner_fan, rank = ranked_fans(faces)
+    drop[np.flatnonzero(rank[corner_fan] > 0) // 3] = True
     return drop
 
 

@@ -12,7 +12,9 @@ from recon.mesh import (
     face_area_vectors,
     face_components,
     face_normals,
+    ranked_fans,
     vertex_components,
+    vertex_fans,
 )
 from recon.topology import mesh_topology
 
@@ -31,6 +33,23 @@ def test_figure_of_eight_is_one_component_but_no_simple_loop():
     f = np.array([[0, 2, 1], [0, 3, 4]])
     assert boundary_loops(f) == []
     assert boundary_components(*count_edge_faces(f), 5) == 1
+
+
+def test_ranked_fans_keep_a_bow_tie_vertex_for_its_largest_fan_then_the_lowest_label():
+    # vertex 0: a lone face (the lowest fan label), a fan of two faces, another lone face
+    f = np.array([[0, 1, 2], [0, 3, 4], [0, 4, 5], [0, 6, 7]])
+    fan_vertex, corner_fan, rank = ranked_fans(f)
+    # the fans are np.unique's rows of (vertex, fan label), the corners its inverse
+    rows, inverse = np.unique(
+        np.stack([f.ravel(), vertex_fans(f).ravel()], axis=1), axis=0, return_inverse=True
+    )
+    assert fan_vertex.tolist() == rows[:, 0].tolist()
+    assert corner_fan.tolist() == inverse.reshape(-1).tolist()
+    assert rank[corner_fan].reshape(-1, 3)[:, 0].tolist() == [1, 0, 0, 2]
+    assert not rank[fan_vertex != 0].any()  # every other vertex has one fan
+    assert [len(a) for a in ranked_fans(f[1:3])] == [4, 6, 4]  # 4 vertices, 6 corners
+    assert not ranked_fans(f[1:3])[2].any()
+    assert [len(a) for a in ranked_fans(np.zeros((0, 3), np.int64))] == [0, 0, 0]
 
 
 def test_components_per_vertex_and_per_face():

@@ -127,6 +127,18 @@ def test_bow_tie_vertex_keeps_its_larger_fan():
     assert not extra_fan_faces(faces[:2]).any()
 
 
+def test_split_and_drop_repairs_take_the_same_extra_fans_of_a_bow_tie():
+    from recon.triangulate import extra_fan_faces, split_non_manifold_vertices
+
+    # vertex 0: a lone face, a fan of two faces, another lone face; both repairs keep the
+    # vertex for the fan of two
+    faces = np.array([[0, 1, 2], [0, 3, 4], [0, 4, 5], [0, 6, 7]])
+    v = np.arange(24, dtype=float).reshape(8, 3)
+    _, _, split, n_new = split_non_manifold_vertices(v, np.ones((8, 3)), faces)
+    assert n_new == 2 and split[:, 0].tolist() == [8, 0, 0, 9]
+    assert extra_fan_faces(faces).tolist() == (split[:, 0] >= 8).tolist()
+
+
 def _octahedron(center):
     v = np.array(
         [[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], float
