@@ -51,9 +51,9 @@ from .kernels.mesh_tables import (
     edge_table,
     fan_labels,
     half_edge_order,
+    half_edge_winding,
     overlap_candidates,
     vertex_component_labels,
-    winding_consistent,
 )
 
 __all__ = [
@@ -391,12 +391,19 @@ def boundary_loop_perimeters(vertices: np.ndarray, faces: np.ndarray) -> np.ndar
     return np.sort(np.bincount(comp, weights=length))[::-1]
 
 
-def orientation_flips(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def orientation_flips(
+    faces: np.ndarray, *, order: np.ndarray | None = None, consistent: bool | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """Per-face flips that make the winding consistent across every manifold edge.
 
     The face graph through edges with exactly two faces is spanned by a breadth-first forest
     (each component rooted at its lowest face, which keeps its winding); pointer jumping sums
     the pair parities up to the root in ``O(F log depth)``.
+
+    A caller that has sorted the half-edges of ``faces`` already passes what it found: their
+    ``order`` (:func:`recon.kernels.mesh_tables.half_edge_order`) and whether the winding is
+    ``consistent`` (:func:`recon.kernels.mesh_tables.winding_consistent`); without them both
+    come from one sort (:func:`recon.kernels.mesh_tables.half_edge_winding`).
 
     Returns
     -------
@@ -417,7 +424,9 @@ def orientation_flips(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     if n_faces == 0:
         return np.zeros(0, dtype=bool), np.zeros(0, dtype=bool)
     f = np.ascontiguousarray(faces, dtype=np.int64)
-    if winding_consistent(f, int(f.max()) + 1):  # the forest would flip nothing
+    if consistent is None:
+        order, consistent, _ = half_edge_winding(f, int(f.max()) + 1)
+    if consistent:  # the forest would flip nothing
         return np.zeros(n_faces, dtype=bool), np.zeros(n_faces, dtype=bool)
     he_from = f.ravel()
     he_to = np.roll(f, -1, axis=1).ravel()
@@ -425,7 +434,8 @@ def orientation_flips(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     lo = np.minimum(he_from, he_to)
     hi = np.maximum(he_from, he_to)
     forward = he_from < he_to
-    order = half_edge_order(f, int(f.max()) + 1)  # = np.lexsort((he_face, hi, lo))
+    if order is None:
+        order = half_edge_order(f, int(f.max()) + 1)  # = np.lexsort((he_face, hi, lo))
     lo_s, hi_s = lo[order], hi[order]
     is_new = np.ones(len(order), dtype=bool)
     is_new[1:] = (lo_s[1:] != lo_s[:-1]) | (hi_s[1:] != hi_s[:-1])

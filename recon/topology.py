@@ -265,7 +265,7 @@ def _mesh_topology(
     manifold_pair = edge_count[pair_edge] == 2
     flip_parity = (forward[a] == forward[b])[manifold_pair]  # True: the pair disagrees
     consistent = not bool(flip_parity.any())
-    orientable = consistent or not orientation_flips(f)[1].any()
+    orientable = consistent or not orientation_flips(f, order=order, consistent=False)[1].any()
     # the half-edge arrays are done with: free them before the component and fan passes
     # (at a million faces each is 24 MB and they held ~0.4 GB at the report's peak)
     del he_to, he_face, lo, hi, forward, lo_s, hi_s, is_new, edge_id_sorted

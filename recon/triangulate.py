@@ -41,7 +41,7 @@ from .holes import (
 )
 from .intersections import self_intersections
 from .kernels.circumsphere import circumsphere_kernel
-from .kernels.mesh_tables import circumradii, winding_and_open
+from .kernels.mesh_tables import circumradii, half_edge_winding
 from .mesh import (
     boundary_loops,
     capped_volume,
@@ -617,11 +617,14 @@ def orient_consistently(vertices: np.ndarray, normals: np.ndarray, faces: np.nda
     if len(faces) == 0:
         return faces
     faces = faces.copy()
-    consistent, open_face = winding_and_open(
+    # one sort of the half-edges for the winding test, the open faces and the first round
+    order, consistent, open_face = half_edge_winding(
         faces.astype(np.int64), max(len(vertices), faces.max() + 1)
     )
+    known = {"order": order, "consistent": consistent}
     for _ in range(0 if consistent else ORIENTATION_ROUNDS):
-        flip, conflict = orientation_flips(faces)
+        flip, conflict = orientation_flips(faces, **known)
+        known = {}  # later rounds see flipped or fewer faces
         if conflict.any():
             # cut where the surface turns over, if that is a smaller cut that works: the
             # search's conflicts lie where its fronts happened to meet
@@ -641,7 +644,7 @@ def orient_consistently(vertices: np.ndarray, normals: np.ndarray, faces: np.nda
     # signed volume (x6) of each component; meaningful for closed ones
     p = vertices[faces]
     vol = np.bincount(labels, weights=np.einsum("ij,ij->i", p[:, 0], fn), minlength=n)
-    if not consistent:  # the loop flipped or dropped faces: their edges again
+    if len(faces) < len(open_face):  # the loop dropped faces (flips keep the edges): again
         _, inv, cnt = unique_edges(faces, len(vertices))
         open_face = (cnt[inv.reshape(-1)] == 1).reshape(-1, 3).any(axis=1)
     closed = np.bincount(labels, weights=open_face, minlength=n) == 0

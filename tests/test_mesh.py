@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 from mesh_shapes import icosphere, open_cylinder
 
+from recon.kernels.mesh_tables import half_edge_order
 from recon.mesh import (
     boundary_components,
     boundary_loops,
@@ -12,6 +13,7 @@ from recon.mesh import (
     face_area_vectors,
     face_components,
     face_normals,
+    orientation_flips,
     ranked_fans,
     vertex_components,
     vertex_fans,
@@ -83,3 +85,14 @@ def test_face_keys_are_equal_for_the_same_vertices_in_any_order_on_both_paths():
         same = [[bool(np.all(k[i] == k[j])) for j in range(len(f))] for i in range(len(f))]
         assert same[0][:3] == [True, True, True] and not any(same[0][3:])
         assert not same[3][4]
+
+
+def test_orientation_flips_take_the_callers_sort_of_the_half_edges():
+    v, f = open_cylinder(12, 4)
+    f = f.copy()
+    f[::3] = f[::3, ::-1]  # orientable, not consistently wound
+    flip, conflict = orientation_flips(f)
+    assert flip.any() and not conflict.any()
+    given = orientation_flips(f, order=half_edge_order(f, len(v)), consistent=False)
+    assert np.array_equal(given[0], flip) and np.array_equal(given[1], conflict)
+    assert not orientation_flips(f, consistent=True)[0].any()  # taken at its word

@@ -157,9 +157,10 @@ def winding_consistent(faces, n_vertices):  # pragma: no cover - numba
 
 
 @njit(**EXACT_JIT_OPTIONS)
-def winding_and_open(faces, n_vertices):  # pragma: no cover - numba
-    """:func:`winding_consistent`, and which faces have an edge in no other face (a
-    boundary edge): ``(consistent, open_face (F,) bool)``, from one sort of the half-edges."""
+def half_edge_winding(faces, n_vertices):  # pragma: no cover - numba
+    """The half-edge order (:func:`half_edge_order`), whether the winding is consistent
+    (:func:`winding_consistent`) and which faces have an edge in no other face (a boundary
+    edge), from one sort of the half-edges: ``(order, consistent, open_face (F,) bool)``."""
     order, start, hs = _sort_half_edges(faces, n_vertices)
     open_face = np.zeros(faces.shape[0], dtype=np.bool_)
     consistent = True
@@ -174,6 +175,14 @@ def winding_and_open(faces, n_vertices):  # pragma: no cover - numba
             elif j - i == 2 and consistent:
                 consistent = not _same_way(faces, order[i], order[i + 1])
             i = j
+    return order, consistent, open_face
+
+
+@njit(**EXACT_JIT_OPTIONS)
+def winding_and_open(faces, n_vertices):  # pragma: no cover - numba
+    """:func:`winding_consistent`, and which faces have an edge in no other face (a
+    boundary edge): ``(consistent, open_face (F,) bool)``, from one sort of the half-edges."""
+    _, consistent, open_face = half_edge_winding(faces, n_vertices)
     return consistent, open_face
 
 

@@ -16,6 +16,7 @@ from recon.kernels.mesh_tables import (
     fan_labels,
     fast_atan2,
     half_edge_order,
+    half_edge_winding,
     overlap_candidates,
     vertex_component_labels,
     winding_and_open,
@@ -249,3 +250,7 @@ def test_winding_and_open_agree_with_the_edge_counts(seed):
     )
     want = (counts[inverse] == 1).reshape(-1, 3).any(axis=1)
     assert np.array_equal(open_face, want) and want.any() and not want.all()
+    # the same from the sort that also gives the half-edge order
+    order, consistent_too, open_too = half_edge_winding(f, len(v))
+    assert np.array_equal(order, half_edge_order(f, len(v)))
+    assert consistent_too == consistent and np.array_equal(open_too, open_face)
