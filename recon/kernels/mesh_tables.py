@@ -142,18 +142,8 @@ def _same_way(faces, h, g):  # pragma: no cover - numba
 def winding_consistent(faces, n_vertices):  # pragma: no cover - numba
     """Do the two faces of every edge in exactly two faces run it in opposite directions?
     (:func:`recon.mesh.orientation_flips` then flips nothing.) Edges in one face or in more
-    than two are not looked at."""
-    order, start, hs = _sort_half_edges(faces, n_vertices)
-    for v in range(n_vertices):
-        i = start[v]
-        while i < start[v + 1]:
-            j = i + 1
-            while j < start[v + 1] and hs[j] == hs[i]:
-                j += 1
-            if j - i == 2 and _same_way(faces, order[i], order[i + 1]):
-                return False
-            i = j
-    return True
+    than two are not looked at. (:func:`half_edge_winding`'s answer.)"""
+    return half_edge_winding(faces, n_vertices)[1]
 
 
 @njit(**EXACT_JIT_OPTIONS)
