@@ -49,7 +49,7 @@ from ..kernels.options import query_workers, thread_count
 from ..kernels.warm import warm_fit_kernels
 from ..neighbors import PointGrid
 from ..normal_signs import resign_thin_parts
-from ..normals import compute_normals, neighbors_needed
+from ..normals import MAX_SCALE, compute_normals, neighbors_needed
 from ..polish import polish
 from ..serialize import dumps
 from ..state import ParticleState
@@ -493,9 +493,11 @@ def _fit_sheet(cloud: PointCloud, cfg: ReconConfig, on_progress: ProgressFn | No
 
     tree = cKDTree(points)  # one k-d tree of the data for the stages up to r0 (same queries)
     variations: dict[int, float] = {}  # median surface variation by k, measured once
+    # each point's normal from the best determined neighbourhood up to the noise rule's widest
+    k_max = MAX_SCALE * cfg.normals.k if cfg.normals.auto_scale else None
     cfg = with_neighborhood_size(points, cfg, tree, variations)
     knn = shared_neighbors(points, cfg, tree)
-    normals, normals_info = compute_normals(cloud, cfg.normals, neighbors=knn)
+    normals, normals_info = compute_normals(cloud, cfg.normals, neighbors=knn, k_max=k_max)
     clock.lap("normals")
     clock.check()
     found, creases = _detect_creases(points, normals, cfg, bbox_diagonal(points), knn, tree)
