@@ -62,10 +62,17 @@ from scipy.sparse import csgraph
 from scipy.spatial import cKDTree
 
 from .errors import ConfigError, InputError
-from .geometry import as_points, median_variation
+from .geometry import as_points
 from .kernels.options import query_workers
 from .kernels.pca import scatter_matrices
 from .kernels.thin_sides import span_screen, split_sides_kernel
+from .normal_scales import (  # noqa: F401 (choose_neighborhood_size: the public name here)
+    MAX_SCALE,
+    THIN_VARIATION,
+    best_scale_normals,
+    choose_neighborhood_size,
+    neighbourhood_scales,
+)
 from .orientation_graph import edge_costs
 from .row_blocks import for_row_blocks, row_blocks
 
@@ -166,21 +173,17 @@ def estimate_normals(
     radius: float | None = None,
     neighbors: tuple[np.ndarray, np.ndarray] | None = None,
     k_max: int | None = None,
+    tree: cKDTree | None = None,
 ) -> np.ndarray:
     """Unoriented normals by principal component analysis of each point's neighbourhood.
 
     The normal is the eigenvector of the smallest eigenvalue of the covariance of the point's
     ``k`` nearest neighbours (the point itself included) [Hoppe92, section 3.2].
 
-    With ``k_max`` (at least ``2 k``, no ``radius``), each point takes, of its ``k``, ``2 k``,
-    ``4 k`` ... nearest up to ``k_max``, the neighbourhood whose normal is best determined:
-    the least ratio ``l0 / l1`` of the smallest two eigenvalues (per-point scale selection,
-    after Mitra, Nguyen & Guibas 2004). Where a part is about as thick as a k-neighbourhood
-    is wide, the neighbourhood holds both faces and is as tall as it is wide: ``l0 ~ l1``, and
-    the smallest eigenvector can lie in the tangent plane (a knife's edge at low noise, k = 20:
-    20-47 % of the normals 25 deg or more off where the blade is 1-2 r0 thick). A wider one
-    holds both faces in a flat disc, whose normal is the faces' (``l0 << l1``); a narrower one
-    on a single curved or noisy sheet keeps its own (its ratio grows with the width there).
+    With ``k_max`` (at least ``2 k``, no ``radius``), a point whose neighbourhood is not thin
+    takes the best determined of its ``k``, ``2 k`` ... nearest up to ``k_max``: across a part
+    about as thick as a k-neighbourhood is wide (:mod:`recon.normal_scales`). ``tree``: a
+    k-d tree of ``points`` if one is built (for queries wider than ``neighbors``).
 
     Parameters
     ----------
@@ -215,11 +218,14 @@ def estimate_normals(
     if radius is not None and not radius > 0:
         raise ValueError(f"radius: expected a positive length or None, got {radius}")
     k_eff = int(min(k, n))
-    scales = _scales(k_eff, None if radius is not None else k_max, n)
+    scales = neighbourhood_scales(k_eff, None if radius is not None else k_max, n)
     k_query = scales[-1]
     if neighbors is not None and neighbors[1].shape[1] < k_query:
         neighbors = None  # too narrow: query
-    tree = cKDTree(pts) if neighbors is None else None
+    if neighbors is not None:
+        tree = None
+    elif tree is None:
+        tree = cKDTree(pts)
     normals = np.zeros((n, 3))
     workers = query_workers()
 
@@ -231,7 +237,7 @@ def estimate_normals(
             dist, idx = tree.query(query, k=k_query, workers=workers)
         idx = idx.reshape(len(query), k_query)
         if len(scales) > 1:
-            normals[b] = _best_scale_normals(pts, query, idx, scales)
+            normals[b] = best_scale_normals(pts, query, idx, scales, _SIDES_MIN, _SIDES_SEPARATION)
             return
         if radius is not None:
             dist = dist.reshape(len(query), k_eff)
@@ -248,37 +254,6 @@ def estimate_normals(
         for b in row_blocks(n, _CHUNK):
             rows(b)
     return normals
-
-
-def _scales(k: int, k_max: int | None, n: int) -> list[int]:
-    """The neighbourhood sizes :func:`estimate_normals` compares: ``k``, ``2 k``, ``4 k``
-    ... up to ``k_max`` (and ``n``); ``[k]`` without ``k_max``."""
-    scales = [k]
-    while k_max is not None and 2 * scales[-1] <= min(k_max, n):
-        scales.append(2 * scales[-1])
-    return scales
-
-
-def _best_scale_normals(
-    pts: np.ndarray, query: np.ndarray, idx: np.ndarray, scales: list[int]
-) -> np.ndarray:
-    """Of the PCA normals of each row's nearest ``scales[0]``, ``scales[1]`` ... (prefixes of
-    ``idx``, nearest first), the one with the least ``l0 / l1`` (the first on a tie)."""
-    centre = np.ascontiguousarray(query)
-    cov = np.empty((len(query), 3, 3))
-    best = out = None
-    for kk in scales:
-        scatter_matrices(pts, np.ascontiguousarray(idx[:, :kk]), centre, True, cov)
-        vals, vecs = np.linalg.eigh(cov)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            ratio = np.where(vals[:, 1] > 0.0, vals[:, 0] / vals[:, 1], np.inf)
-        if best is None:  # the first scale's normal stands unless a wider one is better
-            best, out = ratio, vecs[:, :, 0].copy()
-            continue
-        take = ratio < best
-        best[take] = ratio[take]
-        out[take] = vecs[take, :, 0]
-    return out / np.linalg.norm(out, axis=1, keepdims=True)
 
 
 def _pca_normals(
@@ -696,44 +671,6 @@ def orient_normals(
 # pipeline entry
 
 
-#: The widest neighbourhood the normals take, in multiples of ``normals.k``: the noise rule
-#: (:func:`choose_neighborhood_size`) and the per-point scale (:func:`estimate_normals`).
-MAX_SCALE = 4
-#: Median PCA surface variation lambda_0 / (lambda_0 + lambda_1 + lambda_2) below which a
-#: neighbourhood counts as thin (clean data: <= 0.016; 1 % noise at k = 20: ~0.18).
-THIN_VARIATION = 0.05
-
-
-def choose_neighborhood_size(
-    points: np.ndarray,
-    k: int,
-    sample: int = 4000,
-    tree: cKDTree | None = None,
-    variations: dict[int, float] | None = None,
-) -> int:
-    """Neighbourhood size for normals and local surfaces: k, doubled while the data is noisy.
-
-    The median surface variation of k-neighbourhoods (PCA) is near 0 on clean surfaces and
-    grows with noise; wider neighbourhoods average the noise. Returns the smallest of
-    k, 2k, 4k whose median variation is below ``THIN_VARIATION`` (4k at most: wider
-    neighbourhoods mix the two sides of thin parts; measured on the 1 %-noise bunny, sign
-    consistency 99.3 % at k = 80 but 94.6 % at k = 160). ``tree``: one of ``points`` if built.
-    ``variations``: a dict that receives each median variation measured, by k (the chosen k's
-    among them, which :func:`recon.normal_signs.resign_thin_parts` need not measure again).
-    """
-    n = len(points)
-    tree = cKDTree(points) if tree is None else tree
-    variations = {} if variations is None else variations
-    chosen = k
-    for factor in (1, 2, MAX_SCALE):
-        kk = min(k * factor, n)
-        chosen = kk
-        variations[kk] = variation = median_variation(points, kk, sample, tree)
-        if variation < THIN_VARIATION or kk >= n:
-            break
-    return int(chosen)
-
-
 def neighbors_needed(cfg: NormalsConfig, has_input: bool = False) -> int:
     """Nearest points per point (itself included) that :func:`compute_normals` queries: the
     estimate's ``k`` and the orientation graph's (0 when the file's normals are used)."""
@@ -753,6 +690,7 @@ def compute_normals(
     cfg: NormalsConfig,
     neighbors: tuple[np.ndarray, np.ndarray] | None = None,
     k_max: int | None = None,
+    tree: cKDTree | None = None,
 ) -> tuple[np.ndarray, dict[str, Any]]:
     """Normals for a point cloud as the ``normals`` configuration section asks.
 
@@ -771,6 +709,8 @@ def compute_normals(
         Each point's normal from the best determined of its ``k``, ``2 k`` ... nearest up to
         this many (:func:`estimate_normals`); None: ``MAX_SCALE`` x ``cfg.k`` when
         ``cfg.auto_scale`` (the widest neighbourhood the noise rule takes), else k only.
+    tree : scipy.spatial.cKDTree, optional
+        A k-d tree of ``cloud.points`` (the fit's shared one), for the wider queries.
 
     Returns
     -------
@@ -817,7 +757,9 @@ def compute_normals(
         if k_max is None and cfg.auto_scale:
             k_max = MAX_SCALE * cfg.k
         shared = neighbors if neighbors is not None and neighbors[1].shape[1] >= k else None
-        normals = estimate_normals(pts, k=k, radius=cfg.radius, neighbors=shared, k_max=k_max)
+        normals = estimate_normals(
+            pts, k=k, radius=cfg.radius, neighbors=shared, k_max=k_max, tree=tree
+        )
         viewpoint = None
         if cfg.viewpoint is not None:
             viewpoint = np.asarray(cfg.viewpoint, dtype=np.float64) - cloud.origin

@@ -76,6 +76,21 @@ def test_estimate_best_scale_across_a_thin_part():
     pts, truth = sphere()
     cos = np.abs(np.einsum("ij,ij->i", estimate_normals(pts, k=20, k_max=80), truth))
     assert np.median(np.degrees(np.arccos(np.clip(cos, 0.0, 1.0)))) < 5.0
+    # a 30 deg wedge: a wide neighbourhood round its edge has the bisector's normal, no
+    # face's; its offsets do not split in two groups, so the edge keeps the k normals
+    half = np.radians(15.0)
+    d = [np.array([np.cos(half), 0.0, s * np.sin(half)]) for s in (1, -1)]
+    uv = rng.uniform(0, 1, (2, 3000, 2))
+    p = np.concatenate([uv[i][:, :1] * d[i] + uv[i][:, 1:] * [0.0, 1.0, 0.0] for i in (0, 1)])
+    p += rng.normal(scale=0.002, size=p.shape)
+    faces = np.repeat([np.cross(d[i], [0.0, 1.0, 0.0]) for i in (0, 1)], 3000, axis=0)
+    edge = (uv[..., 0].ravel() < 0.15) & (np.abs(uv[..., 1].ravel() - 0.5) < 0.4)
+
+    def off(n: np.ndarray) -> float:
+        cos = np.abs(np.einsum("ij,ij->i", n[edge], faces[edge]))
+        return float(np.median(np.degrees(np.arccos(np.clip(cos, 0.0, 1.0)))))
+
+    assert off(estimate_normals(p, k=20, k_max=80)) <= off(estimate_normals(p, k=20)) + 0.5
 
 
 def test_estimate_with_radius():
