@@ -431,3 +431,31 @@ def test_spanning_tree_of_the_upper_triangle_is_that_of_the_symmetric_graph():
             np.testing.assert_array_equal(upper.indptr, whole.indptr)
             np.testing.assert_array_equal(upper.indices, whole.indices)
             np.testing.assert_array_equal(upper.data, whole.data)
+
+
+def test_per_point_scale_is_opt_in(monkeypatch):
+    """``normals.per_point_scale`` (off by default) alone sends the estimate to the per-point
+    scale: the default fit's normals stay those of one k."""
+    import recon.normals as normals_module
+
+    calls = []
+    best = normals_module.best_scale_normals
+
+    def spy(*args, **kwargs):
+        calls.append(1)
+        return best(*args, **kwargs)
+
+    monkeypatch.setattr(normals_module, "best_scale_normals", spy)
+    rng = np.random.default_rng(1)
+    # a sheet (most of the data: k stays 20) and, beside it, a slab whose two faces lie about
+    # as far apart as a 20-neighbourhood is wide
+    sheet = np.c_[rng.uniform(0, 2, (6000, 2)), np.zeros(6000)]
+    slab = [np.c_[rng.uniform([3, 0], [4, 1], (1500, 2)), np.full(1500, s * 0.02)] for s in (1, -1)]
+    pts = np.concatenate([sheet, *slab]) + rng.normal(scale=0.0005, size=(9000, 3))
+    cloud = cloud_from_arrays(pts)
+    off, _ = compute_normals(cloud, NormalsConfig(mode="estimate"))
+    assert not calls
+    on, _ = compute_normals(cloud, NormalsConfig(mode="estimate", per_point_scale=True))
+    assert calls
+    inner = (np.abs(pts[:, :2] - [3.5, 0.5]) < 0.4).all(axis=1)
+    assert np.mean(np.abs(on[inner, 2]) < 0.9) < np.mean(np.abs(off[inner, 2]) < 0.9)

@@ -491,7 +491,8 @@ def _fit_sheet(
 
     ``normals_k_max``: the widest neighbourhood a point's normal may take
     (:func:`recon.normals.estimate_normals`); None: ``MAX_SCALE`` x ``normals.k`` when
-    ``normals.auto_scale``, else k only (a tile's resolved k comes with its scan's)."""
+    ``normals.auto_scale`` and ``normals.per_point_scale``, else k only (a tile's resolved
+    k comes with its scan's)."""
     clock = Clock(cfg.dynamics.time_limit)
     warm_fit_kernels()  # the kernels' cached code loads beside the first stages
     rng = np.random.default_rng(cfg.seed)
@@ -504,7 +505,7 @@ def _fit_sheet(
     variations: dict[int, float] = {}  # median surface variation by k, measured once
     # each point's normal from the best determined neighbourhood up to the noise rule's widest
     k_max = normals_k_max
-    if k_max is None and cfg.normals.auto_scale:
+    if k_max is None and cfg.normals.auto_scale and cfg.normals.per_point_scale:
         k_max = MAX_SCALE * cfg.normals.k
     cfg = with_neighborhood_size(points, cfg, tree, variations)
     knn = shared_neighbors(points, cfg, tree)

@@ -273,7 +273,8 @@ def fit_tiled(
             cfg_dict = config_to_dict(tile_cfg)
             from ..normals import MAX_SCALE
 
-            k_max = MAX_SCALE * cfg.normals.k if cfg.normals.auto_scale else None
+            n_cfg = cfg.normals
+            k_max = MAX_SCALE * n_cfg.k if n_cfg.auto_scale and n_cfg.per_point_scale else None
             records = TileRecords(grid)
             task_store = store.for_tasks()  # without the per-tile counts: one per task
             run_tasks(
