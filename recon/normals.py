@@ -62,10 +62,17 @@ from scipy.sparse import csgraph
 from scipy.spatial import cKDTree
 
 from .errors import ConfigError, InputError
-from .geometry import as_points, median_variation
+from .geometry import as_points
 from .kernels.options import query_workers
 from .kernels.pca import scatter_matrices
 from .kernels.thin_sides import span_screen, split_sides_kernel
+from .normal_scales import (  # noqa: F401 (choose_neighborhood_size: the public name here)
+    MAX_SCALE,
+    THIN_VARIATION,
+    best_scale_normals,
+    choose_neighborhood_size,
+    neighbourhood_scales,
+)
 from .orientation_graph import edge_costs
 from .row_blocks import for_row_blocks, row_blocks
 
@@ -165,11 +172,18 @@ def estimate_normals(
     k: int = 20,
     radius: float | None = None,
     neighbors: tuple[np.ndarray, np.ndarray] | None = None,
+    k_max: int | None = None,
+    tree: cKDTree | None = None,
 ) -> np.ndarray:
     """Unoriented normals by principal component analysis of each point's neighbourhood.
 
     The normal is the eigenvector of the smallest eigenvalue of the covariance of the point's
     ``k`` nearest neighbours (the point itself included) [Hoppe92, section 3.2].
+
+    With ``k_max`` (at least ``2 k``, no ``radius``), a point whose neighbourhood is not thin
+    takes the best determined of its ``k``, ``2 k`` ... nearest up to ``k_max``: across a part
+    about as thick as a k-neighbourhood is wide (:mod:`recon.normal_scales`). ``tree``: a
+    k-d tree of ``points`` if one is built (for queries wider than ``neighbors``).
 
     Parameters
     ----------
@@ -204,19 +218,27 @@ def estimate_normals(
     if radius is not None and not radius > 0:
         raise ValueError(f"radius: expected a positive length or None, got {radius}")
     k_eff = int(min(k, n))
-    if neighbors is not None and neighbors[1].shape[1] < k_eff:
+    scales = neighbourhood_scales(k_eff, None if radius is not None else k_max, n)
+    k_query = scales[-1]
+    if neighbors is not None and neighbors[1].shape[1] < k_query:
         neighbors = None  # too narrow: query
-    tree = cKDTree(pts) if neighbors is None else None
+    if neighbors is not None:
+        tree = None
+    elif tree is None:
+        tree = cKDTree(pts)
     normals = np.zeros((n, 3))
     workers = query_workers()
 
     def rows(b: slice) -> None:
         query = pts[b]
         if tree is None:
-            dist, idx = neighbors[0][b, :k_eff], neighbors[1][b, :k_eff]
+            dist, idx = neighbors[0][b, :k_query], neighbors[1][b, :k_query]
         else:
-            dist, idx = tree.query(query, k=k_eff, workers=workers)
-        idx = idx.reshape(len(query), k_eff)
+            dist, idx = tree.query(query, k=k_query, workers=workers)
+        idx = idx.reshape(len(query), k_query)
+        if len(scales) > 1:
+            normals[b] = best_scale_normals(pts, query, idx, scales, _SIDES_MIN, _SIDES_SEPARATION)
+            return
         if radius is not None:
             dist = dist.reshape(len(query), k_eff)
             inside = dist <= radius
@@ -649,41 +671,6 @@ def orient_normals(
 # pipeline entry
 
 
-#: Median PCA surface variation lambda_0 / (lambda_0 + lambda_1 + lambda_2) below which a
-#: neighbourhood counts as thin (clean data: <= 0.016; 1 % noise at k = 20: ~0.18).
-THIN_VARIATION = 0.05
-
-
-def choose_neighborhood_size(
-    points: np.ndarray,
-    k: int,
-    sample: int = 4000,
-    tree: cKDTree | None = None,
-    variations: dict[int, float] | None = None,
-) -> int:
-    """Neighbourhood size for normals and local surfaces: k, doubled while the data is noisy.
-
-    The median surface variation of k-neighbourhoods (PCA) is near 0 on clean surfaces and
-    grows with noise; wider neighbourhoods average the noise. Returns the smallest of
-    k, 2k, 4k whose median variation is below ``THIN_VARIATION`` (4k at most: wider
-    neighbourhoods mix the two sides of thin parts; measured on the 1 %-noise bunny, sign
-    consistency 99.3 % at k = 80 but 94.6 % at k = 160). ``tree``: one of ``points`` if built.
-    ``variations``: a dict that receives each median variation measured, by k (the chosen k's
-    among them, which :func:`recon.normal_signs.resign_thin_parts` need not measure again).
-    """
-    n = len(points)
-    tree = cKDTree(points) if tree is None else tree
-    variations = {} if variations is None else variations
-    chosen = k
-    for factor in (1, 2, 4):
-        kk = min(k * factor, n)
-        chosen = kk
-        variations[kk] = variation = median_variation(points, kk, sample, tree)
-        if variation < THIN_VARIATION or kk >= n:
-            break
-    return int(chosen)
-
-
 def neighbors_needed(cfg: NormalsConfig, has_input: bool = False) -> int:
     """Nearest points per point (itself included) that :func:`compute_normals` queries: the
     estimate's ``k`` and the orientation graph's (0 when the file's normals are used)."""
@@ -702,6 +689,8 @@ def compute_normals(
     cloud: PointCloud,
     cfg: NormalsConfig,
     neighbors: tuple[np.ndarray, np.ndarray] | None = None,
+    k_max: int | None = None,
+    tree: cKDTree | None = None,
 ) -> tuple[np.ndarray, dict[str, Any]]:
     """Normals for a point cloud as the ``normals`` configuration section asks.
 
@@ -716,6 +705,13 @@ def compute_normals(
     neighbors : (distances (n, m), indices (n, m)), optional
         The points' m nearest points, nearest first (a shared k-d tree query); the estimate
         and the orientation graph take their neighbours from it where m covers them.
+    k_max : int, optional
+        Each point's normal from the best determined of its ``k``, ``2 k`` ... nearest up to
+        this many (:func:`estimate_normals`); None: ``MAX_SCALE`` x ``cfg.k`` when
+        ``cfg.auto_scale`` and ``cfg.per_point_scale`` (the widest neighbourhood the noise
+        rule takes), else k only.
+    tree : scipy.spatial.cKDTree, optional
+        A k-d tree of ``cloud.points`` (the fit's shared one), for the wider queries.
 
     Returns
     -------
@@ -759,8 +755,12 @@ def compute_normals(
         info = {"source": "input", "n_filled": n_bad}
     else:
         k = choose_neighborhood_size(pts, cfg.k) if cfg.auto_scale else cfg.k
+        if k_max is None and cfg.auto_scale and cfg.per_point_scale:
+            k_max = MAX_SCALE * cfg.k
         shared = neighbors if neighbors is not None and neighbors[1].shape[1] >= k else None
-        normals = estimate_normals(pts, k=k, radius=cfg.radius, neighbors=shared)
+        normals = estimate_normals(
+            pts, k=k, radius=cfg.radius, neighbors=shared, k_max=k_max, tree=tree
+        )
         viewpoint = None
         if cfg.viewpoint is not None:
             viewpoint = np.asarray(cfg.viewpoint, dtype=np.float64) - cloud.origin

@@ -49,7 +49,7 @@ from ..kernels.options import query_workers, thread_count
 from ..kernels.warm import warm_fit_kernels
 from ..neighbors import PointGrid
 from ..normal_signs import resign_thin_parts
-from ..normals import compute_normals, neighbors_needed
+from ..normals import MAX_SCALE, compute_normals, neighbors_needed
 from ..polish import polish
 from ..serialize import dumps
 from ..state import ParticleState
@@ -481,8 +481,18 @@ class _Sheet:
     clock: Clock
 
 
-def _fit_sheet(cloud: PointCloud, cfg: ReconConfig, on_progress: ProgressFn | None) -> _Sheet:
-    """Normals, r0, the schedule and the trim: everything before the triangulation."""
+def _fit_sheet(
+    cloud: PointCloud,
+    cfg: ReconConfig,
+    on_progress: ProgressFn | None,
+    normals_k_max: int | None = None,
+) -> _Sheet:
+    """Normals, r0, the schedule and the trim: everything before the triangulation.
+
+    ``normals_k_max``: the widest neighbourhood a point's normal may take
+    (:func:`recon.normals.estimate_normals`); None: ``MAX_SCALE`` x ``normals.k`` when
+    ``normals.auto_scale`` and ``normals.per_point_scale``, else k only (a tile's resolved
+    k comes with its scan's)."""
     clock = Clock(cfg.dynamics.time_limit)
     warm_fit_kernels()  # the kernels' cached code loads beside the first stages
     rng = np.random.default_rng(cfg.seed)
@@ -493,9 +503,15 @@ def _fit_sheet(cloud: PointCloud, cfg: ReconConfig, on_progress: ProgressFn | No
 
     tree = cKDTree(points)  # one k-d tree of the data for the stages up to r0 (same queries)
     variations: dict[int, float] = {}  # median surface variation by k, measured once
+    # each point's normal from the best determined neighbourhood up to the noise rule's widest
+    k_max = normals_k_max
+    if k_max is None and cfg.normals.auto_scale and cfg.normals.per_point_scale:
+        k_max = MAX_SCALE * cfg.normals.k
     cfg = with_neighborhood_size(points, cfg, tree, variations)
     knn = shared_neighbors(points, cfg, tree)
-    normals, normals_info = compute_normals(cloud, cfg.normals, neighbors=knn)
+    normals, normals_info = compute_normals(
+        cloud, cfg.normals, neighbors=knn, k_max=k_max, tree=tree
+    )
     clock.lap("normals")
     clock.check()
     found, creases = _detect_creases(points, normals, cfg, bbox_diagonal(points), knn, tree)
@@ -527,14 +543,17 @@ def _fit_sheet(cloud: PointCloud, cfg: ReconConfig, on_progress: ProgressFn | No
 
 
 def fit_particles(
-    cloud: PointCloud, config: ReconConfig | None = None, on_progress: ProgressFn | None = None
+    cloud: PointCloud,
+    config: ReconConfig | None = None,
+    on_progress: ProgressFn | None = None,
+    normals_k_max: int | None = None,
 ) -> ParticleFit:
     """The particle sheet of a fit without its mesh: one tile of a tiled fit
     (:mod:`recon.tiling`), which gives r0 (``seeds.spacing``), ``growth.max_gap`` and
     ``normals.k`` fixed for the whole scan."""
     cfg = config if config is not None else ReconConfig()
     with thread_count(cfg.threads):
-        sheet = _fit_sheet(cloud, cfg, on_progress)
+        sheet = _fit_sheet(cloud, cfg, on_progress, normals_k_max)
     state = sheet.sched.state
     origin = np.asarray(cloud.origin, dtype=np.float64)
     return ParticleFit(

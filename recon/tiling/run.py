@@ -271,6 +271,10 @@ def fit_tiled(
 
             t0 = time.perf_counter()
             cfg_dict = config_to_dict(tile_cfg)
+            from ..normals import MAX_SCALE
+
+            n_cfg = cfg.normals
+            k_max = MAX_SCALE * n_cfg.k if n_cfg.auto_scale and n_cfg.per_point_scale else None
             records = TileRecords(grid)
             task_store = store.for_tasks()  # without the per-tile counts: one per task
             run_tasks(
@@ -278,7 +282,7 @@ def fit_tiled(
                 "fit",
                 LazyTasks(
                     store.tiles(),
-                    lambda t: (fit_task, (FitJob(t, task_store, cfg_dict, r0, work),)),
+                    lambda t: (fit_task, (FitJob(t, task_store, cfg_dict, r0, work, k_max),)),
                 ),
                 grid.describe,
                 on_event,

@@ -129,6 +129,9 @@ class FitJob:
     config: dict  # config_to_dict of the scan's resolved configuration
     r0: float
     work: Path
+    #: the widest neighbourhood a point's normal may take (``normals.auto_scale`` of the scan:
+    #: ``MAX_SCALE`` x its configured ``normals.k``; the tiles' own ``k`` is resolved already)
+    normals_k_max: int | None = None
 
 
 def fit_task(job: FitJob) -> dict:
@@ -160,7 +163,8 @@ def fit_task(job: FitJob) -> dict:
     if n_core >= MIN_TILE_POINTS:
         normals = job.store.normals(rows)
         try:
-            pf = fit_particles(cloud_from_arrays(rows[:, :3], normals), cfg)
+            cloud = cloud_from_arrays(rows[:, :3], normals)
+            pf = fit_particles(cloud, cfg, normals_k_max=job.normals_k_max)
         except InputError as exc:
             if n_core >= SMALL_TILE_POINTS:
                 raise
