@@ -13,16 +13,19 @@ from dataclasses import replace
 
 import numpy as np
 
+from .intersections import self_intersections, untangle
 from .remesh.improve import flip_and_smooth
 from .surface import DataSurface
 from .triangulate import TriangulationResult
 
-__all__ = ["POLISH_STEP", "polish"]
+__all__ = ["HOLD_RINGS", "POLISH_STEP", "polish", "polish_and_untangle"]
 
 #: Fraction of the way to its neighbours' centroid a vertex moves per polishing round: the
 #: particles are already evenly spaced (about 0.1 r0 off the ideal), so the step can be larger
 #: than the remesher's, which starts from arbitrary triangles.
 POLISH_STEP = 0.8
+#: Rings of vertices round the faces a polished mesh still crosses that the retry holds.
+HOLD_RINGS = 2
 
 
 def polish(
@@ -77,3 +80,37 @@ def polish(
         normals=normals,
         stats={**result.stats, "polish_flips": stats["flips"]},
     )
+
+
+def polish_and_untangle(
+    result: TriangulationResult, surface: DataSurface | None, rounds: int, flips: bool = True
+) -> tuple[TriangulationResult, int, int]:
+    """:func:`polish`, then :func:`recon.intersections.untangle`; returns the mesh and
+    untangle's crossing pairs found and left.
+
+    The polish must not leave a crossing that the unpolished mesh would not: on a blade whose
+    edge thins to nothing its moves can put a face through the opposite layer, beyond what
+    untangling clears (the held-out knife, 4 pairs). When crossings are left, the polish runs
+    again with the vertices within ``HOLD_RINGS`` rings of the crossing faces held, and the
+    mesh with the fewest crossings left is kept, preferring the polished ones on a tie:
+    polished, polished with those vertices held, unpolished.
+    """
+    fixed = result.crease
+
+    def finish(mesh: TriangulationResult) -> tuple[TriangulationResult, int, int]:
+        vertices, found, left = untangle(mesh.vertices, mesh.faces, fixed=fixed)
+        return replace(mesh, vertices=vertices), found, left
+
+    best = finish(polish(result, surface, rounds, flips))
+    if best[2] == 0 or rounds <= 0:
+        return best
+    crossing = self_intersections(best[0].vertices, best[0].faces)
+    held = np.zeros(len(result.vertices), dtype=bool)
+    held[best[0].faces[np.unique(crossing)].ravel()] = True
+    for _ in range(HOLD_RINGS):
+        held[best[0].faces[held[best[0].faces].any(axis=1)].ravel()] = True
+    for candidate in (polish(result, surface, rounds, flips, fixed=held), result):
+        out = finish(candidate)
+        if out[2] < best[2]:
+            best = out
+    return best

@@ -96,18 +96,18 @@ def test_a_mesh_the_reach_leaves_crossing_is_meshed_again_at_r0(monkeypatch):
     spacings thick at 3,000 points) untangling cannot remove the crossing: the fit then
     meshes again with data covering only within r0, as before the reach."""
     points = union_points(EARED, 2000, 4)
-    real = pipeline.untangle
+    real = pipeline.polish_and_untangle
     calls = []
 
-    def first_leaves_a_crossing(vertices, faces, fixed=None):
-        v, found, left = real(vertices, faces, fixed=fixed)
-        calls.append(len(faces))
-        return v, found, (left + 1 if len(calls) == 1 else left)
+    def first_leaves_a_crossing(result, surface, rounds, flips=True):
+        mesh, found, left = real(result, surface, rounds, flips)
+        calls.append(len(mesh.faces))
+        return mesh, found, (left + 1 if len(calls) == 1 else left)
 
-    monkeypatch.setattr(pipeline, "untangle", first_leaves_a_crossing)
+    monkeypatch.setattr(pipeline, "polish_and_untangle", first_leaves_a_crossing)
     res = recon.fit(points)
     assert len(calls) == 2 and res.report.triangulation.self_intersections_left == 0
-    monkeypatch.setattr(pipeline, "untangle", real)
+    monkeypatch.setattr(pipeline, "polish_and_untangle", real)
     monkeypatch.setattr(pipeline, "cover_reach", lambda median_spacing: 0.0)
     plain = recon.fit(points)
     assert np.array_equal(res.mesh.faces, plain.mesh.faces)

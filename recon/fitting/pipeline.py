@@ -44,13 +44,12 @@ from ..creases import Creases, detect_creases
 from ..errors import InputError
 from ..exterior_signs import resign_by_exterior
 from ..geometry import bbox_diagonal
-from ..intersections import untangle
 from ..kernels.options import query_workers, thread_count
 from ..kernels.warm import warm_fit_kernels
 from ..neighbors import PointGrid
 from ..normal_signs import resign_thin_parts
 from ..normals import MAX_SCALE, compute_normals, neighbors_needed
-from ..polish import polish
+from ..polish import polish_and_untangle
 from ..serialize import dumps
 from ..state import ParticleState
 from ..surface import DataSurface
@@ -298,9 +297,7 @@ def _triangulate(
         )
         # without project_to_data (noisy scans) the polish stays in the tangent planes too
         onto = surface if tri_cfg.project_to_data else None
-        result = polish(result, onto, tri_cfg.smooth_rounds, tri_cfg.smooth_flips)
-        vertices, found, left = untangle(result.vertices, result.faces, fixed=result.crease)
-        return replace(result, vertices=vertices), found, left
+        return polish_and_untangle(result, onto, tri_cfg.smooth_rounds, tri_cfg.smooth_flips)
 
     reach = cover_reach(median_spacing)
     result, found, left = mesh(reach)
