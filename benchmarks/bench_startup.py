@@ -18,7 +18,7 @@ Examples (``BASE``: another checkout to compare with, e.g. ``git worktree add BA
     NUMBA_NUM_THREADS=1 OMP_NUM_THREADS=1 python benchmarks/bench_startup.py \\
         ../shared/data/cases/bunny-clean/input.ply --runs 5 --trees BASE .
     python benchmarks/bench_startup.py ../shared/data/cases/bunny-clean/input.ply --kernel-loads
-    for b in none registries kernels; do python benchmarks/bench_startup.py \
+    for b in none registries kernels; do python benchmarks/bench_startup.py \\
         ../shared/data/cases/bunny-clean/input.ply --runs 3 --before $b --second; done
 """
 

@@ -83,25 +83,33 @@ def polish(
 
 
 def polish_and_untangle(
-    result: TriangulationResult, surface: DataSurface | None, rounds: int, flips: bool = True
+    result: TriangulationResult,
+    surface: DataSurface | None,
+    rounds: int,
+    flips: bool = True,
+    fixed: np.ndarray | None = None,
 ) -> tuple[TriangulationResult, int, int]:
     """:func:`polish`, then :func:`recon.intersections.untangle`; returns the mesh and
-    untangle's crossing pairs found and left.
+    untangle's crossing pairs found and left. ``fixed`` (V,): vertices neither step moves
+    (default: the crease vertices, which :func:`polish` holds anyway).
 
     The polish must not leave a crossing that the unpolished mesh would not: on a blade whose
     edge thins to nothing its moves can put a face through the opposite layer, beyond what
     untangling clears (the held-out knife, 4 pairs). When crossings are left, the polish runs
     again with the vertices within ``HOLD_RINGS`` rings of the crossing faces held, and the
     mesh with the fewest crossings left is kept, preferring the polished ones on a tie:
-    polished, polished with those vertices held, unpolished.
+    polished, polished with those vertices held, unpolished. The mesh's stats say which
+    (``polish_kept``: "polished", "held" or "unpolished") and how many vertices were held
+    (``polish_held``).
     """
-    fixed = result.crease
+    untangle_fixed = result.crease if fixed is None else fixed
 
-    def finish(mesh: TriangulationResult) -> tuple[TriangulationResult, int, int]:
-        vertices, found, left = untangle(mesh.vertices, mesh.faces, fixed=fixed)
-        return replace(mesh, vertices=vertices), found, left
+    def finish(mesh: TriangulationResult, kept: str, held: int) -> tuple:
+        vertices, found, left = untangle(mesh.vertices, mesh.faces, fixed=untangle_fixed)
+        stats = {**mesh.stats, "polish_kept": kept, "polish_held": held}
+        return replace(mesh, vertices=vertices, stats=stats), found, left
 
-    best = finish(polish(result, surface, rounds, flips))
+    best = finish(polish(result, surface, rounds, flips, fixed=fixed), "polished", 0)
     if best[2] == 0 or rounds <= 0:
         return best
     crossing = self_intersections(best[0].vertices, best[0].faces)
@@ -109,8 +117,13 @@ def polish_and_untangle(
     held[best[0].faces[np.unique(crossing)].ravel()] = True
     for _ in range(HOLD_RINGS):
         held[best[0].faces[held[best[0].faces].any(axis=1)].ravel()] = True
-    for candidate in (polish(result, surface, rounds, flips, fixed=held), result):
-        out = finish(candidate)
-        if out[2] < best[2]:
-            best = out
+    n_held = int(np.count_nonzero(held))
+    if fixed is not None:
+        held |= np.asarray(fixed, dtype=bool)
+    for candidate in (
+        finish(polish(result, surface, rounds, flips, fixed=held), "held", n_held),
+        finish(result, "unpolished", 0),
+    ):
+        if candidate[2] < best[2]:
+            best = candidate
     return best

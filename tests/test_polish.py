@@ -36,3 +36,40 @@ def test_the_polish_leaves_no_crossing_the_unpolished_mesh_does_not_have():
     res = recon.fit(points)
     assert len(self_intersections(res.mesh.vertices, res.mesh.faces)) == 0
     assert res.report.topology.watertight
+
+
+def test_polish_and_untangle_keeps_the_mesh_that_crosses_least(monkeypatch):
+    """The choice itself, with the polish and untangling replaced by stand-ins that mark
+    which mesh they saw: the polished mesh where nothing crosses; on crossings, the held
+    retry or the unpolished mesh, whichever leaves fewer, the polished ones on a tie; the
+    stats say which was kept and how many vertices were held."""
+    import recon.polish as polish_module
+
+    v, f = grid(6, 6)
+    base = TriangulationResult(v, f, np.tile([0.0, 0.0, 1.0], (len(v), 1)))
+    held_seen = []
+
+    def fake_polish(result, surface, rounds, flips=True, fixed=None):
+        tag = 1.0 if fixed is None else 2.0
+        if fixed is not None:
+            held_seen.append(int(np.count_nonzero(fixed)))
+        return TriangulationResult(result.vertices + [0.0, 0.0, tag], result.faces, result.normals)
+
+    def run(left_by_tag):
+        def fake_untangle(vertices, faces, fixed=None):
+            return vertices, 5, left_by_tag[float(vertices[0, 2])]
+
+        monkeypatch.setattr(polish_module, "polish", fake_polish)
+        monkeypatch.setattr(polish_module, "untangle", fake_untangle)
+        monkeypatch.setattr(
+            polish_module, "self_intersections", lambda vertices, faces: np.array([[0, 1]])
+        )
+        mesh, found, left = polish_module.polish_and_untangle(base, None, 2)
+        return mesh.stats["polish_kept"], mesh.stats["polish_held"], left
+
+    assert run({1.0: 0, 2.0: 0, 0.0: 0}) == ("polished", 0, 0)
+    assert not held_seen  # no retry where nothing crosses
+    kept, held, left = run({1.0: 3, 2.0: 1, 0.0: 2})
+    assert (kept, left) == ("held", 1) and held == held_seen[-1] > 6  # 2 rings round 2 faces
+    assert run({1.0: 3, 2.0: 2, 0.0: 0})[::2] == ("unpolished", 0)
+    assert run({1.0: 1, 2.0: 1, 0.0: 1})[::2] == ("polished", 1)  # a tie: the polished

@@ -94,7 +94,9 @@ def test_cover_reach_is_below_r0_on_dense_input():
 def test_a_mesh_the_reach_leaves_crossing_is_meshed_again_at_r0(monkeypatch):
     """Where the reach closes a loop through a thin part (held-out ears and legs 2-5 point
     spacings thick at 3,000 points) untangling cannot remove the crossing: the fit then
-    meshes again with data covering only within r0, as before the reach."""
+    meshes again with data covering only within r0, as before the reach. (The crossing is
+    faked after the polish's own fallbacks: a crossing only the polish made is undone there,
+    with the reach kept; tests/test_polish.py.)"""
     points = union_points(EARED, 2000, 4)
     real = pipeline.polish_and_untangle
     calls = []

@@ -194,10 +194,10 @@ def test_the_coordinator_holds_a_tile_not_the_scan(tmp_path):
 def _stitch_memory(folder: str) -> dict:
     """Traced allocations of the coordinator's stitch on 4 x 4 and 8 x 8 tiles (after one on
     2 x 2 for the imports and caches): the peak, and what is held when the topology is joined
-    at the end. Run in a fresh process (:func:`test_the_stitch_holds_the_same_memory_for_4x_
-    the_tiles`): the interpreter's table of interned strings (pathlib interns every file
-    name) is reallocated, megabytes at once, whenever it fills, and tracemalloc counts the new
-    table but not the freed one; after other tests that moment falls anywhere."""
+    at the end. Run in a fresh process (by the test below): the interpreter's table of
+    interned strings (pathlib interns every file name) is reallocated, megabytes at once,
+    whenever it fills, and tracemalloc counts the new table but not the freed one; after
+    other tests that moment falls anywhere."""
     import gc
     import tracemalloc
     from pathlib import Path
@@ -256,7 +256,8 @@ def test_the_stitch_holds_the_same_memory_for_4x_the_tiles(tmp_path):
         "print(json.dumps(m._stitch_memory(sys.argv[2])))\n"
     )
     root = str(Path(__file__).resolve().parent.parent)
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([root, os.environ.get("PYTHONPATH", "")])}
+    path = [root, *filter(None, os.environ.get("PYTHONPATH", "").split(os.pathsep))]
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(path)}
     proc = subprocess.run(
         [sys.executable, "-c", script, __file__, str(tmp_path)],
         capture_output=True,

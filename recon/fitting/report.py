@@ -229,6 +229,11 @@ class TriangulationStats(_Section):
     vertices_split: int = 0
     #: edges flipped by the polishing rounds (``triangulation.smooth_rounds``)
     polish_flips: int = 0
+    #: which mesh the polish kept: "polished", "held" (polished again with the vertices near
+    #: the crossings it left held) or "unpolished" (recon.polish.polish_and_untangle)
+    polish_kept: str = "polished"
+    #: vertices the polish held near the crossings it left ("held")
+    polish_held: int = 0
     #: crossing face pairs found after the repair, and left after untangling
     self_intersections_found: int = 0
     self_intersections_left: int = 0

@@ -129,8 +129,9 @@ class FitJob:
     config: dict  # config_to_dict of the scan's resolved configuration
     r0: float
     work: Path
-    #: the widest neighbourhood a point's normal may take (``normals.auto_scale`` of the scan:
-    #: ``MAX_SCALE`` x its configured ``normals.k``; the tiles' own ``k`` is resolved already)
+    #: the widest neighbourhood a point's normal may take (``normals.auto_scale`` and
+    #: ``normals.per_point_scale`` of the scan: ``MAX_SCALE`` x its configured ``normals.k``;
+    #: the tiles' own ``k`` is resolved already)
     normals_k_max: int | None = None
 
 
@@ -366,9 +367,8 @@ def mesh_task(job: MeshJob) -> dict:
         sampling_spacing,
         sparse_cover,
     )
-    from ..intersections import untangle
     from ..kernels.options import thread_count
-    from ..polish import polish
+    from ..polish import polish_and_untangle
     from ..triangulate import triangulate_particles
 
     t0 = time.perf_counter()
@@ -434,8 +434,10 @@ def mesh_task(job: MeshJob) -> dict:
         fixed = ~own if tri.crease is None else ~own | np.asarray(tri.crease, dtype=bool)
         # the untiled fit's polish without flips (the faces near the core's edge must stay
         # those the neighbour tiles see) and in the tangent planes (no data surface here)
-        polished = polish(tri, None, tri_cfg.smooth_rounds, flips=False, fixed=fixed)
-        return tri, code, *untangle(polished.vertices, tri.faces, fixed=fixed)
+        polished, found, left = polish_and_untangle(
+            tri, None, tri_cfg.smooth_rounds, flips=False, fixed=fixed
+        )
+        return tri, code, polished.vertices, found, left
 
     with thread_count(cfg.threads):
         reach = cover_reach(job.median_spacing / r0)
