@@ -27,6 +27,8 @@ References
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 from scipy.spatial import cKDTree
 
@@ -40,6 +42,7 @@ __all__ = [
     "best_scale_normals",
     "choose_neighborhood_size",
     "neighbourhood_scales",
+    "wider_query",
 ]
 
 #: The widest neighbourhood the normals take, in multiples of ``normals.k``: the noise rule
@@ -93,6 +96,20 @@ def neighbourhood_scales(k: int, k_max: int | None, n: int) -> list[int]:
     return scales
 
 
+def wider_query(
+    pts: np.ndarray,
+    neighbors: tuple[np.ndarray, np.ndarray] | None,
+    tree: cKDTree | None,
+    k: int,
+    workers: int,
+) -> Callable[[np.ndarray], np.ndarray]:
+    """``at -> (len(at), k)``: the nearest ``k`` of the points ``pts[at]``, from ``neighbors``
+    (a shared query of at least ``k`` columns) when given, else from ``tree``'s query."""
+    if neighbors is not None:
+        return lambda at: neighbors[1][at, :k]
+    return lambda at: tree.query(pts[at], k=k, workers=workers)[1].reshape(len(at), k)
+
+
 def best_scale_normals(
     pts: np.ndarray,
     query: np.ndarray,
@@ -100,32 +117,44 @@ def best_scale_normals(
     scales: list[int],
     sides_min: int,
     separation: float,
+    wider: Callable[[np.ndarray], np.ndarray] | None = None,
 ) -> np.ndarray:
     """Unit normals of the rows ``query`` (points of ``pts``, each its own nearest), from the
-    best determined of their nearest ``scales[0]``, ``scales[1]`` ... (prefixes of ``idx``,
-    nearest first), as the module docstring says; the first scale's on a tie."""
+    best determined of their nearest ``scales[0]``, ``scales[1]`` ... as the module docstring
+    says; the first scale's on a tie. ``idx`` (m, >= ``scales[0]``): each row's nearest,
+    nearest first; ``wider(rows)``: the nearest ``scales[-1]`` of those rows, asked only for
+    the rows whose first neighbourhood is not thin (default: ``idx``'s own columns)."""
     centre = np.ascontiguousarray(query)
-    cov = np.empty((len(query), 3, 3))
-    best = out = None
-    for kk in scales:
-        scatter_matrices(pts, np.ascontiguousarray(idx[:, :kk]), centre, True, cov)
+
+    def decompose(rows_idx: np.ndarray, centres: np.ndarray) -> tuple:
+        cov = np.empty((len(centres), 3, 3))
+        scatter_matrices(pts, np.ascontiguousarray(rows_idx), centres, True, cov)
         vals, vecs = np.linalg.eigh(cov)
         with np.errstate(divide="ignore", invalid="ignore"):
             ratio = np.where(vals[:, 1] > 0.0, vals[:, 0] / vals[:, 1], np.inf)
         thin = vals[:, 0] < THIN_VARIATION * np.maximum(vals.sum(axis=1), 1e-300)
-        if best is None:  # the first scale's normal stands where it is thin
-            best, out = np.where(thin, -np.inf, ratio), vecs[:, :, 0].copy()
-            continue
-        rows = np.flatnonzero(ratio < best)
-        wide = vecs[rows, :, 0]
-        offsets = np.einsum("rqi,ri->rq", pts[idx[rows, 1:kk]] - centre[rows, None, :], wide)
-        two_faces = np.zeros(len(rows), dtype=bool)
-        no_columns = np.zeros((len(rows), 0), dtype=bool)
-        # the split alone (no gap test: radius 0), no neighbour classified (k = 0)
-        split_sides_kernel(
-            offsets, np.zeros(len(rows)), 0, sides_min, separation, 0.0, no_columns, two_faces
-        )
-        rows = rows[two_faces | thin[rows]]
-        best[rows] = ratio[rows]
-        out[rows] = vecs[rows, :, 0]
+        return ratio, thin, vecs[:, :, 0]
+
+    ratio, thin, out = decompose(idx[:, : scales[0]], centre)
+    rows = np.flatnonzero(~thin)  # the first scale's normal stands where it is thin
+    if len(scales) > 1 and len(rows):
+        idx_w = idx[rows] if wider is None else wider(rows)
+        c = np.ascontiguousarray(centre[rows])
+        best, sub = ratio[rows], out[rows]
+        for kk in scales[1:]:
+            ratio_w, thin_w, normal_w = decompose(idx_w[:, :kk], c)
+            sel = np.flatnonzero(ratio_w < best)
+            offsets = np.einsum(
+                "rqi,ri->rq", pts[idx_w[sel, 1:kk]] - c[sel, None, :], normal_w[sel]
+            )
+            two_faces = np.zeros(len(sel), dtype=bool)
+            no_columns = np.zeros((len(sel), 0), dtype=bool)
+            # the split alone (no gap test: radius 0), no neighbour classified (k = 0)
+            split_sides_kernel(
+                offsets, np.zeros(len(sel)), 0, sides_min, separation, 0.0, no_columns, two_faces
+            )
+            sel = sel[two_faces | thin_w[sel]]
+            best[sel] = ratio_w[sel]
+            sub[sel] = normal_w[sel]
+        out[rows] = sub
     return out / np.linalg.norm(out, axis=1, keepdims=True)

@@ -72,6 +72,7 @@ from .normal_scales import (  # noqa: F401 (choose_neighborhood_size: the public
     best_scale_normals,
     choose_neighborhood_size,
     neighbourhood_scales,
+    wider_query,
 )
 from .orientation_graph import edge_costs
 from .row_blocks import for_row_blocks, row_blocks
@@ -219,25 +220,24 @@ def estimate_normals(
         raise ValueError(f"radius: expected a positive length or None, got {radius}")
     k_eff = int(min(k, n))
     scales = neighbourhood_scales(k_eff, None if radius is not None else k_max, n)
-    k_query = scales[-1]
-    if neighbors is not None and neighbors[1].shape[1] < k_query:
-        neighbors = None  # too narrow: query
-    if neighbors is not None:
-        tree = None
-    elif tree is None:
+    shared = neighbors is not None and neighbors[1].shape[1] >= k_eff  # else query
+    wide_from_shared = shared and neighbors[1].shape[1] >= scales[-1]
+    if tree is None and (not shared or (len(scales) > 1 and not wide_from_shared)):
         tree = cKDTree(pts)
-    normals = np.zeros((n, 3))
-    workers = query_workers()
+    normals, workers = np.zeros((n, 3)), query_workers()
+    wider = wider_query(pts, neighbors if wide_from_shared else None, tree, scales[-1], workers)
 
     def rows(b: slice) -> None:
         query = pts[b]
-        if tree is None:
-            dist, idx = neighbors[0][b, :k_query], neighbors[1][b, :k_query]
+        if shared:
+            dist, idx = neighbors[0][b, :k_eff], neighbors[1][b, :k_eff]
         else:
-            dist, idx = tree.query(query, k=k_query, workers=workers)
-        idx = idx.reshape(len(query), k_query)
+            dist, idx = tree.query(query, k=k_eff, workers=workers)
+        idx = idx.reshape(len(query), k_eff)
         if len(scales) > 1:
-            normals[b] = best_scale_normals(pts, query, idx, scales, _SIDES_MIN, _SIDES_SEPARATION)
+            normals[b] = best_scale_normals(
+                pts, query, idx, scales, _SIDES_MIN, _SIDES_SEPARATION, lambda r: wider(r + b.start)
+            )
             return
         if radius is not None:
             dist = dist.reshape(len(query), k_eff)
@@ -248,7 +248,7 @@ def estimate_normals(
             weights = None
         normals[b] = _pca_normals(pts, query, idx, weights)
 
-    if tree is None:  # shared neighbours: numpy without the GIL, blocks in threads
+    if shared:  # shared neighbours: numpy without the GIL, blocks in threads
         for_row_blocks(rows, n, _CHUNK)
     else:  # the k-d tree query is threaded itself
         for b in row_blocks(n, _CHUNK):
