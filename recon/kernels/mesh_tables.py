@@ -176,6 +176,25 @@ def winding_and_open(faces, n_vertices):  # pragma: no cover - numba
     return consistent, open_face
 
 
+@njit(inline="always", **EXACT_JIT_OPTIONS)
+def _corner_cross(vertices, v, x, y):  # pragma: no cover - numba
+    """The corner ``(v, x, y)``: squared lengths of ``d = x - v`` and ``e = y - v``, and
+    ``d x e`` with the operations of ``np.cross`` (no fused multiply-add), so the same bits."""
+    dx = vertices[x, 0] - vertices[v, 0]
+    dy = vertices[x, 1] - vertices[v, 1]
+    dz = vertices[x, 2] - vertices[v, 2]
+    ex = vertices[y, 0] - vertices[v, 0]
+    ey = vertices[y, 1] - vertices[v, 1]
+    ez = vertices[y, 2] - vertices[v, 2]
+    return (
+        dx * dx + dy * dy + dz * dz,
+        ex * ex + ey * ey + ez * ez,
+        dy * ez - dz * ey,
+        dz * ex - dx * ez,
+        dx * ey - dy * ex,
+    )
+
+
 @njit(**EXACT_JIT_OPTIONS)
 def area_vectors(vertices, faces):  # pragma: no cover - numba
     """Twice each face's area vector, ``(F, 3)``: ``(b - a) x (c - a)`` for face ``(a, b, c)``,
@@ -183,16 +202,9 @@ def area_vectors(vertices, faces):  # pragma: no cover - numba
     nf = faces.shape[0]
     out = np.empty((nf, 3))
     for i in range(nf):
-        a, b, c = faces[i, 0], faces[i, 1], faces[i, 2]
-        p0 = vertices[b, 0] - vertices[a, 0]
-        p1 = vertices[b, 1] - vertices[a, 1]
-        p2 = vertices[b, 2] - vertices[a, 2]
-        q0 = vertices[c, 0] - vertices[a, 0]
-        q1 = vertices[c, 1] - vertices[a, 1]
-        q2 = vertices[c, 2] - vertices[a, 2]
-        out[i, 0] = p1 * q2 - p2 * q1
-        out[i, 1] = p2 * q0 - p0 * q2
-        out[i, 2] = p0 * q1 - p1 * q0
+        _, _, out[i, 0], out[i, 1], out[i, 2] = _corner_cross(
+            vertices, faces[i, 0], faces[i, 1], faces[i, 2]
+        )
     return out
 
 
@@ -271,6 +283,38 @@ def _union(parent, x, y):  # pragma: no cover - numba
 
 
 @njit(**EXACT_JIT_OPTIONS)
+def _component_labels(parent, used):  # pragma: no cover - numba
+    """Union-find components of the ``used`` items numbered 0, 1, ... in item order (a root
+    is its component's lowest item); ``(count, labels)``, -1 for items not used."""
+    labels = np.full(len(used), -1, dtype=np.int64)
+    n = 0
+    for v in range(len(used)):
+        if not used[v]:
+            continue
+        r = _root(parent, v)
+        if r == v:
+            labels[v] = n
+            n += 1
+        else:
+            labels[v] = labels[r]
+    return n, labels
+
+
+@njit(inline="always", **EXACT_JIT_OPTIONS)
+def _edge_corners(faces, h):  # pragma: no cover - numba
+    """Half-edge ``h`` (corner ``3 f + k`` to the next corner of face ``f``): its lower and
+    higher vertex, and the corners of ``f`` at each of them."""
+    f = h // 3
+    k = h % 3
+    k1 = (k + 1) % 3
+    a = faces[f, k]
+    b = faces[f, k1]
+    if a < b:
+        return a, b, 3 * f + k, 3 * f + k1
+    return b, a, 3 * f + k1, 3 * f + k
+
+
+@njit(**EXACT_JIT_OPTIONS)
 def fan_labels(faces, order):  # pragma: no cover - numba
     """Fan label of every face corner, ``(3 F,)`` int64 (corner ``3 i + k``).
 
@@ -285,41 +329,17 @@ def fan_labels(faces, order):  # pragma: no cover - numba
     parent = np.arange(nh)
     i = 0
     while i < nh:
-        h0 = order[i]
-        f0 = h0 // 3
-        k0 = h0 % 3
-        a0 = faces[f0, k0]
-        b0 = faces[f0, (k0 + 1) % 3]
-        lo0 = min(a0, b0)
-        hi0 = max(a0, b0)
-        # the corner of h0 at lo, and at hi
-        lo_c0 = 3 * f0 + (k0 if a0 < b0 else (k0 + 1) % 3)
-        hi_c0 = 3 * f0 + ((k0 + 1) % 3 if a0 < b0 else k0)
+        lo0, hi0, lo_c0, hi_c0 = _edge_corners(faces, order[i])
         j = i + 1
         while j < nh:
-            h = order[j]
-            f = h // 3
-            k = h % 3
-            a = faces[f, k]
-            b = faces[f, (k + 1) % 3]
-            if min(a, b) != lo0 or max(a, b) != hi0:
+            lo, hi, lo_c, hi_c = _edge_corners(faces, order[j])
+            if lo != lo0 or hi != hi0:
                 break
-            lo_c = 3 * f + (k if a < b else (k + 1) % 3)
-            hi_c = 3 * f + ((k + 1) % 3 if a < b else k)
             _union(parent, lo_c0, lo_c)
             _union(parent, hi_c0, hi_c)
             j += 1
         i = j
-    label = np.empty(nh, dtype=np.int64)
-    n = 0
-    for c in range(nh):  # a root is its component's lowest corner: numbered in corner order
-        r = _root(parent, c)
-        if r == c:
-            label[c] = n
-            n += 1
-        else:
-            label[c] = label[r]
-    return label
+    return _component_labels(parent, np.ones(nh, dtype=np.bool_))[1]
 
 
 @njit(**EXACT_JIT_OPTIONS)
@@ -367,18 +387,7 @@ def vertex_component_labels(faces, n_vertices):  # pragma: no cover - numba
         used[c] = True
         _union(parent, a, b)
         _union(parent, b, c)
-    labels = np.full(n_vertices, -1, dtype=np.int64)
-    n = 0
-    for v in range(n_vertices):
-        if not used[v]:
-            continue
-        r = _root(parent, v)
-        if r == v:
-            labels[v] = n
-            n += 1
-        else:
-            labels[v] = labels[r]
-    return n, labels
+    return _component_labels(parent, used)
 
 
 @njit(**EXACT_JIT_OPTIONS)
@@ -399,19 +408,9 @@ def _well_shaped(vertices, v, x, y, mx, my, mz, min_d2):  # pragma: no cover - n
     the angle above ``WELL_SHAPED_SINE``) whose plane is tilted less than
     ``arccos(WELL_SHAPED_COSINE)`` from the direction ``m``? Projected along ``m`` its
     sector is then a convex angle, measured the same way round, by any rounding."""
-    dx = vertices[x, 0] - vertices[v, 0]
-    dy = vertices[x, 1] - vertices[v, 1]
-    dz = vertices[x, 2] - vertices[v, 2]
-    ex = vertices[y, 0] - vertices[v, 0]
-    ey = vertices[y, 1] - vertices[v, 1]
-    ez = vertices[y, 2] - vertices[v, 2]
-    dd = dx * dx + dy * dy + dz * dz
-    ee = ex * ex + ey * ey + ez * ez
+    dd, ee, nx, ny, nz = _corner_cross(vertices, v, x, y)
     if dd < min_d2 or ee < min_d2:
         return False
-    nx = dy * ez - dz * ey
-    ny = dz * ex - dx * ez
-    nz = dx * ey - dy * ex
     nn = nx * nx + ny * ny + nz * nz
     if not nn > WELL_SHAPED_SINE * WELL_SHAPED_SINE * dd * ee:
         return False
