@@ -42,6 +42,7 @@ __all__ = [
     "best_scale_normals",
     "choose_neighborhood_size",
     "neighbourhood_scales",
+    "per_point_k_max",
     "wider_query",
 ]
 
@@ -51,6 +52,12 @@ MAX_SCALE = 4
 #: Median PCA surface variation lambda_0 / (lambda_0 + lambda_1 + lambda_2) below which a
 #: neighbourhood counts as thin (clean data: <= 0.016; 1 % noise at k = 20: ~0.18).
 THIN_VARIATION = 0.05
+
+
+def per_point_k_max(k: int, per_point_scale: bool) -> int | None:
+    """The widest neighbourhood a point's normal may take: ``MAX_SCALE`` x the configured
+    ``normals.k`` when ``normals.per_point_scale`` is on, else None (one k for every point)."""
+    return MAX_SCALE * k if per_point_scale else None
 
 
 def choose_neighborhood_size(

@@ -72,6 +72,7 @@ from .normal_scales import (  # noqa: F401 (choose_neighborhood_size: the public
     best_scale_normals,
     choose_neighborhood_size,
     neighbourhood_scales,
+    per_point_k_max,
     wider_query,
 )
 from .orientation_graph import edge_costs
@@ -708,8 +709,7 @@ def compute_normals(
     k_max : int, optional
         Each point's normal from the best determined of its ``k``, ``2 k`` ... nearest up to
         this many (:func:`estimate_normals`); None: ``MAX_SCALE`` x ``cfg.k`` when
-        ``cfg.auto_scale`` and ``cfg.per_point_scale`` (the widest neighbourhood the noise
-        rule takes), else k only.
+        ``cfg.per_point_scale`` (the widest neighbourhood the noise rule takes), else k only.
     tree : scipy.spatial.cKDTree, optional
         A k-d tree of ``cloud.points`` (the fit's shared one), for the wider queries.
 
@@ -755,8 +755,8 @@ def compute_normals(
         info = {"source": "input", "n_filled": n_bad}
     else:
         k = choose_neighborhood_size(pts, cfg.k) if cfg.auto_scale else cfg.k
-        if k_max is None and cfg.auto_scale and cfg.per_point_scale:
-            k_max = MAX_SCALE * cfg.k
+        if k_max is None:
+            k_max = per_point_k_max(cfg.k, cfg.per_point_scale)
         shared = neighbors if neighbors is not None and neighbors[1].shape[1] >= k else None
         normals = estimate_normals(
             pts, k=k, radius=cfg.radius, neighbors=shared, k_max=k_max, tree=tree

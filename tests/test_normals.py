@@ -435,7 +435,8 @@ def test_spanning_tree_of_the_upper_triangle_is_that_of_the_symmetric_graph():
 
 def test_per_point_scale_is_opt_in(monkeypatch):
     """``normals.per_point_scale`` (off by default) alone sends the estimate to the per-point
-    scale: the default fit's normals stay those of one k."""
+    scale, with or without ``normals.auto_scale``: the default fit's normals stay those of
+    one k."""
     import recon.normals as normals_module
 
     calls = []
@@ -459,3 +460,10 @@ def test_per_point_scale_is_opt_in(monkeypatch):
     assert calls
     inner = (np.abs(pts[:, :2] - [3.5, 0.5]) < 0.4).all(axis=1)
     assert np.mean(np.abs(on[inner, 2]) < 0.9) < np.mean(np.abs(off[inner, 2]) < 0.9)
+    # a fixed k (auto_scale off) keeps the per-point scale: it was silently ignored before
+    calls.clear()
+    fixed, _ = compute_normals(
+        cloud, NormalsConfig(mode="estimate", per_point_scale=True, auto_scale=False)
+    )
+    assert calls
+    np.testing.assert_array_equal(fixed, on)  # clean data: the noise rule keeps k = 20

@@ -628,3 +628,51 @@ def test_tiles_polish_their_triangles_as_the_untiled_fit_does(fits):
     # the tiles' polish has no flips and no data surface, but smooths all the same (measured:
     # whole 55.54, tiled 55.56; unpolished tiles gave 55.05)
     assert angle["tiled"] > angle["whole"] - 0.25, angle
+
+
+def test_the_tiles_take_the_scans_per_point_normal_scale(tmp_path, monkeypatch):
+    """``normals.per_point_scale`` reaches every tile's fit: the scan's widest neighbourhood
+    (``MAX_SCALE`` x its configured k, not the tile's resolved k) goes with each FitJob, and
+    :func:`fit_task` hands it to the fit; off, the jobs carry None (one k per point)."""
+    from recon.fitting import pipeline
+    from recon.normal_scales import MAX_SCALE
+    from recon.tiling import executors
+    from recon.tiling.tasks import FitJob, fit_task
+
+    class Seen(Exception):
+        pass
+
+    given: list = []
+
+    def spy_fit(cloud, cfg, normals_k_max=None):
+        given.append(normals_k_max)
+        raise Seen
+
+    jobs: list = []
+    submit = executors.TileRunner.submit
+
+    def recording_submit(self, fn, *args):
+        if fn is fit_task:
+            job = args[0]
+            assert isinstance(job, FitJob)
+            jobs.append(job)
+            if len(jobs) == 1:  # the task itself, in this process, up to the fit it calls
+                with monkeypatch.context() as m:
+                    m.setattr(pipeline, "fit_particles", spy_fit)
+                    with pytest.raises(Seen):
+                        fit_task(job)
+        return submit(self, fn, *args)
+
+    monkeypatch.setattr(executors.TileRunner, "submit", recording_submit)
+    src = tmp_path / "step.ply"
+    write_points(src, step(3000))
+    for on, expected in ((True, MAX_SCALE * 20), (False, None)):
+        jobs.clear()
+        given.clear()
+        cfg = with_values(
+            ReconConfig(), normals={"per_point_scale": on, "k": 20}, tiling={"size": SIDE / 2}
+        )
+        fit_tiled(src, tmp_path / f"tiled-{on}.ply", cfg, jobs=1)
+        assert len(jobs) > 1
+        assert {job.normals_k_max for job in jobs} == {expected}
+        assert given == [expected]

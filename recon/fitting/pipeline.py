@@ -47,8 +47,9 @@ from ..geometry import bbox_diagonal
 from ..kernels.options import query_workers, thread_count
 from ..kernels.warm import warm_fit_kernels
 from ..neighbors import PointGrid
+from ..normal_scales import per_point_k_max
 from ..normal_signs import resign_thin_parts
-from ..normals import MAX_SCALE, compute_normals, neighbors_needed
+from ..normals import compute_normals, neighbors_needed
 from ..polish import polish_and_untangle
 from ..serialize import dumps
 from ..state import ParticleState
@@ -488,8 +489,7 @@ def _fit_sheet(
 
     ``normals_k_max``: the widest neighbourhood a point's normal may take
     (:func:`recon.normals.estimate_normals`); None: ``MAX_SCALE`` x ``normals.k`` when
-    ``normals.auto_scale`` and ``normals.per_point_scale``, else k only (a tile's resolved
-    k comes with its scan's)."""
+    ``normals.per_point_scale``, else k only (a tile's resolved k comes with its scan's)."""
     clock = Clock(cfg.dynamics.time_limit)
     warm_fit_kernels()  # the kernels' cached code loads beside the first stages
     rng = np.random.default_rng(cfg.seed)
@@ -502,8 +502,8 @@ def _fit_sheet(
     variations: dict[int, float] = {}  # median surface variation by k, measured once
     # each point's normal from the best determined neighbourhood up to the noise rule's widest
     k_max = normals_k_max
-    if k_max is None and cfg.normals.auto_scale and cfg.normals.per_point_scale:
-        k_max = MAX_SCALE * cfg.normals.k
+    if k_max is None:
+        k_max = per_point_k_max(cfg.normals.k, cfg.normals.per_point_scale)
     cfg = with_neighborhood_size(points, cfg, tree, variations)
     knn = shared_neighbors(points, cfg, tree)
     normals, normals_info = compute_normals(

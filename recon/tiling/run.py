@@ -271,10 +271,9 @@ def fit_tiled(
 
             t0 = time.perf_counter()
             cfg_dict = config_to_dict(tile_cfg)
-            from ..normals import MAX_SCALE
+            from ..normal_scales import per_point_k_max
 
-            n_cfg = cfg.normals
-            k_max = MAX_SCALE * n_cfg.k if n_cfg.auto_scale and n_cfg.per_point_scale else None
+            k_max = per_point_k_max(cfg.normals.k, cfg.normals.per_point_scale)
             records = TileRecords(grid)
             task_store = store.for_tasks()  # without the per-tile counts: one per task
             run_tasks(

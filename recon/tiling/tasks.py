@@ -129,9 +129,9 @@ class FitJob:
     config: dict  # config_to_dict of the scan's resolved configuration
     r0: float
     work: Path
-    #: the widest neighbourhood a point's normal may take (``normals.auto_scale`` and
-    #: ``normals.per_point_scale`` of the scan: ``MAX_SCALE`` x its configured ``normals.k``;
-    #: the tiles' own ``k`` is resolved already)
+    #: the widest neighbourhood a point's normal may take (``normals.per_point_scale`` of the
+    #: scan: ``MAX_SCALE`` x its configured ``normals.k``; the tiles' own ``k`` is resolved
+    #: already)
     normals_k_max: int | None = None
 
 
