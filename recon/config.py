@@ -102,11 +102,11 @@ class NormalsConfig(Schema):
         "thin (median surface variation below 0.05).",
     )
     per_point_scale: bool = option(
-        False,
-        "Experimental: a point whose k-neighbourhood is not thin takes the best determined of "
-        "its k, 2k, 4k nearest (up to 4x the configured k; a wider one only where it is thin or "
-        "splits into a thin part's two faces). Closes blades thinner than a neighbourhood on "
-        "clean data (a knife edge at 1e-4 noise); on very sparse thin parts it can cost a hole.",
+        True,
+        "A point whose k-neighbourhood is not thin takes the best determined of its k, 2k, 4k "
+        "nearest (up to 4x the configured k; a wider one only where it is thin or splits into "
+        "a thin part's two faces). Closes blades thinner than a neighbourhood on clean data "
+        "(a knife edge at 1e-4 noise); false: one k for every point.",
     )
     radius: float | None = option(
         None, "Optional PCA radius [input length units]; null = k-NN only.", 0.0, None, lo_open=True

@@ -433,10 +433,9 @@ def test_spanning_tree_of_the_upper_triangle_is_that_of_the_symmetric_graph():
             np.testing.assert_array_equal(upper.data, whole.data)
 
 
-def test_per_point_scale_is_opt_in(monkeypatch):
-    """``normals.per_point_scale`` (off by default) alone sends the estimate to the per-point
-    scale, with or without ``normals.auto_scale``: the default fit's normals stay those of
-    one k."""
+def test_per_point_scale_is_the_default_and_can_be_turned_off(monkeypatch):
+    """``normals.per_point_scale`` (on by default) sends the estimate to the per-point scale,
+    with or without ``normals.auto_scale``; off, every point's normal is that of one k."""
     import recon.normals as normals_module
 
     calls = []
@@ -454,16 +453,14 @@ def test_per_point_scale_is_opt_in(monkeypatch):
     slab = [np.c_[rng.uniform([3, 0], [4, 1], (1500, 2)), np.full(1500, s * 0.02)] for s in (1, -1)]
     pts = np.concatenate([sheet, *slab]) + rng.normal(scale=0.0005, size=(9000, 3))
     cloud = cloud_from_arrays(pts)
-    off, _ = compute_normals(cloud, NormalsConfig(mode="estimate"))
+    off, _ = compute_normals(cloud, NormalsConfig(mode="estimate", per_point_scale=False))
     assert not calls
-    on, _ = compute_normals(cloud, NormalsConfig(mode="estimate", per_point_scale=True))
+    on, _ = compute_normals(cloud, NormalsConfig(mode="estimate"))
     assert calls
     inner = (np.abs(pts[:, :2] - [3.5, 0.5]) < 0.4).all(axis=1)
     assert np.mean(np.abs(on[inner, 2]) < 0.9) < np.mean(np.abs(off[inner, 2]) < 0.9)
     # a fixed k (auto_scale off) keeps the per-point scale: it was silently ignored before
     calls.clear()
-    fixed, _ = compute_normals(
-        cloud, NormalsConfig(mode="estimate", per_point_scale=True, auto_scale=False)
-    )
+    fixed, _ = compute_normals(cloud, NormalsConfig(mode="estimate", auto_scale=False))
     assert calls
     np.testing.assert_array_equal(fixed, on)  # clean data: the noise rule keeps k = 20

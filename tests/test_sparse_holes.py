@@ -65,9 +65,12 @@ def _topology(res):
     return mesh_topology(res.mesh.vertices, res.mesh.faces)
 
 
-# cases where the old coverage test (at r0) left one seam open (the fit's Morton order of the
-# points changed which samples do: at 2000 points seed 4 now closes without the reach too)
-@pytest.mark.parametrize(("n", "seed"), [(1500, 2), (2000, 6)])
+# cases where the coverage test at r0 leaves one seam open (which samples do moves with the
+# fit: with the Morton order of the points, 2000 points seed 4 closed without the reach too;
+# with the per-point normal scale, the default since 2026-11-28, seed 6 keeps a loop either
+# way and seed 8 shows the mechanism; over seeds 0-99 at 1500 and 2000 points 178 of 200
+# fits close, 183 with one k: docs/topology-history.md)
+@pytest.mark.parametrize(("n", "seed"), [(1500, 2), (2000, 8)])
 def test_a_sparse_thin_part_comes_out_closed(n, seed, monkeypatch):
     points = union_points(EARED, n, seed)
     res = recon.fit(points)
