@@ -632,8 +632,8 @@ def test_tiles_polish_their_triangles_as_the_untiled_fit_does(fits):
 
 def test_the_tiles_take_the_scans_per_point_normal_scale(tmp_path, monkeypatch):
     """``normals.per_point_scale`` reaches every tile's fit: the scan's widest neighbourhood
-    (``MAX_SCALE`` x its configured k, not the tile's resolved k) goes with each FitJob, and
-    :func:`fit_task` hands it to the fit; off, the jobs carry None (one k per point)."""
+    (``MAX_SCALE`` x its configured k) goes with each FitJob, and :func:`fit_task` hands it
+    to the fit; off, the jobs carry None (one k per point)."""
     from recon.fitting import pipeline
     from recon.normal_scales import MAX_SCALE
     from recon.tiling import executors
