@@ -31,7 +31,12 @@ import numpy as np
 from .forces import Anchors, accumulate_forces, evaluate_pair, kernel_extras, pack_coefficients
 from .integrate import StepBuffers, integrate_step
 from .kernels.options import ThreadChooser
-from .neighbors import PARALLEL_MIN_PARTICLES, NeighborList, sort_order_by_cell
+from .neighbors import (
+    PARALLEL_MIN_PARTICLES,
+    NeighborList,
+    build_neighbor_list,
+    sort_order_by_cell,
+)
 from .params import PhysicsParams
 from .state import ParticleState
 
@@ -226,6 +231,21 @@ class Simulation:
         if self._needs_rebuild or self._neighbors.n != self.state.n:
             self._rebuild()
         return self._neighbors.offsets, self._neighbors.indices
+
+    def neighbors_within(self, radius: float) -> tuple[np.ndarray, np.ndarray]:
+        """CSR ``(offsets, indices)`` of the pairs closer than ``radius`` at the current
+        positions, rows ascending: exactly ``build_neighbor_list(position, radius)``.
+
+        When the cached list is current and ``radius`` is within its cutoff, the pairs are
+        read from it (it holds every pair within the cutoff): a filter of the list instead of
+        a new cell-grid build (the growth rounds' lists). Otherwise they are built; the cached
+        list is never rebuilt here, since the time of its builds orders the particles (the
+        cell side of :meth:`sort_particles` follows the largest rest spacing at the last
+        build) and so must not depend on who asked for a list."""
+        stale = self._needs_rebuild or self._neighbors.n != self.state.n
+        if not stale and radius <= self._neighbors.cutoff:
+            return self._neighbors.within(self.state.position, radius)
+        return build_neighbor_list(self.state.position, radius)
 
     def notify_changed(self) -> None:
         """Particles were added, removed or moved by the caller: rebuild before the next step.

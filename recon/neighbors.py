@@ -29,6 +29,7 @@ from .kernels.cell_list import (
     build_neighbor_list_kernel,
     list_covers,
     max_displacement2,
+    sublist_within,
 )
 from .kernels.grid_query import covered_kernel, grid_build, knn_grid_kernel
 from .kernels.options import query_workers, thread_limit
@@ -181,6 +182,16 @@ class NeighborList:
         self.reference_position = pos.copy()
         self.n_builds += 1
         self._binning = None
+
+    def within(self, position: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
+        """CSR lists of the pairs closer than ``radius`` at ``position``, taken from this list:
+        the same lists as ``build_neighbor_list(position, radius)`` provided that the list
+        holds every such pair, i.e. ``radius`` ≤ :attr:`cutoff` and :meth:`covers` is true
+        for ``position`` (the caller's duty; checked only for the radius)."""
+        if not radius <= self.cutoff:
+            raise ValueError(f"radius {radius} exceeds the list's cutoff {self.cutoff}")
+        pos = np.ascontiguousarray(position, dtype=np.float64)
+        return sublist_within(pos, self.offsets, self.indices, float(radius))
 
     def covers(self, position: np.ndarray) -> bool:
         """Whether every pair closer than ``cutoff`` at ``position`` is in the list (exact).

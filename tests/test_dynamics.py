@@ -13,6 +13,7 @@ from recon.config import ReconConfig
 from recon.dynamics import Simulation, StepStats, warmup
 from recon.errors import ConfigError, DivergenceError
 from recon.forces import accumulate_forces
+from recon.neighbors import build_neighbor_list
 from recon.params import PhysicsParams
 from recon.state import ParticleState
 from tests.reference import (
@@ -394,6 +395,29 @@ def test_notify_moved_keeps_a_list_that_still_holds_every_pair():
     assert sim.step().rebuilt
     offsets, indices = sim.neighbors
     assert 0 in indices[offsets[state.n - 1] : offsets[state.n]]
+
+
+def test_neighbors_within_a_radius_equal_a_new_build_after_steps_and_changes():
+    """The growth rounds' lists come from the simulation's list: after steps, after a
+    change that forces a rebuild, and beyond the cutoff (a build) they are the lists a build
+    at that radius gives."""
+    state = _patch(3, k=10)
+    sim = Simulation(state, DEFAULTS)
+    sim.run(4)
+    for radius in (1.5, DEFAULTS.cutoff, DEFAULTS.cutoff + 0.3):
+        got = sim.neighbors_within(radius)
+        want = build_neighbor_list(state.position, radius)
+        np.testing.assert_array_equal(got[0], want[0])
+        np.testing.assert_array_equal(got[1], want[1])
+    state.position[7] += [3.3, 0.4, 0.0]  # far past the skin: new neighbours, a stale list
+    sim.notify_changed()
+    rebuilds = sim.n_rebuilds
+    got = sim.neighbors_within(1.5)
+    # built aside: the cached list is rebuilt by the steps only (its builds order particles)
+    assert sim.n_rebuilds == rebuilds
+    want = build_neighbor_list(state.position, 1.5)
+    np.testing.assert_array_equal(got[1], want[1])
+    np.testing.assert_array_equal(got[0], want[0])
 
 
 def test_particles_added_and_removed_between_steps():

@@ -49,6 +49,27 @@ def test_empty_and_single():
     assert offsets.tolist() == [0, 0]
 
 
+def test_a_shorter_radius_read_from_a_covering_list_equals_a_new_build():
+    """``NeighborList.within``: the pairs of a list that holds every pair within its cutoff,
+    filtered to a shorter radius, are exactly the lists a build at that radius gives."""
+    rng = np.random.default_rng(4)
+    position = rng.uniform(0, 8, size=(700, 3))
+    nl = NeighborList(cutoff=2.0, skin=0.4)
+    nl.build(position)
+    step = rng.normal(size=position.shape)
+    step *= rng.uniform(0.0, 0.19, size=(len(position), 1)) / np.linalg.norm(step, axis=1)[:, None]
+    moved = position + step  # every particle within skin/2 of its build position
+    assert nl.covers(moved)
+    for radius in (0.7, 1.5, 2.0):
+        got = nl.within(moved, radius)
+        want = build_neighbor_list(moved, radius)
+        np.testing.assert_array_equal(got[0], want[0])
+        np.testing.assert_array_equal(got[1], want[1])
+        assert got[1].dtype == np.int32 and got[0].dtype == np.int64
+    with pytest.raises(ValueError, match="exceeds the list's cutoff"):
+        nl.within(moved, 2.1)
+
+
 def test_rebuild_only_past_half_the_skin():
     rng = np.random.default_rng(1)
     position = rng.uniform(0, 10, size=(300, 3))

@@ -40,7 +40,7 @@ from ..config import ReconConfig
 from ..dynamics import Simulation
 from ..errors import DivergenceError, LimitExceeded
 from ..growth import accept_candidates, grow_candidates, stretch_candidates
-from ..neighbors import PointGrid, build_neighbor_list
+from ..neighbors import PointGrid
 from ..params import PhysicsParams
 from ..seeds import select_seeds
 from ..state import ParticleState
@@ -516,9 +516,9 @@ class _Schedule:
         tree = PointGrid(pos, PARTICLE_GRID_CELL)  # nearest-particle queries of this round
         rest = state.rest if self.target is not None else None
         if rest is None:
-            offsets, indices = build_neighbor_list(pos, g.grow_radius)
+            offsets, indices = sim.neighbors_within(g.grow_radius)
         else:
-            offsets, indices = _scaled_neighbors(pos, rest, g.grow_radius)
+            offsets, indices = _scaled_neighbors(pos, rest, g.grow_radius, sim)
         frontier = np.diff(offsets) <= g.max_neighbors
         grown, grown_n = grow_candidates(
             pos, nrm, offsets, indices, g, with_normals=True, rest=rest
@@ -635,10 +635,11 @@ class _Schedule:
 
 
 def _scaled_neighbors(
-    position: np.ndarray, rest: np.ndarray, radius: float
+    position: np.ndarray, rest: np.ndarray, radius: float, sim: Simulation
 ) -> tuple[np.ndarray, np.ndarray]:
-    """CSR neighbours within ``radius`` x (rest_i + rest_j)/2 (adaptive spacing)."""
-    offsets, indices = build_neighbor_list(position, radius * float(np.max(rest)))
+    """CSR neighbours within ``radius`` x (rest_i + rest_j)/2 (adaptive spacing); ``sim``
+    holds ``position``."""
+    offsets, indices = sim.neighbors_within(radius * float(np.max(rest)))
     row = np.repeat(np.arange(len(position)), np.diff(offsets))
     d = np.linalg.norm(position[indices] - position[row], axis=1)
     keep = d < radius * 0.5 * (rest[row] + rest[indices])

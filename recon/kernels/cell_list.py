@@ -425,3 +425,56 @@ def list_covers(position, reference_position, offsets, indices, cutoff, skin, bi
                 if k >= row_hi or indices[k] != j:
                     return False
     return True
+
+
+@njit(**JIT_OPTIONS)
+def sublist_within(position, offsets, indices, radius):
+    r"""The pairs of a full CSR list that are closer than ``radius`` now (a shorter list).
+
+    .. math::
+
+        \mathcal N_r(i) = \{\, j \in \mathcal N(i) : |x_j - x_i| < r \,\}
+
+    Equal to :func:`build_neighbor_list_kernel` with ``radius`` when the list holds every
+    pair closer than ``radius`` at ``position`` (a Verlet list whose cutoff is at least
+    ``radius`` and that :func:`list_covers` the positions): the same distance test in the
+    same arithmetic, rows kept ascending. Serial, two passes over the list (count, then fill).
+
+    Parameters
+    ----------
+    position : (n, 3) float64
+        Current positions [length].
+    offsets, indices : CSR list (rows ascending, full)
+    radius : float64
+        The shorter radius [length].
+
+    Returns
+    -------
+    offsets : (n + 1,) int64
+    indices : (nnz,) int32
+    """
+    n = position.shape[0]
+    radius2 = radius * radius
+    keep = np.zeros(indices.shape[0], dtype=np.bool_)
+    new_offsets = np.zeros(n + 1, dtype=np.int64)
+    for i in range(n):
+        xi = position[i, 0]
+        yi = position[i, 1]
+        zi = position[i, 2]
+        count = 0
+        for k in range(offsets[i], offsets[i + 1]):
+            j = indices[k]
+            dx = position[j, 0] - xi
+            dy = position[j, 1] - yi
+            dz = position[j, 2] - zi
+            if dx * dx + dy * dy + dz * dz < radius2:
+                keep[k] = True
+                count += 1
+        new_offsets[i + 1] = new_offsets[i] + count
+    new_indices = np.zeros(new_offsets[n], dtype=np.int32)
+    w = 0
+    for k in range(indices.shape[0]):
+        if keep[k]:
+            new_indices[w] = indices[k]
+            w += 1
+    return new_offsets, new_indices

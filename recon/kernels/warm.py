@@ -38,6 +38,7 @@ FIT_KERNELS: tuple[str, ...] = (
     "grid_query.anchor_feet_kernel",
     "cell_list.bin_particles",
     "cell_list.build_neighbor_list_kernel",
+    "cell_list.sublist_within",
     "growth_rules.grow_kernel",
     "local_surface.max_angular_gap_kernel",
     "grid_query.covered_kernel",
