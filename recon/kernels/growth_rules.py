@@ -10,16 +10,18 @@ References
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
-from .local_surface import tangent_frame
+from .local_surface import tangent_frame_xyz
 from .options import EXACT_JIT_OPTIONS
+
+_PARALLEL = dict(EXACT_JIT_OPTIONS, parallel=True)
 
 MAX_PER_PARTICLE = 6
 """Candidates per particle and round: an isolated particle grows a hexagon of six."""
 
 
-@njit(**EXACT_JIT_OPTIONS)
+@njit(**_PARALLEL)
 def grow_kernel(
     pos, nrm, offsets, indices, min_nb, max_nb, gap_angle, gap_step, out, count
 ):  # pragma: no cover - numba
@@ -29,30 +31,39 @@ def grow_kernel(
     sorts the polar angles of its neighbours in its tangent frame; every gap wider than
     ``gap_angle`` [rad] gets ``max(1, round(gap / gap_step) - 1)`` candidates evenly spaced
     inside it, one unit (r0) out. An isolated particle (m = 0) gets a hexagon. At most
-    ``MAX_PER_PARTICLE`` candidates per particle go to ``out[i, :count[i]]``.
+    ``MAX_PER_PARTICLE`` candidates per particle go to ``out[i, :count[i]]``. Particles are
+    independent: threaded, the same result for any thread count.
     """
     n = pos.shape[0]
     two_pi = 2.0 * np.pi
-    for i in range(n):
+    for i in prange(n):
         m = offsets[i + 1] - offsets[i]
         count[i] = 0
         if m < min_nb or m > max_nb:
             continue
-        u, v = tangent_frame(nrm[i])
+        u0, u1, u2, v0, v1, v2 = tangent_frame_xyz(nrm[i, 0], nrm[i, 1], nrm[i, 2])
+        p0 = pos[i, 0]
+        p1 = pos[i, 1]
+        p2 = pos[i, 2]
         c = 0
         if m == 0:
             for a in range(MAX_PER_PARTICLE):
                 th = a * two_pi / MAX_PER_PARTICLE
-                out[i, c] = pos[i] + np.cos(th) * u + np.sin(th) * v
+                ct = np.cos(th)
+                st = np.sin(th)
+                out[i, c, 0] = p0 + ct * u0 + st * v0
+                out[i, c, 1] = p1 + ct * u1 + st * v1
+                out[i, c, 2] = p2 + ct * u2 + st * v2
                 c += 1
             count[i] = c
             continue
         ang = np.empty(m)
         for a in range(m):
-            d = pos[indices[offsets[i] + a]] - pos[i]
-            ang[a] = np.arctan2(
-                d[0] * v[0] + d[1] * v[1] + d[2] * v[2], d[0] * u[0] + d[1] * u[1] + d[2] * u[2]
-            )
+            j = indices[offsets[i] + a]
+            d0 = pos[j, 0] - p0
+            d1 = pos[j, 1] - p1
+            d2 = pos[j, 2] - p2
+            ang[a] = np.arctan2(d0 * v0 + d1 * v1 + d2 * v2, d0 * u0 + d1 * u1 + d2 * u2)
         ang.sort()
         for a in range(m):
             start = ang[a]
@@ -65,6 +76,10 @@ def grow_kernel(
                 if c >= MAX_PER_PARTICLE:
                     break
                 th = start + gap * b / (k + 1)
-                out[i, c] = pos[i] + np.cos(th) * u + np.sin(th) * v
+                ct = np.cos(th)
+                st = np.sin(th)
+                out[i, c, 0] = p0 + ct * u0 + st * v0
+                out[i, c, 1] = p1 + ct * u1 + st * v1
+                out[i, c, 2] = p2 + ct * u2 + st * v2
                 c += 1
         count[i] = c

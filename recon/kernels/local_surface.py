@@ -166,44 +166,51 @@ def fit_quadrics_kernel(
         out_r[i] = np.sqrt(res / k)
 
 
-@njit(**EXACT_JIT_OPTIONS)
-def tangent_frame(nrm):  # pragma: no cover - numba
-    """Two unit tangents (u, v) completing the unit normal ``nrm`` to a right-handed frame.
+@njit(inline="always", **EXACT_JIT_OPTIONS)
+def tangent_frame_xyz(n0, n1, n2):  # pragma: no cover - numba
+    """Two unit tangents u, v completing the unit normal n = (n0, n1, n2) to a right-handed
+    frame, as six floats (u0, u1, u2, v0, v1, v2).
 
-    u is the x axis (or the y axis when ``nrm`` is within ~25 deg of x) projected onto the
-    tangent plane and normalised; v = nrm x u.
+    u is the x axis (or the y axis when n is within ~25 deg of x) projected onto the tangent
+    plane and normalised; v = n x u. Scalars only: no temporaries in loops over many points.
     """
-    if abs(nrm[0]) < 0.9:
-        t = np.array([1.0, 0.0, 0.0])
+    if abs(n0) < 0.9:
+        t0, t1, t2 = 1.0, 0.0, 0.0
     else:
-        t = np.array([0.0, 1.0, 0.0])
-    u = t - (t[0] * nrm[0] + t[1] * nrm[1] + t[2] * nrm[2]) * nrm
-    u /= np.sqrt(u[0] ** 2 + u[1] ** 2 + u[2] ** 2)
-    v = np.cross(nrm, u)
-    return u, v
+        t0, t1, t2 = 0.0, 1.0, 0.0
+    dot = t0 * n0 + t1 * n1 + t2 * n2
+    u0 = t0 - dot * n0
+    u1 = t1 - dot * n1
+    u2 = t2 - dot * n2
+    norm = np.sqrt(u0**2 + u1**2 + u2**2)
+    u0 /= norm
+    u1 /= norm
+    u2 /= norm
+    return u0, u1, u2, n1 * u2 - n2 * u1, n2 * u0 - n0 * u2, n0 * u1 - n1 * u0
 
 
-@njit(**EXACT_JIT_OPTIONS)
+@njit(**_PARALLEL)
 def max_angular_gap_kernel(cands, normals, nbr_pts, nbr_count):  # pragma: no cover - numba
     """Largest angle [rad] between successive neighbour directions in each tangent plane.
 
     Row i: the first ``nbr_count[i]`` points of ``nbr_pts[i]`` seen from ``cands[i]`` in the
-    frame :func:`tangent_frame` of ``normals[i]``; their polar angles are sorted and the widest
-    gap (wrapping around 2 pi) is returned. Fewer than 3 neighbours give 2 pi.
+    frame :func:`tangent_frame_xyz` of ``normals[i]``; their polar angles are sorted and the widest
+    gap (wrapping around 2 pi) is returned. Fewer than 3 neighbours give 2 pi. Rows are
+    independent: threaded, the same result for any thread count.
     """
     m = cands.shape[0]
     out = np.full(m, 2.0 * np.pi)
-    for i in range(m):
+    for i in prange(m):
         cnt = nbr_count[i]
         if cnt < 3:
             continue
-        u, v = tangent_frame(normals[i])
+        u0, u1, u2, v0, v1, v2 = tangent_frame_xyz(normals[i, 0], normals[i, 1], normals[i, 2])
         ang = np.zeros(cnt)
         for a in range(cnt):
-            d = nbr_pts[i, a] - cands[i]
-            ang[a] = np.arctan2(
-                d[0] * v[0] + d[1] * v[1] + d[2] * v[2], d[0] * u[0] + d[1] * u[1] + d[2] * u[2]
-            )
+            d0 = nbr_pts[i, a, 0] - cands[i, 0]
+            d1 = nbr_pts[i, a, 1] - cands[i, 1]
+            d2 = nbr_pts[i, a, 2] - cands[i, 2]
+            ang[a] = np.arctan2(d0 * v0 + d1 * v1 + d2 * v2, d0 * u0 + d1 * u1 + d2 * u2)
         ang.sort()
         gap = ang[0] + 2.0 * np.pi - ang[cnt - 1]
         for a in range(1, cnt):
