@@ -190,10 +190,10 @@ def tangent_frame_xyz(n0, n1, n2):  # pragma: no cover - numba
 
 
 @njit(**_PARALLEL)
-def max_angular_gap_kernel(cands, normals, nbr_pts, nbr_count):  # pragma: no cover - numba
+def max_angular_gap_kernel(cands, normals, points, nbr_idx, nbr_count):  # pragma: no cover
     """Largest angle [rad] between successive neighbour directions in each tangent plane.
 
-    Row i: the first ``nbr_count[i]`` points of ``nbr_pts[i]`` seen from ``cands[i]`` in the
+    Row i: the points ``points[nbr_idx[i, :nbr_count[i]]]`` seen from ``cands[i]`` in the
     frame :func:`tangent_frame_xyz` of ``normals[i]``; their polar angles are sorted and the widest
     gap (wrapping around 2 pi) is returned. Fewer than 3 neighbours give 2 pi. Rows are
     independent: threaded, the same result for any thread count.
@@ -207,9 +207,10 @@ def max_angular_gap_kernel(cands, normals, nbr_pts, nbr_count):  # pragma: no co
         u0, u1, u2, v0, v1, v2 = tangent_frame_xyz(normals[i, 0], normals[i, 1], normals[i, 2])
         ang = np.zeros(cnt)
         for a in range(cnt):
-            d0 = nbr_pts[i, a, 0] - cands[i, 0]
-            d1 = nbr_pts[i, a, 1] - cands[i, 1]
-            d2 = nbr_pts[i, a, 2] - cands[i, 2]
+            j = nbr_idx[i, a]
+            d0 = points[j, 0] - cands[i, 0]
+            d1 = points[j, 1] - cands[i, 1]
+            d2 = points[j, 2] - cands[i, 2]
             ang[a] = np.arctan2(d0 * v0 + d1 * v1 + d2 * v2, d0 * u0 + d1 * u1 + d2 * u2)
         ang.sort()
         gap = ang[0] + 2.0 * np.pi - ang[cnt - 1]

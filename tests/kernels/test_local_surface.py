@@ -41,9 +41,11 @@ def test_angular_gap_of_rings_half_rings_and_too_few_points():
     full = _ring(c, n, 8)
     half = _ring(c, n, 8, missing=[5, 6, 7])  # 5 of 8 directions: a gap of 4 steps
     few = _ring(c, n, 8)[:2]
-    nbr = np.zeros((3, 8, 3))
-    nbr[0], nbr[1, :5], nbr[2, :2] = full, half, few
-    gap = max_angular_gap_kernel(np.tile(c, (3, 1)), np.tile(n, (3, 1)), nbr, np.array([8, 5, 2]))
+    points = np.vstack([full, half, few])
+    idx = np.zeros((3, 8), dtype=np.int64)
+    idx[0], idx[1, :5], idx[2, :2] = np.arange(8), 8 + np.arange(5), 13 + np.arange(2)
+    centres, normals = np.tile(c, (3, 1)), np.tile(n, (3, 1))
+    gap = max_angular_gap_kernel(centres, normals, points, idx, np.array([8, 5, 2]))
     np.testing.assert_allclose(gap, [np.pi / 4, np.pi, 2 * np.pi], atol=1e-12)
 
 
@@ -52,15 +54,16 @@ def test_angular_gap_is_the_same_for_any_thread_count():
     rng = np.random.default_rng(3)
     m, k = 4000, 24
     centres = rng.uniform(0, 5, (m, 3))
-    nbr = centres[:, None, :] + rng.normal(size=(m, k, 3))
+    points = rng.uniform(-1, 6, (3000, 3))
+    idx = rng.integers(0, len(points), (m, k))
     count = rng.integers(0, k + 1, m)
     normals = _normals(m, 4)
     before = numba.get_num_threads()
     try:
         numba.set_num_threads(1)
-        one = max_angular_gap_kernel(centres, normals, nbr, count)
+        one = max_angular_gap_kernel(centres, normals, points, idx, count)
         numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
-        many = max_angular_gap_kernel(centres, normals, nbr, count)
+        many = max_angular_gap_kernel(centres, normals, points, idx, count)
     finally:
         numba.set_num_threads(before)
     assert np.array_equal(one, many)
