@@ -15,6 +15,7 @@ import numpy as np
 
 from .intersections import self_intersections, untangle
 from .remesh.improve import flip_and_smooth
+from .small_handles import without_small_handles
 from .surface import DataSurface
 from .triangulate import TriangulationResult
 
@@ -100,7 +101,8 @@ def polish_and_untangle(
     mesh with the fewest crossings left is kept, preferring the polished ones on a tie:
     polished, polished with those vertices held, unpolished. The mesh's stats say which
     (``polish_kept``: "polished", "held" or "unpolished") and how many vertices were held
-    (``polish_held``).
+    (``polish_held``). Last, a handle that fits in a geodesic ball of a few spacings is cut
+    out and its hole zipped (:func:`recon.small_handles.without_small_handles`).
     """
     untangle_fixed = result.crease if fixed is None else fixed
 
@@ -109,9 +111,15 @@ def polish_and_untangle(
         stats = {**mesh.stats, "polish_kept": kept, "polish_held": held}
         return replace(mesh, vertices=vertices, stats=stats), found, left
 
+    def cut(best: tuple) -> tuple:
+        # a tunnel a few spacings across is cut once the mesh has its final shape (the
+        # polish smooths the particles' jagged rings: before it the same handle can span a
+        # wider ball)
+        return (without_small_handles(best[0]), *best[1:])
+
     best = finish(polish(result, surface, rounds, flips, fixed=fixed), "polished", 0)
     if best[2] == 0 or rounds <= 0:
-        return best
+        return cut(best)
     crossing = self_intersections(best[0].vertices, best[0].faces)
     held = np.zeros(len(result.vertices), dtype=bool)
     held[best[0].faces[np.unique(crossing)].ravel()] = True
@@ -126,4 +134,4 @@ def polish_and_untangle(
     ):
         if candidate[2] < best[2]:
             best = candidate
-    return best
+    return cut(best)

@@ -237,6 +237,9 @@ class TriangulationStats(_Section):
     #: crossing face pairs found after the repair, and left after untangling
     self_intersections_found: int = 0
     self_intersections_left: int = 0
+    #: handles small enough for a geodesic ball of a few spacings, cut out and zipped
+    #: (recon.small_handles)
+    small_handles_cut: int = 0
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,199 @@
+r"""Handles that fit in a small geodesic ball of a mesh: tunnels the sampling cannot resolve.
+
+A closed surface of genus g has g handles; each has two short generating cycles only when the
+whole handle is small. For a vertex s, the *ball* B(s, R) is the set of faces whose three
+corners lie within geodesic distance R of s (shortest paths along edges). A ball on a surface
+without a small handle is a disc, or an annulus where it wraps round a part thinner than R;
+a ball that holds a whole handle has the Euler characteristic
+
+.. math::
+
+    \chi = V - E + F = 2c - b - 2h,\qquad h = (2c - b - \chi) / 2 > 0
+
+with c its components and b its boundary loops. A handle of the true surface (a ring, a torus)
+is longer than 2R round one of its cycles and never fits in a ball; a tunnel a few spacings
+across (two sheets of a sparse thin part bridged by a flap) does.
+
+References
+----------
+.. [WHDS04] Z. Wood, H. Hoppe, M. Desbrun, P. Schröder. "Removing excess topology from
+   isosurfaces". ACM TOG 23(2), 2004: small handles as defects of reconstructed surfaces.
+.. [EW05] J. Erickson, K. Whittlesey. "Greedy optimal homotopy and homology generators".
+   SODA 2005: shortest non-separating cycles from shortest-path trees.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from .options import EXACT_JIT_OPTIONS
+
+
+@njit(**EXACT_JIT_OPTIONS)
+def _root(parent, x):  # pragma: no cover - numba
+    while parent[x] != x:
+        parent[x] = parent[parent[x]]
+        x = parent[x]
+    return x
+
+
+@njit(**EXACT_JIT_OPTIONS)
+def geodesic_ball(
+    source, reach, vv_offsets, vv_nbr, vv_len, mark, dist, ball, stamp
+):  # pragma: no cover - numba
+    """Vertices within geodesic distance ``reach`` of ``source`` along edges (Dijkstra).
+
+    Writes them to ``ball`` (their count is returned; -1 when more than ``len(ball)``) and
+    sets ``mark[v] = stamp`` and ``dist[v]`` for each; ``mark`` must not hold ``stamp``
+    elsewhere. The selection of the next vertex is a linear scan of the ball: balls hold tens
+    of vertices.
+    """
+    cap = ball.shape[0]
+    ball[0] = source
+    mark[source] = stamp
+    dist[source] = 0.0
+    k = 1
+    done = 0  # ball[:done] are settled, in order of distance
+    while done < k:
+        best = done
+        for a in range(done + 1, k):
+            if dist[ball[a]] < dist[ball[best]]:
+                best = a
+        u = ball[best]
+        ball[best] = ball[done]
+        ball[done] = u
+        done += 1
+        for p in range(vv_offsets[u], vv_offsets[u + 1]):
+            w = vv_nbr[p]
+            d = dist[u] + vv_len[p]
+            if d > reach:
+                continue
+            if mark[w] != stamp:
+                if k == cap:
+                    return -1
+                mark[w] = stamp
+                dist[w] = d
+                ball[k] = w
+                k += 1
+            elif d < dist[w]:
+                dist[w] = d
+    return k
+
+
+@njit(**EXACT_JIT_OPTIONS)
+def ball_handles(
+    faces, ball, k, stamp, mark, fmark, vf_offsets, vf_faces, he_edge, edge_faces, local
+):  # pragma: no cover - numba
+    """Handles ``h = (2c - b - chi) / 2`` of the faces of a geodesic ball (module docstring):
+    the faces whose corners all carry ``stamp`` in ``mark``. ``fmark`` (per face) and
+    ``local`` (per vertex) are scratch: faces of the ball get ``stamp`` in ``fmark``.
+    Returns (handles, faces of the ball); handles is -1 where an edge of the ball has more
+    than two faces (not a manifold: the count means nothing there)."""
+    nf = 0
+    # the ball's faces, each once; its vertices numbered for the union-finds
+    nv = 0
+    for a in range(k):
+        u = ball[a]
+        local[u] = -1
+    for a in range(k):
+        u = ball[a]
+        for p in range(vf_offsets[u], vf_offsets[u + 1]):
+            f = vf_faces[p]
+            if fmark[f] == stamp:
+                continue
+            if mark[faces[f, 0]] != stamp or mark[faces[f, 1]] != stamp:
+                continue
+            if mark[faces[f, 2]] != stamp:
+                continue
+            fmark[f] = stamp
+            nf += 1
+            for c in range(3):
+                v = faces[f, c]
+                if local[v] < 0:
+                    local[v] = nv
+                    nv += 1
+    if nf == 0:
+        return 0, 0
+    parent_v = np.arange(nv)  # components of the faces (through their corners)
+    parent_b = np.arange(nv)  # components of the boundary edges (through their ends)
+    on_rim = np.zeros(nv, dtype=np.bool_)
+    n_rim = 0  # boundary half-edges
+    for a in range(k):
+        u = ball[a]
+        for p in range(vf_offsets[u], vf_offsets[u + 1]):
+            f = vf_faces[p]
+            if fmark[f] != stamp or faces[f, 0] != u:
+                continue  # each face once: from its first corner
+            for c in range(3):
+                x = local[faces[f, c]]
+                y = local[faces[f, (c + 1) % 3]]
+                rx = _root(parent_v, x)
+                ry = _root(parent_v, y)
+                if rx != ry:
+                    parent_v[max(rx, ry)] = min(rx, ry)
+                e = he_edge[3 * f + c]
+                g0 = edge_faces[e, 0]
+                g1 = edge_faces[e, 1]
+                if edge_faces[e, 2] >= 0:
+                    return -1, nf
+                other = g1 if g0 == f else g0
+                if other < 0 or fmark[other] != stamp:
+                    n_rim += 1
+                    on_rim[x] = True
+                    on_rim[y] = True
+                    rx = _root(parent_b, x)
+                    ry = _root(parent_b, y)
+                    if rx != ry:
+                        parent_b[max(rx, ry)] = min(rx, ry)
+    components = 0
+    loops = 0
+    for x in range(nv):
+        if _root(parent_v, x) == x:
+            components += 1
+        if on_rim[x] and _root(parent_b, x) == x:
+            loops += 1
+    edges = (3 * nf + n_rim) // 2
+    chi = nv - edges + nf
+    return (2 * components - loops - chi) // 2, nf
+
+
+@njit(**EXACT_JIT_OPTIONS)
+def small_handle_sources(
+    faces,
+    n_vertices,
+    reach,
+    vv_offsets,
+    vv_nbr,
+    vv_len,
+    vf_offsets,
+    vf_faces,
+    he_edge,
+    edge_faces,
+    max_ball,
+):  # pragma: no cover - numba
+    """Every vertex whose geodesic ball of radius ``reach`` holds a handle, and the number of
+    faces of that ball (``(m,)`` int64 each, vertices ascending). Balls of more than
+    ``max_ball`` vertices are skipped."""
+    mark = np.full(n_vertices, -1, dtype=np.int64)
+    dist = np.zeros(n_vertices)
+    local = np.full(n_vertices, -1, dtype=np.int64)
+    fmark = np.full(faces.shape[0], -1, dtype=np.int64)
+    ball = np.empty(max_ball, dtype=np.int64)
+    hits = np.empty(n_vertices, dtype=np.int64)
+    sizes = np.empty(n_vertices, dtype=np.int64)
+    m = 0
+    for s in range(n_vertices):
+        if vf_offsets[s + 1] == vf_offsets[s]:
+            continue  # not a corner of any face
+        k = geodesic_ball(s, reach, vv_offsets, vv_nbr, vv_len, mark, dist, ball, s)
+        if k < 0:
+            continue
+        h, nf = ball_handles(
+            faces, ball, k, s, mark, fmark, vf_offsets, vf_faces, he_edge, edge_faces, local
+        )
+        if h > 0:
+            hits[m] = s
+            sizes[m] = nf
+            m += 1
+    return hits[:m].copy(), sizes[:m].copy()

@@ -1,0 +1,49 @@
+"""Cutting small handles out of a mesh (recon.small_handles)."""
+
+import numpy as np
+import open3d as o3d
+
+from recon.intersections import self_intersections
+from recon.mesh import handle_count
+from recon.small_handles import cut_small_handles, without_small_handles
+from recon.triangulate import TriangulationResult
+from tests.mesh_shapes import sphere_with_tunnel, torus
+
+
+def _o3d(v, f):
+    m = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(v), o3d.utility.Vector3iVector(f))
+    m.remove_unreferenced_vertices()
+    return m
+
+
+def test_a_tunnel_is_cut_and_the_sphere_comes_back_closed_and_manifold():
+    v, f = sphere_with_tunnel()
+    assert handle_count(f, len(v)) == (1, 0, 1)
+    edge = float(np.median(np.linalg.norm(v[f[:, 0]] - v[f[:, 1]], axis=1)))
+    cut, n = cut_small_handles(v, f, 3 * edge)
+    assert n == 1
+    assert handle_count(cut, len(v)) == (1, 0, 0)
+    m = _o3d(v, cut)
+    assert m.is_watertight() and m.is_vertex_manifold() and m.is_orientable()
+    assert len(self_intersections(v, cut)) == 0
+    # the patch replaced a small ball: most of the sphere is untouched
+    assert len(cut) > 0.97 * len(f)
+
+
+def test_without_small_handles_drops_the_cut_vertices_and_says_so():
+    v, f = sphere_with_tunnel()
+    n = v / np.linalg.norm(v, axis=1, keepdims=True)
+    edge = float(np.median(np.linalg.norm(v[f[:, 0]] - v[f[:, 1]], axis=1)))
+    result = TriangulationResult(v / edge, f, n, {"holes_filled": 0}, np.zeros(len(v), bool))
+    out = without_small_handles(result)
+    assert out.stats["small_handles_cut"] == 1 and out.stats["holes_filled"] == 0
+    assert len(out.vertices) < len(v) and len(out.normals) == len(out.crease) == len(out.vertices)
+    assert np.all(np.bincount(out.faces.ravel(), minlength=len(out.vertices)) > 0)
+    assert handle_count(out.faces, len(out.vertices)) == (1, 0, 0)
+
+
+def test_the_handle_of_a_ring_stays():
+    v, f = torus(10.0, 3.0, 64, 20)
+    result = TriangulationResult(v, f, v * 0 + [0.0, 0.0, 1.0], {})
+    assert without_small_handles(result, reach=3.0) is result
+    assert cut_small_handles(v, f, 3.0)[1] == 0
