@@ -4,6 +4,7 @@ import numpy as np
 import open3d as o3d
 
 from recon.intersections import self_intersections
+from recon.kernels.mesh_tables import winding_consistent
 from recon.mesh import handle_count
 from recon.small_handles import cut_small_handles, without_small_handles
 from recon.triangulate import TriangulationResult
@@ -25,9 +26,10 @@ def test_a_tunnel_is_cut_and_the_sphere_comes_back_closed_and_manifold():
     assert handle_count(cut, len(v)) == (1, 0, 0)
     m = _o3d(v, cut)
     assert m.is_watertight() and m.is_vertex_manifold() and m.is_orientable()
+    assert winding_consistent(cut, len(v))  # the patch is wound as the faces round it
     assert len(self_intersections(v, cut)) == 0
     # the patch replaced a small ball: most of the sphere is untouched
-    assert len(cut) > 0.97 * len(f)
+    assert len(cut) > 0.95 * len(f)
 
 
 def test_without_small_handles_drops_the_cut_vertices_and_says_so():
@@ -43,7 +45,7 @@ def test_without_small_handles_drops_the_cut_vertices_and_says_so():
 
 
 def test_the_handle_of_a_ring_stays():
-    v, f = torus(10.0, 3.0, 64, 20)
+    v, f = torus(64, 20, 10.0, 3.0)
     result = TriangulationResult(v, f, v * 0 + [0.0, 0.0, 1.0], {})
     assert without_small_handles(result, reach=3.0) is result
     assert cut_small_handles(v, f, 3.0)[1] == 0

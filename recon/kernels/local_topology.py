@@ -27,15 +27,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from .mesh_tables import _root, _union
 from .options import EXACT_JIT_OPTIONS
-
-
-@njit(**EXACT_JIT_OPTIONS)
-def _root(parent, x):  # pragma: no cover - numba
-    while parent[x] != x:
-        parent[x] = parent[parent[x]]
-        x = parent[x]
-    return x
 
 
 @njit(**EXACT_JIT_OPTIONS)
@@ -128,10 +121,7 @@ def ball_handles(
             for c in range(3):
                 x = local[faces[f, c]]
                 y = local[faces[f, (c + 1) % 3]]
-                rx = _root(parent_v, x)
-                ry = _root(parent_v, y)
-                if rx != ry:
-                    parent_v[max(rx, ry)] = min(rx, ry)
+                _union(parent_v, x, y)
                 e = he_edge[3 * f + c]
                 g0 = edge_faces[e, 0]
                 g1 = edge_faces[e, 1]
@@ -142,10 +132,7 @@ def ball_handles(
                     n_rim += 1
                     on_rim[x] = True
                     on_rim[y] = True
-                    rx = _root(parent_b, x)
-                    ry = _root(parent_b, y)
-                    if rx != ry:
-                        parent_b[max(rx, ry)] = min(rx, ry)
+                    _union(parent_b, x, y)
     components = 0
     loops = 0
     for x in range(nv):

@@ -12,7 +12,7 @@ def _edge(v, f):
 
 
 def test_a_sphere_has_no_small_handle():
-    v, f = icosphere()
+    v, f = icosphere(3, 6.0)
     hits, sizes = small_handles(v, f, 3 * _edge(v, f))
     assert len(hits) == 0 and len(sizes) == 0
 
@@ -31,7 +31,7 @@ def test_a_tunnel_a_few_edges_across_is_found_where_it_is():
 
 @pytest.mark.parametrize(
     ("shape", "found"),
-    [((10.0, 3.0, 64, 20), False), ((1.2, 0.5, 8, 6), True)],
+    [((64, 20, 10.0, 3.0), False), ((8, 6, 1.2, 0.5), True)],
     ids=["ring-of-the-true-surface", "torus-a-few-edges-round"],
 )
 def test_a_handle_counts_only_when_both_its_cycles_fit_in_the_ball(shape, found):
