@@ -27,7 +27,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .mesh_tables import _root, _union
+from .mesh_tables import find_root, union_sets
 from .options import EXACT_JIT_OPTIONS
 
 
@@ -121,7 +121,7 @@ def ball_handles(
             for c in range(3):
                 x = local[faces[f, c]]
                 y = local[faces[f, (c + 1) % 3]]
-                _union(parent_v, x, y)
+                union_sets(parent_v, x, y)
                 e = he_edge[3 * f + c]
                 g0 = edge_faces[e, 0]
                 g1 = edge_faces[e, 1]
@@ -132,13 +132,13 @@ def ball_handles(
                     n_rim += 1
                     on_rim[x] = True
                     on_rim[y] = True
-                    _union(parent_b, x, y)
+                    union_sets(parent_b, x, y)
     components = 0
     loops = 0
     for x in range(nv):
-        if _root(parent_v, x) == x:
+        if find_root(parent_v, x) == x:
             components += 1
-        if on_rim[x] and _root(parent_b, x) == x:
+        if on_rim[x] and find_root(parent_b, x) == x:
             loops += 1
     edges = (3 * nf + n_rim) // 2
     chi = nv - edges + nf

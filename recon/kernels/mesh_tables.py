@@ -262,7 +262,7 @@ def bounding_spheres(vertices, faces):  # pragma: no cover - numba
 
 
 @njit(**EXACT_JIT_OPTIONS)
-def _root(parent, x):  # pragma: no cover - numba
+def find_root(parent, x):  # pragma: no cover - numba
     """Root of ``x`` in the union-find forest ``parent`` (halving the path on the way)."""
     while parent[x] != x:
         parent[x] = parent[parent[x]]
@@ -271,11 +271,11 @@ def _root(parent, x):  # pragma: no cover - numba
 
 
 @njit(**EXACT_JIT_OPTIONS)
-def _union(parent, x, y):  # pragma: no cover - numba
+def union_sets(parent, x, y):  # pragma: no cover - numba
     """Join the sets of ``x`` and ``y``; the lower root stays the root (so each set's root
     is its lowest member)."""
-    rx = _root(parent, x)
-    ry = _root(parent, y)
+    rx = find_root(parent, x)
+    ry = find_root(parent, y)
     if rx < ry:
         parent[ry] = rx
     elif ry < rx:
@@ -291,7 +291,7 @@ def _component_labels(parent, used):  # pragma: no cover - numba
     for v in range(len(used)):
         if not used[v]:
             continue
-        r = _root(parent, v)
+        r = find_root(parent, v)
         if r == v:
             labels[v] = n
             n += 1
@@ -335,8 +335,8 @@ def fan_labels(faces, order):  # pragma: no cover - numba
             lo, hi, lo_c, hi_c = _edge_corners(faces, order[j])
             if lo != lo0 or hi != hi0:
                 break
-            _union(parent, lo_c0, lo_c)
-            _union(parent, hi_c0, hi_c)
+            union_sets(parent, lo_c0, lo_c)
+            union_sets(parent, hi_c0, hi_c)
             j += 1
         i = j
     return _component_labels(parent, np.ones(nh, dtype=np.bool_))[1]
@@ -385,8 +385,8 @@ def vertex_component_labels(faces, n_vertices):  # pragma: no cover - numba
         used[a] = True
         used[b] = True
         used[c] = True
-        _union(parent, a, b)
-        _union(parent, b, c)
+        union_sets(parent, a, b)
+        union_sets(parent, b, c)
     return _component_labels(parent, used)
 
 
