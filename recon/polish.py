@@ -89,6 +89,7 @@ def polish_and_untangle(
     rounds: int,
     flips: bool = True,
     fixed: np.ndarray | None = None,
+    cut_handles: bool = True,
 ) -> tuple[TriangulationResult, int, int]:
     """:func:`polish`, then :func:`recon.intersections.untangle`; returns the mesh and
     untangle's crossing pairs found and left. ``fixed`` (V,): vertices neither step moves
@@ -101,8 +102,12 @@ def polish_and_untangle(
     mesh with the fewest crossings left is kept, preferring the polished ones on a tie:
     polished, polished with those vertices held, unpolished. The mesh's stats say which
     (``polish_kept``: "polished", "held" or "unpolished") and how many vertices were held
-    (``polish_held``). Last, a handle that fits in a geodesic ball of a few spacings is cut
-    out and its hole zipped (:func:`recon.small_handles.without_small_handles`).
+    (``polish_held``). Last, with ``cut_handles``, a handle that fits in a geodesic ball of
+    a few spacings is cut out and its hole zipped
+    (:func:`recon.small_handles.without_small_handles`; vertices inside the cut are dropped).
+    Without it the mesh keeps the faces and vertices it came with, moved only: what a tile
+    of a tiled fit needs, whose mesh is a part of the whole and must stay one with its
+    neighbours'.
     """
     untangle_fixed = result.crease if fixed is None else fixed
 
@@ -115,7 +120,7 @@ def polish_and_untangle(
         # a tunnel a few spacings across is cut once the mesh has its final shape (the
         # polish smooths the particles' jagged rings: before it the same handle can span a
         # wider ball)
-        return (without_small_handles(best[0]), *best[1:])
+        return (without_small_handles(best[0]), *best[1:]) if cut_handles else best
 
     best = finish(polish(result, surface, rounds, flips, fixed=fixed), "polished", 0)
     if best[2] == 0 or rounds <= 0:

@@ -73,3 +73,22 @@ def test_polish_and_untangle_keeps_the_mesh_that_crosses_least(monkeypatch):
     assert (kept, left) == ("held", 1) and held == held_seen[-1] > 6  # 2 rings round 2 faces
     assert run({1.0: 3, 2.0: 2, 0.0: 0})[::2] == ("unpolished", 0)
     assert run({1.0: 1, 2.0: 1, 0.0: 1})[::2] == ("polished", 1)  # a tie: the polished
+
+
+def test_polish_and_untangle_cuts_small_handles_only_when_asked():
+    """The untiled fit cuts a tunnel a few spacings across after the polish; a tile (which
+    must keep its vertices: tests/test_tiling.py) asks it not to."""
+    import recon.polish as polish_module
+    from recon.mesh import handle_count
+    from tests.mesh_shapes import sphere_with_tunnel
+
+    v, f = sphere_with_tunnel()
+    edge = float(np.median(np.linalg.norm(v[f[:, 0]] - v[f[:, 1]], axis=1)))
+    v = v / edge  # the mesh in spacings, as a fit's particle mesh is in r0
+    mesh = TriangulationResult(v, f, v / np.linalg.norm(v, axis=1, keepdims=True), {})
+    cut, _, _ = polish_module.polish_and_untangle(mesh, None, 0)
+    kept, _, _ = polish_module.polish_and_untangle(mesh, None, 0, cut_handles=False)
+    assert handle_count(cut.faces, len(cut.vertices))[2] == 0
+    assert cut.stats["small_handles_cut"] == 1
+    assert len(kept.vertices) == len(v) and np.array_equal(kept.faces, f)
+    assert handle_count(kept.faces, len(kept.vertices))[2] == 1

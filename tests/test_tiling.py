@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from recon.config import ReconConfig, with_values
+from recon.config import ReconConfig, apply_overrides, with_values
 from recon.errors import InputError, OpreconError
 from recon.fitting import fit_file
 from recon.io import read_mesh, write_points
@@ -617,6 +617,22 @@ def test_tiles_cover_a_holes_inside_as_the_untiled_fit_does(tmp_path):
     topo = mesh_topology(v, f)
     assert whole.report.topology.boundary_loops == 0
     assert topo["boundary_loops"] == 0 and topo["watertight"], topo
+
+
+def test_a_tile_with_a_small_handle_keeps_its_vertices(tmp_path):
+    """Regression: the polish's cut of small handles (recon.small_handles) drops the vertices
+    inside the cut, but a tile's polished vertices must stay those of its particles: the mesh
+    phase failed with "operands could not be broadcast together" (the one-eared body at
+    1,500 points, seed 1, with the growth's active set). Tiles keep their meshes whole."""
+    from test_sparse_holes import EARED, union_points
+
+    src = tmp_path / "eared.ply"
+    write_points(src, union_points(EARED, 1500, 1))
+    cfg = apply_overrides(ReconConfig(), {"growth.active_radius": 3.0})
+    tiled = fit_tiled(src, tmp_path / "tiled.ply", with_values(cfg, tiling={"size": 0.8}), jobs=1)
+    assert tiled.report["tiles"]["count"] == 3
+    v, f = read_mesh(tmp_path / "tiled.ply")
+    assert mesh_topology(v, f)["components"] == 1
 
 
 def test_tiles_polish_their_triangles_as_the_untiled_fit_does(fits):

@@ -435,7 +435,7 @@ def mesh_task(job: MeshJob) -> dict:
         # the untiled fit's polish without flips (the faces near the core's edge must stay
         # those the neighbour tiles see) and in the tangent planes (no data surface here)
         polished, found, left = polish_and_untangle(
-            tri, None, tri_cfg.smooth_rounds, flips=False, fixed=fixed
+            tri, None, tri_cfg.smooth_rounds, flips=False, fixed=fixed, cut_handles=False
         )
         return tri, code, polished.vertices, found, left
 
