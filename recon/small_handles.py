@@ -30,10 +30,11 @@ log = logging.getLogger(__name__)
 
 __all__ = ["SMALL_HANDLE_REACH", "cut_small_handles", "small_handles", "without_small_handles"]
 
-#: A handle inside a geodesic ball of this radius [local spacings] is a defect: twice the
-#: radius is about the widest hole growth fills on a sparse scan (``growth.max_gap`` is
-#: resolved to 3-6 r0), and a handle of the true surface (a ring, a torus, a cup's handle)
-#: is longer than that round one of its cycles.
+#: A handle inside a geodesic ball of this radius [local spacings] is a defect. Growth takes
+#: holes up to ``growth.max_gap`` across as gaps of the sampling (resolved to 4 r0 on the dense
+#: bunny, 12 r0 on the sparse one-eared body of the tests); a handle that fits in a ball of 3 r0
+#: is narrower than that, while a handle of the true surface (a ring, a torus, a cup's handle)
+#: is longer round one of its cycles.
 SMALL_HANDLE_REACH = 3.0
 #: Balls with more vertices than this are skipped (a vertex of far more than the usual ~30
 #: within the reach: a clump of tiny faces, not a sheet).
@@ -87,7 +88,10 @@ def small_handles(
 ) -> tuple[np.ndarray, np.ndarray]:
     """The vertices whose geodesic ball of radius ``reach`` holds a handle, and the number of
     faces of each ball: ``(m,)`` int64 each, vertices ascending."""
-    t = _Tables(np.asarray(vertices, dtype=np.float64), faces)
+    return _sources(_Tables(np.asarray(vertices, dtype=np.float64), faces), reach)
+
+
+def _sources(t: _Tables, reach: float) -> tuple[np.ndarray, np.ndarray]:
     return small_handle_sources(
         t.faces,
         t.n,
@@ -132,10 +136,10 @@ def _ball_faces(t: _Tables, source: int, radius: float) -> tuple[int, np.ndarray
 def _cut_one(vertices: np.ndarray, faces: np.ndarray, reach: float) -> np.ndarray | None:
     """``faces`` with one small handle cut out and its hole zipped, or None when no small
     handle can be cut cleanly (one rim, fewer handles, no new crossing)."""
-    hits, sizes = small_handles(vertices, faces, reach)
+    t = _Tables(vertices, faces)
+    hits, sizes = _sources(t, reach)
     if len(hits) == 0:
         return None
-    t = _Tables(vertices, faces)
     c0, b0, h0 = handle_count(faces, len(vertices))
     for s in hits[np.argsort(sizes, kind="stable")][:MAX_TRIES]:
         for fraction in RADIUS_LADDER:

@@ -18,8 +18,6 @@ References
 ----------
 .. [WHDS04] Z. Wood, H. Hoppe, M. Desbrun, P. Schröder. "Removing excess topology from
    isosurfaces". ACM TOG 23(2), 2004: small handles as defects of reconstructed surfaces.
-.. [EW05] J. Erickson, K. Whittlesey. "Greedy optimal homotopy and homology generators".
-   SODA 2005: shortest non-separating cycles from shortest-path trees.
 """
 
 from __future__ import annotations
