@@ -340,10 +340,11 @@ class GrowthConfig(Schema):
         0.005, "Stop growing when a round adds fewer than this fraction of the particles.", 0.0, 1.0
     )
     active_radius: float = option(
-        0.0,
+        3.0,
         "Active set of a growth round's relaxation [r0]: only free particles within this "
         "distance of the last round's additions (or whose rest spacing changed) move, the "
-        "relaxed rest of the sheet is held like the seeds. 0 = all free particles move.",
+        "relaxed rest of the sheet is held like the seeds (the release moves them all). "
+        "0 = all free particles move.",
         0.0,
         None,
     )

@@ -68,10 +68,11 @@ def _topology(res):
 
 # cases where the coverage test at r0 leaves one seam open (which samples do moves with the
 # fit: with the Morton order of the points, 2000 points seed 4 closed without the reach too;
-# with the per-point normal scale, the default since 2026-11-28, seed 6 keeps a loop either
-# way and seed 8 shows the mechanism; over seeds 0-99 at 1500 and 2000 points 178 of 200
-# fits close, 183 with one k, 190 since small handles are cut: docs/topology-history.md)
-@pytest.mark.parametrize(("n", "seed"), [(1500, 2), (2000, 8)])
+# with the growth's active set, the default since the night of 2026-11-28, seeds 0, 1, 2, 5
+# and 12 at 1500 points show the mechanism, none of seeds 0-24 at 2000 points does; over
+# seeds 0-99 at 1500 and 2000 points 178 of 200 fits closed, 183 with one k, 190 once small
+# handles were cut, 192 with the active set: docs/topology-history.md)
+@pytest.mark.parametrize(("n", "seed"), [(1500, 2), (1500, 12)])
 def test_a_sparse_thin_part_comes_out_closed(n, seed, monkeypatch):
     points = union_points(EARED, n, seed)
     res = recon.fit(points)
@@ -119,10 +120,11 @@ def test_a_mesh_the_reach_leaves_crossing_is_meshed_again_at_r0(monkeypatch):
     assert np.array_equal(res.mesh.faces, plain.mesh.faces)
 
 
-@pytest.mark.parametrize(("n", "seed"), [(1500, 1)])
+@pytest.mark.parametrize(("n", "seed"), [(1500, 8)])
 def test_a_tunnel_at_a_sparse_ears_base_is_cut(n, seed, monkeypatch):
-    """Regression (#11): at 1,500 points, seed 1, a flap of faces at the ear's base bridged two
-    sheets into a tunnel about two spacings across: watertight, but genus 1. The polished
+    """Regression (#11): at 1,500 points, seed 8, a flap of faces at the ear's base bridges two
+    sheets into a tunnel a few spacings across: watertight, but genus 1 (seed 1 before the
+    growth's active set became the default). The polished
     mesh's small handles are cut (recon.small_handles); without the cut the handle stays."""
     points = union_points(EARED, n, seed)
     res = recon.fit(points)

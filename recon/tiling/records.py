@@ -28,6 +28,7 @@ ROW = np.dtype(
         ("fit_s", "<f8"),
         ("mesh_s", "<f8"),
         ("crease_particles", "<i8"),
+        ("cover_reach", "<f8"),
         ("new_vertices", "<i8"),
         ("self_intersections_found", "<i8"),
         ("self_intersections_left", "<i8"),
@@ -59,7 +60,12 @@ class TileRecords:
         r["meshed"] = True
         r["mesh_s"] = result.get("seconds", 0.0)
         r["new_vertices"] = result.get("new_vertices", 0)
-        for key in ("crease_particles", "self_intersections_found", "self_intersections_left"):
+        for key in (
+            "crease_particles",
+            "cover_reach",
+            "self_intersections_found",
+            "self_intersections_left",
+        ):
             r[key] = result.get(key, 0)
 
     def warnings(self) -> list[str]:
@@ -115,6 +121,7 @@ class TileRecords:
                     "fit_s": float(r["fit_s"]),
                     "mesh_s": float(r["mesh_s"]),
                     "crease_particles": int(r["crease_particles"]),
+                    "cover_reach_r0": float(r["cover_reach"]),
                     "sign_flipped": flips.get(t, 1.0) < 0,
                 }
             )

@@ -443,7 +443,8 @@ def mesh_task(job: MeshJob) -> dict:
         reach = cover_reach(job.median_spacing / r0)
         tri, code, moved_x, found, left = mesh(reach)
         if left and reach > HOLE_COVER_DISTANCE:  # as the untiled fit: see its _triangulate
-            tri, code, moved_x, found, left = mesh(0.0)
+            reach = 0.0
+            tri, code, moved_x, found, left = mesh(reach)
     faces = tri.faces
     if len(faces) == 0:
         write_tile_mesh(job.work, job.tile, grid, r0, *_no_mesh())
@@ -476,6 +477,8 @@ def mesh_task(job: MeshJob) -> dict:
         "crease_particles": 0 if crease is None else int(np.count_nonzero(crease)),
         "self_intersections_found": int(found),
         "self_intersections_left": int(left),
+        # data covered a hole's inside within this distance [r0] (at least r0)
+        "cover_reach": max(reach, HOLE_COVER_DISTANCE),
         "seconds": time.perf_counter() - t0,
         "stats": tri.stats,
     }
