@@ -200,9 +200,20 @@ def main() -> None:
     ap.add_argument("--noise", type=float, default=0.0005, help="noise sigma ÷ diagonal")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--save", type=Path, help="write SHAPE.input.ply and SHAPE.ply here")
+    ap.add_argument(
+        "--set",
+        dest="overrides",
+        action="append",
+        default=[],
+        metavar="SECTION.KEY=VALUE",
+        help="override one oprecon config key (repeatable), as `oprecon fit --set`",
+    )
     args = ap.parse_args()
 
     import recon
+    from recon.config import ReconConfig, apply_overrides, parse_override
+
+    cfg = apply_overrides(ReconConfig(), dict(map(parse_override, args.overrides)))
 
     print(
         "| shape | points | loops | comps | genus (true) | handles | watertight | crossings | "
@@ -212,7 +223,7 @@ def main() -> None:
     for name in args.shapes:
         pts, truth, genus = make_scan(name, args.points, args.noise, args.seed)
         t0 = time.perf_counter()
-        res = recon.fit(pts)
+        res = recon.fit(pts, cfg)
         seconds = time.perf_counter() - t0
         if args.save:
             from recon.io import write_mesh, write_points
