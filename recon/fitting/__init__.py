@@ -5,7 +5,8 @@ Modules
 - :mod:`recon.fitting.scale`: the length scales from the data (r0, neighbourhood size, max gap);
 - :mod:`recon.fitting.schedule`: seeds, growth rounds and release, with the divergence retry;
 - :mod:`recon.fitting.report`: the typed report and the measurements of the mesh;
-- :mod:`recon.fitting.pipeline`: :func:`fit`, :func:`reconstruct` and :func:`fit_file`.
+- :mod:`recon.fitting.pipeline`: :func:`fit`, :func:`reconstruct` and :func:`fit_file`;
+- :mod:`recon.fitting.collector`: the garbage collector kept off the objects alive before a fit.
 
 ``recon.fit(points, config)`` (the library's main function) is :func:`fit` from here.
 

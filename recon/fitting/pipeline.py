@@ -56,6 +56,7 @@ from ..state import ParticleState
 from ..surface import DataSurface
 from ..triangulate import TriangulationResult, triangulate_particles
 from ..version import __version__
+from .collector import survivors_frozen
 from .memory import estimate_fit_memory
 from .report import (
     SAMPLING_REACH,
@@ -423,7 +424,8 @@ def reconstruct(
         Mesh and particles in absolute coordinates, and the report.
     """
     cfg = config if config is not None else ReconConfig()
-    with thread_count(cfg.threads):  # the mesh does not depend on it
+    # the mesh depends on neither
+    with thread_count(cfg.threads), survivors_frozen():
         return _reconstruct(cloud, cfg, on_progress)
 
 
