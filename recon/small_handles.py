@@ -15,6 +15,7 @@ import logging
 from dataclasses import replace
 from typing import TYPE_CHECKING
 
+import numba
 import numpy as np
 
 from .holes import zip_loop
@@ -84,14 +85,15 @@ class _Tables:
 
 
 def small_handles(
-    vertices: np.ndarray, faces: np.ndarray, reach: float
+    vertices: np.ndarray, faces: np.ndarray, reach: float, threads: int | None = None
 ) -> tuple[np.ndarray, np.ndarray]:
     """The vertices whose geodesic ball of radius ``reach`` holds a handle, and the number of
-    faces of each ball: ``(m,)`` int64 each, vertices ascending."""
-    return _sources(_Tables(np.asarray(vertices, dtype=np.float64), faces), reach)
+    faces of each ball: ``(m,)`` int64 each, vertices ascending. ``threads``: blocks of
+    sources scanned in parallel (default: numba's thread count); the result is the same."""
+    return _sources(_Tables(np.asarray(vertices, dtype=np.float64), faces), reach, threads)
 
 
-def _sources(t: _Tables, reach: float) -> tuple[np.ndarray, np.ndarray]:
+def _sources(t: _Tables, reach: float, threads: int | None = None) -> tuple[np.ndarray, np.ndarray]:
     return small_handle_sources(
         t.faces,
         t.n,
@@ -104,6 +106,7 @@ def _sources(t: _Tables, reach: float) -> tuple[np.ndarray, np.ndarray]:
         t.he_edge,
         t.edge_faces,
         MAX_BALL_VERTICES,
+        numba.get_num_threads() if threads is None else int(threads),
     )
 
 

@@ -23,10 +23,15 @@ References
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 from .mesh_tables import find_root, union_sets
 from .options import EXACT_JIT_OPTIONS
+
+_PARALLEL_EXACT = dict(EXACT_JIT_OPTIONS, parallel=True)
+#: Fewest vertices per thread's block of sources (smaller meshes use fewer threads: each block
+#: allocates scratch marks for the whole mesh).
+MIN_BLOCK_VERTICES = 2048
 
 
 @njit(**EXACT_JIT_OPTIONS)
@@ -143,7 +148,7 @@ def ball_handles(
     return (2 * components - loops - chi) // 2, nf
 
 
-@njit(**EXACT_JIT_OPTIONS)
+@njit(**_PARALLEL_EXACT)
 def small_handle_sources(
     faces,
     n_vertices,
@@ -156,29 +161,36 @@ def small_handle_sources(
     he_edge,
     edge_faces,
     max_ball,
+    threads,
 ):  # pragma: no cover - numba
     """Every vertex whose geodesic ball of radius ``reach`` holds a handle, and the number of
     faces of that ball (``(m,)`` int64 each, vertices ascending). Balls of more than
-    ``max_ball`` vertices are skipped."""
-    mark = np.full(n_vertices, -1, dtype=np.int64)
-    dist = np.zeros(n_vertices)
-    local = np.full(n_vertices, -1, dtype=np.int64)
-    fmark = np.full(faces.shape[0], -1, dtype=np.int64)
-    ball = np.empty(max_ball, dtype=np.int64)
-    hits = np.empty(n_vertices, dtype=np.int64)
-    sizes = np.empty(n_vertices, dtype=np.int64)
-    m = 0
-    for s in range(n_vertices):
-        if vf_offsets[s + 1] == vf_offsets[s]:
-            continue  # not a corner of any face
-        k = geodesic_ball(s, reach, vv_offsets, vv_nbr, vv_len, mark, dist, ball, s)
-        if k < 0:
-            continue
-        h, nf = ball_handles(
-            faces, ball, k, s, mark, fmark, vf_offsets, vf_faces, he_edge, edge_faces, local
-        )
-        if h > 0:
-            hits[m] = s
-            sizes[m] = nf
-            m += 1
-    return hits[:m].copy(), sizes[:m].copy()
+    ``max_ball`` vertices are skipped.
+
+    Each source's ball is independent of the others: the vertices are split into at most
+    ``threads`` blocks (of at least ``MIN_BLOCK_VERTICES``), each with its own scratch marks
+    (stamped with the source, so never cleared); the result is the same for any split."""
+    n_faces = faces.shape[0]
+    blocks = max(1, min(threads, n_vertices // MIN_BLOCK_VERTICES))
+    size = (n_vertices + blocks - 1) // blocks
+    handles = np.zeros(n_vertices, dtype=np.int64)
+    ball_faces = np.zeros(n_vertices, dtype=np.int64)
+    for b in prange(blocks):
+        mark = np.full(n_vertices, -1, dtype=np.int64)
+        dist = np.zeros(n_vertices)
+        local = np.full(n_vertices, -1, dtype=np.int64)
+        fmark = np.full(n_faces, -1, dtype=np.int64)
+        ball = np.empty(max_ball, dtype=np.int64)
+        for s in range(b * size, min(n_vertices, (b + 1) * size)):
+            if vf_offsets[s + 1] == vf_offsets[s]:
+                continue  # not a corner of any face
+            k = geodesic_ball(s, reach, vv_offsets, vv_nbr, vv_len, mark, dist, ball, s)
+            if k < 0:
+                continue
+            h, nf = ball_handles(
+                faces, ball, k, s, mark, fmark, vf_offsets, vf_faces, he_edge, edge_faces, local
+            )
+            handles[s] = h
+            ball_faces[s] = nf
+    hits = np.flatnonzero(handles > 0)
+    return hits.astype(np.int64), ball_faces[hits]

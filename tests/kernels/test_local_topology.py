@@ -38,3 +38,21 @@ def test_a_handle_counts_only_when_both_its_cycles_fit_in_the_ball(shape, found)
     v, f = torus(*shape)
     hits, _ = small_handles(v, f, 3 * _edge(v, f))
     assert (len(hits) > 0) == found
+
+
+def test_the_sources_are_the_same_however_the_vertices_are_split():
+    """The scan runs one block of sources per thread (at least MIN_BLOCK_VERTICES each), each
+    with its own scratch marks: any split gives the same sources, in vertex order."""
+    from recon.kernels.local_topology import MIN_BLOCK_VERTICES
+
+    v, f = sphere_with_tunnel()
+    copies = 4 * MIN_BLOCK_VERTICES // len(v) + 1  # enough vertices for four blocks
+    verts = np.vstack([v + [20.0 * k, 0.0, 0.0] for k in range(copies)])
+    faces = np.vstack([f + k * len(v) for k in range(copies)])
+    reach = 3 * _edge(v, f)
+    one = small_handles(verts, faces, reach, threads=1)
+    assert len(one[0]) == copies * len(small_handles(v, f, reach)[0])  # each copy's tunnel
+    assert np.all(np.diff(one[0]) > 0)
+    for threads in (2, 3, 4):
+        split = small_handles(verts, faces, reach, threads=threads)
+        assert np.array_equal(one[0], split[0]) and np.array_equal(one[1], split[1])
