@@ -31,6 +31,7 @@ import numpy as np
 from scipy import sparse
 from scipy.spatial import cKDTree
 
+from .kernels.grid_query import coordinate_extent
 from .kernels.mesh_tables import bounding_spheres
 from .kernels.options import query_workers, thread_limit
 from .kernels.sphere_pairs import sphere_pairs
@@ -152,7 +153,7 @@ def _overlapping(
         return np.zeros(0, dtype=np.int64)
     large = radius > LARGE_FACE * max(float(np.median(radius)), 1e-300)
     r_small = float(radius[~large].max()) if np.any(~large) else 0.0
-    extent = centroid.max(axis=0) - centroid.min(axis=0)
+    extent = coordinate_extent(np.ascontiguousarray(centroid, dtype=np.float64))
     if not (r_small > 0.0 and np.prod(np.floor(3.0 * extent / (2.0 * r_small)) + 1.0) < 2.0**62):
         key = _tree_overlapping(centroid, radius, mark, large, r_small)
         if test is None or not len(key):

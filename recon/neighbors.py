@@ -31,7 +31,7 @@ from .kernels.cell_list import (
     max_displacement2,
     sublist_within,
 )
-from .kernels.grid_query import covered_kernel, grid_build, knn_grid_kernel
+from .kernels.grid_query import coordinate_extent, covered_kernel, grid_build, knn_grid_kernel
 from .kernels.options import query_workers, thread_limit
 
 PARALLEL_MIN_PARTICLES = 30_000
@@ -96,7 +96,7 @@ def build_neighbor_list(
     if not (np.isfinite(radius) and radius > 0.0):
         raise ValueError(f"radius: expected a finite number > 0, got {radius}")
     if pos.shape[0] > 0:
-        extent = pos.max(axis=0) - pos.min(axis=0)
+        extent = coordinate_extent(pos)
         cells = np.prod(np.floor(extent / radius) + 1.0)
         if cells > _MAX_CELLS:
             raise ValueError(
@@ -278,7 +278,7 @@ class PointGrid:
         self.cell_size = float(cell_size)
         self.grid: tuple | None = None
         if len(self.points):
-            extent = self.points.max(axis=0) - self.points.min(axis=0)
+            extent = coordinate_extent(self.points)
             if np.prod(np.floor(extent / self.cell_size) + 1.0) <= _MAX_CELLS:
                 self.grid = grid_build(self.points, self.cell_size)
         self._tree = None

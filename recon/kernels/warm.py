@@ -25,6 +25,7 @@ from numba.core.dispatcher import Dispatcher
 #: The kernels a fit calls from Python, ``module.function`` under :mod:`recon.kernels`, in
 #: the order of their first call on a smooth scan (bunny-clean).
 FIT_KERNELS: tuple[str, ...] = (
+    "grid_query.coordinate_extent",
     "grid_query.grid_build",
     "grid_query.knn_grid_kernel",
     "pca.scatter_matrices",

@@ -137,3 +137,27 @@ def test_local_quadrics_are_the_same_on_one_and_two_threads():
     for a, b in zip(*outs, strict=True):
         assert np.array_equal(a, b)
     assert np.median(np.einsum("ij,ij->i", outs[0][1], nrm)) > 0.9  # normals follow the sphere
+
+
+def test_coordinate_extent_is_numpys_max_minus_min():
+    from recon.kernels.grid_query import coordinate_extent
+
+    rng = np.random.default_rng(7)
+    for p in (rng.normal(size=(1, 3)), rng.normal(size=(5000, 3)) * [1.0, 1e-3, 1e4]):
+        assert np.array_equal(coordinate_extent(p), p.max(axis=0) - p.min(axis=0))
+
+
+@pytest.mark.parametrize("first", [False, True], ids=["later-row", "first-row"])
+def test_coordinate_extent_propagates_nan_and_infinity_as_numpy(first):
+    from recon.kernels.grid_query import coordinate_extent
+
+    p = np.random.default_rng(8).normal(size=(50, 3))
+    row = 0 if first else 20
+    p[row, 0] = np.nan
+    p[row + 1, 1] = np.inf
+    p[row + 2, 2] = -np.inf
+    with np.errstate(invalid="ignore"):
+        expected = p.max(axis=0) - p.min(axis=0)
+    got = coordinate_extent(p)
+    assert np.isnan(got[0]) and np.isnan(expected[0])
+    assert got[1] == expected[1] == np.inf and got[2] == expected[2] == np.inf
