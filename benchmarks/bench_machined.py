@@ -39,6 +39,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parent
 sys.path.insert(0, str(ROOT))
+from options import add_overrides, override_values  # noqa: E402
 
 #: Sides of the polygons standing in for circles (a 3.75 deg turn between wall facets).
 CIRCLE_SIDES = 96
@@ -189,23 +190,13 @@ def run_case(name: str, noisy: bool, overrides: dict[str, Any]) -> dict[str, Any
     }
 
 
-def _parse_sets(items: list[str]) -> dict[str, Any]:
-    import yaml
-
-    out = {}
-    for item in items:
-        key, _, value = item.partition("=")
-        out[key.strip()] = yaml.safe_load(value)
-    return out
-
-
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--shapes", nargs="*", default=list(SHAPES), choices=list(SHAPES))
     ap.add_argument("--noise", choices=("both", "clean", "noisy"), default="both")
-    ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
+    add_overrides(ap)
     args = ap.parse_args(argv)
-    overrides = _parse_sets(args.overrides)
+    overrides = override_values(args.overrides)
     variants = {"both": (False, True), "clean": (False,), "noisy": (True,)}[args.noise]
     print(
         "| case | CD-L1 | NC | watertight / genus | crease share within 0.25 % | "

@@ -21,26 +21,23 @@ import hashlib
 import os
 import sys
 import time
+from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # the benchmarks' shared options
+from options import add_overrides, override_values  # noqa: E402
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("input", help="point file")
     ap.add_argument("--runs", type=int, default=3)
-    ap.add_argument(
-        "--set",
-        dest="overrides",
-        action="append",
-        default=[],
-        metavar="SECTION.KEY=VALUE",
-        help="override one config key (repeatable)",
-    )
+    add_overrides(ap)
     args = ap.parse_args(argv)
 
-    from recon.config import ReconConfig, apply_overrides, parse_override
+    from recon.config import ReconConfig, apply_overrides
     from recon.fitting import pipeline, schedule
     from recon.io import read_points
 
@@ -63,7 +60,7 @@ def main(argv: list[str] | None = None) -> int:
 
     pipeline.Clock = CpuClock  # the pipeline's reference to the class
     cloud = read_points(args.input)
-    cfg = apply_overrides(ReconConfig(), dict(map(parse_override, args.overrides)))
+    cfg = apply_overrides(ReconConfig(), override_values(args.overrides))
     pipeline.reconstruct(cloud, cfg)  # warm-up
     walls, cpus = [], []
     res = None

@@ -61,6 +61,10 @@ from typing import Any
 import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # the benchmarks' shared options
+from options import add_overrides, override_values  # noqa: E402
+
 METHODS = ("oprecon", "poisson8", "poisson9", "ball_pivoting", "alpha_shape", "spsr")
 #: Screened Poisson depth of the ``spsr`` method (MeshLab's default is 8).
 SPSR_DEPTH = 8
@@ -92,11 +96,11 @@ def run_method(
     pts = cloud.points
     t0 = time.perf_counter()
     if method == "oprecon":
-        from recon.config import apply_overrides, load_config, parse_override
+        from recon.config import apply_overrides, load_config
         from recon.fitting import reconstruct
 
         cfg = load_config(ROOT / "configs" / f"{preset}.yaml") if preset else ReconConfig()
-        cfg = apply_overrides(cfg, {"seed": seed, **dict(map(parse_override, overrides))})
+        cfg = apply_overrides(cfg, {"seed": seed, **override_values(list(overrides))})
         res = reconstruct(cloud, cfg)
         v, f = res.mesh.vertices - cloud.origin, res.mesh.faces
     elif method == "spsr":
@@ -382,14 +386,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--methods", nargs="*", default=list(METHODS), choices=METHODS)
     ap.add_argument("--samples", type=int, default=100_000)
     ap.add_argument("--preset", help="run oprecon with configs/PRESET.yaml instead of defaults")
-    ap.add_argument(
-        "--set",
-        dest="overrides",
-        action="append",
-        default=[],
-        metavar="SECTION.KEY=VALUE",
-        help="override one oprecon config key (repeatable), as `oprecon fit --set`",
-    )
+    add_overrides(ap)
     ap.add_argument(
         "--repeats",
         type=int,

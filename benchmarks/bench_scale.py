@@ -40,6 +40,10 @@ from typing import Any
 import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # the benchmarks' shared options
+from options import add_overrides  # noqa: E402
+
 TORUS_R, TORUS_r = 1.0, 0.35
 
 _PEER_CODE = r"""
@@ -173,11 +177,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--peer-depth", type=int, default=10, help="screened Poisson depth")
     parser.add_argument("--peer-max", type=int, default=1_000_000, help="largest size for the peer")
     parser.add_argument("--threads", type=int, default=None, help="NUMBA_NUM_THREADS for oprecon")
-    parser.add_argument(
-        "--set",
-        action="append",
-        default=[],
-        metavar="SECTION.KEY=VALUE",
+    add_overrides(
+        parser,
         help="passed to `oprecon fit --set` (repeatable), e.g. dynamics.max_particles=4000000 "
         "so that the largest sizes are not capped",
     )
@@ -219,11 +220,17 @@ def main(argv: list[str] | None = None) -> int:
             write_points(path, sample_torus(n))
             ours, theirs, base = [], [], []
             for _ in range(args.repeats):  # alternate: the machine's load drifts
-                ours.append(run_oprecon(path, Path(tmp) / f"o-{n}.ply", args.threads, args.set))
+                ours.append(
+                    run_oprecon(path, Path(tmp) / f"o-{n}.ply", args.threads, args.overrides)
+                )
                 if args.baseline is not None:
                     base.append(
                         run_oprecon(
-                            path, Path(tmp) / f"b-{n}.ply", args.threads, args.set, args.baseline
+                            path,
+                            Path(tmp) / f"b-{n}.ply",
+                            args.threads,
+                            args.overrides,
+                            args.baseline,
                         )
                     )
                 if peer and n <= args.peer_max:
@@ -270,7 +277,7 @@ def main(argv: list[str] | None = None) -> int:
         phases = _phase_slopes(done) if slope is not None else {}
         args.json_out.write_text(
             json.dumps(
-                {"rows": rows, "slope": slope, "phase_slopes": phases, "overrides": args.set},
+                {"rows": rows, "slope": slope, "phase_slopes": phases, "overrides": args.overrides},
                 indent=1,
             )
         )

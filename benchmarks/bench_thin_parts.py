@@ -25,12 +25,16 @@ Example::
 from __future__ import annotations
 
 import argparse
+import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 from scipy.spatial import cKDTree
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # the benchmarks' shared options
+from options import add_overrides, override_values  # noqa: E402
 
 Sdf = Callable[[np.ndarray], np.ndarray]
 
@@ -200,20 +204,13 @@ def main() -> None:
     ap.add_argument("--noise", type=float, default=0.0005, help="noise sigma ÷ diagonal")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--save", type=Path, help="write SHAPE.input.ply and SHAPE.ply here")
-    ap.add_argument(
-        "--set",
-        dest="overrides",
-        action="append",
-        default=[],
-        metavar="SECTION.KEY=VALUE",
-        help="override one oprecon config key (repeatable), as `oprecon fit --set`",
-    )
+    add_overrides(ap)
     args = ap.parse_args()
 
     import recon
-    from recon.config import ReconConfig, apply_overrides, parse_override
+    from recon.config import ReconConfig, apply_overrides
 
-    cfg = apply_overrides(ReconConfig(), dict(map(parse_override, args.overrides)))
+    cfg = apply_overrides(ReconConfig(), override_values(args.overrides))
 
     print(
         "| shape | points | loops | comps | genus (true) | handles | watertight | crossings | "
