@@ -32,6 +32,9 @@ _PARALLEL_EXACT = dict(EXACT_JIT_OPTIONS, parallel=True)
 #: Fewest vertices per thread's block of sources (smaller meshes use fewer threads: each block
 #: allocates scratch marks for the whole mesh).
 MIN_BLOCK_VERTICES = 2048
+#: Most blocks of sources: each holds ~40 bytes of scratch per vertex of the mesh, so that many
+#: cores do not multiply it past about the size of the mesh's own tables.
+MAX_BLOCKS = 4
 
 
 @njit(**EXACT_JIT_OPTIONS)
@@ -168,10 +171,11 @@ def small_handle_sources(
     ``max_ball`` vertices are skipped.
 
     Each source's ball is independent of the others: the vertices are split into at most
-    ``threads`` blocks (of at least ``MIN_BLOCK_VERTICES``), each with its own scratch marks
-    (stamped with the source, so never cleared); the result is the same for any split."""
+    ``threads`` blocks (and ``MAX_BLOCKS``; of at least ``MIN_BLOCK_VERTICES``), each with its
+    own scratch marks (stamped with the source, so never cleared); the result is the same for
+    any split."""
     n_faces = faces.shape[0]
-    blocks = max(1, min(threads, n_vertices // MIN_BLOCK_VERTICES))
+    blocks = max(1, min(threads, MAX_BLOCKS, n_vertices // MIN_BLOCK_VERTICES))
     size = (n_vertices + blocks - 1) // blocks
     handles = np.zeros(n_vertices, dtype=np.int64)
     ball_faces = np.zeros(n_vertices, dtype=np.int64)

@@ -53,6 +53,6 @@ def test_the_sources_are_the_same_however_the_vertices_are_split():
     one = small_handles(verts, faces, reach, threads=1)
     assert len(one[0]) == copies * len(small_handles(v, f, reach)[0])  # each copy's tunnel
     assert np.all(np.diff(one[0]) > 0)
-    for threads in (2, 3, 4):
+    for threads in (2, 3, 4, 16):  # 16: capped at MAX_BLOCKS
         split = small_handles(verts, faces, reach, threads=threads)
         assert np.array_equal(one[0], split[0]) and np.array_equal(one[1], split[1])
