@@ -39,7 +39,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parent
 sys.path.insert(0, str(ROOT))
-from options import add_overrides, override_values  # noqa: E402
+from shared_options import add_overrides, override_values  # noqa: E402
 
 #: Sides of the polygons standing in for circles (a 3.75 deg turn between wall facets).
 CIRCLE_SIDES = 96

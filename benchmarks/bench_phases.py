@@ -26,8 +26,9 @@ from typing import Any
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))  # the benchmarks' shared options
-from options import add_overrides, override_values  # noqa: E402
+if str(Path(__file__).resolve().parent) not in sys.path:  # the benchmarks' shared options
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+from shared_options import add_overrides, override_values  # noqa: E402
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -62,8 +62,9 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))  # the benchmarks' shared options
-from options import add_overrides, override_values  # noqa: E402
+if str(Path(__file__).resolve().parent) not in sys.path:  # the benchmarks' shared options
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+from shared_options import add_overrides, override_values  # noqa: E402
 
 METHODS = ("oprecon", "poisson8", "poisson9", "ball_pivoting", "alpha_shape", "spsr")
 #: Screened Poisson depth of the ``spsr`` method (MeshLab's default is 8).

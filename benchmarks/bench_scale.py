@@ -41,8 +41,9 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))  # the benchmarks' shared options
-from options import add_overrides  # noqa: E402
+if str(Path(__file__).resolve().parent) not in sys.path:  # the benchmarks' shared options
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+from shared_options import add_overrides  # noqa: E402
 
 TORUS_R, TORUS_r = 1.0, 0.35
 

@@ -33,8 +33,9 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial import cKDTree
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))  # the benchmarks' shared options
-from options import add_overrides, override_values  # noqa: E402
+if str(Path(__file__).resolve().parent) not in sys.path:  # the benchmarks' shared options
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+from shared_options import add_overrides, override_values  # noqa: E402
 
 Sdf = Callable[[np.ndarray], np.ndarray]
 

@@ -15,13 +15,19 @@ import logging
 from dataclasses import replace
 from typing import TYPE_CHECKING
 
-import numba
 import numpy as np
 
 from .holes import zip_loop
 from .intersections import self_intersections
-from .kernels.local_topology import ball_handles, geodesic_ball, small_handle_sources
+from .kernels.local_topology import (
+    MAX_BLOCKS,
+    MIN_BLOCK_VERTICES,
+    ball_handles,
+    geodesic_ball,
+    small_handle_sources,
+)
 from .kernels.mesh_tables import edge_table
+from .kernels.options import current_threads, thread_limit
 from .mesh import boundary_loops, drop_unreferenced, handle_count
 
 if TYPE_CHECKING:
@@ -94,20 +100,24 @@ def small_handles(
 
 
 def _sources(t: _Tables, reach: float, threads: int | None = None) -> tuple[np.ndarray, np.ndarray]:
-    return small_handle_sources(
-        t.faces,
-        t.n,
-        float(reach),
-        t.vv_offsets,
-        t.vv_nbr,
-        t.vv_len,
-        t.vf_offsets,
-        t.vf_faces,
-        t.he_edge,
-        t.edge_faces,
-        MAX_BALL_VERTICES,
-        numba.get_num_threads() if threads is None else int(threads),
-    )
+    if threads is None:
+        threads = current_threads()
+    blocks = min(int(threads), MAX_BLOCKS, t.n // MIN_BLOCK_VERTICES)
+    with thread_limit(blocks > 1):  # one block: no threaded region to wake
+        return small_handle_sources(
+            t.faces,
+            t.n,
+            float(reach),
+            t.vv_offsets,
+            t.vv_nbr,
+            t.vv_len,
+            t.vf_offsets,
+            t.vf_faces,
+            t.he_edge,
+            t.edge_faces,
+            MAX_BALL_VERTICES,
+            int(threads),
+        )
 
 
 def _ball_faces(t: _Tables, source: int, radius: float) -> tuple[int, np.ndarray]:

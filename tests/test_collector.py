@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import gc
+import weakref
 
 import numpy as np
 import pytest
@@ -51,12 +52,20 @@ def test_nothing_is_frozen_with_the_collector_disabled():
         gc.enable()
 
 
-def test_garbage_made_during_the_block_is_collected_in_it():
+def test_garbage_made_before_the_fit_waits_for_its_end():
+    """What was alive when the block began is frozen: a reference cycle dropped just before
+    survives a full collection inside the block and is collected after it."""
+
     class Node:
         pass
 
+    gc.collect()  # counts reset: no automatic collection before the block
+    a, b = Node(), Node()
+    a.other, b.other = b, a
+    alive = weakref.ref(a)
+    del a, b  # unreachable now, but not yet collected
     with survivors_frozen():
-        a, b = Node(), Node()
-        a.other, b.other = b, a  # a reference cycle, unreachable once dropped
-        del a, b
-        assert gc.collect() >= 2
+        gc.collect()
+        assert alive() is not None
+    gc.collect()
+    assert alive() is None

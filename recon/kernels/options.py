@@ -122,6 +122,12 @@ def thread_count(threads: int | None) -> Iterator[int]:
         numba.set_num_threads(previous)
 
 
+def current_threads() -> int:
+    """Numba's thread count in the calling thread: what :func:`thread_count` set for a fit
+    (outside one, numba's default: all cores, or ``NUMBA_NUM_THREADS``)."""
+    return int(numba.get_num_threads())
+
+
 def query_workers() -> int:
     """Threads for scipy's k-d tree queries (``workers=``): numba's count in this thread.
 

@@ -3,7 +3,7 @@
 
 A result dict of a tile is a few hundred bytes of Python objects (more with the
 triangulation's statistics); at 10^9 points (~20,000 tiles of 50 m) the coordinator would hold
-tens of MB of them to the end. A row is :data:`ROW` (88 bytes); warnings, rare, are kept as
+tens of MB of them to the end. A row is :data:`ROW` (82 bytes); warnings, rare, are kept as
 text with their tile's description.
 """
 

@@ -375,7 +375,14 @@ def mesh_task(job: MeshJob) -> dict:
     grid = job.store.grid
     cfg = config_from_dict(job.config)
     pos, nrm, rest, gid, crease = _load_particles(job, grid)
-    empty = {"tile": job.tile, "faces": 0, "zone_faces": 0, "new_vertices": 0, "seconds": 0.0}
+    empty = {
+        "tile": job.tile,
+        "faces": 0,
+        "zone_faces": 0,
+        "new_vertices": 0,
+        "cover_reach": HOLE_COVER_DISTANCE,
+        "seconds": 0.0,
+    }
     if len(pos) < 3:
         write_tile_mesh(job.work, job.tile, grid, job.r0, *_no_mesh())
         return empty
