@@ -20,11 +20,10 @@ import numpy as np
 from .holes import zip_loop
 from .intersections import self_intersections
 from .kernels.local_topology import (
-    MAX_BLOCKS,
-    MIN_BLOCK_VERTICES,
     ball_handles,
     geodesic_ball,
     small_handle_sources,
+    source_blocks,
 )
 from .kernels.mesh_tables import edge_table
 from .kernels.options import current_threads, thread_limit
@@ -100,9 +99,7 @@ def small_handles(
 
 
 def _sources(t: _Tables, reach: float, threads: int | None = None) -> tuple[np.ndarray, np.ndarray]:
-    if threads is None:
-        threads = current_threads()
-    blocks = min(int(threads), MAX_BLOCKS, t.n // MIN_BLOCK_VERTICES)
+    blocks = source_blocks(t.n, current_threads() if threads is None else threads)
     with thread_limit(blocks > 1):  # one block: no threaded region to wake
         return small_handle_sources(
             t.faces,
@@ -116,7 +113,7 @@ def _sources(t: _Tables, reach: float, threads: int | None = None) -> tuple[np.n
             t.he_edge,
             t.edge_faces,
             MAX_BALL_VERTICES,
-            int(threads),
+            blocks,
         )
 
 
@@ -146,14 +143,17 @@ def _ball_faces(t: _Tables, source: int, radius: float) -> tuple[int, np.ndarray
     return int(h), fmark == source
 
 
-def _cut_one(vertices: np.ndarray, faces: np.ndarray, reach: float) -> np.ndarray | None:
-    """``faces`` with one small handle cut out and its hole zipped, or None when no small
-    handle can be cut cleanly (one rim, fewer handles, no new crossing)."""
+def _cut_one(
+    vertices: np.ndarray, faces: np.ndarray, reach: float, counts: tuple[int, int, int]
+) -> tuple[np.ndarray, tuple[int, int, int]] | None:
+    """``faces`` with one small handle cut out and its hole zipped, and its
+    :func:`recon.mesh.handle_count`; None when no small handle can be cut cleanly (one rim,
+    fewer handles, no new crossing). ``counts``: ``handle_count`` of ``faces``."""
     t = _Tables(vertices, faces)
     hits, sizes = _sources(t, reach)
     if len(hits) == 0:
         return None
-    c0, b0, h0 = handle_count(faces, len(vertices))
+    c0, b0, h0 = counts
     for s in hits[np.argsort(sizes, kind="stable")][:MAX_TRIES]:
         for fraction in RADIUS_LADDER:
             h, inside = _ball_faces(t, int(s), fraction * reach)
@@ -174,7 +174,7 @@ def _cut_one(vertices: np.ndarray, faces: np.ndarray, reach: float) -> np.ndarra
             new = np.arange(len(kept), len(trial))
             if len(self_intersections(vertices, trial, new)):
                 continue
-            return trial
+            return trial, (c, b, h1)
     return None
 
 
@@ -188,11 +188,12 @@ def cut_small_handles(
     v = np.ascontiguousarray(vertices, dtype=np.float64)
     f = np.ascontiguousarray(faces, dtype=np.int64)
     cuts = 0
-    while cuts < MAX_CUTS and handle_count(f, len(v))[2] > 0:
-        trial = _cut_one(v, f, reach)
+    counts = handle_count(f, len(v))
+    while cuts < MAX_CUTS and counts[2] > 0:
+        trial = _cut_one(v, f, reach, counts)
         if trial is None:
             break
-        f, cuts = trial, cuts + 1
+        (f, counts), cuts = trial, cuts + 1
     return f, cuts
 
 
@@ -202,8 +203,6 @@ def without_small_handles(
     """``result`` with its small handles cut (:func:`cut_small_handles`; ``reach`` in the
     mesh's units, r0 for a fit's particle mesh), the vertices inside the cut balls dropped,
     and ``stats["small_handles_cut"]`` set; ``result`` itself when it has none."""
-    if handle_count(result.faces, len(result.vertices))[2] == 0:
-        return result
     faces, cuts = cut_small_handles(result.vertices, result.faces, reach)
     if cuts == 0:
         return result

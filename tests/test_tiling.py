@@ -604,8 +604,9 @@ def test_tiles_cover_a_holes_inside_as_the_untiled_fit_does(tmp_path):
     SAMPLING_REACH median spacings), not within r0 only. Before, a sparse body's thin ear
     (tests/test_sparse_holes.py) came out closed untiled and open in 3 tiles (1 loop, seed 2
     then), and a 12-edge hole on a roof of the 10M bench scene, inside tile 78, was the tile's
-    alone. Since the growth's active set became the default no seed of 0-25 of this body
-    needs the rule in its tiles to close, so the reach the tiles report is checked too."""
+    alone. With the growth's active set that seed keeps a loop at the ear's tip whatever the
+    reach, and the tiles run in worker processes where the reach cannot be patched, so the
+    reach each tile reports is what shows the rule at work."""
     from test_sparse_holes import EARED, union_points
 
     from recon.fitting.pipeline import HOLE_COVER_DISTANCE

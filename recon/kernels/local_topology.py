@@ -37,6 +37,12 @@ MIN_BLOCK_VERTICES = 2048
 MAX_BLOCKS = 4
 
 
+def source_blocks(n_vertices: int, threads: int) -> int:
+    """Blocks of sources for :func:`small_handle_sources`: one per thread, at most
+    ``MAX_BLOCKS``, each of at least ``MIN_BLOCK_VERTICES`` (0 or 1: one block, serial)."""
+    return min(int(threads), MAX_BLOCKS, int(n_vertices) // MIN_BLOCK_VERTICES)
+
+
 @njit(**EXACT_JIT_OPTIONS)
 def geodesic_ball(
     source, reach, vv_offsets, vv_nbr, vv_len, mark, dist, ball, stamp
@@ -164,18 +170,17 @@ def small_handle_sources(
     he_edge,
     edge_faces,
     max_ball,
-    threads,
+    blocks,
 ):  # pragma: no cover - numba
     """Every vertex whose geodesic ball of radius ``reach`` holds a handle, and the number of
     faces of that ball (``(m,)`` int64 each, vertices ascending). Balls of more than
     ``max_ball`` vertices are skipped.
 
-    Each source's ball is independent of the others: the vertices are split into at most
-    ``threads`` blocks (and ``MAX_BLOCKS``; of at least ``MIN_BLOCK_VERTICES``), each with its
-    own scratch marks (stamped with the source, so never cleared); the result is the same for
-    any split."""
+    Each source's ball is independent of the others: the vertices are split into ``blocks``
+    blocks (at least 1; :func:`source_blocks`), each with its own scratch marks (stamped with
+    the source, so never cleared); the result is the same for any split."""
     n_faces = faces.shape[0]
-    blocks = max(1, min(threads, MAX_BLOCKS, n_vertices // MIN_BLOCK_VERTICES))
+    blocks = max(1, blocks)
     size = (n_vertices + blocks - 1) // blocks
     handles = np.zeros(n_vertices, dtype=np.int64)
     ball_faces = np.zeros(n_vertices, dtype=np.int64)

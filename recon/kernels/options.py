@@ -135,7 +135,7 @@ def query_workers() -> int:
     :func:`thread_count` block it is numba's default (all cores, or ``NUMBA_NUM_THREADS``).
     A query's result does not depend on its workers.
     """
-    return int(numba.get_num_threads())
+    return current_threads()
 
 
 #: Below this many items a threaded region costs more than it saves even on an idle machine
