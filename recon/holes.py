@@ -469,10 +469,11 @@ def loft_nearest_loops(
 def thicken_sheet(
     vertices: np.ndarray, faces: np.ndarray, half: float
 ) -> tuple[np.ndarray, np.ndarray]:
-    """A one-sided open sheet (a disc: one boundary loop) as a thin closed body: two copies
-    ``half`` off it along its (area-weighted) vertex normals, the lower one turned over,
-    joined round the rim by a strip. Returns the new vertices (the upper copy, then the lower
-    one, in the order of ``np.unique(faces)``) and faces indexing them.
+    """A one-sided open sheet as a thin closed body: two copies ``half`` off it along its
+    (area-weighted) vertex normals, the lower one turned over, joined round each of its
+    simple boundary loops by a strip (one loop for a disc, one more per hole in it). Returns
+    the new vertices (the upper copy, then the lower one, in the order of
+    ``np.unique(faces)``) and faces indexing them.
 
     Examples
     --------
@@ -490,10 +491,11 @@ def thicken_sheet(
         np.add.at(normal, local[:, c], area)
     normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-300)
     p = vertices[used]
-    (rim,) = boundary_loops(local)
-    a, b = rim, np.roll(rim, -1)
-    strip = np.concatenate([np.stack([a, a + k, b], 1), np.stack([b, a + k, b + k], 1)])
-    new_faces = np.concatenate([local, local[:, ::-1] + k, strip])
+    strips = []
+    for rim in boundary_loops(local):
+        a, b = rim, np.roll(rim, -1)
+        strips += [np.stack([a, a + k, b], 1), np.stack([b, a + k, b + k], 1)]
+    new_faces = np.concatenate([local, local[:, ::-1] + k, *strips])
     return np.concatenate([p + half * normal, p - half * normal]), new_faces
 
 

@@ -86,7 +86,9 @@ logger = logging.getLogger(__name__)
 
 __all__ = [
     "ORIENTATIONS",
+    "SIDES_K",
     "OrientationInfo",
+    "across_neighbours",
     "compute_normals",
     "estimate_normals",
     "orient_normals",
@@ -111,16 +113,15 @@ _EXTREME_FRACTION = 0.01
 _EXTREME_MAX = 200
 #: A neighbourhood spans the two faces of a thin part when its offsets along the point's normal
 #: split into two groups whose means are this many pooled standard deviations apart (one
-#: Gaussian sheet splits at about 2.7; see ``_across_neighbours``) ...
+#: Gaussian sheet splits at about 2.7; see ``across_neighbours``) ...
 _SIDES_SEPARATION = 5.0
 #: ... and at least this fraction of the neighbourhood's radius apart (a curved sheet's
 #: offsets spread over ``radius^2 / 2R``: only curvature radii below the neighbourhood's
 #: size, an undersampled surface, reach it) ...
 _SIDES_GAP = 0.5
-#: ... each group holding at least this many points (the point itself included), among at
-#: least ``_SIDES_K`` neighbours (fewer split too easily by chance).
+#: ... each group of at least this many points (itself included), of ``SIDES_K`` or more.
 _SIDES_MIN = 3
-_SIDES_K = 30
+SIDES_K = 30
 #: Points per chunk in the PCA (bounds memory at about chunk * k * 100 bytes).
 _CHUNK = 16384
 
@@ -292,7 +293,7 @@ def _fibonacci_directions(m: int = 25) -> np.ndarray:
 _DIRECTIONS = _fibonacci_directions()
 
 
-def _across_neighbours(
+def across_neighbours(
     points: np.ndarray, normals: np.ndarray, idx: np.ndarray, k: int, start: int = 0
 ) -> tuple[np.ndarray, np.ndarray]:
     """Which neighbours lie on the other face of a thin part.
@@ -315,7 +316,7 @@ def _across_neighbours(
         i's neighbourhood spans two faces (so its first ``k`` neighbours are classified).
     """
     n, k_wide = idx.shape
-    if k_wide < _SIDES_K:  # too few neighbours: a split would be chance
+    if k_wide < SIDES_K:  # too few neighbours: a split would be chance
         return np.zeros((n, k), dtype=bool), np.zeros(n, dtype=bool)
     across, two_sided = np.zeros((n, k), dtype=bool), np.zeros(n, dtype=bool)
     sure = np.zeros(n, dtype=bool)  # certainly one-sided (most of a smooth scan): not gathered
@@ -348,7 +349,7 @@ def _knn_graph(
     the gap (which orients one face inward). It also perturbs the tree on very noisy data.
 
     With ``across_cost`` > 0 it also returns which edges join the two faces of a thin part
-    (:func:`_across_neighbours` over the ``_SIDES_K`` nearest, seen so from both ends; else
+    (:func:`across_neighbours` over the ``SIDES_K`` nearest, seen so from both ends; else
     None), along which the propagation asks for opposed normals (and which carry no
     ``across_cost``), and which points have a two-sided neighbourhood. Those edges join the
     graph even where they are not among the k nearest: a part thicker than the k-neighbour
@@ -358,7 +359,7 @@ def _knn_graph(
     or outside both), so an opposed sign is right for any pair found across."""
     n = points.shape[0]
     k_eff = int(min(k, n - 1))
-    k_wide = int(min(max(k, _SIDES_K), n - 1)) if across_cost > 0.0 else k_eff
+    k_wide = int(min(max(k, SIDES_K), n - 1)) if across_cost > 0.0 else k_eff
     if neighbors is not None and neighbors.shape[1] >= k_wide + 1:
         wide = neighbors[:, : k_wide + 1]
     else:
@@ -376,7 +377,7 @@ def _knn_graph(
     two_sided = np.zeros(n, dtype=bool)
     for lo in range(0, n, _CHUNK):  # in blocks: the split holds ~10 (block, k_wide) arrays
         hi = min(lo + _CHUNK, n)
-        across[lo:hi], two_sided[lo:hi] = _across_neighbours(
+        across[lo:hi], two_sided[lo:hi] = across_neighbours(
             points, normals, wide[lo:hi, 1:], k_wide, start=lo
         )
     # across when both ends see it so (where only one end's neighbourhood looks two-sided,
@@ -683,7 +684,7 @@ def neighbors_needed(cfg: NormalsConfig, has_input: bool = False) -> int:
 def graph_width(k: int, across_cost: float = 0.0) -> int:
     """Nearest points per point (itself included) that :func:`orient_normals` queries for its
     graph of ``k`` neighbours (wider with ``across_cost``: the thin-part split)."""
-    return (max(k, _SIDES_K) if across_cost > 0.0 else k) + 1
+    return (max(k, SIDES_K) if across_cost > 0.0 else k) + 1
 
 
 def compute_normals(

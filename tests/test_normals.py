@@ -384,11 +384,11 @@ def test_orient_thin_ear_keeps_its_two_faces_opposed(seed):
 def test_two_sided_neighbourhoods_are_found_on_thin_parts_only():
     from scipy.spatial import cKDTree
 
-    from recon.normals import _SIDES_K, _across_neighbours
+    from recon.normals import SIDES_K, across_neighbours
 
     def flags(points, normals):
-        _, idx = cKDTree(points).query(points, _SIDES_K + 1)
-        return _across_neighbours(points, normals, idx[:, 1:], 10)
+        _, idx = cKDTree(points).query(points, SIDES_K + 1)
+        return across_neighbours(points, normals, idx[:, 1:], 10)
 
     # two faces 1.5 spacings apart: nearly every neighbourhood spans both, and the
     # neighbours flagged across are those on the other face

@@ -48,13 +48,14 @@ from ..kernels.options import query_workers, thread_count
 from ..kernels.warm import warm_fit_kernels
 from ..neighbors import PointGrid
 from ..normal_scales import per_point_k_max
-from ..normal_signs import resign_thin_parts
+from ..normal_signs import outward_across, resign_thin_parts
 from ..normals import compute_normals, neighbors_needed
 from ..polish import polish_and_untangle
 from ..serialize import dumps
 from ..state import ParticleState
 from ..surface import DataSurface
 from ..triangulate import TriangulationResult, triangulate_particles
+from ..two_sided import closed_two_sided
 from ..version import __version__
 from .collector import survivors_frozen
 from .memory import estimate_fit_memory
@@ -309,6 +310,13 @@ def _triangulate(
         # loops the reach alone closed stay open
         result, found, left = mesh(0.0)
     stats = {**result.stats, "self_intersections_found": found, "self_intersections_left": left}
+    # a part thinner than a spacing meshed as one open layer between its two faces
+    closed = closed_two_sided(
+        result.vertices, result.normals, result.faces, surface.points, result.crease
+    )
+    if closed is not None:
+        v, n, f, crease, stats["two_sided_closed"] = closed
+        result = replace(result, vertices=v, normals=n, faces=f, crease=crease)
     return replace(result, stats=stats)
 
 
@@ -522,6 +530,8 @@ def _fit_sheet(
         normals, _ = resign_thin_parts(points, normals, cfg.normals.k, tree, variation, knn)
         if cfg.normals.exterior_signs:  # signs of a closed scan's thin parts from outside
             normals, _ = resign_by_exterior(points, normals, d_nn, tree)
+        if "up" in normals_info.get("component_methods", {}):  # looked open, or one thin part
+            normals, _ = outward_across(points, normals, None if knn is None else knn[1])
     del tree
     check_grid_size(points, r0)
     cfg = with_max_gap(cfg, r0, d_nn)

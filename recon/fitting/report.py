@@ -240,6 +240,9 @@ class TriangulationStats(_Section):
     #: handles small enough for a geodesic ball of a few spacings, cut out and zipped
     #: (recon.small_handles)
     small_handles_cut: int = 0
+    #: open sheets whose data lie on both their sides, made thin closed bodies
+    #: (recon.two_sided)
+    two_sided_closed: int = 0
 
 
 @dataclass(frozen=True)
