@@ -138,7 +138,8 @@ def closed_two_sided(
     """The mesh with each open component whose data lie on both of its sides
     (:attr:`SheetSides.two_sided`) made the thin closed body the data outline: its two faces
     at the data's median distance either side, joined round its rims, wound outward. A
-    component whose thick copy would cross itself or the rest of the mesh stays as it is.
+    component whose thick copy would not be closed (a rim that is not simple) or would cross
+    itself or the rest of the mesh stays as it is.
 
     Returns ``(vertices, normals, faces, crease, closed)`` (``crease``: the crease flags of
     the vertices, a copy's taken from its original, None when none were given; ``closed``:
@@ -155,6 +156,8 @@ def closed_two_sided(
     count = len(vertices)
     for sheet in sheets:
         new_v, new_f = thicken_sheet(vertices, sheet.faces, sheet.separation)
+        if not np.all(count_edge_faces(new_f)[1] == 2):
+            continue  # a rim through a vertex twice (not simple) gets no strip: not closed
         gone[sheet.component] = True
         rest = np.concatenate([faces[~gone[label]], *bodies])
         trial_v = np.concatenate([*all_v, new_v])

@@ -198,3 +198,25 @@ def test_a_plate_a_spacing_thick_is_signed_outward(monkeypatch):
     assert t["watertight"] and t["components"] == 1 and t["genus"] == 0, t
     assert capped_volume(res.mesh.vertices, res.mesh.faces) > 0
     assert turned == [True]  # the guess was inside out here, and the vote turned it
+
+
+def test_a_sheet_whose_rim_is_not_simple_stays():
+    """Two squares meeting at one corner: their rim passes that vertex twice, gets no strip
+    (recon.mesh.boundary_loops skips it), and a thick copy without it would be open."""
+    rng = np.random.default_rng(5)
+    v, f, n = _grid(4)
+    corner = 15  # (3, 3): the second square's (0, 0)
+    v2 = v + [3.0, 3.0, 0.0]
+    remap = np.arange(16) + 16
+    remap[0] = corner
+    v_all = np.concatenate([v, v2])
+    f_all = np.concatenate([f, remap[f]])
+    n_all = np.concatenate([n, n])
+    xy = rng.uniform(0.0, 6.0, (3000, 2))
+    inside = ((xy < 3).all(axis=1)) | ((xy > 3).all(axis=1))
+    z = rng.choice([-0.4, 0.4], int(inside.sum()))
+    data = np.column_stack([xy[inside], z])
+    (sides,) = two_sided_sheets(v_all, n_all, f_all, data)
+    assert sides.two_sided  # the data say close it ...
+    assert boundary_loops(f_all) == []  # ... but the rim is not simple
+    assert closed_two_sided(v_all, n_all, f_all, data) is None
