@@ -69,7 +69,8 @@ def resign_thin_parts(
 #: this often has thin parts enough for :func:`outward_across` to sign it (a plate 1.2
 #: spacings thick: 13 %; the test asks the faces half a neighbourhood radius apart) ...
 THIN_SCAN_SHARE = 0.05
-#: ... when at least this share of its two-sided points agree on the side of the other face.
+#: ... when its inward votes exceed the outward ones by at least this share of the votes
+#: (0.5: three in four inward).
 THIN_SCAN_AGREE = 0.5
 #: Points per block of the vote (bounds its (block, SIDES_K) temporaries).
 THIN_SCAN_CHUNK = 16384
@@ -91,8 +92,11 @@ def outward_across(
     queried) votes with the mean offset of its
     neighbours on the other face along its normal: negative when they lie behind. When at
     least ``THIN_SCAN_SHARE`` of the points vote and the inward votes outnumber the outward
-    ones by ``THIN_SCAN_AGREE`` of them, every sign is turned over; otherwise nothing
-    changes (a scan without thin parts, or votes split).
+    ones by ``THIN_SCAN_AGREE`` of them (three in four inward), every sign is turned over;
+    otherwise nothing changes (a scan without thin parts, or votes split). The fit asks this
+    only of a scan that is one connected part signed by the open-scan rule. A scan whose
+    two-sided neighbourhoods mostly span narrow gaps between outward faces (slots), not thin
+    material, sees the other face in front and would be turned inside out.
     """
     n = len(points)
     k_wide = int(min(SIDES_K, n - 1))

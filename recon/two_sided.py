@@ -137,9 +137,11 @@ def closed_two_sided(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None, int] | None:
     """The mesh with each open component whose data lie on both of its sides
     (:attr:`SheetSides.two_sided`) made the thin closed body the data outline: its two faces
-    at the data's median distance either side, joined round its rims, wound outward. A
-    component whose thick copy would not be closed (a rim that is not simple) or would cross
-    itself or the rest of the mesh stays as it is.
+    at the data's median distance either side, joined round its rims, wound outward (each
+    copy's vertex normals point the way it was offset). A component whose thick copy would
+    not be closed (a rim that is not simple), would enclose no positive volume (folded: thicker
+    than the sheet's radius of curvature) or would cross itself or the rest of the mesh stays
+    as it is.
 
     Returns ``(vertices, normals, faces, crease, closed)`` (``crease``: the crease flags of
     the vertices, a copy's taken from its original, None when none were given; ``closed``:
@@ -165,11 +167,15 @@ def closed_two_sided(
         if len(self_intersections(trial_v, trial_f, np.arange(len(rest), len(trial_f)))):
             gone[sheet.component] = False
             continue
-        if capped_volume(trial_v, new_f + count) < 0:  # wound outward
-            new_f = new_f[:, ::-1]
+        if capped_volume(trial_v, new_f + count) <= 0:  # folded: thicker than it is curved
+            gone[sheet.component] = False
+            continue
+        k = len(new_v) // 2  # the upper copy, then the lower one: their normals from the offset
+        up = new_v[:k] - new_v[k:]
+        up /= np.maximum(np.linalg.norm(up, axis=1, keepdims=True), 1e-300)
         used = np.unique(sheet.faces)
         all_v.append(new_v)
-        all_n.append(np.concatenate([normals[used], -normals[used]]))
+        all_n.append(np.concatenate([up, -up]))
         if flags is not None:
             flags.append(np.tile(flags[0][used], 2))
         bodies.append(new_f + count)

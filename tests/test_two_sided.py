@@ -48,6 +48,7 @@ def _closed(v: np.ndarray, f: np.ndarray) -> dict:
         o3d.utility.Vector3dVector(v), o3d.utility.Vector3iVector(f.astype(np.int32))
     )
     assert m.is_vertex_manifold() and m.is_edge_manifold(allow_boundary_edges=False)
+    assert t["consistently_oriented"]
     return t
 
 
@@ -220,3 +221,17 @@ def test_a_sheet_whose_rim_is_not_simple_stays():
     assert sides.two_sided  # the data say close it ...
     assert boundary_loops(f_all) == []  # ... but the rim is not simple
     assert closed_two_sided(v_all, n_all, f_all, data) is None
+
+
+def test_a_sheet_wound_against_its_normals_gets_normals_of_its_winding():
+    """The copies are offset along the normals of the faces' winding; their vertex normals
+    follow the offset, not the input normals, so faces and normals agree (outward)."""
+    rng = np.random.default_rng(6)
+    v, f, n = _grid(10)
+    f = f[:, ::-1]  # wound to face -z while the vertex normals say +z
+    z = rng.choice([-0.4, 0.4], 2000)
+    vo, no, fo, _, count = closed_two_sided(v, n, f, _data(10, z, rng))
+    assert count == 1
+    t = _closed(vo, fo)
+    assert t["watertight"] and capped_volume(vo, fo) > 0
+    assert np.all(np.sign(no[:, 2]) == np.sign(vo[:, 2]))  # each copy's normals point away

@@ -530,7 +530,7 @@ def _fit_sheet(
         normals, _ = resign_thin_parts(points, normals, cfg.normals.k, tree, variation, knn)
         if cfg.normals.exterior_signs:  # signs of a closed scan's thin parts from outside
             normals, _ = resign_by_exterior(points, normals, d_nn, tree)
-        if "up" in normals_info.get("component_methods", {}):  # looked open, or one thin part
+        if normals_info.get("component_methods") == {"up": 1}:  # one part, signed as open
             normals, _ = outward_across(points, normals, None if knn is None else knn[1])
     del tree
     check_grid_size(points, r0)
