@@ -140,8 +140,9 @@ def closed_two_sided(
     at the data's median distance either side, joined round its rims, wound outward (each
     copy's vertex normals point the way it was offset). A component whose thick copy would
     not be closed (a rim that is not simple), would enclose no positive volume (folded: thicker
-    than the sheet's radius of curvature) or would cross itself or the rest of the mesh stays
-    as it is.
+    than the sheet's radius of curvature) or would cross itself, another body or the rest of
+    the mesh stays as it is (one crossing search for all bodies, repeated without the ones
+    that cross).
 
     Returns ``(vertices, normals, faces, crease, closed)`` (``crease``: the crease flags of
     the vertices, a copy's taken from its original, None when none were given; ``closed``:
@@ -151,41 +152,42 @@ def closed_two_sided(
     if not sheets:
         return None
     _, label = face_components(faces, len(vertices))
-    gone = np.zeros(int(label.max()) + 1, dtype=bool)  # components replaced so far
-    all_v, all_n = [vertices], [normals]
-    flags = None if crease is None else [np.asarray(crease, dtype=bool)]
-    bodies: list[np.ndarray] = []  # their thin bodies, indexing the concatenated vertices
-    count = len(vertices)
+    made = []  # (component, copies' vertices, their faces, their normals) that close
     for sheet in sheets:
         new_v, new_f = thicken_sheet(vertices, sheet.faces, sheet.separation)
         if not np.all(count_edge_faces(new_f)[1] == 2):
             continue  # a rim through a vertex twice (not simple) gets no strip: not closed
-        gone[sheet.component] = True
-        rest = np.concatenate([faces[~gone[label]], *bodies])
-        trial_v = np.concatenate([*all_v, new_v])
-        trial_f = np.concatenate([rest, new_f + count])
-        if len(self_intersections(trial_v, trial_f, np.arange(len(rest), len(trial_f)))):
-            gone[sheet.component] = False
+        if capped_volume(new_v, new_f) <= 0:  # folded: thicker than it is curved
             continue
-        if capped_volume(trial_v, new_f + count) <= 0:  # folded: thicker than it is curved
-            gone[sheet.component] = False
-            continue
-        k = len(new_v) // 2  # the upper copy, then the lower one: their normals from the offset
+        k = len(new_v) // 2  # the upper copy, then the lower one: normals from the offset
         up = new_v[:k] - new_v[k:]
         up /= np.maximum(np.linalg.norm(up, axis=1, keepdims=True), 1e-300)
-        used = np.unique(sheet.faces)
-        all_v.append(new_v)
-        all_n.append(np.concatenate([up, -up]))
-        if flags is not None:
-            flags.append(np.tile(flags[0][used], 2))
-        bodies.append(new_f + count)
-        count += len(new_v)
-    if not bodies:
+        made.append((sheet, new_v, new_f, np.concatenate([up, -up])))
+    while made:  # one crossing search for all bodies; drop those that cross, until none
+        gone = np.zeros(int(label.max()) + 1, dtype=bool)
+        gone[[m[0].component for m in made]] = True
+        rest = faces[~gone[label]]
+        offsets = len(vertices) + np.cumsum([0] + [len(m[1]) for m in made[:-1]])
+        bodies = [m[2] + o for m, o in zip(made, offsets, strict=True)]
+        all_v = np.concatenate([vertices, *(m[1] for m in made)])
+        kept = np.concatenate([rest, *bodies])
+        owner = np.repeat(np.arange(-1, len(made)), [len(rest), *(len(b) for b in bodies)])
+        pairs = self_intersections(all_v, kept, np.arange(len(rest), len(kept)))
+        crossing = np.unique(owner[pairs.reshape(-1)]) if len(pairs) else np.zeros(0, int)
+        crossing = crossing[crossing >= 0]
+        if len(crossing) == 0:
+            break
+        made = [m for i, m in enumerate(made) if i not in set(crossing.tolist())]
+    if not made:
         return None
-    kept = np.concatenate([faces[~gone[label]], *bodies])
-    v_all, n_all = np.concatenate(all_v), np.concatenate(all_n)
-    flag_all = None if flags is None else np.concatenate(flags)
-    used = np.zeros(len(v_all), dtype=bool)
+    all_n = np.concatenate([normals, *(m[3] for m in made)])
+    flag_all = None
+    if crease is not None:
+        flags = np.asarray(crease, dtype=bool)
+        flag_all = np.concatenate(
+            [flags, *(np.tile(flags[np.unique(m[0].faces)], 2) for m in made)]
+        )
+    used = np.zeros(len(all_v), dtype=bool)
     used[kept.reshape(-1)] = True
-    v_out, n_out, f_out = drop_unreferenced(v_all, n_all, kept)
-    return v_out, n_out, f_out, None if flag_all is None else flag_all[used], len(bodies)
+    v_out, n_out, f_out = drop_unreferenced(all_v, all_n, kept)
+    return v_out, n_out, f_out, None if flag_all is None else flag_all[used], len(made)

@@ -235,3 +235,26 @@ def test_a_sheet_wound_against_its_normals_gets_normals_of_its_winding():
     t = _closed(vo, fo)
     assert t["watertight"] and capped_volume(vo, fo) > 0
     assert np.all(np.sign(no[:, 2]) == np.sign(vo[:, 2]))  # each copy's normals point away
+
+
+def test_a_body_that_would_cross_the_mesh_is_not_made_the_others_are():
+    """Two two-sided sheets; a small closed box sits across where the second one's upper copy
+    would go: that sheet stays open, the first becomes a body (one crossing search)."""
+    rng = np.random.default_rng(7)
+    v, f, n = _grid(12)
+    far = v + [30.0, 0.0, 0.0]
+    box_v, box_f = thicken_sheet(*_grid(3)[:2], 0.2)
+    box_v = box_v + [34.0, 4.0, 0.4]  # z 0.2 .. 0.6 over part of the second sheet
+    v_all = np.concatenate([v, far, box_v])
+    f_all = np.concatenate([f, f + len(v), box_f + 2 * len(v)])
+    n_all = np.tile([0.0, 0.0, 1.0], (len(v_all), 1))
+    z = rng.choice([-0.4, 0.4], 6000)
+    data = _data(12, z, rng)
+    data = np.concatenate([data[:3000], data[3000:] + [30.0, 0.0, 0.0]])
+    sides = two_sided_sheets(v_all, n_all, f_all, data)
+    assert sum(s.two_sided for s in sides) == 2
+    vo, _, fo, _, count = closed_two_sided(v_all, n_all, f_all, data)
+    assert count == 1
+    t = mesh_topology(vo, fo)
+    assert t["components"] == 3 and t["boundary_loops"] == 1  # the second sheet stays open
+    assert len(self_intersections(vo, fo)) == 0
