@@ -449,19 +449,41 @@ def loft_nearest_loops(
     if len(loops) < 2:
         return faces
     trees = [cKDTree(vertices[loop]) for loop in loops]
-    gap = np.full((len(loops), len(loops)), np.inf)
-    for i, j in zip(*np.triu_indices(len(loops), 1), strict=True):
-        gap[i, j] = gap[j, i] = max(
-            np.median(trees[j].query(vertices[loops[i]])[0]),
-            np.median(trees[i].query(vertices[loops[j]])[0]),
-        )
-    nearest = np.argmin(gap, axis=1)
+    # A pair's median gap is at least its loops' closest approach, and a strip needs it
+    # within max_gap x (the pair's median spacing): only pairs whose vertices come that close
+    # (at the largest spacing) are measured. Each loop's nearest loop, where a strip could
+    # join them, is the one a measure of every pair finds (a shattered mesh has thousands of
+    # loops: every pair took 106 s on one, and their matrix grows as the loops squared).
+    reach = max_gap * (1.0 if spacing is None else float(np.max(spacing[np.concatenate(loops)])))
+    owner = np.repeat(np.arange(len(loops)), [len(loop) for loop in loops])
+    close = cKDTree(vertices[np.concatenate(loops)]).query_pairs(reach, output_type="ndarray")
+    pairs = np.unique(np.sort(owner[close], axis=1), axis=0) if len(close) else np.zeros((0, 2))
+    pairs = pairs[pairs[:, 0] != pairs[:, 1]].astype(np.int64)
+    gap = np.array(
+        [
+            max(
+                np.median(trees[j].query(vertices[loops[i]])[0]),
+                np.median(trees[i].query(vertices[loops[j]])[0]),
+            )
+            for i, j in pairs
+        ]
+    )
+    # each loop's nearest measured loop (the lower index on a tie, as argmin), or -1
+    rows = np.concatenate([pairs[:, 0], pairs[:, 1]])
+    cols = np.concatenate([pairs[:, 1], pairs[:, 0]])
+    both = np.concatenate([gap, gap])
+    order = np.lexsort((cols, both, rows))
+    first = order[np.r_[True, rows[order][1:] != rows[order][:-1]]] if len(order) else order
+    nearest = np.full(len(loops), -1, dtype=np.int64)
+    nearest[rows[first]] = cols[first]
+    best = np.full(len(loops), np.inf)
+    best[rows[first]] = both[first]
     strips = []
     for i, j in enumerate(nearest):
-        if i >= j or nearest[j] != i:
+        if j < 0 or i >= j or nearest[j] != i:
             continue
         here = 1.0 if spacing is None else float(np.median(spacing[np.append(loops[i], loops[j])]))
-        if gap[i, j] <= max_gap * here:
+        if best[i] <= max_gap * here:
             strips.append(loft_loops(vertices, loops[i], loops[j]))
     return np.concatenate([faces, *strips]) if strips else faces
 

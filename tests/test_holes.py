@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import recon.holes as holes
-from recon.holes import rezip_crossing_loops, zip_loop
+from recon.holes import loft_nearest_loops, rezip_crossing_loops, zip_loop
 from recon.intersections import self_intersections
 from recon.mesh import boundary_loops
 
@@ -143,3 +143,51 @@ def test_every_loop_left_open_is_logged_with_the_rule_that_keeps_it(caplog):
         "loop of 20 edges left open: the outer rim of a small open sheet",
         "loop of 20 edges left open: perimeter 20.0, width 5.00, seam support untested",
     ]
+
+
+def _loft_all_pairs(vertices, faces, max_gap, spacing=None):
+    """The strips of loft_nearest_loops with every pair of loops measured (its old form)."""
+    from scipy.spatial import cKDTree
+
+    from recon.holes import loft_loops
+
+    loops = [loop for loop in boundary_loops(faces) if len(loop) >= 3]
+    trees = [cKDTree(vertices[loop]) for loop in loops]
+    gap = np.full((len(loops), len(loops)), np.inf)
+    for i, j in zip(*np.triu_indices(len(loops), 1), strict=True):
+        gap[i, j] = gap[j, i] = max(
+            np.median(trees[j].query(vertices[loops[i]])[0]),
+            np.median(trees[i].query(vertices[loops[j]])[0]),
+        )
+    nearest = np.argmin(gap, axis=1)
+    strips = []
+    for i, j in enumerate(nearest):
+        if i >= j or nearest[j] != i:
+            continue
+        here = 1.0 if spacing is None else float(np.median(spacing[np.append(loops[i], loops[j])]))
+        if gap[i, j] <= max_gap * here:
+            strips.append(loft_loops(vertices, loops[i], loops[j]))
+    return np.concatenate([faces, *strips]) if strips else faces
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_nearest_loops_are_lofted_as_with_every_pair_measured(seed):
+    """Many small discs (fans) scattered in pairs and alone: only pairs that come within reach
+    are measured, and the strips are exactly those of measuring every pair."""
+    rng = np.random.default_rng(seed)
+    t = np.linspace(0, 2 * np.pi, 7, endpoint=False)
+    ring = np.stack([np.cos(t), np.sin(t), np.zeros(7)], axis=1)
+    k = np.arange(7)
+    vertices, faces = [], []
+    for d in range(60):
+        centre = rng.uniform(0, 40, 3)
+        centre[2] = rng.choice([0.0, 0.5 + rng.uniform(0, 3)]) + 10 * (d % 3)
+        base = sum(len(v) for v in vertices)
+        vertices.append(np.concatenate([ring * rng.uniform(0.8, 1.2) + centre, centre[None]]))
+        faces.append(np.stack([np.full(7, base + 7), base + (k + 1) % 7, base + k], 1))
+    v, f = np.concatenate(vertices), np.concatenate(faces)
+    spacing = rng.uniform(0.5, 1.5, len(v))
+    for gap, s in ((2.0, None), (2.0, spacing), (6.0, spacing)):
+        expected = _loft_all_pairs(v, f, gap, s)
+        assert np.array_equal(loft_nearest_loops(v, f, gap, s), expected)
+    assert len(_loft_all_pairs(v, f, 6.0, spacing)) > len(f)  # some pairs are joined
