@@ -99,18 +99,17 @@ def outward_across(
     material, sees the other face in front and would be turned inside out.
     """
     n = len(points)
-    k_wide = int(min(SIDES_K, n - 1))
-    if k_wide < SIDES_K:
+    if n <= SIDES_K:  # too few points for a wide neighbourhood
         return normals, False
-    if neighbors is not None and neighbors.shape[1] >= k_wide + 1:
-        wide = np.asarray(neighbors[:, : k_wide + 1])
+    if neighbors is not None and neighbors.shape[1] >= SIDES_K + 1:
+        wide = np.asarray(neighbors[:, : SIDES_K + 1])
     else:
-        _, wide = cKDTree(points).query(points, k=k_wide + 1, workers=query_workers())
+        _, wide = cKDTree(points).query(points, k=SIDES_K + 1, workers=query_workers())
     behind = np.zeros(n)  # per two-sided point: -1 other face behind, +1 in front
     for lo in range(0, n, THIN_SCAN_CHUNK):
         hi = min(lo + THIN_SCAN_CHUNK, n)
         idx = wide[lo:hi, 1:]
-        across, two_sided = across_neighbours(points, normals, idx, k_wide, start=lo)
+        across, two_sided = across_neighbours(points, normals, idx, SIDES_K, start=lo)
         offset = np.einsum("ijk,ik->ij", points[idx] - points[lo:hi, None, :], normals[lo:hi])
         mean = np.sum(offset * across, axis=1) / np.maximum(across.sum(axis=1), 1)
         behind[lo:hi] = np.where(two_sided, np.sign(mean), 0.0)

@@ -91,13 +91,21 @@ def two_sided_sheets(
     ``SIDE_REACH``), with its signed distance along that vertex's normal. A closed mesh
     costs one count of its edges.
     """
+    return _sides(vertices, normals, faces, points)[1]
+
+
+def _sides(
+    vertices: np.ndarray, normals: np.ndarray, faces: np.ndarray, points: np.ndarray
+) -> tuple[np.ndarray | None, list[SheetSides]]:
+    """:func:`two_sided_sheets` and the component label of every face (None when there is
+    no open component)."""
     faces = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
     if len(faces) == 0 or len(points) == 0:
-        return []
+        return None, []
     edges, counts = count_edge_faces(faces)
     rim = np.unique(edges[counts == 1])
     if len(rim) == 0:  # closed: nothing to judge (one pass over the edges)
-        return []
+        return None, []
     n, label = face_components(faces, len(vertices))
     owner = np.full(len(vertices), -1, dtype=np.int64)
     owner[faces.reshape(-1)] = np.repeat(label, 3)
@@ -125,7 +133,7 @@ def two_sided_sheets(
                 bimodality=float(np.mean(np.abs(d)) / rms) if rms > 0 else 0.0,
             )
         )
-    return out
+    return label, out
 
 
 def closed_two_sided(
@@ -148,10 +156,10 @@ def closed_two_sided(
     the vertices, a copy's taken from its original, None when none were given; ``closed``:
     how many components were made bodies), or None when none was.
     """
-    sheets = [s for s in two_sided_sheets(vertices, normals, faces, points) if s.two_sided]
+    label, sides = _sides(vertices, normals, faces, points)
+    sheets = [s for s in sides if s.two_sided]
     if not sheets:
         return None
-    _, label = face_components(faces, len(vertices))
     made = []  # (component, copies' vertices, their faces, their normals) that close
     for sheet in sheets:
         new_v, new_f = thicken_sheet(vertices, sheet.faces, sheet.separation)
