@@ -150,10 +150,14 @@ def count_edge_faces(faces: Any) -> tuple[np.ndarray, np.ndarray]:
     """
     f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
     f = f[(f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 2] != f[:, 0])]
-    a, b = f.ravel(), np.roll(f, -1, axis=1).ravel()
-    pairs = np.stack([np.minimum(a, b), np.maximum(a, b)], axis=1)
-    edges, counts = np.unique(pairs, axis=0, return_counts=True)
-    return edges.reshape(-1, 2), counts.astype(np.int64)
+    if len(f) == 0 or int(f.min()) < 0:
+        a, b = f.ravel(), np.roll(f, -1, axis=1).ravel()
+        pairs = np.stack([np.minimum(a, b), np.maximum(a, b)], axis=1)
+        edges, counts = np.unique(pairs, axis=0, return_counts=True)
+        return edges.reshape(-1, 2), counts.astype(np.int64)
+    n = int(f.max()) + 1  # counting sorts: ~10x faster than np.unique of rows
+    keys, _, counts = unique_edges(f, n)
+    return np.stack([keys // n, keys % n], axis=1), counts
 
 
 def boundary_loops(faces: np.ndarray) -> list[np.ndarray]:

@@ -96,3 +96,20 @@ def test_orientation_flips_take_the_callers_sort_of_the_half_edges():
     given = orientation_flips(f, order=half_edge_order(f, len(v)), consistent=False)
     assert np.array_equal(given[0], flip) and np.array_equal(given[1], conflict)
     assert not orientation_flips(f, consistent=True)[0].any()  # taken at its word
+
+
+def test_count_edge_faces_matches_a_row_unique_of_the_face_edges():
+    """The counting-sort path gives np.unique(rows)'s sorted edges and counts, skipping faces
+    with a repeated vertex (random meshes with degenerate and repeated faces, and none)."""
+    rng = np.random.default_rng(3)
+    for _ in range(50):
+        n = int(rng.integers(3, 40))
+        f = rng.integers(0, n, (int(rng.integers(0, 60)), 3))
+        keep = f[(f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 2] != f[:, 0])]
+        a, b = keep.ravel(), np.roll(keep, -1, axis=1).ravel()
+        pairs = np.stack([np.minimum(a, b), np.maximum(a, b)], axis=1).reshape(-1, 2)
+        want, want_counts = np.unique(pairs, axis=0, return_counts=True)
+        edges, counts = count_edge_faces(f)
+        assert edges.dtype == np.int64 and counts.dtype == np.int64
+        np.testing.assert_array_equal(edges, want.reshape(-1, 2))
+        np.testing.assert_array_equal(counts, want_counts)
