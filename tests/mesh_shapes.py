@@ -133,8 +133,8 @@ def thin_wedge(angle_deg: float = 30.0, length: float = 1.0, height: float = 0.5
     return v, np.array(f, dtype=np.int64)
 
 
-def sphere_with_tunnel(radius: float = 6.0) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`icosphere` (edges ~0.9) with a tunnel: two faces about three edges apart
+def sphere_with_tunnel(radius: float = 6.0, gap: float = 3.0) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`icosphere` (edges ~0.9) with a tunnel: two faces about ``gap`` edges apart
     replaced by a three-sided tube between their corners (one handle, orientable, every edge
     in two faces). The tube's two cycles are a few edges long."""
     v, f = icosphere(3, radius)
@@ -142,7 +142,7 @@ def sphere_with_tunnel(radius: float = 6.0) -> tuple[np.ndarray, np.ndarray]:
     a = int(np.argmax(centre[:, 0]))
     edge = float(np.linalg.norm(v[f[a, 0]] - v[f[a, 1]]))
     d = np.linalg.norm(centre - centre[a], axis=1)
-    far = np.flatnonzero(~np.isin(f, f[a]).any(axis=1) & (d > 3.0 * edge))
+    far = np.flatnonzero(~np.isin(f, f[a]).any(axis=1) & (d > gap * edge))
     b = int(far[np.argmin(d[far])])
     keep = np.ones(len(f), dtype=bool)
     keep[[a, b]] = False

@@ -6,7 +6,7 @@ import open3d as o3d
 from recon.intersections import self_intersections
 from recon.kernels.mesh_tables import winding_consistent
 from recon.mesh import handle_count
-from recon.small_handles import cut_small_handles, without_small_handles
+from recon.small_handles import SMALL_HANDLE_REACH, cut_small_handles, without_small_handles
 from recon.triangulate import TriangulationResult
 from tests.mesh_shapes import sphere_with_tunnel, torus
 
@@ -45,7 +45,21 @@ def test_without_small_handles_drops_the_cut_vertices_and_says_so():
 
 
 def test_the_handle_of_a_ring_stays():
+    # edges ~1 (r0): the tube's cycle is 19 long, the hole's 44
     v, f = torus(64, 20, 10.0, 3.0)
     result = TriangulationResult(v, f, v * 0 + [0.0, 0.0, 1.0], {})
-    assert without_small_handles(result, reach=3.0) is result
-    assert cut_small_handles(v, f, 3.0)[1] == 0
+    assert without_small_handles(result) is result
+    assert cut_small_handles(v, f, SMALL_HANDLE_REACH)[1] == 0
+
+
+def test_a_tunnel_seven_spacings_long_is_cut_at_the_default_reach():
+    """Regression (held-out eared shape, 5,000 points, seed 0): the tunnel at an ear's base
+    fitted in a geodesic ball of 5 r0, not of 3 r0, and was kept as a handle."""
+    v, f = sphere_with_tunnel(gap=7.0)
+    edge = float(np.median(np.linalg.norm(v[f[:, 0]] - v[f[:, 1]], axis=1)))
+    assert cut_small_handles(v / edge, f, 3.0)[1] == 0  # wider than the old reach
+    n = v / np.linalg.norm(v, axis=1, keepdims=True)
+    out = without_small_handles(TriangulationResult(v / edge, f, n, {}, np.zeros(len(v), bool)))
+    assert out.stats["small_handles_cut"] == 1
+    assert handle_count(out.faces, len(out.vertices)) == (1, 0, 0)
+    assert len(self_intersections(out.vertices, out.faces)) == 0
