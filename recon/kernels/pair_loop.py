@@ -65,7 +65,7 @@ from .normality import normality_pair
 from .options import JIT_OPTIONS
 from .planarity import planarity_pair
 from .quaternion import quaternion_normal, rotate_quaternion
-from .weights import WEIGHT_ANISOTROPIC, pair_weights
+from .weights import WEIGHT_ANISOTROPIC, WEIGHT_POLY, pair_weights
 
 # Columns of the per-particle output array of :func:`step_particles`.
 S_POTENTIAL = 0
@@ -310,6 +310,45 @@ def pair_interaction(rx, ry, rz, nix, niy, niz, njx, njy, njz, oriented, coef, m
     return acc
 
 
+@njit(inline="always", **_JIT)
+def _pair_terms(pr, po, pt, count, coef, mode, variable_rest):
+    """Pass 2 of :func:`step_particles`: the terms of :func:`pair_interaction` for ``count``
+    gathered pairs (``pr`` rows r (3), s_ij, q_j (4), n_i (3); ``po`` oriented) into ``pt``
+    rows E_ij, f_i (3), τ_i (3). Inlined (no array arguments at run time); called with a
+    constant ``mode`` for the polynomial weight, so that the loop, which reads and writes only
+    contiguous scratch rows, is vectorised: the same operations per pair, in SIMD lanes."""
+    for a in range(count):
+        oriented = po[a]
+        if oriented:
+            njx, njy, njz = quaternion_normal(pr[4, a], pr[5, a], pr[6, a], pr[7, a])
+        else:
+            njx = 0.0
+            njy = 0.0
+            njz = 1.0
+        t = pair_interaction(
+            pr[0, a],
+            pr[1, a],
+            pr[2, a],
+            pr[8, a],
+            pr[9, a],
+            pr[10, a],
+            njx,
+            njy,
+            njz,
+            oriented,
+            coef,
+            mode,
+            pr[3, a] if variable_rest else 1.0,
+        )
+        pt[0, a] = t[0]
+        pt[1, a] = t[1]
+        pt[2, a] = t[2]
+        pt[3, a] = t[3]
+        pt[4, a] = t[4]
+        pt[5, a] = t[5]
+        pt[6, a] = t[6]
+
+
 @njit(**_JIT)
 def _reduce_stats(stats, n):
     """Serial, fixed-order reduction of the per-particle statistics (deterministic)."""
@@ -363,12 +402,15 @@ def step_particles(
     contend for. Run it single-threaded with :func:`recon.kernels.options.thread_limit`.
 
     Rows are taken in blocks of ``_BLOCK``, each with its own scratch arrays (allocated once
-    per block, not per particle). A row is evaluated in three passes: the list entries within
-    the cutoff are gathered branch-free (with their r = x_j − x_i and s_ij), then the pair
-    terms are computed into the scratch, then summed in list order. Each pair's arithmetic
-    and the order of every sum are those of a single loop over the row, so the results are
-    bit-identical to it; the split avoids a mispredicted skip branch per list entry (about 40 %
-    of the Verlet list lies beyond r_c) and keeps the serial sums out of the term loop.
+    per block, not per particle), in three passes: (1) the list entries within the cutoff are
+    gathered branch-free, with r = x_j − x_i, s_ij, q_j, n_i and whether both are oriented;
+    (2) the pair terms of the whole block are computed into the scratch
+    (:func:`_pair_terms`, vectorised for the polynomial weight); (3) per row, the terms are
+    summed in list order, then the anchors and the step. Each pair's arithmetic (no
+    ``contract`` or ``reassoc``: a SIMD lane computes what the scalar code does) and the order
+    of every sum are those of a single loop over the row, so the results are bit-identical to
+    it; the split avoids a mispredicted skip branch per list entry (about 40 % of the Verlet
+    list lies beyond r_c) and lets the term loop run in SIMD lanes.
 
     Parameters
     ----------
@@ -440,16 +482,65 @@ def step_particles(
     has_anchors = coef.has_anchors != 0.0
     has_external = coef.has_external_force != 0.0
     # rows in blocks: one set of scratch rows per block (no allocation per particle)
-    longest = 0
-    for i in range(n):
-        longest = max(longest, offsets[i + 1] - offsets[i])
     nblocks = (n + _BLOCK - 1) // _BLOCK
     for b in prange(nblocks):
-        pj = np.empty(longest, dtype=np.int64)
-        pr = np.empty((4, longest))
-        pt = np.empty((10, longest))
-        po = np.empty(longest, dtype=np.bool_)
-        for i in range(b * _BLOCK, min(n, (b + 1) * _BLOCK)):
+        lo = b * _BLOCK
+        hi = min(n, lo + _BLOCK)
+        cap = offsets[hi] - offsets[lo]
+        pj = np.empty(cap, dtype=np.int64)
+        pr = np.empty((11, cap))
+        pt = np.empty((7, cap))
+        po = np.empty(cap, dtype=np.bool_)
+        start = np.empty(hi - lo + 1, dtype=np.int64)
+        # pass 1: the list entries within the cutoff, branch-free (about 60 % of the list
+        # are: a skip branch would mispredict); pj, pr[0:4] = j, (r, s_ij)
+        count = 0
+        for i in range(lo, hi):
+            start[i - lo] = count
+            x0 = position[i, 0]
+            x1 = position[i, 1]
+            x2 = position[i, 2]
+            rest_i = rest[i] if variable_rest else 1.0
+            # a pinned particle does not move: its pair and anchor terms are not needed when
+            # stepping (its energy share counts as 0; force-only calls evaluate every particle)
+            active = not (integrate and is_pinned[i])
+            row_end = offsets[i + 1] if active else offsets[i]
+            for k in range(offsets[i], row_end):
+                j = indices[k]
+                rx = position[j, 0] - x0
+                ry = position[j, 1] - x1
+                rz = position[j, 2] - x2
+                scale = 0.5 * (rest_i + rest[j]) if variable_rest else 1.0
+                pj[count] = j
+                pr[0, count] = rx
+                pr[1, count] = ry
+                pr[2, count] = rz
+                pr[3, count] = scale
+                count += not (rx * rx + ry * ry + rz * rz >= cutoff2 * (scale * scale))
+        start[hi - lo] = count
+        # the frames of those pairs (pr[4:8] = q_j, pr[8:11] = n_i, po = both oriented), so
+        # that pass 2 reads the scratch only
+        for i in range(lo, hi):
+            nix, niy, niz = quaternion_normal(
+                orientation[i, 0], orientation[i, 1], orientation[i, 2], orientation[i, 3]
+            )
+            oriented_i = is_oriented[i]
+            for a in range(start[i - lo], start[i - lo + 1]):
+                j = pj[a]
+                pr[4, a] = orientation[j, 0]
+                pr[5, a] = orientation[j, 1]
+                pr[6, a] = orientation[j, 2]
+                pr[7, a] = orientation[j, 3]
+                pr[8, a] = nix
+                pr[9, a] = niy
+                pr[10, a] = niz
+                po[a] = oriented_i and is_oriented[j]
+        # pass 2: the pair terms (S&T92 eqs. 3-7) of the whole block into pt
+        if mode == WEIGHT_POLY:
+            _pair_terms(pr, po, pt, count, coef, WEIGHT_POLY, variable_rest)
+        else:
+            _pair_terms(pr, po, pt, count, coef, mode, variable_rest)
+        for i in range(lo, hi):
             status = 0
             x0 = position[i, 0]
             x1 = position[i, 1]
@@ -473,7 +564,7 @@ def step_particles(
                 status |= STATUS_BAD_INPUT
             nix, niy, niz = quaternion_normal(qw, qx, qy, qz)
             oriented_i = is_oriented[i]
-            rest_i = rest[i] if variable_rest else 1.0
+            active = not (integrate and is_pinned[i])
 
             # ---- pair forces and torques (S&T92 eqs. 3-7) and relative velocity sums
             energy = 0.0
@@ -489,65 +580,8 @@ def step_particles(
             sw0 = 0.0
             sw1 = 0.0
             sw2 = 0.0
-            # a pinned particle does not move: its pair and anchor terms are not needed when
-            # stepping (its energy share counts as 0; force-only calls evaluate every particle)
-            active = not (integrate and is_pinned[i])
-            row_end = offsets[i + 1] if active else offsets[i]
-            # pass 1: the entries within the cutoff, branch-free (about 60 % of the list
-            # are: a skip branch would mispredict); pj, pr = j, (r, s_ij)
-            count = 0
-            for k in range(offsets[i], row_end):
-                j = indices[k]
-                rx = position[j, 0] - x0
-                ry = position[j, 1] - x1
-                rz = position[j, 2] - x2
-                scale = 0.5 * (rest_i + rest[j]) if variable_rest else 1.0
-                pj[count] = j
-                pr[0, count] = rx
-                pr[1, count] = ry
-                pr[2, count] = rz
-                pr[3, count] = scale
-                count += not (rx * rx + ry * ry + rz * rz >= cutoff2 * (scale * scale))
-            # pass 2: the pair terms (S&T92 eqs. 3-7) into pt, with n_j for the angular damping
-            for a in range(count):
-                j = pj[a]
-                oriented = oriented_i and is_oriented[j]
-                if oriented:
-                    njx, njy, njz = quaternion_normal(
-                        orientation[j, 0], orientation[j, 1], orientation[j, 2], orientation[j, 3]
-                    )
-                else:
-                    njx = 0.0
-                    njy = 0.0
-                    njz = 1.0
-                t = pair_interaction(
-                    pr[0, a],
-                    pr[1, a],
-                    pr[2, a],
-                    nix,
-                    niy,
-                    niz,
-                    njx,
-                    njy,
-                    njz,
-                    oriented,
-                    coef,
-                    mode,
-                    pr[3, a] if variable_rest else 1.0,
-                )
-                pt[0, a] = t[0]
-                pt[1, a] = t[1]
-                pt[2, a] = t[2]
-                pt[3, a] = t[3]
-                pt[4, a] = t[4]
-                pt[5, a] = t[5]
-                pt[6, a] = t[6]
-                pt[7, a] = njx
-                pt[8, a] = njy
-                pt[9, a] = njz
-                po[a] = oriented
             # pass 3: the sums, in list order
-            for a in range(count):
+            for a in range(start[i - lo], start[i - lo + 1]):
                 j = pj[a]
                 energy += 0.5 * pt[0, a]
                 fx += pt[1, a]
@@ -560,14 +594,12 @@ def step_particles(
                     sv0 += v0 - velocity[j, 0]
                     sv1 += v1 - velocity[j, 1]
                     sv2 += v2 - velocity[j, 2]
-                if (
-                    beta3 != 0.0
-                    and po[a]
-                    and nix * pt[7, a] + niy * pt[8, a] + niz * pt[9, a] >= 0.0
-                ):
-                    sw0 += w0 - angular_velocity[j, 0]
-                    sw1 += w1 - angular_velocity[j, 1]
-                    sw2 += w2 - angular_velocity[j, 2]
+                if beta3 != 0.0 and po[a]:
+                    njx, njy, njz = quaternion_normal(pr[4, a], pr[5, a], pr[6, a], pr[7, a])
+                    if nix * njx + niy * njy + niz * njz >= 0.0:
+                        sw0 += w0 - angular_velocity[j, 0]
+                        sw1 += w1 - angular_velocity[j, 1]
+                        sw2 += w2 - angular_velocity[j, 2]
 
             # ---- anchors (data pull) and external force
             if has_anchors and active:
