@@ -422,9 +422,13 @@ def gauss_map_kernel(
                     # the line is near (within _REACH neighbourhood radii: on a thin knife
                     # the far face is in reach well away from the edge); nearly parallel
                     # planes of rounding errors meet far away
+                    # (scalars: the same squares and sums, no temporary per neighbour)
                     reach = 0.0
                     for j in range(idx.shape[1]):
-                        reach = max(reach, np.sqrt(np.sum((allp[j] - query[i]) ** 2)))
+                        e0 = allp[j, 0] - query[i, 0]
+                        e1 = allp[j, 1] - query[i, 1]
+                        e2 = allp[j, 2] - query[i, 2]
+                        reach = max(reach, np.sqrt(e0 * e0 + e1 * e1 + e2 * e2))
                     if kt > min_turn and kd <= _REACH * reach:
                         crease_ok = True
                         t2, dist2 = kt, kin
@@ -534,16 +538,49 @@ def _two_planes(pts, planes, centroids, member):  # pragma: no cover - numba
 
 @njit(**EXACT_JIT_OPTIONS)
 def _one_plane_rms(pts):  # pragma: no cover - numba
-    """RMS distance of ``pts`` to their PCA plane (the root of the least eigenvalue / n)."""
-    cen = np.zeros(3)
-    for j in range(pts.shape[0]):
-        cen += pts[j]
-    cen /= pts.shape[0]
-    cov = np.zeros((3, 3))
-    for j in range(pts.shape[0]):
-        r = pts[j] - cen
-        cov += np.outer(r, r)
-    return np.sqrt(max(np.linalg.eigvalsh(cov)[0], 0.0) / pts.shape[0])
+    """RMS distance of ``pts`` to their PCA plane (the root of the least eigenvalue / n).
+
+    The centroid and the scatter matrix (the sum of the outer products ``r r^T``) are summed in
+    scalars, point by point in the same order as array sums would: no temporary per point
+    (the knife gate runs it for many smooth points)."""
+    n = pts.shape[0]
+    c0 = 0.0
+    c1 = 0.0
+    c2 = 0.0
+    for j in range(n):
+        c0 += pts[j, 0]
+        c1 += pts[j, 1]
+        c2 += pts[j, 2]
+    c0 /= n
+    c1 /= n
+    c2 /= n
+    s00 = 0.0
+    s01 = 0.0
+    s02 = 0.0
+    s11 = 0.0
+    s12 = 0.0
+    s22 = 0.0
+    for j in range(n):
+        r0 = pts[j, 0] - c0
+        r1 = pts[j, 1] - c1
+        r2 = pts[j, 2] - c2
+        s00 += r0 * r0
+        s01 += r0 * r1
+        s02 += r0 * r2
+        s11 += r1 * r1
+        s12 += r1 * r2
+        s22 += r2 * r2
+    cov = np.empty((3, 3))
+    cov[0, 0] = s00
+    cov[0, 1] = s01
+    cov[0, 2] = s02
+    cov[1, 0] = s01
+    cov[1, 1] = s11
+    cov[1, 2] = s12
+    cov[2, 0] = s02
+    cov[2, 1] = s12
+    cov[2, 2] = s22
+    return np.sqrt(max(np.linalg.eigvalsh(cov)[0], 0.0) / n)
 
 
 @njit(**EXACT_JIT_OPTIONS)
