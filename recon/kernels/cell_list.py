@@ -101,7 +101,7 @@ def sort_into_cells(coords, dims):
     keys = np.zeros(n, dtype=np.int64)
     for i in range(n):
         keys[i] = (coords[i, 0] * dims[1] + coords[i, 1]) * dims[2] + coords[i, 2]
-    order = np.argsort(keys, kind="mergesort").astype(np.int64)
+    order = stable_key_order(keys)
     m = 0
     for p in range(n):
         if p == 0 or keys[order[p]] != keys[order[p - 1]]:
@@ -119,6 +119,52 @@ def sort_into_cells(coords, dims):
         item_cell[order[p]] = c
     cell_start[m] = n
     return order, cell_keys, cell_start, item_cell
+
+
+#: Bits per pass of :func:`stable_key_order` (2,048 buckets).
+_RADIX_BITS = 11
+
+
+@njit(**JIT_OPTIONS)
+def stable_key_order(keys):
+    """``np.argsort(keys, kind="mergesort")`` of int64 ``keys``: the unique stable order; for
+    non-negative keys by a least-significant-digit radix sort (``_RADIX_BITS`` per pass, as many
+    passes as the largest key has digits). O(n) per pass against the merge sort's O(n log n):
+    a cell grid's keys have 20-35 bits, so 2-4 passes. Keys already in order (the particles
+    after a reorder by cell) are returned after one check."""
+    n = keys.shape[0]
+    order = np.arange(n, dtype=np.int64)
+    top = 0
+    ordered = True
+    negative = False
+    for i in range(n):
+        if keys[i] > top:
+            top = keys[i]
+        negative |= keys[i] < 0
+        if i > 0 and keys[i] < keys[i - 1]:
+            ordered = False
+    if ordered:
+        return order
+    if negative:  # (a non-finite coordinate's cell): the merge sort orders those too
+        return np.argsort(keys, kind="mergesort").astype(np.int64)
+    size = 1 << _RADIX_BITS
+    mask = size - 1
+    other = np.empty(n, dtype=np.int64)
+    count = np.empty(size + 1, dtype=np.int64)
+    shift = 0
+    while shift < 63 and (top >> shift) > 0:
+        count[:] = 0
+        for i in range(n):
+            count[((keys[order[i]] >> shift) & mask) + 1] += 1
+        for b in range(size):
+            count[b + 1] += count[b]
+        for i in range(n):  # stable: equal digits keep the previous pass's order
+            d = (keys[order[i]] >> shift) & mask
+            other[count[d]] = order[i]
+            count[d] += 1
+        order, other = other, order
+        shift += _RADIX_BITS
+    return order
 
 
 @njit(inline="always", **JIT_OPTIONS)
