@@ -136,7 +136,7 @@ def thin_wedge(angle_deg: float = 30.0, length: float = 1.0, height: float = 0.5
 def sphere_with_tunnel(radius: float = 6.0, gap: float = 3.0) -> tuple[np.ndarray, np.ndarray]:
     """:func:`icosphere` (edges ~0.9) with a tunnel: two faces about ``gap`` edges apart
     replaced by a three-sided tube between their corners (one handle, orientable, every edge
-    in two faces). The tube's two cycles are a few edges long."""
+    in two faces). The tube's two cycles are about 2 x ``gap`` edges long."""
     v, f = icosphere(3, radius)
     centre = v[f].mean(axis=1)
     a = int(np.argmax(centre[:, 0]))

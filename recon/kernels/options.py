@@ -7,9 +7,11 @@ All kernels are compiled with ``cache=True`` and a reduced ``fastmath`` flag set
   such tests to ``True``;
 - ``reassoc`` and ``contract`` are omitted because they let the result depend on inlining and
   vectorisation decisions, which differ between the serial and the threaded twin of a kernel;
-  without them both give bit-identical states. The per-pair loop does not vectorise (gathers,
-  branches), and measured on the 100k-particle benchmark the two flags made no difference
-  beyond the timing noise.
+  without them both give bit-identical states. The step kernel's pair-term loop is vectorised
+  on purpose for the polynomial weight (:func:`recon.kernels.pair_loop.step_particles`, since
+  2026-11-29): without these two flags each SIMD lane does the scalar operations, and the
+  states were checked bit-identical to the scalar loop's. On the 100k-particle benchmark the
+  two flags made no difference beyond the timing noise (measured before that change).
 
 What remains (``nsz``, ``arcp``, ``afn``) lets LLVM use reciprocals and ignore signed zeros.
 

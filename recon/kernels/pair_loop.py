@@ -312,9 +312,9 @@ def pair_interaction(rx, ry, rz, nix, niy, niz, njx, njy, njz, oriented, coef, m
 
 @njit(inline="always", **_JIT)
 def _pair_terms(pr, po, pt, count, coef, mode, variable_rest):
-    """Pass 2 of :func:`step_particles`: the terms of :func:`pair_interaction` for ``count``
-    gathered pairs (``pr`` rows r (3), s_ij, q_j (4), n_i (3); ``po`` oriented) into ``pt``
-    rows E_ij, f_i (3), τ_i (3). Inlined (no array arguments at run time).
+    """Pass 2 of :func:`step_particles`: the terms of :func:`pair_interaction` (S&T92 eqs. 3-7)
+    for ``count`` gathered pairs (``pr`` rows r (3), s_ij, q_j (4), n_i (3); ``po`` oriented)
+    into ``pt`` rows E_ij, f_i (3), τ_i (3). Inlined (no array arguments at run time).
 
     :func:`step_particles` calls it with a constant ``mode`` for the polynomial weight: the
     loop reads and writes only contiguous scratch rows and LLVM vectorises it (width 8 with

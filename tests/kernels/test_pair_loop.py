@@ -6,9 +6,10 @@ import dataclasses
 
 import numpy as np
 import pytest
+from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
-from recon.forces import Anchors, accumulate_forces
+from recon.forces import Anchors, accumulate_forces, evaluate_pair
 from recon.state import ParticleState
 from tests.kernels.term_checks import MODES, term_params
 from tests.reference import numerical_gradients, relative_error, system_energy, unit
@@ -99,6 +100,51 @@ def test_unoriented_particles_feel_only_spacing_forces():
     mixed = accumulate_forces(state, params)
     np.testing.assert_allclose(mixed.force[4], spacing_only.force[4], rtol=1e-14, atol=1e-15)
     assert np.all(mixed.torque[4] == 0.0)
+
+
+@pytest.mark.parametrize("parallel", [False, True])
+def test_rows_in_several_blocks_sum_their_own_pairs(parallel):
+    """600 particles (three blocks of rows in the step kernel), unoriented ones and variable
+    rest spacing: every particle's force, torque and energy share are the sums of
+    :func:`evaluate_pair` over its pairs within the cutoff (a wrong row range or scratch
+    offset in a later block would take another row's pairs)."""
+    params = _params("poly")
+    rng = np.random.default_rng(11)
+    n = 600
+    position = rng.uniform([0.0, 0.0, 0.0], [20.0, 20.0, 1.5], size=(n, 3))
+    normal = unit(np.array([0.0, 0.0, 1.0]) + rng.normal(scale=0.3, size=(n, 3)))
+    oriented = rng.random(n) > 0.2
+    rest = rng.uniform(0.8, 1.2, n)
+    state = ParticleState.from_points(position, normal)
+    state.set_oriented(oriented)
+    state.rest = rest
+    got = accumulate_forces(state, params, parallel=parallel)
+    force = np.zeros((n, 3))
+    torque = np.zeros((n, 3))
+    energy = np.zeros(n)
+    nrm = state.normal
+    for i, j in cKDTree(position).query_pairs(params.cutoff * rest.max()):
+        s = 0.5 * (rest[i] + rest[j])
+        if np.linalg.norm(position[j] - position[i]) >= params.cutoff * s:
+            continue
+        both = bool(oriented[i] and oriented[j])
+        pair = evaluate_pair(
+            position[i], position[j], nrm[i], nrm[j], params, oriented=both, scale=s
+        )
+        force[i] += pair.force_i
+        force[j] += pair.force_j
+        torque[i] += pair.torque_i if oriented[i] else 0.0
+        torque[j] += pair.torque_j if oriented[j] else 0.0
+        energy[[i, j]] += 0.5 * pair.energy
+    scale = np.max(np.abs(force))
+    np.testing.assert_allclose(got.force, force, rtol=0, atol=1e-10 * scale)
+    np.testing.assert_allclose(
+        got.torque, torque, rtol=0, atol=1e-10 * max(np.max(np.abs(torque)), 1.0)
+    )
+    np.testing.assert_allclose(
+        got.energy_per_particle, energy, rtol=0, atol=1e-10 * np.max(np.abs(energy))
+    )
+    assert np.count_nonzero(np.any(force != 0.0, axis=1)) > 0.9 * n  # the pairs are there
 
 
 def test_serial_and_parallel_kernels_agree_bitwise():
