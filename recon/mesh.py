@@ -625,10 +625,15 @@ def handle_bridges(normals: np.ndarray, faces: np.ndarray) -> np.ndarray:
 
 
 def drop_unreferenced(
-    vertices: np.ndarray, normals: np.ndarray, faces: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Remove vertices no face uses (isolated particles) and renumber faces."""
+    vertices: np.ndarray,
+    normals: np.ndarray,
+    faces: np.ndarray,
+    crease: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
+    """Remove vertices no face uses (isolated particles) and renumber faces; ``crease``
+    (per-vertex flags, optional) keeps the flags of the vertices kept (None stays None)."""
     used = np.zeros(len(vertices), dtype=bool)
     used[faces.reshape(-1)] = True
     remap = np.cumsum(used) - 1
-    return vertices[used], normals[used], remap[faces].astype(np.int64)
+    flags = None if crease is None else np.asarray(crease, dtype=bool)[used]
+    return vertices[used], normals[used], remap[faces].astype(np.int64), flags

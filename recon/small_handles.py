@@ -209,10 +209,7 @@ def without_small_handles(
     faces, cuts = cut_small_handles(result.vertices, result.faces, reach)
     if cuts == 0:
         return result
-    used = np.zeros(len(result.vertices), dtype=bool)
-    used[faces.reshape(-1)] = True
-    v, n, f = drop_unreferenced(result.vertices, result.normals, faces)
-    crease = None if result.crease is None else result.crease[used]
+    v, n, f, crease = drop_unreferenced(result.vertices, result.normals, faces, result.crease)
     log.debug("cut %d small handles", cuts)
     stats = {**result.stats, "small_handles_cut": cuts}
     return replace(result, vertices=v, faces=f, normals=n, crease=crease, stats=stats)

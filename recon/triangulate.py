@@ -324,10 +324,9 @@ def _sheets_thickened(
     crease = result.crease
     if crease is not None:
         crease = np.concatenate([crease, np.zeros(len(vertices_all) - len(crease), dtype=bool)])
-        used = np.zeros(len(vertices_all), dtype=bool)
-        used[faces_all.reshape(-1)] = True
-        crease = crease[used]
-    vertices_all, normals_all, faces_all = drop_unreferenced(vertices_all, normals_all, faces_all)
+    vertices_all, normals_all, faces_all, crease = drop_unreferenced(
+        vertices_all, normals_all, faces_all, crease
+    )
     faces_all = orient_consistently(vertices_all, normals_all, faces_all)
     if open_body:
         # an open component takes the winding its normals vote for, which on a thin part can
@@ -458,11 +457,8 @@ def _repair(
         faces, n_in, n_left = insert_crease_edges(vertices, faces, on_crease)
         faces, n_flips = flip_straddling_edges(faces, vnormals, on_crease)
         log.debug("crease: %d line edges inserted (%d not), %d flips", n_in, n_left, n_flips)
-        used = np.zeros(len(vertices), dtype=bool)
-        used[faces.reshape(-1)] = True
-        on_crease = on_crease[used]
     unchanged = clean and np.array_equal(faces, oriented)  # no debris or crease edit
-    vertices, vnormals, faces = drop_unreferenced(vertices, vnormals, faces)
+    vertices, vnormals, faces, on_crease = drop_unreferenced(vertices, vnormals, faces, on_crease)
     if not unchanged:  # (renumbering the vertices keeps the winding)
         faces = orient_consistently(vertices, vnormals, faces)
     return TriangulationResult(vertices, faces, vnormals, stats, on_crease)

@@ -185,7 +185,8 @@ def closed_two_sided(
         crossing = crossing[crossing >= 0]
         if len(crossing) == 0:
             break
-        made = [m for i, m in enumerate(made) if i not in set(crossing.tolist())]
+        drop = set(crossing.tolist())
+        made = [m for i, m in enumerate(made) if i not in drop]
     if not made:
         return None
     all_n = np.concatenate([normals, *(m[3] for m in made)])
@@ -195,7 +196,4 @@ def closed_two_sided(
         flag_all = np.concatenate(
             [flags, *(np.tile(flags[np.unique(m[0].faces)], 2) for m in made)]
         )
-    used = np.zeros(len(all_v), dtype=bool)
-    used[kept.reshape(-1)] = True
-    v_out, n_out, f_out = drop_unreferenced(all_v, all_n, kept)
-    return v_out, n_out, f_out, None if flag_all is None else flag_all[used], len(made)
+    return (*drop_unreferenced(all_v, all_n, kept, flag_all), len(made))
