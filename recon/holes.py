@@ -34,7 +34,9 @@ __all__ = [
     "join_closed_parts",
     "loft_loops",
     "loft_nearest_loops",
+    "FailedTrials",
     "neck_between",
+    "neck_candidates",
     "loop_width",
     "rezip_crossing_loops",
     "thicken_sheet",
@@ -528,16 +530,54 @@ def neck_between(
     face of each (``a``, ``b``: face indices) plus the strip between their corners
     (:func:`loft_loops`), at the closest of the ``candidates`` nearest pairs of faces whose
     tube crosses no face; None when every one crosses."""
-    ca, cb = vertices[faces[a]].mean(axis=1), vertices[faces[b]].mean(axis=1)
-    dist, nearest = cKDTree(cb).query(ca)
-    for i in np.argsort(dist)[:candidates]:
-        fa, fb = int(a[i]), int(b[nearest[i]])
+    pairs, _ = neck_candidates(vertices, faces, a, b, candidates)
+    for fa, fb in pairs.tolist():
         tube = loft_loops(vertices, faces[fa], faces[fb])
         joined = np.concatenate([np.delete(faces, [fa, fb], axis=0), tube])
         subset = np.arange(len(joined) - len(tube), len(joined))
         if len(self_intersections(vertices, joined, subset)) == 0:
             return joined
     return None
+
+
+class FailedTrials:
+    """The parts whose last trial to join the body failed, each with the box [lo, hi] of the
+    space its trial read: a join that adds or removes no face reaching into that box leaves
+    its outcome as it was, so the part need not be tried again until one does
+    (:func:`join_closed_parts`, :func:`recon.thin_sheets.thicken_sheets`)."""
+
+    def __init__(self) -> None:
+        self.boxes: dict[int, np.ndarray] = {}
+
+    def add(self, k: int, points: np.ndarray, margin: float) -> None:
+        pad = margin + 1e-9 * (float(np.abs(points).max()) + 1.0)  # rounding of the tests
+        self.boxes[k] = np.stack([points.min(axis=0) - pad, points.max(axis=0) + pad])
+
+    def __contains__(self, k: int) -> bool:
+        return k in self.boxes
+
+    def forget_near(self, points: np.ndarray) -> None:
+        """A join changed the faces spanned by ``points``: retry the parts that read there."""
+        lo, hi = points.min(axis=0), points.max(axis=0)
+        for k in [k for k, box in self.boxes.items() if _overlap(box, lo, hi)]:
+            del self.boxes[k]
+
+
+def _overlap(box: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> bool:
+    return bool(np.all(box[0] <= hi) and np.all(lo <= box[1]))
+
+
+def neck_candidates(
+    vertices: np.ndarray, faces: np.ndarray, a: np.ndarray, b: np.ndarray, candidates: int = 8
+) -> tuple[np.ndarray, np.ndarray]:
+    """The face pairs :func:`neck_between` tries, in its order: each face of ``a`` with the
+    face of ``b`` whose centroid is nearest, the ``candidates`` closest such pairs first
+    ((m, 2) face indices), and their centroid distances ((m,), ascending)."""
+    ca, cb = vertices[faces[a]].mean(axis=1), vertices[faces[b]].mean(axis=1)
+    dist, nearest = cKDTree(cb).query(ca)
+    order = np.argsort(dist)[:candidates]
+    pairs = np.stack([np.asarray(a)[order], np.asarray(b)[nearest[order]]], axis=1)
+    return pairs.astype(np.int64), dist[order]
 
 
 def join_closed_parts(vertices: np.ndarray, faces: np.ndarray, reach: float) -> np.ndarray | None:
@@ -554,22 +594,40 @@ def join_closed_parts(vertices: np.ndarray, faces: np.ndarray, reach: float) -> 
     """
     faces = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
     n_v, joined_any, out = len(vertices), False, faces
+    failed = FailedTrials()  # by the part's first vertex (parts share no vertex)
+    open_parts: set[int] = set()
     while True:
         n, label = face_components(out, n_v)
         if n < 2:
             break
         body = int(np.argmax(np.bincount(label)))
-        tree = cKDTree(vertices[np.unique(out[label == body])])
+        body_faces = np.flatnonzero(label == body)
+        tree = cKDTree(vertices[np.unique(out[body_faces])])
+        radius = float(face_spheres(vertices, out)[1].max())
         joined = None
         for k in range(n):
             part = np.flatnonzero(label == k)
-            if k == body or boundary_loops(out[part]):
+            if k == body:
                 continue
-            if tree.query(vertices[np.unique(out[part])])[0].min() > reach:
+            used = np.unique(out[part])
+            key = int(used[0])
+            if key in failed or key in open_parts:
                 continue
-            joined = neck_between(vertices, out, np.flatnonzero(label == body), part)
+            if boundary_loops(out[part]):
+                open_parts.add(key)  # an open part is never joined
+                continue
+            if tree.query(vertices[used])[0].min() > reach:
+                failed.add(key, vertices[used], reach)  # no body vertex within reach of it
+                continue
+            joined = neck_between(vertices, out, body_faces, part)
             if joined is not None:
+                # the body now holds the part, and the faces the neck removed were its
+                # tube's ends
+                failed.forget_near(vertices[np.concatenate([used, joined[len(out) - 2 :].ravel()])])
                 break
+            # the tubes tried join faces this far apart, and what they cross lies by them
+            farthest = float(neck_candidates(vertices, out, body_faces, part)[1].max())
+            failed.add(key, vertices[used], farthest + 3.0 * radius)
         if joined is None:
             break
         out, joined_any = joined, True

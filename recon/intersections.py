@@ -63,6 +63,9 @@ SEPARATE_STEP = 0.05
 #: Faces larger than this many times the median bounding radius are paired one by one rather
 #: than through the common search radius (which would then hold too many pairs).
 LARGE_FACE = 3.0
+#: A crossing search for a subset of the faces runs on the faces near the subset alone when
+#: they are at most this share of the mesh (:func:`_near_marked`).
+LOCAL_SHARE = 0.5
 
 
 def candidate_pairs(
@@ -93,9 +96,39 @@ def _face_pairs(
     if subset is not None:
         mark[:] = False
         mark[np.asarray(subset, dtype=np.int64)] = True
+        near = _near_marked(centroid, radius, mark)
+        if near is not None:  # the search on the faces that can meet the subset's only
+            test = (vertices, faces[near]) if crossing else None
+            key = _overlapping(centroid[near], radius[near], mark[near], test)
+            m = len(near)  # near ascending: local key order is the global (i, j) order
+            return np.stack([near[key // m], near[key % m]], axis=1)
     test = (vertices, faces) if crossing else None
     key = _overlapping(centroid, radius, mark, test)
     return np.stack([key // n, key % n], axis=1)
+
+
+def _near_marked(centroid: np.ndarray, radius: np.ndarray, mark: np.ndarray) -> np.ndarray | None:
+    """Indices (ascending) of the spheres that reach into the bounding box of the marked
+    spheres, the marked ones included: every sphere that can overlap a marked one, since two
+    overlapping spheres each reach into the other's box. None when that is more than
+    ``LOCAL_SHARE`` of them (a search over all costs about the same then).
+
+    A subset is usually a few faces being tried (a tube, a patch, a thickened sheet) in a big
+    mesh: the grid search then runs on the faces round them, not on the whole mesh."""
+    marked = np.flatnonzero(mark)
+    if len(marked) == 0 or len(marked) > LOCAL_SHARE * len(mark):
+        return None
+    r = radius[marked, None]
+    lo = (centroid[marked] - r).min(axis=0)
+    hi = (centroid[marked] + r).max(axis=0)
+    pad = 1e-9 * (float(np.abs(np.concatenate([lo, hi])).max()) + 1.0)  # rounding of the test
+    lo, hi = lo - pad, hi + pad
+    reach = radius[:, None]
+    inside = np.all((centroid + reach >= lo) & (centroid - reach <= hi), axis=1)
+    inside |= mark  # (a marked sphere of NaN radius would fail the box test)
+    if np.count_nonzero(inside) > LOCAL_SHARE * len(mark):
+        return None
+    return np.flatnonzero(inside)
 
 
 def face_spheres(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

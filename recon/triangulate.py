@@ -35,11 +35,8 @@ from .holes import (
     fill_small_holes,
     join_closed_parts,
     loft_nearest_loops,
-    neck_between,
-    thicken_sheet,
     zip_supported_loops,
 )
-from .intersections import self_intersections
 from .kernels.circumsphere import circumsphere_kernel
 from .kernels.mesh_tables import circumradii, half_edge_winding
 from .mesh import (
@@ -60,6 +57,7 @@ from .mesh import (
 )
 from .neighbors import build_neighbor_list
 from .particle_signs import consistent_normals
+from .thin_sheets import thicken_sheets
 
 log = logging.getLogger(__name__)
 
@@ -279,48 +277,10 @@ def _sheets_thickened(
     a closed body takes sheets (an open scan's separate patch is one-sided data).
     """
     v, f = result.vertices, result.faces
-    n, label = face_components(f, len(v))
-    if n < 2:
+    thick = thicken_sheets(v, result.normals, f, reach, SHEET_HALF_THICKNESS, open_body)
+    if thick is None:
         return None
-    body = int(np.argmax(np.bincount(label)))
-    if not open_body and handle_count(f[label == body], len(v))[1] != 0:
-        return None
-    sheets = [f[label == k] for k in range(n) if k != body]
-    discs = [handle_count(sheet, len(v)) == (1, 1, 0) for sheet in sheets]
-    vertices, normals, body_faces = [v], [result.normals], f[label == body]
-    count, joined_any = len(v), True
-    while joined_any:
-        joined_any = False
-        all_v = np.concatenate(vertices)
-        tree = cKDTree(all_v[np.unique(body_faces)])
-        for k, sheet in enumerate(sheets):
-            if sheet is None or not discs[k]:
-                continue
-            if tree.query(v[np.unique(sheet)])[0].min() > reach:
-                continue
-            new_v, new_f = thicken_sheet(v, sheet, SHEET_HALF_THICKNESS)
-            trial_v = np.concatenate([all_v, new_v])
-            trial_f = np.concatenate([body_faces, new_f + count])
-            new = np.arange(len(body_faces), len(trial_f))
-            crossing = self_intersections(trial_v, trial_f, new)
-            joined = (
-                None
-                if len(crossing)
-                else neck_between(trial_v, trial_f, np.arange(len(body_faces)), new)
-            )
-            if joined is None:
-                continue
-            up = result.normals[np.unique(sheet)]
-            vertices.append(new_v)
-            normals.append(np.concatenate([up, -up]))
-            count += len(new_v)
-            body_faces, sheets[k], joined_any = joined, None, True
-            break  # the body grew: measure the other sheets' distances to it again
-    if count == len(v):
-        return None
-    vertices_all = np.concatenate(vertices)
-    normals_all = np.concatenate(normals)
-    faces_all = np.concatenate([body_faces, *(s for s in sheets if s is not None)])
+    vertices_all, normals_all, faces_all = thick
     crease = result.crease
     if crease is not None:
         crease = np.concatenate([crease, np.zeros(len(vertices_all) - len(crease), dtype=bool)])

@@ -50,6 +50,55 @@ def test_subset_gives_the_pairs_touching_it():
     assert sorted(map(tuple, some.tolist())) == sorted(map(tuple, expected.tolist()))
 
 
+def test_a_local_subset_is_searched_among_the_faces_near_it(monkeypatch):
+    """A few faces tried in a big mesh (a tube, a thickened sheet) are searched among the faces
+    round them only: the same pairs as a search of the whole mesh, and the grid search is
+    handed the nearby faces alone."""
+    import recon.intersections as inter
+
+    v, f = icosphere(5)  # 20,480 faces
+    centroid = v[f].mean(axis=1)
+    rng = np.random.default_rng(5)
+    seen: list[int] = []
+    overlapping = inter._overlapping
+
+    def spy(c, r, mark, test=None):
+        seen.append(len(c))
+        return overlapping(c, r, mark, test)
+
+    monkeypatch.setattr(inter, "_overlapping", spy)
+    found = 0
+    for _ in range(12):
+        # a copy of a patch of the sphere tilted through it about a tangent axis
+        centre = centroid[rng.integers(len(f))]
+        near = np.linalg.norm(centroid - centre, axis=1) < 0.08
+        used, local = np.unique(f[near], return_inverse=True)
+        axis = np.cross(centre, rng.normal(size=3))
+        axis /= np.linalg.norm(axis)
+        angle = np.radians(rng.uniform(10.0, 40.0))
+        d = v[used] - centre
+        moved = centre + (  # Rodrigues' rotation of the patch about the axis through its centre
+            d * np.cos(angle)
+            + np.cross(axis, d) * np.sin(angle)
+            + np.outer(d @ axis, axis) * (1.0 - np.cos(angle))
+        )
+        vertices = np.vstack([v, moved])
+        faces = np.vstack([f, local.reshape(-1, 3) + len(v)])
+        new = np.arange(len(f), len(faces))
+        seen.clear()
+        local_pairs = self_intersections(vertices, faces, new)
+        local_candidates = candidate_pairs(vertices, faces, new)
+        assert seen and max(seen) < len(faces) / 10  # the search ran near the patch
+        monkeypatch.setattr(inter, "LOCAL_SHARE", -1.0)  # the search of the whole mesh
+        seen.clear()
+        assert np.array_equal(local_pairs, self_intersections(vertices, faces, new))
+        assert np.array_equal(local_candidates, candidate_pairs(vertices, faces, new))
+        assert seen == [len(faces), len(faces)]
+        monkeypatch.setattr(inter, "LOCAL_SHARE", 0.5)
+        found += len(local_pairs) > 0
+    assert found >= 10  # the tilted patches cross the sphere
+
+
 def pinched_lens(depth: float) -> tuple[np.ndarray, np.ndarray]:
     """A flat closed lens (an icosphere squashed to 5 % thickness) whose upper sheet is pressed
     ``depth`` below the lower one inside a disc: two opposed sheets crossing each other."""
