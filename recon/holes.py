@@ -16,7 +16,13 @@ from collections.abc import Callable
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .intersections import face_spheres, faces_near_balls, self_intersections, untangle
+from .intersections import (
+    ROUNDING_PAD,
+    face_spheres,
+    faces_near_balls,
+    self_intersections,
+    untangle,
+)
 from .kernels.loft import loft_path_kernel
 from .mesh import (
     boundary_loops,
@@ -29,15 +35,16 @@ from .mesh import (
 log = logging.getLogger(__name__)
 
 __all__ = [
+    "FailedTrials",
     "across_points",
     "fill_small_holes",
+    "first_clear_neck",
     "join_closed_parts",
     "loft_loops",
     "loft_nearest_loops",
-    "FailedTrials",
+    "loop_width",
     "neck_between",
     "neck_candidates",
-    "loop_width",
     "rezip_crossing_loops",
     "thicken_sheet",
     "zip_loop",
@@ -530,8 +537,17 @@ def neck_between(
     face of each (``a``, ``b``: face indices) plus the strip between their corners
     (:func:`loft_loops`), at the closest of the ``candidates`` nearest pairs of faces whose
     tube crosses no face; None when every one crosses."""
-    pairs, _ = neck_candidates(vertices, faces, a, b, candidates)
-    for fa, fb in pairs.tolist():
+    return first_clear_neck(vertices, faces, neck_candidates(vertices, faces, a, b, candidates)[0])
+
+
+def first_clear_neck(
+    vertices: np.ndarray, faces: np.ndarray, pairs: np.ndarray
+) -> np.ndarray | None:
+    """``faces`` joined by the tube between the first face pair of ``pairs`` ((m, 2), as
+    :func:`neck_candidates` orders them) whose tube crosses no face: ``faces`` without the
+    pair's two faces, the other faces in their order, then the tube's faces last; None when
+    every tube crosses."""
+    for fa, fb in np.asarray(pairs, dtype=np.int64).tolist():
         tube = loft_loops(vertices, faces[fa], faces[fb])
         joined = np.concatenate([np.delete(faces, [fa, fb], axis=0), tube])
         subset = np.arange(len(joined) - len(tube), len(joined))
@@ -550,7 +566,7 @@ class FailedTrials:
         self.boxes: dict[int, np.ndarray] = {}
 
     def add(self, k: int, points: np.ndarray, margin: float) -> None:
-        pad = margin + 1e-9 * (float(np.abs(points).max()) + 1.0)  # rounding of the tests
+        pad = margin + ROUNDING_PAD * (float(np.abs(points).max()) + margin + 1.0)
         self.boxes[k] = np.stack([points.min(axis=0) - pad, points.max(axis=0) + pad])
 
     def __contains__(self, k: int) -> bool:
@@ -559,11 +575,11 @@ class FailedTrials:
     def forget_near(self, points: np.ndarray) -> None:
         """A join changed the faces spanned by ``points``: retry the parts that read there."""
         lo, hi = points.min(axis=0), points.max(axis=0)
-        for k in [k for k, box in self.boxes.items() if _overlap(box, lo, hi)]:
+        for k in [k for k, box in self.boxes.items() if _boxes_meet(box, lo, hi)]:
             del self.boxes[k]
 
 
-def _overlap(box: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> bool:
+def _boxes_meet(box: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> bool:
     return bool(np.all(box[0] <= hi) and np.all(lo <= box[1]))
 
 
@@ -572,10 +588,13 @@ def neck_candidates(
 ) -> tuple[np.ndarray, np.ndarray]:
     """The face pairs :func:`neck_between` tries, in its order: each face of ``a`` with the
     face of ``b`` whose centroid is nearest, the ``candidates`` closest such pairs first
-    ((m, 2) face indices), and their centroid distances ((m,), ascending)."""
+    (ties in the order of ``a``; (m, 2) face indices), and their centroid distances ((m,),
+    ascending)."""
     ca, cb = vertices[faces[a]].mean(axis=1), vertices[faces[b]].mean(axis=1)
     dist, nearest = cKDTree(cb).query(ca)
-    order = np.argsort(dist)[:candidates]
+    # stable: an exact tie goes to the face listed first, whatever else the array holds (a
+    # join far away must not change which pairs a part is tried at: FailedTrials)
+    order = np.argsort(dist, kind="stable")[:candidates]
     pairs = np.stack([np.asarray(a)[order], np.asarray(b)[nearest[order]]], axis=1)
     return pairs.astype(np.int64), dist[order]
 
@@ -603,7 +622,7 @@ def join_closed_parts(vertices: np.ndarray, faces: np.ndarray, reach: float) -> 
         body = int(np.argmax(np.bincount(label)))
         body_faces = np.flatnonzero(label == body)
         tree = cKDTree(vertices[np.unique(out[body_faces])])
-        radius = float(face_spheres(vertices, out)[1].max())
+        largest_face = float(face_spheres(vertices, out)[1].max())  # bounding radius
         joined = None
         for k in range(n):
             part = np.flatnonzero(label == k)
@@ -619,15 +638,16 @@ def join_closed_parts(vertices: np.ndarray, faces: np.ndarray, reach: float) -> 
             if tree.query(vertices[used])[0].min() > reach:
                 failed.add(key, vertices[used], reach)  # no body vertex within reach of it
                 continue
-            joined = neck_between(vertices, out, body_faces, part)
+            pairs, gaps = neck_candidates(vertices, out, body_faces, part)
+            joined = first_clear_neck(vertices, out, pairs)
             if joined is not None:
-                # the body now holds the part, and the faces the neck removed were its
-                # tube's ends
-                failed.forget_near(vertices[np.concatenate([used, joined[len(out) - 2 :].ravel()])])
+                # the body now holds the part and the tube (last, first_clear_neck), whose
+                # ends were the two faces removed
+                tube = joined[len(out) - 2 :]
+                failed.forget_near(vertices[np.concatenate([used, tube.ravel()])])
                 break
             # the tubes tried join faces this far apart, and what they cross lies by them
-            farthest = float(neck_candidates(vertices, out, body_faces, part)[1].max())
-            failed.add(key, vertices[used], farthest + 3.0 * radius)
+            failed.add(key, vertices[used], float(gaps.max()) + 3.0 * largest_face)
         if joined is None:
             break
         out, joined_any = joined, True

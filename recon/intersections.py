@@ -44,6 +44,7 @@ __all__ = [
     "UNTANGLE_STEP",
     "SEPARATE_PASSES",
     "SEPARATE_STEP",
+    "ROUNDING_PAD",
     "face_spheres",
     "faces_near_balls",
     "self_intersections",
@@ -66,6 +67,9 @@ LARGE_FACE = 3.0
 #: A crossing search for a subset of the faces runs on the faces near the subset alone when
 #: they are at most this share of the mesh (:func:`_near_marked`).
 LOCAL_SHARE = 0.5
+#: Relative widening of a box that must hold every sphere an exact floating-point test could
+#: find overlapping (many times the rounding of a sum or a square root, 2.2e-16).
+ROUNDING_PAD = 1e-9
 
 
 def candidate_pairs(
@@ -111,21 +115,26 @@ def _near_marked(centroid: np.ndarray, radius: np.ndarray, mark: np.ndarray) -> 
     """Indices (ascending) of the spheres that reach into the bounding box of the marked
     spheres, the marked ones included: every sphere that can overlap a marked one, since two
     overlapping spheres each reach into the other's box. None when that is more than
-    ``LOCAL_SHARE`` of them (a search over all costs about the same then).
+    ``LOCAL_SHARE`` of them (a search over all costs about the same then), or when a sphere
+    is not finite (the search of the whole mesh decides what that means).
 
     A subset is usually a few faces being tried (a tube, a patch, a thickened sheet) in a big
-    mesh: the grid search then runs on the faces round them, not on the whole mesh."""
+    mesh: the grid search then runs on the faces round them, not on the whole mesh. The box
+    is widened by ``ROUNDING_PAD`` times the mesh's largest coordinate or radius, so that
+    the rounding of the exact test (``|c_i - c_j| <= r_i + r_j`` in floating point, whose
+    sum rounds to the larger radius) never keeps a pair the box left out."""
     marked = np.flatnonzero(mark)
     if len(marked) == 0 or len(marked) > LOCAL_SHARE * len(mark):
         return None
+    if not (np.isfinite(centroid).all() and np.isfinite(radius).all()):
+        return None
     r = radius[marked, None]
-    lo = (centroid[marked] - r).min(axis=0)
-    hi = (centroid[marked] + r).max(axis=0)
-    pad = 1e-9 * (float(np.abs(np.concatenate([lo, hi])).max()) + 1.0)  # rounding of the test
-    lo, hi = lo - pad, hi + pad
+    scale = float(np.abs(centroid).max()) + float(radius.max()) + 1.0
+    lo = (centroid[marked] - r).min(axis=0) - ROUNDING_PAD * scale
+    hi = (centroid[marked] + r).max(axis=0) + ROUNDING_PAD * scale
     reach = radius[:, None]
     inside = np.all((centroid + reach >= lo) & (centroid - reach <= hi), axis=1)
-    inside |= mark  # (a marked sphere of NaN radius would fail the box test)
+    inside |= mark
     if np.count_nonzero(inside) > LOCAL_SHARE * len(mark):
         return None
     return np.flatnonzero(inside)

@@ -21,7 +21,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .holes import FailedTrials, neck_between, neck_candidates, thicken_sheet
+from .holes import FailedTrials, first_clear_neck, neck_candidates, thicken_sheet
 from .intersections import face_spheres, self_intersections
 from .mesh import face_components, handle_count
 
@@ -61,7 +61,7 @@ def thicken_sheets(
         joined_any = False
         all_v = np.concatenate(parts_v)
         tree = cKDTree(all_v[np.unique(body_faces)])
-        body_radius = float(face_spheres(all_v, body_faces)[1].max())
+        largest_face = float(face_spheres(all_v, body_faces)[1].max())  # bounding radius
         for k, sheet in enumerate(sheets):
             if sheet is None or not discs[k] or k in failed:
                 continue
@@ -76,15 +76,17 @@ def thicken_sheets(
             new = np.arange(len(body_faces), len(trial_f))
             if len(self_intersections(trial_v, trial_f, new)):
                 # a body face crossing the copy meets it inside its box
-                failed.add(k, new_v, 2.0 * body_radius)
+                failed.add(k, new_v, 2.0 * largest_face)
                 continue
-            joined = neck_between(trial_v, trial_f, old, new)
+            pairs, gaps = neck_candidates(trial_v, trial_f, old, new)
+            joined = first_clear_neck(trial_v, trial_f, pairs)
             if joined is None:
                 # the tubes tried join faces this far apart, and what they cross lies by them
-                farthest = float(neck_candidates(trial_v, trial_f, old, new)[1].max())
-                failed.add(k, new_v, farthest + 3.0 * body_radius)
+                failed.add(k, new_v, float(gaps.max()) + 3.0 * largest_face)
                 continue
-            tube = joined[len(trial_f) - 2 :]  # the faces the neck removed were its ends'
+            # the body now holds the copy and the tube (last, first_clear_neck), whose ends
+            # were the two faces removed
+            tube = joined[len(trial_f) - 2 :]
             failed.forget_near(np.concatenate([new_v, trial_v[tube.ravel()]]))
             up = normals[np.unique(sheet)]
             parts_v.append(new_v)

@@ -260,18 +260,10 @@ def _parts_joined(result: TriangulationResult, cloud: bool = True) -> Triangulat
 def _sheets_thickened(
     result: TriangulationResult, reach: float = SHEET_NECK_GAP, open_body: bool = False
 ) -> TriangulationResult | None:
-    """``result`` with each one-sided open sheet beside the closed main body made a thin body
-    of its own and joined to it; None when there is none.
-
-    Where a part is thinner than the normals' orientation resolves (the last spacings of a
-    knife's edge), both faces' particles merge into one sheet, meshed as one layer: an open
-    disc within ``reach`` [r0] of the closed body whose edge it continues. The data
-    there is a closed part thinner than a spacing: the sheet becomes two copies
-    ``SHEET_HALF_THICKNESS`` off it joined round its rim (:func:`recon.holes.thicken_sheet`),
-    connected to the body by a short tube at their closest faces
-    (:func:`recon.holes.neck_between`). A sheet whose thick copy would cross the body stays.
-    A joined sheet is part of the body: a sheet that continues it (the edge's next stretch,
-    farther from the original body) is judged against the body with it, until none joins.
+    """``result`` with each one-sided open sheet within ``reach`` [r0] of the main body made a
+    closed part ``SHEET_HALF_THICKNESS`` either side of it and joined to the body
+    (:func:`recon.thin_sheets.thicken_sheets`: the merged faces of a part thinner than a
+    spacing, such as a knife's edge), then consistently oriented; None when none is.
     ``open_body``: the body may have boundary loops (where a thin edge's opposed band was
     dropped and its rims joined, a loop left beside the sheets is the edge's rest); else only
     a closed body takes sheets (an open scan's separate patch is one-sided data).

@@ -99,6 +99,38 @@ def test_a_local_subset_is_searched_among_the_faces_near_it(monkeypatch):
     assert found >= 10  # the tilted patches cross the sphere
 
 
+def test_a_huge_face_whose_tip_crosses_a_small_subset_is_still_found():
+    # regression (second read of the local search): a face 1e9 long whose tip crosses a small
+    # face by 3e-8; the exact test's sum r_i + r_j rounds to the huge radius, by more than a
+    # pad relative to the small faces' coordinates alone, and the local box left it out
+    h, length, x0 = 0.9216035573870036, 1.5e9, 0.9216035275846812
+    far = [[-1e3, 5.0 * k, 0.0] for k in range(4)]
+    far += [[-1e3, 5.0 * k + 1.0, 0.0] for k in range(4)]
+    far += [[-1e3, 5.0 * k, 1.0] for k in range(4)]
+    v = np.array(
+        [[h, 0, 0], [h - 1.5, 0.3, 0], [h - 1.5, -0.3, 0], [x0, 0, 1e-12]]
+        + [[x0 + length, 0, 1.0], [x0 + length, 0, -1.0]]
+        + far,
+        dtype=float,
+    )
+    f = np.array([[0, 1, 2], [3, 4, 5]] + [[6 + k, 10 + k, 14 + k] for k in range(4)])
+    assert self_intersections(v, f[:2]).tolist() == [[0, 1]]
+    assert self_intersections(v, f, [0]).tolist() == [[0, 1]]
+    assert candidate_pairs(v, f, [0]).tolist() == [[0, 1]]
+
+
+def test_a_face_that_is_not_finite_is_judged_by_the_search_of_the_whole_mesh():
+    # regression: the local search left a far NaN face out and answered; the whole mesh's
+    # search refuses it, and so does a search for a subset now
+    v, f = icosphere(3)
+    v = np.vstack([v, [[30.0, 0, 0], [31.0, 0, 0], [np.nan, 1.0, 0]]])
+    f = np.vstack([f, [[len(v) - 3, len(v) - 2, len(v) - 1]]])
+    with pytest.raises(ValueError):
+        self_intersections(v, f)
+    with pytest.raises(ValueError):
+        self_intersections(v, f, [0])
+
+
 def pinched_lens(depth: float) -> tuple[np.ndarray, np.ndarray]:
     """A flat closed lens (an icosphere squashed to 5 % thickness) whose upper sheet is pressed
     ``depth`` below the lower one inside a disc: two opposed sheets crossing each other."""

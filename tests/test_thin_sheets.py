@@ -125,3 +125,32 @@ def test_failed_trials_are_retried_only_where_a_join_changed_the_body(monkeypatc
     ):
         assert np.array_equal(a, b)
     assert queries < 0.5 * calls["n"], (queries, calls["n"])
+
+
+def test_tied_neck_candidates_go_in_face_order_whatever_else_the_mesh_holds():
+    """The memo relies on a join far away leaving a part's neck candidates as they were: with
+    exact ties, the sort must not depend on the rest of the array (regression: the default
+    sort's tie order changed when far faces were added, and a part that had failed would
+    have joined on a retry)."""
+    rng = np.random.default_rng(2)
+    top = rng.uniform(-4.0, 4.0, size=(60, 2))
+    v = np.vstack(
+        [
+            np.column_stack([top, np.ones(60)]),  # the body: triangles at z = 1 ...
+            np.column_stack([top, -np.ones(60)]),  # ... mirrored exactly to z = -1
+            [[6.0, -0.5, 0.0], [7.0, 0.5, 0.0], [6.0, 0.5, 0.0]],  # the part, at z = 0
+        ]
+    )
+    tri = rng.integers(0, 60, size=(300, 3))
+    faces = np.vstack([tri, tri + 60, [[120, 121, 122]]])  # the same corner order: exact ties
+    body, part = np.arange(600), np.array([600])
+    pairs, gaps = holes.neck_candidates(v, faces, body, part, candidates=600)
+    assert len(np.unique(gaps)) <= len(gaps) // 2  # the test means something: ties
+    for d in np.unique(gaps):  # within a tie, the body faces in their order
+        assert np.all(np.diff(pairs[gaps == d, 0]) > 0)
+    # far faces listed after the body change nothing among the body's
+    far_v = np.vstack([v, v[:120] + [100.0, 0.0, 0.0]])
+    far_f = np.vstack([faces, tri + 123, tri + 183])
+    more = np.concatenate([body, np.arange(601, 1201)])
+    again, gaps_again = holes.neck_candidates(far_v, far_f, more, part, candidates=600)
+    assert np.array_equal(again, pairs) and np.array_equal(gaps_again, gaps)
