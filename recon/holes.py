@@ -578,6 +578,31 @@ class FailedTrials:
         for k in [k for k, box in self.boxes.items() if _boxes_meet(box, lo, hi)]:
             del self.boxes[k]
 
+    def neck(
+        self,
+        k: int,
+        vertices: np.ndarray,
+        faces: np.ndarray,
+        body: np.ndarray,
+        part: np.ndarray,
+        part_points: np.ndarray,
+        largest_face: float,
+    ) -> np.ndarray | None:
+        """:func:`neck_between` the ``body`` and ``part`` faces of part ``k`` (its vertices:
+        ``part_points``), kept in the memo: on success the parts that read near the part or
+        its tube are forgotten (the body now holds both; the tube's ends were the two faces
+        removed); on failure part ``k`` keeps the space its tubes read (they join faces up to
+        the farthest candidate pair apart, and what they cross lies by them; ``largest_face``:
+        the largest bounding radius of a face that can be removed later)."""
+        pairs, gaps = neck_candidates(vertices, faces, body, part)
+        joined = first_clear_neck(vertices, faces, pairs)
+        if joined is None:
+            self.add(k, part_points, float(gaps.max()) + 3.0 * largest_face)
+            return None
+        tube = joined[len(faces) - 2 :]  # last (first_clear_neck)
+        self.forget_near(np.concatenate([part_points, vertices[tube.ravel()]]))
+        return joined
+
 
 def _boxes_meet(box: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> bool:
     return bool(np.all(box[0] <= hi) and np.all(lo <= box[1]))
@@ -638,16 +663,9 @@ def join_closed_parts(vertices: np.ndarray, faces: np.ndarray, reach: float) -> 
             if tree.query(vertices[used])[0].min() > reach:
                 failed.add(key, vertices[used], reach)  # no body vertex within reach of it
                 continue
-            pairs, gaps = neck_candidates(vertices, out, body_faces, part)
-            joined = first_clear_neck(vertices, out, pairs)
+            joined = failed.neck(key, vertices, out, body_faces, part, vertices[used], largest_face)
             if joined is not None:
-                # the body now holds the part and the tube (last, first_clear_neck), whose
-                # ends were the two faces removed
-                tube = joined[len(out) - 2 :]
-                failed.forget_near(vertices[np.concatenate([used, tube.ravel()])])
                 break
-            # the tubes tried join faces this far apart, and what they cross lies by them
-            failed.add(key, vertices[used], float(gaps.max()) + 3.0 * largest_face)
         if joined is None:
             break
         out, joined_any = joined, True

@@ -21,7 +21,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .holes import FailedTrials, first_clear_neck, neck_candidates, thicken_sheet
+from .holes import FailedTrials, thicken_sheet
 from .intersections import face_spheres, self_intersections
 from .mesh import face_components, handle_count
 
@@ -78,16 +78,9 @@ def thicken_sheets(
                 # a body face crossing the copy meets it inside its box
                 failed.add(k, new_v, 2.0 * largest_face)
                 continue
-            pairs, gaps = neck_candidates(trial_v, trial_f, old, new)
-            joined = first_clear_neck(trial_v, trial_f, pairs)
+            joined = failed.neck(k, trial_v, trial_f, old, new, new_v, largest_face)
             if joined is None:
-                # the tubes tried join faces this far apart, and what they cross lies by them
-                failed.add(k, new_v, float(gaps.max()) + 3.0 * largest_face)
                 continue
-            # the body now holds the copy and the tube (last, first_clear_neck), whose ends
-            # were the two faces removed
-            tube = joined[len(trial_f) - 2 :]
-            failed.forget_near(np.concatenate([new_v, trial_v[tube.ravel()]]))
             up = normals[np.unique(sheet)]
             parts_v.append(new_v)
             parts_n.append(np.concatenate([up, -up]))
