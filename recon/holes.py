@@ -389,13 +389,18 @@ def _ring_step(loop: np.ndarray, a: int, b: int) -> int:
     return 1 if d == 1 else -1 if d == len(loop) - 1 else d
 
 
-def loft_loops(vertices: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+def loft_loops(
+    vertices: np.ndarray, a: np.ndarray, b: np.ndarray, directed: bool = False
+) -> np.ndarray:
     """Faces ``(len(a) + len(b), 3)`` of a strip (an annulus) joining two closed loops.
 
     The loops are walked side by side from their closest pair of vertices along the strip
     whose new edges are shortest in total (Fuchs, Kedem & Uselton 1977:
     :func:`recon.kernels.loft.loft_path_kernel`), in the direction of ``b`` that gives the
-    shorter one. No vertex is added. Winding is left to the caller.
+    shorter one. No vertex is added. Winding is left to the caller; the faces run ``a``'s
+    edges in its order and ``b``'s against its order. ``directed``: ``b`` is walked in its
+    given direction only, so that this winding is the one the caller's loops ask for (a tube
+    between two oriented surfaces, :func:`first_clear_neck`).
 
     Examples
     --------
@@ -412,7 +417,7 @@ def loft_loops(vertices: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray
     a = np.roll(a, -int(i0))
     b_fwd = np.roll(b, -int(j0))
     best = None
-    for bb in (b_fwd, np.roll(b_fwd[::-1], 1)):
+    for bb in (b_fwd,) if directed else (b_fwd, np.roll(b_fwd[::-1], 1)):
         steps = np.empty(m + n - 2, dtype=np.int8)
         pa = np.ascontiguousarray(vertices[a], dtype=np.float64)
         pb = np.ascontiguousarray(vertices[bb], dtype=np.float64)
@@ -546,9 +551,15 @@ def first_clear_neck(
     """``faces`` joined by the tube between the first face pair of ``pairs`` ((m, 2), as
     :func:`neck_candidates` orders them) whose tube crosses no face: ``faces`` without the
     pair's two faces, the other faces in their order, then the tube's faces last; None when
-    every tube crosses."""
+    every tube crosses.
+
+    The tube runs each removed face's edges the way that face ran them, as the faces beside
+    it expect: with both parts wound outward it is wound outward too (a connected sum of
+    oriented surfaces). A tube lofted the other way round (the shorter strip where the two faces lie
+    side by side rather than face to face) joins the windings crosswise, and orienting the
+    whole consistently turns one part inside out."""
     for fa, fb in np.asarray(pairs, dtype=np.int64).tolist():
-        tube = loft_loops(vertices, faces[fa], faces[fb])
+        tube = loft_loops(vertices, faces[fa], faces[fb][::-1], directed=True)
         joined = np.concatenate([np.delete(faces, [fa, fb], axis=0), tube])
         subset = np.arange(len(joined) - len(tube), len(joined))
         if len(self_intersections(vertices, joined, subset)) == 0:

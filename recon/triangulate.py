@@ -561,9 +561,48 @@ def orient_consistently(vertices: np.ndarray, normals: np.ndarray, faces: np.nda
     where the search's fronts met, possibly far from the cause).
     Each component then keeps the winding that agrees with its vertex normals (area-weighted),
     and a closed component whose signed volume is negative is turned inside out.
+
+    A fold is cut too, though it meets no conflict: a part (a leg) joined to the body by a
+    band of faces that each face their vertex normals' way but are wound against their
+    neighbours (ball pivoting at a sparse leg's concave root; :func:`twisted_faces` marks
+    them). The mesh is orientable, so the propagation winds the whole part as the body and
+    turns it over against its normals: the part comes out inside out, and the seam between
+    the two windings is left as a boundary loop at its root by the repairs after.
+    When the consistent winding leaves at least ``MIN_COMPONENT_FACES`` faces (a part's
+    worth: no smaller component is kept) against the side their component's normals vote
+    for, the mesh without the twisted faces is oriented instead if that costs fewer faces
+    than it sets right: the faces dropped plus those still against their component's side
+    after the cut are fewer than those against it without. The part is then its own
+    component, wound outward; hole filling caps both cuts and
+    :func:`recon.holes.join_closed_parts` joins it to the body again. Faces against the
+    normals here and there (noise, the merged normals at a thin edge) are not a fold: the
+    twisted faces about them outnumber them, and the consistent winding stays.
     """
     if len(faces) == 0:
         return faces
+    out, against = _wound(vertices, normals, faces)
+    if against < MIN_COMPONENT_FACES:
+        return out
+    twist = twisted_faces(vertices, normals, faces)
+    if not twist.any():
+        return out
+    cut, against_cut = _wound(vertices, normals, faces[~twist])
+    if int(twist.sum()) + against_cut < against:
+        log.debug(
+            "cut a fold at %d twisted faces (%d faces against their normals -> %d)",
+            int(twist.sum()),
+            against,
+            against_cut,
+        )
+        return cut
+    return out
+
+
+def _wound(vertices: np.ndarray, normals: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, int]:
+    """:func:`orient_consistently` without the fold cut, and how many faces are wound against
+    their vertex normals relative to the rest of their component: against the side its
+    normals' area-weighted vote takes (not against the normals themselves: a closed
+    component is turned by its volume, whichever way its normals face as a whole)."""
     faces = faces.copy()
     # one sort of the half-edges for the winding test, the open faces and the first round
     order, consistent, open_face = half_edge_winding(
@@ -599,7 +638,7 @@ def orient_consistently(vertices: np.ndarray, normals: np.ndarray, faces: np.nda
     turn = np.where(closed, vol < 0, vote < 0)
     bad = turn[labels]
     faces[bad] = faces[bad][:, [0, 2, 1]]
-    return faces
+    return faces, int(np.count_nonzero(agree * np.sign(vote)[labels] < 0))
 
 
 def remove_non_manifold_faces(faces: np.ndarray, n_vertices: int) -> np.ndarray:

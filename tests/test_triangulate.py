@@ -428,6 +428,54 @@ def test_orientation_conflict_is_cut_where_the_normals_turn_over():
     assert np.all(agree > 0)
 
 
+def _folded_column(n=12, body_rows=8, leg_rows=5, fold=True):
+    """A capped cylinder (radius 1, along z, outward normals): a body of ``body_rows`` rows
+    below z = 0 and a leg of ``leg_rows`` rows above z = 0.5, joined by one band between the
+    rings at z = 0 and z = 0.5. ``fold``: the band joins the rings crosswise (body vertex i to
+    leg vertex -i), so that one winding across it turns the leg over against its normals."""
+    t = 2 * np.pi * np.arange(n) / n
+    ring = np.stack([np.cos(t), np.sin(t), np.zeros(n)], 1)
+    zs = [*np.linspace(-0.5 * body_rows, 0.0, body_rows + 1)]
+    zs += [*np.linspace(0.5, 0.5 + 0.5 * leg_rows, leg_rows + 1)]
+    v = np.concatenate([ring + [0, 0, z] for z in zs] + [[[0, 0, zs[0]], [0, 0, zs[-1]]]])
+    nrm = np.concatenate([ring] * len(zs) + [[[0, 0, -1], [0, 0, 1]]])
+    k, f = np.arange(n), []
+    for r in range(len(zs) - 1):
+        a, b = r * n + k, r * n + (k + 1) % n
+        c, d = (r + 1) * n + k, (r + 1) * n + (k + 1) % n
+        if fold and r == body_rows:
+            c, d = (r + 1) * n + (-k) % n, (r + 1) * n + (-k - 1) % n
+        f += [np.stack([a, b, d], 1), np.stack([a, d, c], 1)]
+    last = (len(zs) - 1) * n
+    f += [np.stack([np.full(n, len(zs) * n), (k + 1) % n, k], 1)]
+    f += [np.stack([np.full(n, len(zs) * n + 1), last + k, last + (k + 1) % n], 1)]
+    return v, nrm, np.concatenate(f)
+
+
+def test_a_fold_at_a_parts_root_is_cut_not_turned_inside_out():
+    """A leg joined to the body by a band wound against its neighbours (a fold: ball pivoting
+    at a sparse leg's root, held-out legs, 3,000 points, seed 2) is orientable, so winding
+    propagation meets no conflict: it turns the whole leg over, inside out, with the body.
+    The fold is cut at its twisted faces instead, and the leg keeps its own outward winding;
+    a column without the fold is left whole."""
+    from recon.mesh import face_components, orientation_flips
+    from recon.triangulate import orient_consistently, twisted_faces
+
+    p, nrm, f = _folded_column(fold=False)
+    kept = orient_consistently(p, nrm, f)
+    assert len(kept) == len(f) and not twisted_faces(p, nrm, f).any()
+
+    p, nrm, f = _folded_column()
+    assert not orientation_flips(f)[1].any()  # orientable: no conflict to cut at
+    twist = twisted_faces(p, nrm, f)
+    kept = orient_consistently(p, nrm, f)
+    agree = np.einsum("ij,ij->i", face_area_vectors(p, kept), nrm[kept].sum(axis=1))
+    assert np.all(agree > 0)  # the leg faces outward (turned over: 144 faces inward)
+    assert len(kept) == len(f) - twist.sum() == len(f) - 2 * 12  # only the band is cut
+    assert face_components(kept, len(p))[0] == 2
+    assert not orientation_flips(kept)[0].any()  # each part wound consistently
+
+
 def _fibonacci_sphere(n=1200):
     """``n`` particles on a sphere about 0.9 r0 apart, and their outward normals."""
     i = np.arange(n) + 0.5
