@@ -15,6 +15,10 @@ Each is fitted with ``oprecon`` defaults and judged against the implicit surface
 components, genus (and the expected genus), watertight by the standard definition, crossing
 face pairs, Chamfer-L1 and F@1 % (÷ diagonal) from dense samples of the true surface. ``handles``
 counts handles also on an open mesh (``(2 c - b - chi) / 2``), where the genus is undefined.
+``inward %`` is the share of the mesh's area whose faces point into the shape (against the
+implicit function's gradient at the face's centroid): a part turned inside out keeps a mesh
+watertight with the right genus, so a fit that comes out right has it near 0 (a few faces at a
+rim that thins to nothing, where the centroid lies off the surface, can point either way).
 
 Example::
 
@@ -166,7 +170,24 @@ def make_scan(name: str, n: int, noise: float, seed: int) -> tuple[np.ndarray, n
     return pts, truth, genus
 
 
-def judge(vertices: np.ndarray, faces: np.ndarray, truth: np.ndarray) -> dict:
+def inward_share(vertices: np.ndarray, faces: np.ndarray, sdf: Sdf) -> float:
+    """Share of the area of ``faces`` whose normal points against ``sdf``'s gradient (central
+    differences at each face's centroid): 0 for a mesh wound outward, 1 inside out."""
+    tri = vertices[faces]
+    normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])  # twice the area
+    centre = tri.mean(axis=1)
+    step = 1e-5 * float(np.linalg.norm(np.ptp(vertices, axis=0)))
+    grad = np.stack([sdf(centre + step * e) - sdf(centre - step * e) for e in np.eye(3)], axis=1)
+    area = np.linalg.norm(normal, axis=1)
+    inward = np.einsum("ij,ij->i", grad, normal) < 0
+    return float(area[inward].sum() / max(area.sum(), 1e-300))
+
+
+def judge(
+    vertices: np.ndarray, faces: np.ndarray, truth: np.ndarray, sdf: Sdf | None = None
+) -> dict:
+    """Topology and accuracy of a mesh against dense samples ``truth`` of the true surface
+    (and, given its implicit function ``sdf``, the share of its area wound inward)."""
     from recon.intersections import self_intersections
     from recon.mesh import handle_count
     from recon.topology import mesh_topology
@@ -195,6 +216,7 @@ def judge(vertices: np.ndarray, faces: np.ndarray, truth: np.ndarray) -> dict:
         "crossings": int(len(self_intersections(vertices, faces))),
         "chamfer_l1": 0.5 * (d_mt.mean() + d_tm.mean()),
         "fscore": 2 * precision * recall / max(precision + recall, 1e-12),
+        "inward": None if sdf is None else inward_share(vertices, faces, sdf),
     }
 
 
@@ -215,9 +237,9 @@ def main() -> None:
 
     print(
         "| shape | points | loops | comps | genus (true) | handles | watertight | crossings | "
-        "CD-L1 | F@1% | particles | time s |"
+        "inward % | CD-L1 | F@1% | particles | time s |"
     )
-    print("|" + "---|" * 12)
+    print("|" + "---|" * 13)
     for name in args.shapes:
         pts, truth, genus = make_scan(name, args.points, args.noise, args.seed)
         t0 = time.perf_counter()
@@ -229,11 +251,12 @@ def main() -> None:
             args.save.mkdir(parents=True, exist_ok=True)
             write_points(args.save / f"{name}.input.ply", pts)
             write_mesh(args.save / f"{name}.ply", res.mesh.vertices, res.mesh.faces)
-        r = judge(res.mesh.vertices, res.mesh.faces, truth)
+        r = judge(res.mesh.vertices, res.mesh.faces, truth, SHAPES[name][0])
         print(
             f"| {name} | {len(pts):,} | {r['loops']} | {r['components']} | {r['genus']} "
             f"({genus}) | {r['handles']} | {'yes' if r['watertight'] else 'no'} | "
-            f"{r['crossings']} | {r['chamfer_l1']:.5f} | {r['fscore']:.3f} | "
+            f"{r['crossings']} | {100 * r['inward']:.1f} | {r['chamfer_l1']:.5f} | "
+            f"{r['fscore']:.3f} | "
             f"{res.report.particles:,} | {seconds:.1f} |",
             flush=True,
         )
