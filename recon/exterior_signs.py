@@ -12,6 +12,10 @@ A closed surface also tells the sign globally: the outward normal points to the 
 which the outside is reached. Here the outside is the free space a ball of radius
 ``BALL_RADIUS`` voxels reaches from beyond the data (a ball, not a point, so that gaps
 between sparse samples do not let it in), in a grid of about one median point spacing.
+Random samples leave gaps of every size, and one gap wide enough lets the ball into the
+whole inside: then both sides of most points are reached alike and the votes do not look
+closed (below). The next ball of ``BALL_RADII`` is tried then, so that the smallest ball
+that seals the data reads it (the smallest reaches farthest into narrow concave places).
 For each point, steps along ``+n`` and ``-n`` find the first outside voxel on each side;
 the side reached at least ``MARGIN`` voxels sooner wins. Across a thin part the far side
 is reached only after crossing the part; on a thick body the inside is never reached.
@@ -32,7 +36,14 @@ import numpy as np
 from scipy import ndimage
 from scipy.spatial import cKDTree
 
-__all__ = ["BALL_RADIUS", "MAX_CELLS", "PATCH_K", "exterior_votes", "resign_by_exterior"]
+__all__ = [
+    "BALL_RADII",
+    "BALL_RADIUS",
+    "MAX_CELLS",
+    "PATCH_K",
+    "exterior_votes",
+    "resign_by_exterior",
+]
 
 log = logging.getLogger(__name__)
 
@@ -40,6 +51,11 @@ log = logging.getLogger(__name__)
 #: occupied shell narrower than its diameter do not let it in (1.5 leaked into the bodies
 #: of the held-out eared and legs shapes at 3,000 points; 2.5 kept both sealed).
 BALL_RADIUS = 2.5
+#: The balls tried in turn [voxels] until the votes look closed: a leak floods the inside at
+#: once (the ears body of ``tests/test_exterior_signs.py`` at 5,000 and 6,000 points, 5 of 12
+#: samples: 21-22 % of the points vote right with the true normals at 2.5 voxels, 99-100 %
+#: at 3.5; at 4,000 points none leaks). Up to 4.5: a gap that lets that in is a hole.
+BALL_RADII = (BALL_RADIUS, 3.5, 4.5)
 #: The grid's longest side [voxels] at one point spacing a voxel. A scan longer than this
 #: many spacings (dense or large: bunny-clean's 40,000 points span 277) gets no vote: its
 #: thin parts are many spacings thick, which the orientation's thin-part pairs already sign
@@ -64,9 +80,12 @@ PATCH_K = 7
 BLOCK = 65_536
 
 
-def exterior_votes(points: np.ndarray, normals: np.ndarray, spacing: float) -> np.ndarray:
+def exterior_votes(
+    points: np.ndarray, normals: np.ndarray, spacing: float, ball: float = BALL_RADIUS
+) -> np.ndarray:
     """Per point: +1 when the outside is nearer along ``+n``, -1 when nearer along ``-n``,
-    0 when neither side wins (see the module docstring).
+    0 when neither side wins (see the module docstring), the outside being what a ball of
+    radius ``ball`` [voxels] reaches.
 
     Parameters
     ----------
@@ -81,7 +100,7 @@ def exterior_votes(points: np.ndarray, normals: np.ndarray, spacing: float) -> n
         return np.zeros(n, dtype=np.int8)
     lo = points.min(axis=0)
     extent = points.max(axis=0) - lo
-    pad = int(np.ceil(BALL_RADIUS)) + 3  # the ball fits round the data
+    pad = int(np.ceil(ball)) + 3  # the ball fits round the data
     h = float(spacing)
     if float(extent.max()) > h * (MAX_CELLS - 2 * pad):
         return np.zeros(n, dtype=np.int8)  # dense or large: no vote (``MAX_CELLS``)
@@ -91,12 +110,12 @@ def exterior_votes(points: np.ndarray, normals: np.ndarray, spacing: float) -> n
     occupied[cells[:, 0], cells[:, 1], cells[:, 2]] = True
     occupied = ndimage.binary_dilation(occupied, structure=np.ones((3, 3, 3), dtype=bool))
     free = ~occupied
-    centres = ndimage.distance_transform_edt(free) > BALL_RADIUS
+    centres = ndimage.distance_transform_edt(free) > ball
     labels, _ = ndimage.label(centres)
     outer = labels[0, 0, 0]  # the padded corner is always far outside
     if outer == 0:
         return np.zeros(n, dtype=np.int8)
-    outside = (ndimage.distance_transform_edt(labels != outer) <= BALL_RADIUS + 0.5) & free
+    outside = (ndimage.distance_transform_edt(labels != outer) <= ball + 0.5) & free
     del labels, centres, free, occupied
 
     steps = np.arange(0.5, REACH + 1e-9, 0.5)
@@ -119,13 +138,25 @@ def resign_by_exterior(
     points: np.ndarray, normals: np.ndarray, spacing: float, tree: cKDTree | None = None
 ) -> tuple[np.ndarray, int]:
     """Normals turned over where the exterior votes against them, when the data looks
-    closed (``MIN_DECIDED``, ``MIN_AGREE``); and how many were turned over. ``tree``: a
-    k-d tree of ``points`` (the fit's shared one; built here when None)."""
-    votes = exterior_votes(points, normals, spacing)
-    decided = int(np.count_nonzero(votes))
-    n_for = int(np.count_nonzero(votes > 0))
-    if decided < MIN_DECIDED * len(points) or n_for < MIN_AGREE * decided:
-        log.debug("exterior signs: not used (%d of %d vote, %d for)", decided, len(votes), n_for)
+    closed (``MIN_DECIDED``, ``MIN_AGREE``) to one of the balls ``BALL_RADII`` (the first
+    that does); and how many were turned over. ``tree``: a k-d tree of ``points`` (the
+    fit's shared one; built here when None)."""
+    for ball in BALL_RADII:
+        votes = exterior_votes(points, normals, spacing, ball)
+        decided = int(np.count_nonzero(votes))
+        n_for = int(np.count_nonzero(votes > 0))
+        if decided >= MIN_DECIDED * len(points) and n_for >= MIN_AGREE * decided:
+            break
+        log.debug(
+            "exterior signs: ball %.1f not used (%d of %d vote, %d for)",
+            ball,
+            decided,
+            len(votes),
+            n_for,
+        )
+        if decided == 0:
+            return normals, 0  # no vote at all (too large a scan): a larger ball gives none
+    else:
         return normals, 0
     # a patch turned inside out, not a lone point: its neighbours vote against it too (a lone
     # wrong vote near a thin part's rim is as likely as a lone wrong sign, which later stages
