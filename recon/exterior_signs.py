@@ -14,8 +14,10 @@ which the outside is reached. Here the outside is the free space a ball of radiu
 between sparse samples do not let it in), in a grid of about one median point spacing.
 Random samples leave gaps of every size, and one gap wide enough lets the ball into the
 whole inside: then both sides of most points are reached alike and the votes do not look
-closed (below). The next ball of ``BALL_RADII`` is tried then, so that the smallest ball
-that seals the data reads it (the smallest reaches farthest into narrow concave places).
+closed (below). The next ball of ``BALL_RADII`` is tried then: the first ball whose votes
+look closed reads the data (looking closed stands in for sealed; the smallest ball reaches
+farthest into narrow concave places). A point whose search reaches the outside on neither
+side does not vote.
 For each point, steps along ``+n`` and ``-n`` find the first outside voxel on each side;
 the side reached at least ``MARGIN`` voxels sooner wins. Across a thin part the far side
 is reached only after crossing the part; on a thick body the inside is never reached.
@@ -130,7 +132,10 @@ def exterior_votes(
             hit = outside[c[..., 0], c[..., 1], c[..., 2]]
             first.append(np.where(hit.any(axis=1), steps[np.argmax(hit, axis=1)], np.inf))
         front, back = first
-        votes[a:b] = np.where(front + MARGIN <= back, 1, np.where(back + MARGIN <= front, -1, 0))
+        # a side wins only when it reaches the outside (two sides that never do tie: no vote)
+        up = np.isfinite(front) & (front + MARGIN <= back)
+        down = np.isfinite(back) & (back + MARGIN <= front)
+        votes[a:b] = np.where(up, 1, np.where(down, -1, 0))
     return votes
 
 
@@ -154,8 +159,6 @@ def resign_by_exterior(
             len(votes),
             n_for,
         )
-        if decided == 0:
-            return normals, 0  # no vote at all (too large a scan): a larger ball gives none
     else:
         return normals, 0
     # a patch turned inside out, not a lone point: its neighbours vote against it too (a lone

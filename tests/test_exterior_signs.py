@@ -105,6 +105,22 @@ def test_votes_on_a_closed_body_point_outward():
     assert np.all(exterior_votes(u, -u, spacing(u)) == -1)
 
 
+def test_a_point_that_reaches_the_outside_on_neither_side_does_not_vote():
+    """Regression (second read, 2026-11-29): a point from which neither side reaches the
+    outside within the search (here the centre of a sampled sphere, 1 / 0.04 = 25 voxels
+    from its shell) voted +1, for whatever sign it had, and counted towards a vote that
+    looks closed. It ties: no vote."""
+    rng = np.random.default_rng(1)
+    u = rng.normal(size=(2000, 3))
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    p = np.vstack([u, [[0.0, 0.0, 0.0]]])
+    n = np.vstack([u, [[0.0, 0.0, 1.0]]])
+    votes = exterior_votes(p, n, spacing(u))
+    assert votes[-1] == 0
+    assert np.all(votes[:-1] == 1)
+    assert exterior_votes(p, -n, spacing(u))[-1] == 0
+
+
 def test_an_open_sheet_gives_no_decision_and_keeps_its_signs():
     """An open scan has no inside: both sides of a hemisphere are reached alike, and the
     signs (here pointing inward, toward a viewpoint at its centre) stay as they are."""
