@@ -33,6 +33,7 @@ disagree too (a patch inside out); directions never change.
 from __future__ import annotations
 
 import logging
+from collections.abc import Iterator
 
 import numpy as np
 from scipy import ndimage
@@ -97,31 +98,67 @@ def exterior_votes(
         The data's median nearest-neighbour distance: the voxel. No point votes when the
         data spans more than ``MAX_CELLS`` voxels (less the padding).
     """
+    return next(_votes_by_ball(points, normals, spacing, (ball,)))
+
+
+def _votes_by_ball(
+    points: np.ndarray, normals: np.ndarray, spacing: float, balls: tuple[float, ...]
+) -> Iterator[np.ndarray]:
+    """:func:`exterior_votes` for each of ``balls`` in turn, computed when asked for. The
+    occupancy grid and the distance transform of its free space do not depend on the ball:
+    they are built once, padded for the largest ball that passes the size test (more
+    padding adds free space far outside only, so every ball's votes are as on its own
+    grid)."""
     n = len(points)
+    pads = [int(np.ceil(ball)) + 3 for ball in balls]  # each ball fits round the data
     if n == 0 or not np.isfinite(spacing) or spacing <= 0.0:
-        return np.zeros(n, dtype=np.int8)
-    lo = points.min(axis=0)
-    extent = points.max(axis=0) - lo
-    pad = int(np.ceil(ball)) + 3  # the ball fits round the data
-    h = float(spacing)
-    if float(extent.max()) > h * (MAX_CELLS - 2 * pad):
-        return np.zeros(n, dtype=np.int8)  # dense or large: no vote (``MAX_CELLS``)
+        fits = [False] * len(balls)
+    else:
+        lo = points.min(axis=0)
+        extent = points.max(axis=0) - lo
+        h = float(spacing)
+        # dense or large: no vote (``MAX_CELLS``)
+        fits = [float(extent.max()) <= h * (MAX_CELLS - 2 * pad) for pad in pads]
+    if not any(fits):
+        for _ in balls:
+            yield np.zeros(n, dtype=np.int8)
+        return
+    pad = max(p for p, ok in zip(pads, fits, strict=True) if ok)
     shape = np.ceil(extent / h).astype(np.int64) + 2 * pad + 1
     occupied = np.zeros(tuple(shape), dtype=bool)
     cells = np.floor((points - lo) / h).astype(np.int64) + pad
     occupied[cells[:, 0], cells[:, 1], cells[:, 2]] = True
     occupied = ndimage.binary_dilation(occupied, structure=np.ones((3, 3, 3), dtype=bool))
     free = ~occupied
-    centres = ndimage.distance_transform_edt(free) > ball
-    labels, _ = ndimage.label(centres)
-    outer = labels[0, 0, 0]  # the padded corner is always far outside
-    if outer == 0:
-        return np.zeros(n, dtype=np.int8)
-    outside = (ndimage.distance_transform_edt(labels != outer) <= ball + 0.5) & free
-    del labels, centres, free, occupied
+    del occupied
+    clearance = ndimage.distance_transform_edt(free)
+    for ball, ok in zip(balls, fits, strict=True):
+        if not ok:
+            yield np.zeros(n, dtype=np.int8)
+            continue
+        labels, _ = ndimage.label(clearance > ball)
+        outer = labels[0, 0, 0]  # the padded corner is always far outside
+        if outer == 0:
+            yield np.zeros(n, dtype=np.int8)
+            continue
+        outside = (ndimage.distance_transform_edt(labels != outer) <= ball + 0.5) & free
+        del labels
+        yield _first_outside(points, normals, outside, lo, h, pad)
 
+
+def _first_outside(
+    points: np.ndarray,
+    normals: np.ndarray,
+    outside: np.ndarray,
+    lo: np.ndarray,
+    h: float,
+    pad: int,
+) -> np.ndarray:
+    """The votes of :func:`exterior_votes` from the grid's ``outside`` voxels (``h`` a
+    voxel, the data's lower corner ``lo`` at voxel ``pad``)."""
+    n = len(points)
     steps = np.arange(0.5, REACH + 1e-9, 0.5)
-    top = shape - 1
+    top = np.asarray(outside.shape) - 1
     votes = np.zeros(n, dtype=np.int8)
     for a in range(0, n, BLOCK):
         b = min(a + BLOCK, n)
@@ -146,8 +183,9 @@ def resign_by_exterior(
     closed (``MIN_DECIDED``, ``MIN_AGREE``) to one of the balls ``BALL_RADII`` (the first
     that does); and how many were turned over. ``tree``: a k-d tree of ``points`` (the
     fit's shared one; built here when None)."""
-    for ball in BALL_RADII:
-        votes = exterior_votes(points, normals, spacing, ball)
+    for ball, votes in zip(
+        BALL_RADII, _votes_by_ball(points, normals, spacing, BALL_RADII), strict=True
+    ):
         decided = int(np.count_nonzero(votes))
         n_for = int(np.count_nonzero(votes > 0))
         if decided >= MIN_DECIDED * len(points) and n_for >= MIN_AGREE * decided:

@@ -591,13 +591,14 @@ def orient_consistently(vertices: np.ndarray, normals: np.ndarray, faces: np.nda
     if against < MIN_COMPONENT_FACES:
         return out
     twist = twisted_faces(vertices, normals, faces)
-    if not twist.any() or int(twist.sum()) >= against:
+    n_twist = int(np.count_nonzero(twist))
+    if n_twist == 0 or n_twist >= against:
         return out  # the cut would cost at least what it sets right (or leave no face)
     cut, against_cut = _wound(vertices, normals, faces[~twist])
-    if int(twist.sum()) + against_cut < against:
+    if n_twist + against_cut < against:
         log.debug(
             "cut a fold at %d twisted faces (%d faces against their normals -> %d)",
-            int(twist.sum()),
+            n_twist,
             against,
             against_cut,
         )
