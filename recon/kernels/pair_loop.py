@@ -313,7 +313,7 @@ def pair_interaction(rx, ry, rz, nix, niy, niz, njx, njy, njz, oriented, coef, m
 @njit(inline="always", **_JIT)
 def _pair_terms(pr, po, pt, count, coef, mode, variable_rest):
     """Pass 2 of :func:`step_particles`: the terms of :func:`pair_interaction` (S&T92 eqs. 3-7)
-    for ``count`` gathered pairs (``pr`` rows r (3), s_ij, q_j (4), n_i (3); ``po`` oriented)
+    for ``count`` gathered pairs (``pr`` rows r (3), s_ij, n_j (3), n_i (3); ``po`` oriented)
     into ``pt`` rows E_ij, f_i (3), τ_i (3). Inlined (no array arguments at run time).
 
     :func:`step_particles` calls it with a constant ``mode`` for the polynomial weight: the
@@ -324,22 +324,16 @@ def _pair_terms(pr, po, pt, count, coef, mode, variable_rest):
     would differ in a vector math library, so they are not specialised."""
     for a in range(count):
         oriented = po[a]
-        if oriented:
-            njx, njy, njz = quaternion_normal(pr[4, a], pr[5, a], pr[6, a], pr[7, a])
-        else:
-            njx = 0.0
-            njy = 0.0
-            njz = 1.0
         t = pair_interaction(
             pr[0, a],
             pr[1, a],
             pr[2, a],
+            pr[7, a],
             pr[8, a],
             pr[9, a],
-            pr[10, a],
-            njx,
-            njy,
-            njz,
+            pr[4, a],
+            pr[5, a],
+            pr[6, a],
             oriented,
             coef,
             mode,
@@ -408,7 +402,8 @@ def step_particles(
 
     Rows are taken in blocks of ``_BLOCK``, each with its own scratch arrays (allocated once
     per block, not per particle), in three passes: (1) the list entries within the cutoff are
-    gathered branch-free, with r = x_j − x_i, s_ij, q_j, n_i and whether both are oriented;
+    gathered branch-free, with r = x_j − x_i, s_ij, n_j, n_i and whether both are oriented
+    (every normal is computed from its quaternion once per call, not once per pair);
     (2) the pair terms of the whole block are computed into the scratch
     (:func:`_pair_terms`, vectorised for the polynomial weight); (3) per row, the terms are
     summed in list order, then the anchors and the step. Each pair's arithmetic (no
@@ -487,13 +482,20 @@ def step_particles(
     has_anchors = coef.has_anchors != 0.0
     has_external = coef.has_external_force != 0.0
     # rows in blocks: one set of scratch rows per block (no allocation per particle)
+    # every particle's normal once per call (serial: a few flops per particle), so that the
+    # pairs gather n_j instead of computing it from q_j in every row that lists j
+    normal = np.empty((n, 3))
+    for i in range(n):
+        normal[i, 0], normal[i, 1], normal[i, 2] = quaternion_normal(
+            orientation[i, 0], orientation[i, 1], orientation[i, 2], orientation[i, 3]
+        )
     nblocks = (n + _BLOCK - 1) // _BLOCK
     for b in prange(nblocks):
         lo = b * _BLOCK
         hi = min(n, lo + _BLOCK)
         cap = offsets[hi] - offsets[lo]
         pj = np.empty(cap, dtype=np.int64)
-        pr = np.empty((11, cap))
+        pr = np.empty((10, cap))
         pt = np.empty((7, cap))
         po = np.empty(cap, dtype=np.bool_)
         start = np.empty(hi - lo + 1, dtype=np.int64)
@@ -523,23 +525,23 @@ def step_particles(
                 pr[3, count] = scale
                 count += not (rx * rx + ry * ry + rz * rz >= cutoff2 * (scale * scale))
         start[hi - lo] = count
-        # the frames of those pairs (pr[4:8] = q_j, pr[8:11] = n_i, po = both oriented), so
-        # that pass 2 reads the scratch only
+        # the normals of those pairs (pr[4:7] = n_j, pr[7:10] = n_i, po = both oriented; an
+        # unoriented particle's n_j is +z, unread), so that pass 2 reads the scratch only
         for i in range(lo, hi):
-            nix, niy, niz = quaternion_normal(
-                orientation[i, 0], orientation[i, 1], orientation[i, 2], orientation[i, 3]
-            )
+            nix = normal[i, 0]
+            niy = normal[i, 1]
+            niz = normal[i, 2]
             oriented_i = is_oriented[i]
             for a in range(start[i - lo], start[i - lo + 1]):
                 j = pj[a]
-                pr[4, a] = orientation[j, 0]
-                pr[5, a] = orientation[j, 1]
-                pr[6, a] = orientation[j, 2]
-                pr[7, a] = orientation[j, 3]
-                pr[8, a] = nix
-                pr[9, a] = niy
-                pr[10, a] = niz
-                po[a] = oriented_i and is_oriented[j]
+                oriented = oriented_i and is_oriented[j]
+                pr[4, a] = normal[j, 0] if oriented else 0.0
+                pr[5, a] = normal[j, 1] if oriented else 0.0
+                pr[6, a] = normal[j, 2] if oriented else 1.0
+                pr[7, a] = nix
+                pr[8, a] = niy
+                pr[9, a] = niz
+                po[a] = oriented
         # pass 2: the pair terms (S&T92 eqs. 3-7) of the whole block into pt
         if mode == WEIGHT_POLY:
             _pair_terms(pr, po, pt, count, coef, WEIGHT_POLY, variable_rest)
@@ -567,7 +569,9 @@ def step_particles(
                 and math.isfinite(w0 + w1 + w2)
             ):
                 status |= STATUS_BAD_INPUT
-            nix, niy, niz = quaternion_normal(qw, qx, qy, qz)
+            nix = normal[i, 0]
+            niy = normal[i, 1]
+            niz = normal[i, 2]
             oriented_i = is_oriented[i]
             active = not (integrate and is_pinned[i])
 
@@ -600,8 +604,7 @@ def step_particles(
                     sv1 += v1 - velocity[j, 1]
                     sv2 += v2 - velocity[j, 2]
                 if beta3 != 0.0 and po[a]:
-                    njx, njy, njz = quaternion_normal(pr[4, a], pr[5, a], pr[6, a], pr[7, a])
-                    if nix * njx + niy * njy + niz * njz >= 0.0:
+                    if nix * pr[4, a] + niy * pr[5, a] + niz * pr[6, a] >= 0.0:
                         sw0 += w0 - angular_velocity[j, 0]
                         sw1 += w1 - angular_velocity[j, 1]
                         sw2 += w2 - angular_velocity[j, 2]
