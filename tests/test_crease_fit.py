@@ -7,6 +7,7 @@ import dataclasses
 from pathlib import Path
 
 import numpy as np
+import open3d as o3d
 import pytest
 from mesh_shapes import wedge_points
 from scipy.spatial import cKDTree
@@ -626,6 +627,15 @@ def test_lblock_keeps_its_edges_end_to_end():
     assert np.median(point_to_mesh_distance(res.mesh.vertices[crease], *_lines_mesh(segs))) < 1e-3
     rep = res.report.creases
     assert rep is not None and rep.corners >= 8 and 0.7 * 10.2 < rep.length < 1.1 * 10.2
+    # the faces on the planes through 0 are exactly flat: no rounding residue below the
+    # coordinates' precision (708 coordinates of 1e-23 to 1e-17 were left; one disjoint pair
+    # of them made Open3D's is_watertight() false on lblock-clean)
+    v = res.mesh.vertices
+    assert not np.any((v != 0.0) & (np.abs(v) < np.spacing(np.abs(v).max())))
+    o3d_mesh = o3d.geometry.TriangleMesh(
+        o3d.utility.Vector3dVector(v), o3d.utility.Vector3iVector(res.mesh.faces.astype(np.int32))
+    )
+    assert o3d_mesh.is_watertight() and o3d_mesh.is_vertex_manifold()
 
 
 def _lines_mesh(segs):
@@ -716,8 +726,10 @@ def test_open3d_reports_two_disjoint_coplanar_triangles_with_1e_19_scatter():
     scatter of ~1e-18 becomes ~1e-6, the size of that test's coplanarity epsilon, so the
     triangles count neither as coplanar nor as clearly apart. Exactly coplanar (scatter 0) or
     with a scatter of 1e-16 and more, they are not reported. The faces of lblock-clean lie on
-    the planes x, y, z = 0, where the fit's rounding leaves such scatter (about 400 coordinates
-    between 1e-23 and 1e-17)."""
+    the planes x, y, z = 0, where the fit's rounding left such scatter (about 400 coordinates
+    between 1e-23 and 1e-17); the fit now rounds its vertices to the precision of their
+    largest coordinate (:func:`recon.geometry.snap_to_precision`), which makes them exactly 0
+    (:func:`test_lblock_keeps_its_edges_end_to_end`)."""
     import open3d as o3d
 
     from recon.intersections import self_intersections

@@ -10,6 +10,7 @@ from recon.geometry import (
     bbox_diagonal,
     fit_plane,
     median_nearest_neighbor_distance,
+    snap_to_precision,
     unit_vectors,
 )
 
@@ -98,3 +99,22 @@ def test_median_spacing_from_known_nearest_distances_is_the_queried_one():
         pts, 500, rng=np.random.default_rng(1), nearest=2 * nearest
     )
     assert wrong == 2 * want  # the given distances are used, not queried again
+
+
+def test_snap_to_precision_drops_the_digits_below_the_largest_coordinates_ulp():
+    """Rounding residues near 0 (far below the precision of the mesh's coordinates) become
+    exact zeros, so a face on the plane y = 0 is exactly flat; nothing moves by more than
+    half an ulp of the largest coordinate, the largest are unchanged, and snapping twice is
+    snapping once."""
+    x = np.random.default_rng(3).normal(scale=0.4, size=(500, 3))
+    x[:50, 1] = np.random.default_rng(4).normal(scale=1e-18, size=50)  # residues on y = 0
+    x[50:60, 1] = 0.0
+    y = snap_to_precision(x)
+    ulp = np.spacing(np.abs(x).max())
+    assert np.all(y[:60, 1] == 0.0)
+    assert np.abs(y - x).max() <= 0.5 * ulp
+    big = np.abs(x) >= 2.0 ** (np.frexp(np.abs(x).max())[1] - 1)  # the largest's binade
+    np.testing.assert_array_equal(y[big], x[big])
+    np.testing.assert_array_equal(snap_to_precision(y), y)
+    assert snap_to_precision(np.zeros((0, 3))).shape == (0, 3)
+    np.testing.assert_array_equal(snap_to_precision(np.zeros((2, 3))), np.zeros((2, 3)))

@@ -43,7 +43,7 @@ from ..crease_surface import CreaseField
 from ..creases import Creases, detect_creases
 from ..errors import InputError
 from ..exterior_signs import resign_by_exterior
-from ..geometry import bbox_diagonal
+from ..geometry import bbox_diagonal, snap_to_precision
 from ..kernels.options import query_workers, thread_count
 from ..kernels.warm import warm_fit_kernels
 from ..neighbors import PointGrid
@@ -599,7 +599,9 @@ def _reconstruct(cloud: PointCloud, cfg: ReconConfig, on_progress: ProgressFn | 
     clock.check()
 
     origin = np.asarray(cloud.origin, dtype=np.float64)
-    vertices = tri.vertices * r0 + origin
+    # (the digits below the coordinates' own precision dropped: faces on an axis-aligned plane
+    # stay exactly flat, also on the plane through 0)
+    vertices = snap_to_precision(tri.vertices * r0 + origin)
     mesh = Mesh(vertices, tri.faces, tri.normals, tri.crease)
     particles = Particles(state.position * r0 + origin, state.normal.copy())
 
