@@ -208,22 +208,25 @@ def unit_vectors(vectors: np.ndarray) -> np.ndarray:
 
 
 def snap_to_precision(coordinates: np.ndarray) -> np.ndarray:
-    """``coordinates`` rounded to multiples of the float64 resolution at their largest
-    magnitude (one ulp of ``max |x|``, a power of two): the digits below it are rounding noise
-    of the arithmetic that made them, not geometry.
+    """``coordinates`` (float64) rounded to multiples of the float64 resolution at their
+    largest magnitude (one ulp of ``max |x|``, a power of two): the digits below it are
+    rounding noise of the arithmetic that made them, not geometry.
 
     Near zero float64 resolves far finer than at the mesh's size, so a vertex on a face in the
-    plane y = 0 keeps residues such as 5e-19 where one on y = 0.4 rounds to the plane exactly.
-    Snapped, every face on an axis-aligned plane is exactly flat wherever it lies. Other tools'
-    triangle tests, which are not exact, take such nearly coplanar neighbours for crossing
-    faces: Open3D's ``is_watertight()`` failed on an L-block fit for one disjoint pair on
-    y = 0 (issue 11). Each coordinate moves by at most half an ulp of the largest; the
-    largest are unchanged. Scaling by a power of two and rounding to an integer are exact.
+    plane y = 0 keeps residues such as 5e-19. Snapped, they become exact zeros (never -0.0), and
+    faces on the planes through 0 are exactly flat. Elsewhere a plane's coordinates keep the
+    rounding they had (values in the largest's binade do not move; smaller ones move to the
+    grid). Other tools' triangle tests, which are not exact, take nearly coplanar disjoint faces
+    for crossing ones: Open3D's ``is_watertight()`` failed on an L-block fit for one pair on
+    y = 0 (issue 11). Each coordinate moves by at most half an ulp of the largest. Scaling by
+    a power of two and rounding to an integer are exact, so snapping twice is snapping once.
+    An array holding NaN or inf (or only zeros) is returned as float64, unchanged.
 
     Examples
     --------
-    >>> snap_to_precision(np.array([[1.0, 5e-19, 0.4]]))
-    array([[1. , 0. , 0.4]])
+    >>> snap_to_precision(np.array([[1.0, 5e-19, -0.25], [-1e-20, 0.5, 0.75]]))
+    array([[ 1.  ,  0.  , -0.25],
+           [ 0.  ,  0.5 ,  0.75]])
     """
     x = np.asarray(coordinates, dtype=np.float64)
     if x.size == 0:
@@ -231,8 +234,8 @@ def snap_to_precision(coordinates: np.ndarray) -> np.ndarray:
     largest = float(np.max(np.abs(x)))
     if not np.isfinite(largest) or largest == 0.0:
         return x
-    quantum = float(np.spacing(np.float64(2.0) ** np.frexp(largest)[1] / 2.0))
-    return np.round(x / quantum) * quantum
+    quantum = float(np.spacing(np.ldexp(1.0, int(np.frexp(largest)[1]) - 1)))
+    return np.round(x / quantum) * quantum + 0.0  # (+ 0.0: -0.0 becomes 0.0)
 
 
 def poisson_disk_thin(

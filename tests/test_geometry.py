@@ -116,5 +116,9 @@ def test_snap_to_precision_drops_the_digits_below_the_largest_coordinates_ulp():
     big = np.abs(x) >= 2.0 ** (np.frexp(np.abs(x).max())[1] - 1)  # the largest's binade
     np.testing.assert_array_equal(y[big], x[big])
     np.testing.assert_array_equal(snap_to_precision(y), y)
+    assert not np.signbit(y[:60, 1]).any()  # negative residues become 0.0, not -0.0
+    # near the largest double the quantum is still a power of two (no overflow to inf/NaN)
+    huge = snap_to_precision(np.array([[1e308, 1.0, -1e-19]]))
+    assert np.isfinite(huge).all() and huge[0, 0] == 1e308 and not huge[0, 1:].any()
     assert snap_to_precision(np.zeros((0, 3))).shape == (0, 3)
     np.testing.assert_array_equal(snap_to_precision(np.zeros((2, 3))), np.zeros((2, 3)))

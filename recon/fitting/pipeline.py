@@ -599,8 +599,8 @@ def _reconstruct(cloud: PointCloud, cfg: ReconConfig, on_progress: ProgressFn | 
     clock.check()
 
     origin = np.asarray(cloud.origin, dtype=np.float64)
-    # (the digits below the coordinates' own precision dropped: faces on an axis-aligned plane
-    # stay exactly flat, also on the plane through 0)
+    # (the digits below the coordinates' own precision dropped: faces on a plane through 0
+    # are exactly flat, as Open3D's self-intersection test needs; tiled fits are not snapped)
     vertices = snap_to_precision(tri.vertices * r0 + origin)
     mesh = Mesh(vertices, tri.faces, tri.normals, tri.crease)
     particles = Particles(state.position * r0 + origin, state.normal.copy())

@@ -481,7 +481,6 @@ def step_particles(
     max_turn = coef.max_rotation
     has_anchors = coef.has_anchors != 0.0
     has_external = coef.has_external_force != 0.0
-    # rows in blocks: one set of scratch rows per block (no allocation per particle)
     # every particle's normal once per call (serial: a few flops per particle), so that the
     # pairs gather n_j instead of computing it from q_j in every row that lists j
     normal = np.empty((n, 3))
@@ -489,6 +488,7 @@ def step_particles(
         normal[i, 0], normal[i, 1], normal[i, 2] = quaternion_normal(
             orientation[i, 0], orientation[i, 1], orientation[i, 2], orientation[i, 3]
         )
+    # rows in blocks: one set of scratch rows per block (no allocation per particle)
     nblocks = (n + _BLOCK - 1) // _BLOCK
     for b in prange(nblocks):
         lo = b * _BLOCK
@@ -525,8 +525,9 @@ def step_particles(
                 pr[3, count] = scale
                 count += not (rx * rx + ry * ry + rz * rz >= cutoff2 * (scale * scale))
         start[hi - lo] = count
-        # the normals of those pairs (pr[4:7] = n_j, pr[7:10] = n_i, po = both oriented; an
-        # unoriented particle's n_j is +z, unread), so that pass 2 reads the scratch only
+        # the normals of those pairs (pr[4:7] = n_j, pr[7:10] = n_i, po = both oriented; in a
+        # pair that is not both oriented n_j is +z, unread), so that pass 2 reads the scratch
+        # only
         for i in range(lo, hi):
             nix = normal[i, 0]
             niy = normal[i, 1]
