@@ -32,7 +32,7 @@ from .kernels.cell_list import (
     sublist_within,
 )
 from .kernels.grid_query import coordinate_extent, covered_kernel, grid_build, knn_grid_kernel
-from .kernels.options import query_workers, thread_limit
+from .kernels.options import ThreadChooser, query_workers, thread_limit, timed_threads
 
 PARALLEL_MIN_PARTICLES = 30_000
 """Below this many particles the kernels run in the calling thread only.
@@ -254,6 +254,14 @@ FAST_FRACTION = 0.05
 #: Shells searched around a query's cell before :class:`PointGrid` hands the query to a k-d tree.
 GRID_MAX_RING = 3
 
+#: :class:`PointGrid`'s k-nearest queries (one chooser per k: the cost per query grows with k)
+#: and coverage tests run threaded or serial, whichever was faster lately. The answers do not
+#: depend on it. Below ``PARALLEL_MIN_PARTICLES`` queries they ran serial before: a fit's
+#: growth rounds and coverage tests query 2,000-30,000 points at a time (bunny-clean: the
+#: grid kernels 0.27 -> 0.21 s per fit, the same mesh; docs/performance-history.md).
+_QUERY_THREADS: dict[int, ThreadChooser] = {}
+_COVER_THREADS = ThreadChooser()
+
 
 class PointGrid:
     """Static points binned once into a hashed cell grid: exact nearest-point queries.
@@ -310,7 +318,8 @@ class PointGrid:
         if m and self.n:
             ok = np.zeros(m, dtype=np.bool_)
             if self.grid is not None:
-                with thread_limit(m >= PARALLEL_MIN_PARTICLES):
+                chooser = _QUERY_THREADS.setdefault(k, ThreadChooser())
+                with timed_threads(chooser, m, PARALLEL_MIN_PARTICLES):
                     knn_grid_kernel(q, self.grid, self.cell_size, k, GRID_MAX_RING, dist, idx, ok)
                 idx[idx < 0] = self.n
             rest = np.flatnonzero(~ok)
@@ -330,6 +339,6 @@ class PointGrid:
             d, _ = self.query(q, k=1)
             return d <= radius
         out = np.zeros(len(q), dtype=np.bool_)
-        with thread_limit(len(q) >= PARALLEL_MIN_PARTICLES):
+        with timed_threads(_COVER_THREADS, len(q), PARALLEL_MIN_PARTICLES):
             covered_kernel(q, self.grid, self.cell_size, float(radius), out)
         return out

@@ -6,11 +6,13 @@ from __future__ import annotations
 import numba
 import numpy as np
 import pytest
+from scipy.spatial import cKDTree
 
 from recon.config import ReconConfig
 from recon.dynamics import Simulation
 from recon.kernels import options
 from recon.kernels.options import PROBE_EVERY, TIMED_MIN_ITEMS, ThreadChooser, thread_count
+from recon.neighbors import PointGrid
 from recon.params import PhysicsParams
 from recon.state import ParticleState
 from tests.reference import hex_sheet, unit
@@ -105,3 +107,28 @@ def test_a_clear_loser_is_re_timed_ever_more_rarely(threaded_s, rare):
         assert 1 <= probes <= calls // options.PROBE_EVERY_MAX + 4
     else:  # within PROBE_BACKOFF: every PROBE_EVERY calls
         assert probes >= calls // PROBE_EVERY - 2
+
+
+@needs_two
+def test_point_grid_queries_ask_a_chooser_and_answer_the_same_either_way(monkeypatch):
+    """Grid queries of fewer than PARALLEL_MIN_PARTICLES points (a growth round's, the
+    coverage test's) are timed both ways by a chooser, and the answers do not depend on it."""
+    asked = []
+    flips = iter(range(10**6))
+
+    def parallel(self, n, always=None):
+        asked.append(n)
+        return next(flips) % 2 == 1
+
+    monkeypatch.setattr(options.ThreadChooser, "parallel", parallel)
+    rng = np.random.default_rng(3)
+    points, query = rng.uniform(size=(20_000, 3)), rng.uniform(size=(5_000, 3))
+    grid = PointGrid(points, 0.05)
+    knn = [grid.query(query, k=4) for _ in range(2)]  # one threaded, one serial
+    cover = [grid.covered(query, 0.02) for _ in range(2)]
+    assert asked == [5_000] * 4
+    assert np.array_equal(knn[0][0], knn[1][0]) and np.array_equal(knn[0][1], knn[1][1])
+    assert np.array_equal(cover[0], cover[1])
+    dist, idx = cKDTree(points).query(query, k=4)
+    assert np.array_equal(knn[0][1], idx) and np.allclose(knn[0][0], dist)
+    assert np.array_equal(cover[0], cKDTree(points).query(query)[0] <= 0.02)
