@@ -35,10 +35,11 @@ from .kernels.grid_query import coordinate_extent, covered_kernel, grid_build, k
 from .kernels.options import ThreadChooser, query_workers, thread_limit, timed_threads
 
 PARALLEL_MIN_PARTICLES = 30_000
-"""Below this many particles the kernels run in the calling thread only and from it threaded,
-except those that time both ways and take the faster
-(:class:`~recon.kernels.options.ThreadChooser`): the step, the list builds and the anchors at
-every size, and :class:`PointGrid`'s queries below this size (threaded from it).
+"""From this many particles the kernels run threaded, below it in the calling thread, except
+those that time both ways and take the faster (:class:`~recon.kernels.options.ThreadChooser`,
+from ``TIMED_MIN_ITEMS`` items): the step and the list builds (unless ``ALWAYS_THREADED`` or a
+simulation's ``parallel`` decides), the anchors, and :class:`PointGrid`'s queries below this
+size.
 
 Measured (median step time, sphere, 2 cores): with the other core mostly idle two threads win
 from ~2,000 particles (5k: 1.0 vs 2.0 ms), but with both cores busy with other work a parallel

@@ -132,3 +132,15 @@ def test_point_grid_queries_ask_a_chooser_and_answer_the_same_either_way(monkeyp
     dist, idx = cKDTree(points).query(query, k=4)
     assert np.array_equal(knn[0][1], idx) and np.allclose(knn[0][0], dist)
     assert np.array_equal(cover[0], cKDTree(points).query(query)[0] <= 0.02)
+
+
+def test_a_call_forced_threaded_is_not_timed():
+    """timed_threads does not let a call that ``always`` forces threaded (more items than the
+    timed calls) into the chooser's running means."""
+    chooser = ThreadChooser()
+    with options.timed_threads(chooser, N, always=N) as parallel:
+        assert parallel
+    assert chooser._per_item == [None, None] and chooser._warm == [False, False]
+    with options.timed_threads(chooser, N, always=N + 1):
+        pass
+    assert chooser._warm != [False, False]  # a timed call is recorded (its first warms up)

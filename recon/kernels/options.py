@@ -230,9 +230,15 @@ class ThreadChooser:
 def timed_threads(chooser: ThreadChooser, n: int, always: int | None = None) -> Iterator[bool]:
     """Run the block threaded or not as ``chooser`` decides for ``n`` items, and time it.
 
+    A call that ``always`` (or the chooser's own) forces threaded is not timed: its cost per
+    item, on more items than any timed call, would skew the threaded mode's running mean.
+
     Yields the decision (True: threaded)."""
+    limit = chooser.always if always is None else always
+    forced = limit is not None and n >= limit
     parallel = chooser.parallel(n, always)
     start = time.perf_counter()
     with thread_limit(parallel):
         yield parallel
-    chooser.record(parallel, time.perf_counter() - start, n)
+    if not forced:
+        chooser.record(parallel, time.perf_counter() - start, n)
