@@ -185,11 +185,17 @@ class ThreadChooser:
         self._probe: int | None = None  # the mode being re-timed (0 serial, 1 threaded)
         self._warm = [False, False]  # first calls (allocations, cold caches) are not timed
 
-    def parallel(self, n: int, always: int | None = None) -> bool:
-        """Whether the next call on ``n`` items should run threaded (``always``: threaded from
-        this many items, overriding the constructor's; None there and here: never forced)."""
+    def forced(self, n: int, always: int | None = None) -> bool:
+        """Whether a call on ``n`` items runs threaded whatever the timings say (``always``:
+        threaded from this many items, overriding the constructor's; None there and here:
+        never forced)."""
         limit = self.always if always is None else always
-        if limit is not None and n >= limit:
+        return limit is not None and n >= limit
+
+    def parallel(self, n: int, always: int | None = None) -> bool:
+        """Whether the next call on ``n`` items should run threaded (:meth:`forced`, else by
+        the timings)."""
+        if self.forced(n, always):
             return True
         if n < TIMED_MIN_ITEMS or numba.get_num_threads() < 2:
             return False
@@ -234,8 +240,7 @@ def timed_threads(chooser: ThreadChooser, n: int, always: int | None = None) -> 
     item, on more items than any timed call, would skew the threaded mode's running mean.
 
     Yields the decision (True: threaded)."""
-    limit = chooser.always if always is None else always
-    forced = limit is not None and n >= limit
+    forced = chooser.forced(n, always)
     parallel = chooser.parallel(n, always)
     start = time.perf_counter()
     with thread_limit(parallel):
