@@ -63,6 +63,7 @@ from .circularity import circularity_pair
 from .lennard_jones import lj_pair
 from .normality import normality_pair
 from .options import JIT_OPTIONS
+from .pair_terms import isotropic_orientation_terms, polynomial_pair_terms
 from .planarity import planarity_pair
 from .quaternion import quaternion_normal, rotate_quaternion
 from .weights import WEIGHT_ANISOTROPIC, WEIGHT_POLY, pair_weights
@@ -102,75 +103,6 @@ def _add_scaled(acc, w, t):
         acc[8] + w * t[8],
         acc[9] + w * t[9],
     )
-
-
-@njit(inline="always", **_JIT)
-def isotropic_orientation_terms(
-    rx, ry, rz, nix, niy, niz, njx, njy, njz, a, b, psi, dpsi, w_p, w_n, w_c, s2
-):
-    r"""Weighted sum of the three orientation terms for an isotropic weight ψ(d) (fast path).
-
-    Algebraically identical to α_P·:func:`~recon.kernels.planarity.planarity_pair` +
-    α_N·:func:`~recon.kernels.normality.normality_pair` +
-    α_C·:func:`~recon.kernels.circularity.circularity_pair` with ψ_i = ψ_j = ψ and κ = 0
-    (S&T92 eqs. 3–5, T-thesis 4.13, 4.14, 4.17), sharing the common factors.
-
-    Parameters
-    ----------
-    a, b : float64
-        n_i·r and n_j·r [length].
-    psi, dpsi : float64
-        h(d²) and h′(d²) (:func:`recon.kernels.weights.weight_value`).
-    w_p, w_n, w_c : float64
-        α_P, α_N, α_C.
-    s2 : float64
-        1/r0².
-
-    Returns
-    -------
-    tuple of 10 float64
-        (E, f_i (3), τ_i (3), τ_j (3)).
-
-    Notes
-    -----
-    With m = n_i + n_j, e = m·r = a + b, c = |n_i − n_j|² and
-    Φ = α_P s (a² + b²) + α_N c + α_C s e²:
-
-    .. math::
-
-        E &= \Phi\,\psi \\
-        f_i &= 2\psi\,[\alpha_P s\,(a n_i + b n_j) + \alpha_C s\, e\, m] + 2h'\Phi\, r \\
-        \tau_i &= -2\psi s\,(\alpha_P a + \alpha_C e)(n_i \times r)
-                  + 2\alpha_N\psi\,(n_i \times n_j) \\
-        \tau_j &= -2\psi s\,(\alpha_P b + \alpha_C e)(n_j \times r)
-                  - 2\alpha_N\psi\,(n_i \times n_j)
-    """
-    dx = nix - njx
-    dy = niy - njy
-    dz = niz - njz
-    c = dx * dx + dy * dy + dz * dz
-    e = a + b
-    wps = w_p * s2
-    wcs = w_c * s2
-    phi = wps * (a * a + b * b) + w_n * c + wcs * e * e
-    energy = phi * psi
-    ci = 2.0 * psi * (wps * a + wcs * e)
-    cj = 2.0 * psi * (wps * b + wcs * e)
-    cr = 2.0 * dpsi * phi
-    fx = ci * nix + cj * njx + cr * rx
-    fy = ci * niy + cj * njy + cr * ry
-    fz = ci * niz + cj * njz + cr * rz
-    cn = 2.0 * w_n * psi
-    cx = niy * njz - niz * njy
-    cy = niz * njx - nix * njz
-    cz = nix * njy - niy * njx
-    tix = cn * cx - ci * (niy * rz - niz * ry)
-    tiy = cn * cy - ci * (niz * rx - nix * rz)
-    tiz = cn * cz - ci * (nix * ry - niy * rx)
-    tjx = -cn * cx - cj * (njy * rz - njz * ry)
-    tjy = -cn * cy - cj * (njz * rx - njx * rz)
-    tjz = -cn * cz - cj * (njx * ry - njy * rx)
-    return energy, fx, fy, fz, tix, tiy, tiz, tjx, tjy, tjz
 
 
 @njit(inline="always", **_JIT)
@@ -214,7 +146,8 @@ def pair_interaction(rx, ry, rz, nix, niy, niz, njx, njy, njz, oriented, coef, m
     :mod:`~recon.kernels.planarity` (eq. 3), :mod:`~recon.kernels.normality` (eq. 4) and
     :mod:`~recon.kernels.circularity` (eq. 5), weighted by :mod:`~recon.kernels.weights`
     (eq. 7 for the anisotropic form). For the isotropic weights the three orientation terms are
-    evaluated together by :func:`isotropic_orientation_terms` (same values, fewer operations).
+    evaluated together by
+    :func:`~recon.kernels.pair_terms.isotropic_orientation_terms` (same values, fewer operations).
 
     Opposed sheets (n_i · n_j < 0, both oriented, ``separate_opposed``; DESIGN §8): the two
     sides of a thin part must neither attract nor align, so the pair keeps only the repulsive
@@ -316,36 +249,53 @@ def _pair_terms(pr, po, pt, count, coef, mode, variable_rest):
     for ``count`` gathered pairs (``pr`` rows r (3), s_ij, n_j (3), n_i (3); ``po`` oriented)
     into ``pt`` rows E_ij, f_i (3), τ_i (3). Inlined (no array arguments at run time).
 
-    :func:`step_particles` calls it with a constant ``mode`` for the polynomial weight: the
-    loop reads and writes only contiguous scratch rows and LLVM vectorises it (width 8 with
-    AVX-512; with a variable ``mode`` its cost model declines). A SIMD lane performs the
-    scalar operations (add, multiply, divide, square root: exactly rounded; no ``contract``
-    or ``reassoc``), so the terms are bit-identical. The Gaussian weights call ``exp``, which
-    would differ in a vector math library, so they are not specialised."""
+    :func:`step_particles` calls it with constant ``mode`` and ``variable_rest`` for the
+    polynomial weight, which takes the branch-free
+    :func:`~recon.kernels.pair_terms.polynomial_pair_terms`: the loop reads and writes only
+    contiguous scratch rows and LLVM vectorises it (width 4 with AVX2, 8 with AVX-512). A SIMD
+    lane performs the scalar operations (add, multiply, divide, square root: exactly rounded;
+    no ``contract`` or ``reassoc``), so the terms are bit-identical. The Gaussian weights call
+    ``exp``, which would differ in a vector math library, so they keep the reference."""
     for a in range(count):
-        oriented = po[a]
-        t = pair_interaction(
-            pr[0, a],
-            pr[1, a],
-            pr[2, a],
-            pr[7, a],
-            pr[8, a],
-            pr[9, a],
-            pr[4, a],
-            pr[5, a],
-            pr[6, a],
-            oriented,
-            coef,
-            mode,
-            pr[3, a] if variable_rest else 1.0,
-        )
-        pt[0, a] = t[0]
-        pt[1, a] = t[1]
-        pt[2, a] = t[2]
-        pt[3, a] = t[3]
-        pt[4, a] = t[4]
-        pt[5, a] = t[5]
-        pt[6, a] = t[6]
+        if mode == WEIGHT_POLY:
+            e, fx, fy, fz, tx, ty, tz = polynomial_pair_terms(
+                pr[0, a],
+                pr[1, a],
+                pr[2, a],
+                pr[7, a],
+                pr[8, a],
+                pr[9, a],
+                pr[4, a],
+                pr[5, a],
+                pr[6, a],
+                po[a],
+                coef,
+                pr[3, a],
+                variable_rest,
+            )
+        else:
+            e, fx, fy, fz, tx, ty, tz, _, _, _ = pair_interaction(
+                pr[0, a],
+                pr[1, a],
+                pr[2, a],
+                pr[7, a],
+                pr[8, a],
+                pr[9, a],
+                pr[4, a],
+                pr[5, a],
+                pr[6, a],
+                po[a],
+                coef,
+                mode,
+                pr[3, a] if variable_rest else 1.0,
+            )
+        pt[0, a] = e
+        pt[1, a] = fx
+        pt[2, a] = fy
+        pt[3, a] = fz
+        pt[4, a] = tx
+        pt[5, a] = ty
+        pt[6, a] = tz
 
 
 @njit(**_JIT)
@@ -544,8 +494,10 @@ def step_particles(
                 pr[9, a] = niz
                 po[a] = oriented
         # pass 2: the pair terms (S&T92 eqs. 3-7) of the whole block into pt
-        if mode == WEIGHT_POLY:
-            _pair_terms(pr, po, pt, count, coef, WEIGHT_POLY, variable_rest)
+        if mode == WEIGHT_POLY and variable_rest:
+            _pair_terms(pr, po, pt, count, coef, WEIGHT_POLY, True)
+        elif mode == WEIGHT_POLY:
+            _pair_terms(pr, po, pt, count, coef, WEIGHT_POLY, False)
         else:
             _pair_terms(pr, po, pt, count, coef, mode, variable_rest)
         for i in range(lo, hi):

@@ -158,27 +158,3 @@ def test_serial_and_parallel_kernels_agree_bitwise():
     np.testing.assert_array_equal(a.force, b.force)
     np.testing.assert_array_equal(a.torque, b.torque)
     np.testing.assert_array_equal(a.energy_per_particle, b.energy_per_particle)
-
-
-def test_isotropic_fast_path_equals_the_term_kernels():
-    from recon.kernels.circularity import circularity_pair
-    from recon.kernels.normality import normality_pair
-    from recon.kernels.pair_loop import isotropic_orientation_terms
-    from recon.kernels.planarity import planarity_pair
-
-    rng = np.random.default_rng(9)
-    w_p, w_n, w_c, s2 = 1.1, 0.9, 0.6, 1 / 1.7**2
-    for _ in range(50):
-        r = rng.normal(size=3)
-        ni, nj = unit(rng.normal(size=(2, 3)))
-        psi, dpsi = rng.uniform(0, 1), rng.uniform(-1, 0)
-        args = (*r, *ni, *nj, psi, dpsi, psi, dpsi, 0.0)
-        expected = (
-            w_p * np.array(planarity_pair(*args, s2))
-            + w_n * np.array(normality_pair(*args))
-            + w_c * np.array(circularity_pair(*args, s2))
-        )
-        fast = isotropic_orientation_terms(
-            *r, *ni, *nj, ni @ r, nj @ r, psi, dpsi, w_p, w_n, w_c, s2
-        )
-        np.testing.assert_allclose(fast, expected, rtol=1e-12, atol=1e-14)
