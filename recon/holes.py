@@ -436,11 +436,18 @@ def loft_loops(
 
 
 def loft_nearest_loops(
-    vertices: np.ndarray, faces: np.ndarray, max_gap: float, spacing: np.ndarray | None = None
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    max_gap: float,
+    spacing: np.ndarray | None = None,
+    normals: np.ndarray | None = None,
 ) -> np.ndarray:
     """``faces`` with each pair of mutually nearest boundary loops joined by a strip
     (:func:`loft_loops`), when each loop's vertices lie within ``max_gap`` of the other's in
-    median (times the median ``spacing`` (per vertex) at the two loops' vertices).
+    median (times the median ``spacing`` (per vertex) at the two loops' vertices). With
+    ``normals`` (per vertex), only loops that face opposite ways are joined: the two faces of
+    a thin part (the median of n_v · n_w over one loop's vertices v, w the nearest vertex of
+    the other loop, is negative).
 
     This closes the edge of a part thinner than a spacing again where the faces across it
     were dropped (:func:`recon.triangulate.triangulate_particles`): the rims of its two faces
@@ -497,9 +504,21 @@ def loft_nearest_loops(
         if j < 0 or i >= j or nearest[j] != i:
             continue
         here = 1.0 if spacing is None else float(np.median(spacing[np.append(loops[i], loops[j])]))
+        facing = normals is None or _facing_away(vertices, normals, loops[i], loops[j], trees[j])
+        if not facing:
+            continue
         if best[i] <= max_gap * here:
             strips.append(loft_loops(vertices, loops[i], loops[j]))
     return np.concatenate([faces, *strips]) if strips else faces
+
+
+def _facing_away(
+    vertices: np.ndarray, normals: np.ndarray, a: np.ndarray, b: np.ndarray, tree_b: cKDTree
+) -> bool:
+    """Do loops ``a`` and ``b`` face opposite ways (the median of n_v · n_w over a's vertices
+    v, w the nearest vertex of b (``tree_b``: a k-d tree of b's vertices), is negative)?"""
+    nearest = b[tree_b.query(vertices[a])[1]]
+    return bool(np.median(np.einsum("ij,ij->i", normals[a], normals[nearest])) < 0.0)
 
 
 def thicken_sheet(

@@ -183,6 +183,7 @@ def triangulate_particles(
     result = _repair(positions, normals, faces, dict(stats), *args)
     handles = _count(result)[2]
     if handles == 0 and not _open_along_opposed(result):
+        result = _rims_lofted(result, positions, max_hole, args)
         return _parts_joined(result, resign)  # no handle, no thin edge left open in places
     # A tunnel between the two faces of a thin part (a bridge of faces joining opposed sheets
     # away from the part's rim) is a handle the surface does not have: drop the bridges that
@@ -242,6 +243,7 @@ def triangulate_particles(
     thick = _sheets_thickened(result)
     if thick is not None and _better(thick, result):
         result = thick
+    result = _rims_lofted(result, positions, max_hole, args)
     return _parts_joined(result, resign)
 
 
@@ -328,15 +330,41 @@ def _open_along_opposed(result: TriangulationResult) -> bool:
     return any(on_band[loop].any() for loop in loops)
 
 
+def _rims_lofted(
+    result: TriangulationResult, positions: np.ndarray, max_hole: float, args: tuple
+) -> TriangulationResult:
+    """``result`` with two open sheets joined by a strip where they are the two faces of one
+    thin part, if that is :func:`_better`. A part's faces mesh as two sheets when no particle
+    reaches round its edge (a blade thinner than a spacing): their rims are mutually nearest
+    loops facing opposite ways (:func:`recon.holes.loft_nearest_loops` with the normals).
+    Gaps up to ``max_hole``: the strip closes the hole between the rims."""
+    c, b, _ = _count(result)
+    if c < 2 or b < 2:
+        return result
+    reach = EDGE_REACH * 2.0 * max(args[0].radii)
+    gaps = sorted({g for g in (LOFT_GAP, reach, max_hole) if g <= max_hole})
+    for gap in gaps:
+        strip = _relofted(result, positions, gap, args, opposed=True)
+        if strip is not None and _better(strip, result):
+            log.debug("joined the rims of two opposed sheets within %.1f spacings", gap)
+            return strip
+    return result
+
+
 def _relofted(
-    alt: TriangulationResult, positions: np.ndarray, reach: float, args: tuple
+    alt: TriangulationResult,
+    positions: np.ndarray,
+    reach: float,
+    args: tuple,
+    opposed: bool = False,
 ) -> TriangulationResult | None:
     """``alt`` with its pairs of boundary loops within ``reach`` (local spacings) of each
-    other joined by strips (:func:`recon.holes.loft_nearest_loops`) and repaired again; None
-    without such a pair."""
+    other joined by strips (:func:`recon.holes.loft_nearest_loops`; with ``opposed`` only
+    loops that face opposite ways) and repaired again; None without such a pair."""
     scale = args[3]
     local = _spacing_at(scale, positions, alt.vertices)
-    faces = loft_nearest_loops(alt.vertices, alt.faces, reach, local)
+    normals = alt.normals if opposed else None
+    faces = loft_nearest_loops(alt.vertices, alt.faces, reach, local, normals)
     if len(faces) == len(alt.faces):
         return None
     return _repair(alt.vertices, alt.normals, faces, dict(alt.stats), *args[:3], local, alt.crease)

@@ -673,3 +673,35 @@ def test_a_tunnel_between_the_faces_of_a_thin_part_is_dropped_and_its_ends_cappe
         o3d.utility.Vector3dVector(res.vertices), o3d.utility.Vector3iVector(res.faces)
     )
     assert m.is_watertight() and m.is_vertex_manifold() and m.is_orientable()
+
+
+def _two_discs(gap, bottom_normal):
+    """Two hexagonal discs of particles (radius 6, spacing 1), ``gap`` apart along z, the top
+    one facing +z and the bottom one ``bottom_normal`` (-1: the two faces of a thin part)."""
+    p, n = _hex_sheet(16)
+    keep = np.linalg.norm(p[:, :2], axis=1) < 6.0
+    p, n = p[keep], n[keep]
+    top = p + [0.0, 0.0, gap / 2]
+    bottom = p - [0.0, 0.0, gap / 2]
+    return np.concatenate([top, bottom]), np.concatenate([n, n * bottom_normal])
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_two_opposed_sheets_are_joined_along_their_rims_within_max_hole(seed):
+    """A part's two faces meshed as two open sheets (no particle reached round its edge):
+    their rims run side by side and face opposite ways, so a strip closes the part when the
+    gap is within ``max_hole``; wider, or two sheets facing the same way, stay apart."""
+    p, n = _two_discs(3.0, -1.0)
+    p = p + np.random.default_rng(seed).normal(scale=0.02, size=p.shape)
+    joined = triangulate_particles(p, n, TriangulationConfig(), max_hole=4.0)
+    topo = mesh_topology(joined.vertices, joined.faces)
+    assert (topo["components"], topo["boundary_loops"], topo["genus"]) == (1, 0, 0)
+    assert topo["watertight"]
+    centre = joined.vertices.mean(axis=0)
+    outward = np.einsum("ij,ij->", face_area_vectors(joined.vertices, joined.faces),
+                        joined.vertices[joined.faces].mean(axis=1) - centre)  # fmt: skip
+    assert outward > 0  # wound outward, like the normals
+    apart = triangulate_particles(p, n, TriangulationConfig(), max_hole=2.0)
+    assert mesh_topology(apart.vertices, apart.faces)["components"] == 2
+    same_way = triangulate_particles(*_two_discs(3.0, 1.0), TriangulationConfig(), max_hole=4.0)
+    assert mesh_topology(same_way.vertices, same_way.faces)["components"] == 2
