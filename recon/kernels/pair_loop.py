@@ -63,7 +63,7 @@ from .circularity import circularity_pair
 from .lennard_jones import lj_pair
 from .normality import normality_pair
 from .options import JIT_OPTIONS
-from .pair_terms import isotropic_orientation_terms, polynomial_pair_terms
+from .pair_terms import isotropic_orientation_terms, pair_lengths, polynomial_pair_terms
 from .planarity import planarity_pair
 from .quaternion import quaternion_normal, rotate_quaternion
 from .weights import WEIGHT_ANISOTROPIC, WEIGHT_POLY, pair_weights
@@ -164,26 +164,10 @@ def pair_interaction(rx, ry, rz, nix, niy, niz, njx, njy, njz, oriented, coef, m
     """
     acc = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     d2 = rx * rx + ry * ry + rz * rz
-    if scale == 1.0:  # uniform spacing: the packed lengths as they are
-        cut2 = coef.cutoff2
-        cut = coef.cutoff
-        sigma2 = coef.lj_sigma2
-        dphi_c = coef.lj_dphi_cutoff
-        rep2 = coef.lj_repulsive2
-        inv_cut2 = coef.inv_cutoff2
-        inv_2sigma2 = coef.inv_2sigma2
-        s2 = coef.inv_spacing2
-    else:  # every length times s_ij (energies are dimensionless: unchanged)
-        sc2 = scale * scale
-        inv_sc2 = 1.0 / sc2
-        cut2 = coef.cutoff2 * sc2
-        cut = coef.cutoff * scale
-        sigma2 = coef.lj_sigma2 * sc2
-        dphi_c = coef.lj_dphi_cutoff / scale
-        rep2 = coef.lj_repulsive2 * sc2
-        inv_cut2 = coef.inv_cutoff2 * inv_sc2
-        inv_2sigma2 = coef.inv_2sigma2 * inv_sc2
-        s2 = coef.inv_spacing2 * inv_sc2
+    # uniform spacing (s_ij = 1): the packed lengths as they are
+    cut2, cut, sigma2, dphi_c, rep2, inv_cut2, inv_2sigma2, s2 = pair_lengths(
+        coef, scale, scale != 1.0
+    )
     if d2 >= cut2:
         return acc
     w_lj = coef.w_lj
@@ -257,37 +241,28 @@ def _pair_terms(pr, po, pt, count, coef, mode, variable_rest):
     no ``contract`` or ``reassoc``), so the terms are bit-identical. The Gaussian weights call
     ``exp``, which would differ in a vector math library, so they keep the reference."""
     for a in range(count):
+        rx, ry, rz, s_ij = pr[0, a], pr[1, a], pr[2, a], pr[3, a]
+        njx, njy, njz = pr[4, a], pr[5, a], pr[6, a]
+        nix, niy, niz = pr[7, a], pr[8, a], pr[9, a]
         if mode == WEIGHT_POLY:
             e, fx, fy, fz, tx, ty, tz = polynomial_pair_terms(
-                pr[0, a],
-                pr[1, a],
-                pr[2, a],
-                pr[7, a],
-                pr[8, a],
-                pr[9, a],
-                pr[4, a],
-                pr[5, a],
-                pr[6, a],
-                po[a],
-                coef,
-                pr[3, a],
-                variable_rest,
+                rx, ry, rz, nix, niy, niz, njx, njy, njz, po[a], coef, s_ij, variable_rest
             )
         else:
             e, fx, fy, fz, tx, ty, tz, _, _, _ = pair_interaction(
-                pr[0, a],
-                pr[1, a],
-                pr[2, a],
-                pr[7, a],
-                pr[8, a],
-                pr[9, a],
-                pr[4, a],
-                pr[5, a],
-                pr[6, a],
+                rx,
+                ry,
+                rz,
+                nix,
+                niy,
+                niz,
+                njx,
+                njy,
+                njz,
                 po[a],
                 coef,
                 mode,
-                pr[3, a] if variable_rest else 1.0,
+                s_ij if variable_rest else 1.0,
             )
         pt[0, a] = e
         pt[1, a] = fx

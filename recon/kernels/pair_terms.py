@@ -99,6 +99,41 @@ def isotropic_orientation_terms(
 
 
 @njit(inline="always", **JIT_OPTIONS)
+def pair_lengths(coef, scale, scaled):
+    """The lengths of a pair's terms (DESIGN §1, variable spacing): with ``scaled`` every
+    packed length of ``coef`` times s_ij = ``scale`` (energies are dimensionless:
+    unchanged), so that E_ij(r; s) = E_ij(r / s; 1); else the packed ones.
+
+    Returns
+    -------
+    (r_c², r_c, σ², φ′(r_c), d_m², 1/r_c², 1/(2σ_w²), 1/r0²) for the pair.
+    """
+    if scaled:
+        sc2 = scale * scale
+        inv_sc2 = 1.0 / sc2
+        return (
+            coef.cutoff2 * sc2,
+            coef.cutoff * scale,
+            coef.lj_sigma2 * sc2,
+            coef.lj_dphi_cutoff / scale,
+            coef.lj_repulsive2 * sc2,
+            coef.inv_cutoff2 * inv_sc2,
+            coef.inv_2sigma2 * inv_sc2,
+            coef.inv_spacing2 * inv_sc2,
+        )
+    return (
+        coef.cutoff2,
+        coef.cutoff,
+        coef.lj_sigma2,
+        coef.lj_dphi_cutoff,
+        coef.lj_repulsive2,
+        coef.inv_cutoff2,
+        coef.inv_2sigma2,
+        coef.inv_spacing2,
+    )
+
+
+@njit(inline="always", **JIT_OPTIONS)
 def polynomial_pair_terms(
     rx, ry, rz, nix, niy, niz, njx, njy, njz, oriented, coef, scale, variable_rest
 ):
@@ -130,24 +165,7 @@ def polynomial_pair_terms(
     for coincident particles; it is never selected) and the selection happens last.
     """
     d2 = rx * rx + ry * ry + rz * rz
-    if variable_rest:  # every length times s_ij, as the reference does for s_ij != 1
-        sc2 = scale * scale
-        inv_sc2 = 1.0 / sc2
-        cut2 = coef.cutoff2 * sc2
-        cut = coef.cutoff * scale
-        sigma2 = coef.lj_sigma2 * sc2
-        dphi_c = coef.lj_dphi_cutoff / scale
-        rep2 = coef.lj_repulsive2 * sc2
-        inv_cut2 = coef.inv_cutoff2 * inv_sc2
-        s2 = coef.inv_spacing2 * inv_sc2
-    else:
-        cut2 = coef.cutoff2
-        cut = coef.cutoff
-        sigma2 = coef.lj_sigma2
-        dphi_c = coef.lj_dphi_cutoff
-        rep2 = coef.lj_repulsive2
-        inv_cut2 = coef.inv_cutoff2
-        s2 = coef.inv_spacing2
+    cut2, cut, sigma2, dphi_c, rep2, inv_cut2, _, s2 = pair_lengths(coef, scale, variable_rest)
     w_lj = coef.w_lj
     w_p = coef.w_planarity
     w_n = coef.w_normality
