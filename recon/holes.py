@@ -445,9 +445,8 @@ def loft_nearest_loops(
     """``faces`` with each pair of mutually nearest boundary loops joined by a strip
     (:func:`loft_loops`), when each loop's vertices lie within ``max_gap`` of the other's in
     median (times the median ``spacing`` (per vertex) at the two loops' vertices). With
-    ``normals`` (per vertex), only loops that face opposite ways are joined: the two faces of
-    a thin part (the median of n_v · n_w over one loop's vertices v, w the nearest vertex of
-    the other loop, is negative).
+    ``normals`` (per vertex), only the rims of a thin part's two faces are paired: loops
+    that face opposite ways, each behind the other (:func:`_two_faces`).
 
     This closes the edge of a part thinner than a spacing again where the faces across it
     were dropped (:func:`recon.triangulate.triangulate_particles`): the rims of its two faces
@@ -480,6 +479,11 @@ def loft_nearest_loops(
     close = cKDTree(vertices[np.concatenate(loops)]).query_pairs(reach, output_type="ndarray")
     pairs = np.unique(np.sort(owner[close], axis=1), axis=0) if len(close) else np.zeros((0, 2))
     pairs = pairs[pairs[:, 0] != pairs[:, 1]].astype(np.int64)
+    if normals is not None:  # only the two faces of a thin part are candidates
+        faces_of_part = [
+            _two_faces(vertices, normals, loops[i], loops[j], trees[j]) for i, j in pairs
+        ]
+        pairs = pairs[np.array(faces_of_part, dtype=bool).reshape(-1)]
     gap = np.array(
         [
             max(
@@ -504,21 +508,22 @@ def loft_nearest_loops(
         if j < 0 or i >= j or nearest[j] != i:
             continue
         here = 1.0 if spacing is None else float(np.median(spacing[np.append(loops[i], loops[j])]))
-        facing = normals is None or _facing_away(vertices, normals, loops[i], loops[j], trees[j])
-        if not facing:
-            continue
         if best[i] <= max_gap * here:
             strips.append(loft_loops(vertices, loops[i], loops[j]))
     return np.concatenate([faces, *strips]) if strips else faces
 
 
-def _facing_away(
+def _two_faces(
     vertices: np.ndarray, normals: np.ndarray, a: np.ndarray, b: np.ndarray, tree_b: cKDTree
 ) -> bool:
-    """Do loops ``a`` and ``b`` face opposite ways (the median of n_v · n_w over a's vertices
-    v, w the nearest vertex of b (``tree_b``: a k-d tree of b's vertices), is negative)?"""
+    """Are loops ``a`` and ``b`` the rims of a thin part's two faces? Over a's vertices v, with
+    w the nearest vertex of b (``tree_b``: a k-d tree of b's vertices), the medians of
+    n_v · n_w (they face opposite ways) and of n_v · (x_w − x_v) (each lies behind the other,
+    not in front of it as two walls facing each other across a slot) are negative."""
     nearest = b[tree_b.query(vertices[a])[1]]
-    return bool(np.median(np.einsum("ij,ij->i", normals[a], normals[nearest])) < 0.0)
+    opposite = np.einsum("ij,ij->i", normals[a], normals[nearest])
+    behind = np.einsum("ij,ij->i", normals[a], vertices[nearest] - vertices[a])
+    return bool(np.median(opposite) < 0.0 and np.median(behind) < 0.0)
 
 
 def thicken_sheet(

@@ -31,12 +31,7 @@ from scipy.spatial import cKDTree
 
 from .config import TriangulationConfig
 from .crease_mesh import flip_straddling_edges, insert_crease_edges, pivot_positions
-from .holes import (
-    fill_small_holes,
-    join_closed_parts,
-    loft_nearest_loops,
-    zip_supported_loops,
-)
+from .holes import fill_small_holes, join_closed_parts, loft_nearest_loops, zip_supported_loops
 from .kernels.circumsphere import circumsphere_kernel
 from .kernels.mesh_tables import circumradii, half_edge_winding
 from .mesh import (
@@ -119,6 +114,7 @@ def triangulate_particles(
     local_spacing: np.ndarray | None = None,
     crease: np.ndarray | None = None,
     resign: bool = True,
+    join_sheets: bool = True,
 ) -> TriangulationResult:
     """Mesh the particles (normalised units, r0 = 1) with a topology guarantee.
 
@@ -152,6 +148,9 @@ def triangulate_particles(
         Re-sign the normals over the particle sheet first (:func:`consistent_normals`), as
         normals from a point cloud need. False when their signs are known (taken from an
         oriented mesh, as ``remesh`` does).
+    join_sheets : bool
+        Join two open sheets that are a thin part's two faces along their rims
+        (:func:`_rims_lofted`). False for a tile (its cut leaves such rims) and a remesh.
     """
     positions = np.ascontiguousarray(positions, dtype=np.float64)
     normals = np.ascontiguousarray(normals, dtype=np.float64)
@@ -183,7 +182,7 @@ def triangulate_particles(
     result = _repair(positions, normals, faces, dict(stats), *args)
     handles = _count(result)[2]
     if handles == 0 and not _open_along_opposed(result):
-        result = _rims_lofted(result, positions, max_hole, args)
+        result = _rims_lofted(result, positions, max_hole, args) if join_sheets else result
         return _parts_joined(result, resign)  # no handle, no thin edge left open in places
     # A tunnel between the two faces of a thin part (a bridge of faces joining opposed sheets
     # away from the part's rim) is a handle the surface does not have: drop the bridges that
@@ -243,7 +242,7 @@ def triangulate_particles(
     thick = _sheets_thickened(result)
     if thick is not None and _better(thick, result):
         result = thick
-    result = _rims_lofted(result, positions, max_hole, args)
+    result = _rims_lofted(result, positions, max_hole, args) if join_sheets else result
     return _parts_joined(result, resign)
 
 
@@ -336,8 +335,8 @@ def _rims_lofted(
     """``result`` with two open sheets joined by a strip where they are the two faces of one
     thin part, if that is :func:`_better`. A part's faces mesh as two sheets when no particle
     reaches round its edge (a blade thinner than a spacing): their rims are mutually nearest
-    loops facing opposite ways (:func:`recon.holes.loft_nearest_loops` with the normals).
-    Gaps up to ``max_hole``: the strip closes the hole between the rims."""
+    loops, facing opposite ways, each behind the other (:func:`recon.holes.loft_nearest_loops`
+    with the normals). Gaps up to ``max_hole``: the strip closes the hole between the rims."""
     c, b, _ = _count(result)
     if c < 2 or b < 2:
         return result

@@ -675,23 +675,24 @@ def test_a_tunnel_between_the_faces_of_a_thin_part_is_dropped_and_its_ends_cappe
     assert m.is_watertight() and m.is_vertex_manifold() and m.is_orientable()
 
 
-def _two_discs(gap, bottom_normal):
-    """Two hexagonal discs of particles (radius 6, spacing 1), ``gap`` apart along z, the top
-    one facing +z and the bottom one ``bottom_normal`` (-1: the two faces of a thin part)."""
+def _two_discs(gap, top_normal, bottom_normal):
+    """Two hexagonal discs of particles (radius 6, spacing 1), ``gap`` apart along z, facing
+    ``top_normal`` and ``bottom_normal`` along z (+1, -1: the two faces of a thin part)."""
     p, n = _hex_sheet(16)
     keep = np.linalg.norm(p[:, :2], axis=1) < 6.0
     p, n = p[keep], n[keep]
     top = p + [0.0, 0.0, gap / 2]
     bottom = p - [0.0, 0.0, gap / 2]
-    return np.concatenate([top, bottom]), np.concatenate([n, n * bottom_normal])
+    return np.concatenate([top, bottom]), np.concatenate([n * top_normal, n * bottom_normal])
 
 
 @pytest.mark.parametrize("seed", [0, 1])
 def test_two_opposed_sheets_are_joined_along_their_rims_within_max_hole(seed):
     """A part's two faces meshed as two open sheets (no particle reached round its edge):
     their rims run side by side and face opposite ways, so a strip closes the part when the
-    gap is within ``max_hole``; wider, or two sheets facing the same way, stay apart."""
-    p, n = _two_discs(3.0, -1.0)
+    gap is within ``max_hole``. Wider, two sheets facing the same way, two walls facing each
+    other (a slot), or a tile's triangulation (``join_sheets=False``): they stay apart."""
+    p, n = _two_discs(3.0, 1.0, -1.0)
     p = p + np.random.default_rng(seed).normal(scale=0.02, size=p.shape)
     joined = triangulate_particles(p, n, TriangulationConfig(), max_hole=4.0)
     topo = mesh_topology(joined.vertices, joined.faces)
@@ -703,5 +704,10 @@ def test_two_opposed_sheets_are_joined_along_their_rims_within_max_hole(seed):
     assert outward > 0  # wound outward, like the normals
     apart = triangulate_particles(p, n, TriangulationConfig(), max_hole=2.0)
     assert mesh_topology(apart.vertices, apart.faces)["components"] == 2
-    same_way = triangulate_particles(*_two_discs(3.0, 1.0), TriangulationConfig(), max_hole=4.0)
-    assert mesh_topology(same_way.vertices, same_way.faces)["components"] == 2
+    for top, bottom in ((1.0, 1.0), (-1.0, 1.0)):  # the same way; towards each other
+        p2, n2 = _two_discs(3.0, top, bottom)
+        for resign in (True, False):
+            kept = triangulate_particles(p2, n2, TriangulationConfig(), 4.0, resign=resign)
+            assert mesh_topology(kept.vertices, kept.faces)["components"] == 2
+    tile = triangulate_particles(p, n, TriangulationConfig(), max_hole=4.0, join_sheets=False)
+    assert mesh_topology(tile.vertices, tile.faces)["components"] == 2

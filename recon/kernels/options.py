@@ -16,7 +16,8 @@ All kernels are compiled with ``cache=True`` and a reduced ``fastmath`` flag set
 What remains (``nsz``, ``arcp``, ``afn``) lets LLVM use reciprocals and ignore signed zeros.
 
 Numba's cache is keyed on the source file of each jitted function only: after editing a kernel
-module that others call (quaternion, weights, the term modules, local_surface, this file), delete
+module that others call (quaternion, weights, the term modules, pair_terms, local_surface, this
+file), delete
 ``recon/kernels/__pycache__/*.nb[ic]`` so that the callers are recompiled.
 
 References

@@ -164,7 +164,7 @@ def pair_interaction(rx, ry, rz, nix, niy, niz, njx, njy, njz, oriented, coef, m
     """
     acc = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     d2 = rx * rx + ry * ry + rz * rz
-    # uniform spacing (s_ij = 1): the packed lengths as they are
+    # the packed lengths for uniform spacing (s_ij = 1), else every length times s_ij
     cut2, cut, sigma2, dphi_c, rep2, inv_cut2, inv_2sigma2, s2 = pair_lengths(
         coef, scale, scale != 1.0
     )
@@ -236,10 +236,10 @@ def _pair_terms(pr, po, pt, count, coef, mode, variable_rest):
     :func:`step_particles` calls it with constant ``mode`` and ``variable_rest`` for the
     polynomial weight, which takes the branch-free
     :func:`~recon.kernels.pair_terms.polynomial_pair_terms`: the loop reads and writes only
-    contiguous scratch rows and LLVM vectorises it (width 4 with AVX2, 8 with AVX-512). A SIMD
-    lane performs the scalar operations (add, multiply, divide, square root: exactly rounded;
-    no ``contract`` or ``reassoc``), so the terms are bit-identical. The Gaussian weights call
-    ``exp``, which would differ in a vector math library, so they keep the reference."""
+    contiguous scratch rows and LLVM vectorises it (4 lanes with AVX2, up to 8 with AVX-512).
+    A SIMD lane performs the scalar operations (add, multiply, divide, square root: exactly
+    rounded; no ``contract`` or ``reassoc``), so the terms are bit-identical. The Gaussian
+    weights call ``exp``, which would differ in a vector math library: they keep the reference."""
     for a in range(count):
         rx, ry, rz, s_ij = pr[0, a], pr[1, a], pr[2, a], pr[3, a]
         njx, njy, njz = pr[4, a], pr[5, a], pr[6, a]

@@ -160,9 +160,12 @@ def polynomial_pair_terms(
     With h(q) = (1 − q/r_c²)² for q < r_c² (:func:`recon.kernels.weights.weight_value`),
     the energy is α_LJ φ_sf(d) plus, for two oriented particles whose normals are not opposed,
     the isotropic orientation terms (:func:`isotropic_orientation_terms`); for opposed normals
-    (``separate_opposed``) the repulsive branch α_LJ [φ_sf(d) − φ_sf(d_m)] for d < d_m, and 0
-    beyond the cutoff. Every candidate is computed (an unused one may be infinite or NaN, as
-    for coincident particles; it is never selected) and the selection happens last.
+    (``separate_opposed``) only the repulsive branch α_LJ [φ_sf(d) − φ_sf(d_m)], 0 from d_m on.
+    Every pair is 0 from the cutoff on. Every candidate is computed (an unused one may be
+    infinite or NaN, as for coincident particles; it is never selected) and the selection
+    happens last. The comparisons are the reference's, negated (``not (d2 >= cut2)``, not
+    ``d2 < cut2``), so that a NaN distance gives NaN terms, as there; a torque is ``0.0 + τ``,
+    as the reference's sum is (+0 for −0).
     """
     d2 = rx * rx + ry * ry + rz * rz
     cut2, cut, sigma2, dphi_c, rep2, inv_cut2, _, s2 = pair_lengths(coef, scale, variable_rest)
@@ -183,13 +186,13 @@ def polynomial_pair_terms(
     ri = nix * rx + niy * ry + niz * rz
     rj = njx * rx + njy * ry + njz * rz
     t = 1.0 - d2 * inv_cut2
-    psi = t * t if t > 0.0 else 0.0
-    dpsi = -2.0 * t * inv_cut2 if t > 0.0 else 0.0
+    psi = 0.0 if t <= 0.0 else t * t
+    dpsi = 0.0 if t <= 0.0 else -2.0 * t * inv_cut2
     e, fx, fy, fz, tx, ty, tz, _, _, _ = isotropic_orientation_terms(
         rx, ry, rz, nix, niy, niz, njx, njy, njz, ri, rj, psi, dpsi, w_p, w_n, w_c, s2
     )
     # the selection
-    within = d2 < cut2 and not (opposed and not (has_lj and d2 < rep2))
+    within = not (d2 >= cut2) and not (opposed and not (has_lj and not (d2 >= rep2)))
     turn = within and oriented and not opposed and not (w_p == 0.0 and w_n == 0.0 and w_c == 0.0)
     if opposed:
         e_lj = w_lj * (phi - coef.lj_phi_repulsive)
@@ -198,7 +201,7 @@ def polynomial_pair_terms(
         (fx_lj + fx if turn else fx_lj) if within else 0.0,
         (fy_lj + fy if turn else fy_lj) if within else 0.0,
         (fz_lj + fz if turn else fz_lj) if within else 0.0,
-        tx if turn else 0.0,
-        ty if turn else 0.0,
-        tz if turn else 0.0,
+        0.0 + tx if turn else 0.0,
+        0.0 + ty if turn else 0.0,
+        0.0 + tz if turn else 0.0,
     )

@@ -616,6 +616,7 @@ def _triangulate(surface: MeshSurface, lines: FeatureLines, particles: Particles
             is_covered,
             local_spacing=particles.rest[idx] if adaptive else None,
             resign=False,  # the signs come from the input's oriented faces
+            join_sheets=False,  # the input's components are its own
         )
         for k, v in tri.stats.items():
             if isinstance(v, int):

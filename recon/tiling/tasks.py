@@ -428,6 +428,7 @@ def mesh_task(job: MeshJob) -> dict:
             is_covered=is_covered,
             local_spacing=spacing,
             crease=crease,
+            join_sheets=False,  # a thin part's faces cut by the tile are not its edge
         )
         if len(tri.faces) == 0:
             return tri, np.zeros(0, dtype=np.int64), tri.vertices, 0, 0
