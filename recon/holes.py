@@ -446,7 +446,7 @@ def loft_nearest_loops(
     (:func:`loft_loops`), when each loop's vertices lie within ``max_gap`` of the other's in
     median (times the median ``spacing`` (per vertex) at the two loops' vertices). With
     ``normals`` (per vertex), only the rims of a thin part's two faces are paired: loops
-    that face opposite ways, each behind the other (:func:`_two_faces`).
+    that face opposite ways, each behind the other, seen from either (:func:`_two_faces`).
 
     This closes the edge of a part thinner than a spacing again where the faces across it
     were dropped (:func:`recon.triangulate.triangulate_particles`): the rims of its two faces
@@ -481,7 +481,8 @@ def loft_nearest_loops(
     pairs = pairs[pairs[:, 0] != pairs[:, 1]].astype(np.int64)
     if normals is not None:  # only the two faces of a thin part are candidates
         faces_of_part = [
-            _two_faces(vertices, normals, loops[i], loops[j], trees[j]) for i, j in pairs
+            _two_faces(vertices, normals, loops[i], loops[j], (trees[i], trees[j]))
+            for i, j in pairs
         ]
         pairs = pairs[np.array(faces_of_part, dtype=bool).reshape(-1)]
     gap = np.array(
@@ -514,16 +515,21 @@ def loft_nearest_loops(
 
 
 def _two_faces(
-    vertices: np.ndarray, normals: np.ndarray, a: np.ndarray, b: np.ndarray, tree_b: cKDTree
+    vertices: np.ndarray, normals: np.ndarray, a: np.ndarray, b: np.ndarray, trees: tuple
 ) -> bool:
-    """Are loops ``a`` and ``b`` the rims of a thin part's two faces? Over a's vertices v, with
-    w the nearest vertex of b (``tree_b``: a k-d tree of b's vertices), the medians of
-    n_v · n_w (they face opposite ways) and of n_v · (x_w − x_v) (each lies behind the other,
-    not in front of it as two walls facing each other across a slot) are negative."""
-    nearest = b[tree_b.query(vertices[a])[1]]
-    opposite = np.einsum("ij,ij->i", normals[a], normals[nearest])
-    behind = np.einsum("ij,ij->i", normals[a], vertices[nearest] - vertices[a])
-    return bool(np.median(opposite) < 0.0 and np.median(behind) < 0.0)
+    """Are loops ``a`` and ``b`` the rims of a thin part's two faces? From either loop, over
+    its vertices v with w the other loop's nearest vertex (``trees``: k-d trees of a's and
+    b's vertices), the medians of n_v · n_w (they face opposite ways) and of
+    n_v · (x_w − x_v) (the other lies behind, not in front as a wall facing it across a slot)
+    are negative. Symmetric: the answer does not depend on which loop is ``a``."""
+
+    def seen_from(p: np.ndarray, q: np.ndarray, tree_q: cKDTree) -> bool:
+        nearest = q[tree_q.query(vertices[p])[1]]
+        opposite = np.einsum("ij,ij->i", normals[p], normals[nearest])
+        behind = np.einsum("ij,ij->i", normals[p], vertices[nearest] - vertices[p])
+        return bool(np.median(opposite) < 0.0 and np.median(behind) < 0.0)
+
+    return seen_from(a, b, trees[1]) and seen_from(b, a, trees[0])
 
 
 def thicken_sheet(

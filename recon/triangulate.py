@@ -358,8 +358,8 @@ def _relofted(
     opposed: bool = False,
 ) -> TriangulationResult | None:
     """``alt`` with its pairs of boundary loops within ``reach`` (local spacings) of each
-    other joined by strips (:func:`recon.holes.loft_nearest_loops`; with ``opposed`` only
-    loops that face opposite ways) and repaired again; None without such a pair."""
+    other joined by strips (:func:`recon.holes.loft_nearest_loops`; with ``opposed`` only a
+    thin part's two rims, facing apart, each behind the other) and repaired; None without."""
     scale = args[3]
     local = _spacing_at(scale, positions, alt.vertices)
     normals = alt.normals if opposed else None

@@ -191,3 +191,41 @@ def test_nearest_loops_are_lofted_as_with_every_pair_measured(seed):
         expected = _loft_all_pairs(v, f, gap, s)
         assert np.array_equal(loft_nearest_loops(v, f, gap, s), expected)
     assert len(_loft_all_pairs(v, f, 6.0, spacing)) > len(f)  # some pairs are joined
+
+
+def _ring_fan(radius, z, normal_of, k=12):
+    """A fan round a centre: ring ``radius`` at height ``z`` (vertices 0..k-1, centre k) and
+    each vertex's normal ``normal_of(radial unit vector)``."""
+    t = np.linspace(0, 2 * np.pi, k, endpoint=False)
+    radial = np.stack([np.cos(t), np.sin(t), np.zeros(k)], axis=1)
+    v = np.concatenate([radial * radius + [0, 0, z], [[0, 0, z]]])
+    n = np.concatenate([normal_of(radial), normal_of(np.zeros((1, 3)))])
+    i = np.arange(k)
+    return v, n, np.stack([np.full(k, k), (i + 1) % k, i], axis=1)
+
+
+@pytest.mark.parametrize("b_first", [False, True])
+def test_a_thin_parts_two_rims_are_judged_the_same_from_either_loop(b_first):
+    """The rims of a thin part's two faces face apart and each lies behind the other, seen
+    from either loop: a pair that passes from one side only (B's normals lean over A's rim,
+    so A is in front of B) is not lofted, whichever loop comes first."""
+
+    def up(radial):
+        return np.tile([0.0, 0.0, 1.0], (len(radial), 1))
+
+    def down(radial):
+        return -up(radial)
+
+    def leaning(radial):  # 30 deg from -z, inwards over A's rim
+        n = -0.5 * radial + [0.0, 0.0, -np.sqrt(0.75)]
+        return n / np.linalg.norm(n, axis=1, keepdims=True)
+
+    for b_normal, joined in ((down, True), (leaning, False)):
+        parts = [_ring_fan(1.0, 0.0, up), _ring_fan(2.0, -0.2, b_normal)]
+        if b_first:
+            parts = parts[::-1]
+        (va, na, fa), (vb, nb, fb) = parts
+        v, n = np.concatenate([va, vb]), np.concatenate([na, nb])
+        f = np.concatenate([fa, fb + len(va)])
+        lofted = loft_nearest_loops(v, f, 4.0, None, n)
+        assert (len(lofted) > len(f)) == joined

@@ -165,7 +165,7 @@ def polynomial_pair_terms(
     infinite or NaN, as for coincident particles; it is never selected) and the selection
     happens last. The comparisons are the reference's, negated (``not (d2 >= cut2)``, not
     ``d2 < cut2``), so that a NaN distance gives NaN terms, as there; a torque is ``0.0 + τ``,
-    as the reference's sum is (+0 for −0).
+    as the reference's sum is (+0 for −0 without the JIT; with ``nsz`` both reduce to τ).
     """
     d2 = rx * rx + ry * ry + rz * rz
     cut2, cut, sigma2, dphi_c, rep2, inv_cut2, _, s2 = pair_lengths(coef, scale, variable_rest)
