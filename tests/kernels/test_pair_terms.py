@@ -100,6 +100,7 @@ def _pairs(rng: np.random.Generator, n: int, cutoff: float) -> tuple[np.ndarray,
         pr[0:3, COINCIDENT] = 0.0  # infinite spacing terms, as in the reference
     pr[0, NAN_ROWS] = np.nan  # a NaN separation: NaN terms, as in the reference
     ni[NAN_ROWS] = nj[NAN_ROWS] = [0.0, 0.0, 1.0]
+    nj[NAN_ROWS.start] = [0.0, 0.0, -1.0]  # and opposed: the repulsive branch's NaN
     po[NAN_ROWS] = True
     k = np.arange(AXIS_ROWS.stop - AXIS_ROWS.start)
     pr[0:3, AXIS_ROWS] = 0.0
@@ -146,7 +147,9 @@ def test_branch_free_terms_equal_the_reference_bit_for_bit(variant, variable_res
     assert (~within[rest]).any() and (~po[rest] & within[rest]).any()
     assert (opposed & within & repulsive)[rest].any()
     assert (opposed & within & ~repulsive)[rest].any()
-    assert np.isnan(want[0:4, NAN_ROWS]).all()  # energy and force NaN, as they should be
+    nan_rows = want[0:4, NAN_ROWS]  # energy and force NaN (opposed: unless w_lj = 0, then 0)
+    assert np.isnan(nan_rows[:, 1:]).all()
+    assert np.isnan(nan_rows[:, 0]).all() or variant == "no spacing term"
     assert (want[4:7, rest] != 0.0).any() or variant == "no orientation terms"
 
 
