@@ -182,7 +182,7 @@ def triangulate_particles(
     result = _repair(positions, normals, faces, dict(stats), *args)
     handles = _count(result)[2]
     if handles == 0 and not _open_along_opposed(result):
-        result = _rims_lofted(result, positions, max_hole, args) if join_sheets else result
+        result = _rims_lofted(result, positions, args) if join_sheets else result
         return _parts_joined(result, resign)  # no handle, no thin edge left open in places
     # A tunnel between the two faces of a thin part (a bridge of faces joining opposed sheets
     # away from the part's rim) is a handle the surface does not have: drop the bridges that
@@ -242,7 +242,7 @@ def triangulate_particles(
     thick = _sheets_thickened(result)
     if thick is not None and _better(thick, result):
         result = thick
-    result = _rims_lofted(result, positions, max_hole, args) if join_sheets else result
+    result = _rims_lofted(result, positions, args) if join_sheets else result
     return _parts_joined(result, resign)
 
 
@@ -330,7 +330,7 @@ def _open_along_opposed(result: TriangulationResult) -> bool:
 
 
 def _rims_lofted(
-    result: TriangulationResult, positions: np.ndarray, max_hole: float, args: tuple
+    result: TriangulationResult, positions: np.ndarray, args: tuple
 ) -> TriangulationResult:
     """``result`` with two open sheets joined by a strip where they are the two faces of one
     thin part, if that is :func:`_better`. A part's faces mesh as two sheets when no particle
@@ -340,7 +340,8 @@ def _rims_lofted(
     c, b, _ = _count(result)
     if c < 2 or b < 2:
         return result
-    reach = EDGE_REACH * 2.0 * max(args[0].radii)
+    cfg, max_hole = args[:2]
+    reach = EDGE_REACH * 2.0 * max(cfg.radii)
     gaps = sorted({g for g in (LOFT_GAP, reach, max_hole) if g <= max_hole})
     for gap in gaps:
         strip = _relofted(result, positions, gap, args, opposed=True)

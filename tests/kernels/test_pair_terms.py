@@ -16,7 +16,7 @@ from recon.config import ReconConfig
 from recon.forces import pack_coefficients
 from recon.kernels.options import JIT_OPTIONS
 from recon.kernels.pair_loop import _pair_terms, pair_interaction
-from recon.kernels.pair_terms import isotropic_orientation_terms, polynomial_pair_terms
+from recon.kernels.pair_terms import isotropic_orientation_terms
 from recon.kernels.weights import WEIGHT_POLY
 from recon.params import PhysicsParams
 from tests.reference import unit
@@ -49,24 +49,16 @@ def test_isotropic_fast_path_equals_the_term_kernels():
 
 
 @njit(**_OPTIONS)
-def _simd_loop(pr, po, coef, variable_rest, out):
-    """The term loop as the step kernel runs it (contiguous rows, a constant ``variable_rest``)."""
-    if variable_rest:
-        for a in range(pr.shape[1]):
-            t = polynomial_pair_terms(
-                pr[0, a], pr[1, a], pr[2, a], pr[3, a], pr[4, a], pr[5, a], pr[6, a],
-                pr[7, a], pr[8, a], po[a], coef, pr[9, a], True,
-            )  # fmt: skip
-            for k in range(7):
-                out[k, a] = t[k]
-    else:
-        for a in range(pr.shape[1]):
-            t = polynomial_pair_terms(
-                pr[0, a], pr[1, a], pr[2, a], pr[3, a], pr[4, a], pr[5, a], pr[6, a],
-                pr[7, a], pr[8, a], po[a], coef, pr[9, a], False,
-            )  # fmt: skip
-            for k in range(7):
-                out[k, a] = t[k]
+def _pass_two_uniform(pr, po, pt, count, coef):
+    """The step kernel's pass 2 as ``step_particles`` inlines it (scratch rows r (3), s_ij,
+    n_j (3), n_i (3); constant flags), for uniform spacing ..."""
+    _pair_terms(pr, po, pt, count, coef, WEIGHT_POLY, False)
+
+
+@njit(**_OPTIONS)
+def _pass_two_variable(pr, po, pt, count, coef):
+    """... and for per-particle rest spacings."""
+    _pair_terms(pr, po, pt, count, coef, WEIGHT_POLY, True)
 
 
 @njit(**_OPTIONS)
@@ -134,7 +126,9 @@ def test_branch_free_terms_equal_the_reference_bit_for_bit(variant, variable_res
     pr, po = _pairs(np.random.default_rng(3), 2003, params.cutoff)
     got = np.empty((7, pr.shape[1]))
     want = np.empty_like(got)
-    _simd_loop(pr, po, coef, variable_rest, got)
+    pass_two = _pass_two_variable if variable_rest else _pass_two_uniform
+    scratch = np.ascontiguousarray(pr[[0, 1, 2, 9, 6, 7, 8, 3, 4, 5]])  # the kernel's rows
+    pass_two(scratch, po, got, pr.shape[1], coef)
     _reference_loop(pr, po, coef, variable_rest, want)
     np.testing.assert_array_equal(got.view(np.int64), want.view(np.int64))
     # every branch of the reference is exercised by these pairs
@@ -161,16 +155,6 @@ def _host_has_avx2() -> bool:
     except RuntimeError:
         return False
     return bool(features.get("avx2")) and not features.get("avx512f")
-
-
-@njit(**_OPTIONS)
-def _pass_two_uniform(pr, po, pt, count, coef):
-    _pair_terms(pr, po, pt, count, coef, WEIGHT_POLY, False)
-
-
-@njit(**_OPTIONS)
-def _pass_two_variable(pr, po, pt, count, coef):
-    _pair_terms(pr, po, pt, count, coef, WEIGHT_POLY, True)
 
 
 @pytest.mark.skipif(
