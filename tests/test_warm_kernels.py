@@ -100,3 +100,54 @@ def test_a_numba_without_the_cache_internals_only_skips_the_loading(monkeypatch)
     thread.join(timeout=120)
     assert not thread.is_alive()
     assert raised == []  # nothing escapes the thread (it would print a traceback)
+
+
+class _LockEvents:
+    """Counts numba's ``numba:llvm_lock`` events (one pair per call into LLVM)."""
+
+    def __init__(self) -> None:
+        from numba.core import event
+
+        self.starts = 0
+        listener = self
+
+        class Counter(event.Listener):
+            def on_start(self, ev) -> None:
+                listener.starts += 1
+
+            def on_end(self, ev) -> None:
+                pass
+
+        self.listener = Counter()
+        event.register("numba:llvm_lock", self.listener)
+
+    def close(self) -> None:
+        from numba.core import event
+
+        event.unregister("numba:llvm_lock", self.listener)
+
+
+def test_loads_run_without_numbas_llvm_lock_events_and_put_them_back(tmp_path):
+    """A cache load makes hundreds of calls into LLVM, each of which fired two of numba's
+    timer events; the loads take the events' callbacks off and put them back after."""
+    from llvmlite.binding import ffi
+
+    before = list(ffi.lib._lock._cblist)
+    assert before, "numba registers its llvm_lock callbacks on import"
+    path = tmp_path / "warm_events.py"
+    path.write_text(SOURCE)
+    _import(path, "warm_events_a").twice(2.0)  # writes the cache
+
+    counted = _LockEvents()
+    try:
+        again = _import(path, "warm_events_b")
+        assert warm.load_cached([again.twice]) == 1
+        loading = counted.starts  # (reading the cache index asks LLVM for the host: a few)
+        assert ffi.lib._lock._cblist == before  # the callbacks are back, in their order
+        third = _import(path, "warm_events_c")
+        assert third.twice(2.0) == 4.0  # a first call's load, as without the warm thread
+        first_call = counted.starts - loading
+        assert first_call > 50  # ... fires them for every call into LLVM
+        assert loading < first_call / 10, (loading, first_call)
+    finally:
+        counted.close()

@@ -12,14 +12,23 @@ cache index holds for the current source and machine, and nothing is ever compil
 missing or stale cache is left to the first call, as before). Loading holds numba's compiler
 lock, so a fit that calls a kernel being loaded waits for that load, then finds it ready;
 the compiled code, hence every result, is the same either way.
+
+numba hangs two callbacks on llvmlite's FFI lock that emit its ``numba:llvm_lock`` events
+(the compile timers of its metadata) around every call into LLVM. A cache load makes about
+470 such calls per kernel (numba 0.68: 15,088 for the fit's kernels, in ``add_module``'s scan
+of the symbols), and the events cost 0.07-0.1 s of the 0.3-0.4 s those loads take after the
+first (measured in fresh processes on bunny-clean's kernels). :func:`load_cached` takes them
+off for each load, holding numba's compiler lock, and puts them back.
 """
 
 from __future__ import annotations
 
+import contextlib
 import importlib
 import threading
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 
+from numba.core.compiler_lock import global_compiler_lock
 from numba.core.dispatcher import Dispatcher
 
 #: The kernels a fit calls from Python, ``module.function`` under :mod:`recon.kernels`, in
@@ -88,9 +97,33 @@ def load_cached(dispatchers: Sequence[object]) -> int:
             continue
         for sig in cached_signatures(dispatcher):
             if tuple(sig) not in dispatcher.overloads:
-                dispatcher.compile(sig)
+                with global_compiler_lock, _llvm_lock_events_off():
+                    dispatcher.compile(sig)
                 n += 1
     return n
+
+
+@contextlib.contextmanager
+def _llvm_lock_events_off() -> Iterator[None]:
+    """Without the callbacks on llvmlite's FFI lock (numba's ``numba:llvm_lock`` events; the
+    module docstring) inside the block; they are put back, in their order, after it. The
+    caller holds numba's compiler lock, so no compile runs meanwhile. Where llvmlite keeps its
+    callbacks elsewhere, the block runs with them."""
+    from llvmlite.binding import ffi
+
+    lock = getattr(getattr(ffi, "lib", None), "_lock", None)
+    callbacks = getattr(lock, "_cblist", None)
+    if not isinstance(callbacks, list) or not callbacks:
+        yield
+        return
+    with lock._lock:  # the FFI lock's own: no FFI call is between its callbacks meanwhile
+        saved = list(callbacks)
+        callbacks.clear()
+    try:
+        yield
+    finally:
+        with lock._lock:
+            callbacks[:0] = saved
 
 
 def resolve(names: Sequence[str]) -> list[object]:
