@@ -533,13 +533,13 @@ def _two_faces(
 
 
 def thicken_sheet(
-    vertices: np.ndarray, faces: np.ndarray, half: float
+    vertices: np.ndarray, faces: np.ndarray, half: float | np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
     """A one-sided open sheet as a thin closed body: two copies ``half`` off it along its
-    (area-weighted) vertex normals, the lower one turned over, joined round each of its
-    simple boundary loops by a strip (one loop for a disc, one more per hole in it). Returns
-    the new vertices (the upper copy, then the lower one, in the order of
-    ``np.unique(faces)``) and faces indexing them.
+    (area-weighted) vertex normals (``half``: a number, or one per vertex of ``vertices``),
+    the lower one turned over, joined round each of its simple boundary loops by a strip
+    (one loop for a disc, one more per hole in it). Returns the new vertices (the upper
+    copy, then the lower one, in the order of ``np.unique(faces)``) and faces indexing them.
 
     Examples
     --------
@@ -562,7 +562,10 @@ def thicken_sheet(
         a, b = rim, np.roll(rim, -1)
         strips += [np.stack([a, a + k, b], 1), np.stack([b, a + k, b + k], 1)]
     new_faces = np.concatenate([local, local[:, ::-1] + k, *strips])
-    return np.concatenate([p + half * normal, p - half * normal]), new_faces
+    h = np.asarray(half, dtype=np.float64)
+    if h.ndim:  # one per vertex of ``vertices``
+        h = h[used][:, None]
+    return np.concatenate([p + h * normal, p - h * normal]), new_faces
 
 
 def neck_between(

@@ -10,7 +10,7 @@ half below, and few near the sheet itself.
 
 :func:`two_sided_sheets` measures this per open component of a mesh; :func:`closed_two_sided`
 replaces each such component by its two faces (:func:`recon.holes.thicken_sheet`: a copy at
-the data's median distance on either side, joined round the rims), when that closes it
+the local data's median distance on either side, joined round the rims), when that closes it
 without a crossing. The statistics, per component, of the signed distances ``d`` of the data
 points within ``SIDE_REACH`` of it along its nearest vertex's normal:
 
@@ -21,12 +21,22 @@ points within ``SIDE_REACH`` of it along its nearest vertex's normal:
   - ``mean |d| / rms d`` at least ``MIN_BIMODALITY``. It is 1 for two thin layers at
     ``+-h`` (about 0.95 measured on a sparse blade), sqrt(2/pi) = 0.80 for Gaussian noise
     round one layer and 0.87 for a uniform spread, whatever their width;
-  - or the layers are smooth: a point's ``|d|`` is close to that of its neighbours on the
-    same side (along the sheet), the median difference at most ``MAX_ROUGHNESS`` x the
-    separation. Noise draws each point's ``d`` on its own, so the difference is about the
-    spread itself (0.55-0.67 of the separation measured on the dev set's open scans); a part
-    whose thickness varies (a blade tapering to its edge, whose ``|d|`` spread makes the first
-    measure 0.86-0.89) keeps it at 0.19-0.23.
+  - or, with ``MIN_LAYER_POINTS`` or more, the layers are smooth: a point's ``|d|`` is close
+    to that of its neighbours on the same side (along the sheet), the median difference at
+    most ``MAX_ROUGHNESS`` x the separation. Noise drawn for each point on its own makes the
+    difference about the spread itself (0.55-0.67 of the separation on the dev set's open
+    scans); a part whose thickness varies (a blade tapering to its edge, whose ``|d|`` spread
+    makes the first measure 0.86-0.89) keeps it at 0.19-0.23. Noise that varies smoothly
+    along the sheet is smooth too: the mixing below tells it apart;
+
+* and the two sides interleave along the sheet: a median ``MIN_MIXING`` or more of a point's
+  ``LAYER_NEIGHBOURS`` nearest feet lie on the other side (two faces' data, and noise: about
+  0.5). One layer that crosses the sheet (a sheet fitted off its data, tilted or bent
+  against it) has each point's neighbours on its own side, away from the line where it
+  crosses.
+
+A body's two faces lie at each vertex at the median ``|d|`` of the data nearest to it, so a
+part whose thickness varies keeps its profile.
 
 On the dev set's open scans (hemispheres, faces, the square with a hole, also with 0.25 %
 noise) and the closed scans left open by missing data, the separation is at most 0.17 r0 and
@@ -36,7 +46,7 @@ either side with a ratio of 0.95.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -68,8 +78,23 @@ MIN_BIMODALITY = 0.9
 #: Median difference between a point's ``|d|`` and that of its same-side neighbours along
 #: the sheet, over the separation, at most (smooth layers: near 0; noise: about 0.6).
 MAX_ROUGHNESS = 0.35
-#: Neighbours along the sheet (nearest by their feet on it) that :data:`MAX_ROUGHNESS` compares.
+#: Fewest data points for the roughness (its medians over ``LAYER_NEIGHBOURS`` are noisy on
+#: fewer: Gaussian noise of 20-40 points passed 16-38 times in 1,000 trials, of 80 once).
+MIN_LAYER_POINTS = 200
+#: Median share of a point's ``LAYER_NEIGHBOURS`` nearest feet that lie on the other side, at
+#: least: two faces' data interleave along the sheet (about 0.5), while one layer crossing
+#: the sheet (a sheet fitted off its data, tilted or bent against it) puts a point's
+#: neighbours on its own side (near 0).
+MIN_MIXING = 0.25
+#: Neighbours along the sheet (nearest by their feet on it) that the roughness and the mixing
+#: compare.
 LAYER_NEIGHBOURS = 12
+#: Data whose feet are a vertex's nearest give a body its half-thickness there (their median
+#: ``|d|``): about the data within 1.5 r0 on the sparse blades (a knife that tapers gets a
+#: body that tapers; with 12 the constant blades' bodies came out 1 % rougher).
+HALF_NEIGHBOURS = 36
+#: A body's half-thickness at a vertex, as a multiple of the separation: at least, at most.
+HALF_RANGE = (0.25, 2.0)
 #: Fewest data points that make the statistics.
 MIN_POINTS = 20
 
@@ -85,6 +110,9 @@ class SheetSides:
     above: float  # share of the points with d > 0
     bimodality: float  # mean |d| / rms d
     roughness: float  # median | |d| - its same-side neighbours' | / separation (NaN: unmeasured)
+    mixing: float  # median share of a point's neighbours on the other side (NaN: unmeasured)
+    d: np.ndarray | None = field(default=None, repr=False, compare=False)  # the points' d
+    feet: np.ndarray | None = field(default=None, repr=False, compare=False)  # their feet
 
     @property
     def apart(self) -> bool:
@@ -98,9 +126,10 @@ class SheetSides:
     @property
     def two_sided(self) -> bool:
         """Do the data lie on both sides of the sheet, as two layers (module docstring)?"""
-        return self.apart and (
-            self.bimodality >= MIN_BIMODALITY or bool(self.roughness <= MAX_ROUGHNESS)
-        )
+        if not (self.apart and bool(self.mixing >= MIN_MIXING)):
+            return False
+        smooth = self.points >= MIN_LAYER_POINTS and bool(self.roughness <= MAX_ROUGHNESS)
+        return self.bimodality >= MIN_BIMODALITY or smooth
 
 
 def two_sided_sheets(
@@ -155,26 +184,49 @@ def _sides(
             above=float(np.mean(d > 0)),
             bimodality=float(np.mean(np.abs(d)) / rms) if rms > 0 else 0.0,
             roughness=float("nan"),
+            mixing=float("nan"),
+            d=d,
+            feet=feet[mine],
         )
-        if sides.apart and sides.bimodality < MIN_BIMODALITY:  # the second measure
-            sides = replace(sides, roughness=_roughness(d, feet[mine]) / sides.separation)
+        if sides.apart:  # the layers along the sheet
+            rough, mixing = _layers(d, feet[mine])
+            sides = replace(sides, roughness=rough / sides.separation, mixing=mixing)
         out.append(sides)
     return label, out
 
 
-def _roughness(d: np.ndarray, feet: np.ndarray) -> float:
-    """Median over the points of ``| |d| - m |``, ``m`` the median ``|d|`` of the point's
-    neighbours on its side of the sheet among its ``LAYER_NEIGHBOURS`` nearest feet."""
+def _local_half(vertices: np.ndarray, sheet: SheetSides) -> np.ndarray:
+    """Half the thickness for a body at each of ``vertices`` (those of ``sheet``'s faces; the
+    others get the separation): the median ``|d|`` of the data whose feet are the vertex's
+    ``HALF_NEIGHBOURS`` nearest, within ``HALF_RANGE`` x the separation."""
+    used = np.unique(sheet.faces)
+    k = min(HALF_NEIGHBOURS, len(sheet.d))
+    _, near = cKDTree(sheet.feet).query(vertices[used], k=k)
+    half = np.median(np.abs(sheet.d)[np.reshape(near, (len(used), k))], axis=1)
+    out = np.full(len(vertices), sheet.separation)
+    out[used] = np.clip(half, HALF_RANGE[0] * sheet.separation, HALF_RANGE[1] * sheet.separation)
+    return out
+
+
+def _layers(d: np.ndarray, feet: np.ndarray) -> tuple[float, float]:
+    """``(roughness, mixing)`` of data at signed distances ``d`` with ``feet`` on a sheet,
+    over each point's ``LAYER_NEIGHBOURS`` nearest other feet: the median over the points of
+    ``| |d| - m |`` (``m`` the median ``|d|`` of those on the point's side; inf when no point
+    has one) and the median share of those on the other side."""
     k = min(LAYER_NEIGHBOURS + 1, len(d))
+    if k < 2:
+        return float("inf"), 0.0
     _, near = cKDTree(feet).query(feet, k=k)
     near = near[:, 1:]  # not the point itself
+    side = np.sign(d)
+    same = side[near] == side[:, None]
+    mixing = float(np.median(np.mean(side[near] == -side[:, None], axis=1)))
     size = np.abs(d)
-    same = np.sign(d[near]) == np.sign(d)[:, None]
-    around = np.where(same, size[near], np.nan)
     has = same.any(axis=1)
     if not has.any():
-        return float("inf")
-    return float(np.median(np.abs(size[has] - np.nanmedian(around[has], axis=1))))
+        return float("inf"), mixing
+    around = np.where(same[has], size[near[has]], np.nan)
+    return float(np.median(np.abs(size[has] - np.nanmedian(around, axis=1)))), mixing
 
 
 def closed_two_sided(
@@ -186,7 +238,8 @@ def closed_two_sided(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None, int] | None:
     """The mesh with each open component whose data lie on both of its sides
     (:attr:`SheetSides.two_sided`) made the thin closed body the data outline: its two faces
-    at the data's median distance either side, joined round its rims, wound outward (each
+    at the local data's median distance either side (:data:`HALF_NEIGHBOURS`), joined round
+    its rims, wound outward (each
     copy's vertex normals point the way it was offset). A component whose thick copy would
     not be closed (a rim that is not simple), would enclose no positive volume (folded: thicker
     than the sheet's radius of curvature) or would cross itself, another body or the rest of
@@ -203,7 +256,7 @@ def closed_two_sided(
         return None
     made = []  # (component, copies' vertices, their faces, their normals) that close
     for sheet in sheets:
-        new_v, new_f = thicken_sheet(vertices, sheet.faces, sheet.separation)
+        new_v, new_f = thicken_sheet(vertices, sheet.faces, _local_half(vertices, sheet))
         if not np.all(count_edge_faces(new_f)[1] == 2):
             continue  # a rim through a vertex twice (not simple) gets no strip: not closed
         if capped_volume(new_v, new_f) <= 0:  # folded: thicker than it is curved

@@ -132,6 +132,8 @@ def test_loads_run_without_numbas_llvm_lock_events_and_put_them_back(tmp_path):
     timer events; the loads take the events' callbacks off and put them back after."""
     from llvmlite.binding import ffi
 
+    if not isinstance(getattr(getattr(ffi.lib, "_lock", None), "_cblist", None), list):
+        pytest.skip("this llvmlite keeps its lock callbacks elsewhere")
     before = list(ffi.lib._lock._cblist)
     assert before, "numba registers its llvm_lock callbacks on import"
     path = tmp_path / "warm_events.py"
@@ -151,3 +153,27 @@ def test_loads_run_without_numbas_llvm_lock_events_and_put_them_back(tmp_path):
         assert loading < first_call / 10, (loading, first_call)
     finally:
         counted.close()
+
+
+def test_a_load_that_raises_puts_the_callbacks_back(tmp_path, monkeypatch):
+    from llvmlite.binding import ffi
+
+    if not isinstance(getattr(getattr(ffi.lib, "_lock", None), "_cblist", None), list):
+        pytest.skip("this llvmlite keeps its lock callbacks elsewhere")
+    before = list(ffi.lib._lock._cblist)
+    path = tmp_path / "warm_raise.py"
+    path.write_text(SOURCE)
+    _import(path, "warm_raise_a").twice(2.0)  # writes the cache
+    kernel = _import(path, "warm_raise_b").twice
+    assert warm.cached_signatures(kernel) and not kernel.overloads
+    inside = []
+
+    def broken(sig):
+        inside.append(list(ffi.lib._lock._cblist))
+        raise OSError("unreadable cache file")
+
+    monkeypatch.setattr(kernel, "compile", broken)
+    with pytest.raises(OSError):
+        warm.load_cached([kernel])
+    assert inside == [[]]  # the load ran without them
+    assert ffi.lib._lock._cblist == before  # and they are back

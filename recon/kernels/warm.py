@@ -106,24 +106,28 @@ def load_cached(dispatchers: Sequence[object]) -> int:
 @contextlib.contextmanager
 def _llvm_lock_events_off() -> Iterator[None]:
     """Without the callbacks on llvmlite's FFI lock (numba's ``numba:llvm_lock`` events; the
-    module docstring) inside the block; they are put back, in their order, after it. The
-    caller holds numba's compiler lock, so no compile runs meanwhile. Where llvmlite keeps its
+    module docstring) inside the block; they are put back, in their order, after it, also
+    when the block raises. The caller holds numba's compiler lock, so no compile runs
+    meanwhile; calls into LLVM from other threads (none in a fit) emit no events meanwhile
+    either, which only numba's timers and traces would miss. Where llvmlite keeps its
     callbacks elsewhere, the block runs with them."""
     from llvmlite.binding import ffi
 
     lock = getattr(getattr(ffi, "lib", None), "_lock", None)
     callbacks = getattr(lock, "_cblist", None)
-    if not isinstance(callbacks, list) or not callbacks:
+    guard = getattr(lock, "_lock", None)
+    if not isinstance(callbacks, list) or not callbacks or guard is None:
         yield
         return
-    with lock._lock:  # the FFI lock's own: no FFI call is between its callbacks meanwhile
-        saved = list(callbacks)
-        callbacks.clear()
+    saved: list = []
     try:
+        with guard:  # the FFI lock's own: no FFI call is between its callbacks meanwhile
+            saved = list(callbacks)
+            callbacks.clear()
         yield
     finally:
-        with lock._lock:
-            callbacks[:0] = saved
+        with guard:
+            callbacks[:0] = [c for c in saved if c not in callbacks]
 
 
 def resolve(names: Sequence[str]) -> list[object]:
