@@ -27,16 +27,19 @@ points within ``SIDE_REACH`` of it along its nearest vertex's normal:
     difference about the spread itself (0.55-0.67 of the separation on the dev set's open
     scans); a part whose thickness varies (a blade tapering to its edge, whose ``|d|`` spread
     makes the first measure 0.86-0.89) keeps it at 0.19-0.23. Noise that varies smoothly
-    along the sheet is smooth too: the mixing below tells it apart;
+    along the sheet is smooth too, which the mixing tells apart:
 
-* and the two sides interleave along the sheet: a median ``MIN_MIXING`` or more of a point's
-  ``LAYER_NEIGHBOURS`` nearest feet lie on the other side (two faces' data, and noise: about
-  0.5). One layer that crosses the sheet (a sheet fitted off its data, tilted or bent
-  against it) has each point's neighbours on its own side, away from the line where it
-  crosses.
+    and the two sides interleave along the sheet: a median ``MIN_MIXING`` or more of a
+    point's ``LAYER_NEIGHBOURS`` nearest feet lie on the other side (two faces' data, and
+    noise: about 0.5). One layer that crosses the sheet (a sheet fitted off its data,
+    tilted or bent against it) has smooth ``|d|`` too, but each point's neighbours on its
+    own side, away from the line where it crosses. (The first measure does not ask it:
+    scan lines that alternate between the faces, farther apart than their points, mix
+    less in a point's nearest feet.)
 
 A body's two faces lie at each vertex at the median ``|d|`` of the data nearest to it, so a
-part whose thickness varies keeps its profile.
+part whose thickness varies keeps its profile; a body that would then fold or cross is
+tried once more at the separation everywhere.
 
 On the dev set's open scans (hemispheres, faces, the square with a hole, also with 0.25 %
 noise) and the closed scans left open by missing data, the separation is at most 0.17 r0 and
@@ -126,9 +129,13 @@ class SheetSides:
     @property
     def two_sided(self) -> bool:
         """Do the data lie on both sides of the sheet, as two layers (module docstring)?"""
-        if not (self.apart and bool(self.mixing >= MIN_MIXING)):
+        if not self.apart:
             return False
-        smooth = self.points >= MIN_LAYER_POINTS and bool(self.roughness <= MAX_ROUGHNESS)
+        smooth = (
+            self.points >= MIN_LAYER_POINTS
+            and bool(self.roughness <= MAX_ROUGHNESS)
+            and bool(self.mixing >= MIN_MIXING)
+        )
         return self.bimodality >= MIN_BIMODALITY or smooth
 
 
@@ -195,6 +202,21 @@ def _sides(
     return label, out
 
 
+def _body(vertices: np.ndarray, sheet: SheetSides, local: bool) -> tuple | None:
+    """``(sheet, copies' vertices, faces, normals, local)`` of the thin body of ``sheet``,
+    its half-thickness the local data's (``local``) or the separation everywhere; None when
+    it would not be closed (a rim through a vertex twice gets no strip) or encloses no
+    positive volume (folded: thicker than it is curved)."""
+    half = _local_half(vertices, sheet) if local else sheet.separation
+    new_v, new_f = thicken_sheet(vertices, sheet.faces, half)
+    if not np.all(count_edge_faces(new_f)[1] == 2) or capped_volume(new_v, new_f) <= 0:
+        return None
+    k = len(new_v) // 2  # the upper copy, then the lower one: normals from the offset
+    up = new_v[:k] - new_v[k:]
+    up /= np.maximum(np.linalg.norm(up, axis=1, keepdims=True), 1e-300)
+    return sheet, new_v, new_f, np.concatenate([up, -up]), local
+
+
 def _local_half(vertices: np.ndarray, sheet: SheetSides) -> np.ndarray:
     """Half the thickness for a body at each of ``vertices`` (those of ``sheet``'s faces; the
     others get the separation): the median ``|d|`` of the data whose feet are the vertex's
@@ -218,7 +240,7 @@ def _layers(d: np.ndarray, feet: np.ndarray) -> tuple[float, float]:
         return float("inf"), 0.0
     _, near = cKDTree(feet).query(feet, k=k)
     near = near[:, 1:]  # not the point itself
-    side = np.sign(d)
+    side = np.where(d > 0, 1, -1)  # as ``above`` counts them
     same = side[near] == side[:, None]
     mixing = float(np.median(np.mean(side[near] == -side[:, None], axis=1)))
     size = np.abs(d)
@@ -254,17 +276,11 @@ def closed_two_sided(
     sheets = [s for s in sides if s.two_sided]
     if not sheets:
         return None
-    made = []  # (component, copies' vertices, their faces, their normals) that close
+    made = []  # (sheet, copies' vertices, their faces, their normals, local) that close
     for sheet in sheets:
-        new_v, new_f = thicken_sheet(vertices, sheet.faces, _local_half(vertices, sheet))
-        if not np.all(count_edge_faces(new_f)[1] == 2):
-            continue  # a rim through a vertex twice (not simple) gets no strip: not closed
-        if capped_volume(new_v, new_f) <= 0:  # folded: thicker than it is curved
-            continue
-        k = len(new_v) // 2  # the upper copy, then the lower one: normals from the offset
-        up = new_v[:k] - new_v[k:]
-        up /= np.maximum(np.linalg.norm(up, axis=1, keepdims=True), 1e-300)
-        made.append((sheet, new_v, new_f, np.concatenate([up, -up])))
+        body = _body(vertices, sheet, local=True) or _body(vertices, sheet, local=False)
+        if body is not None:
+            made.append(body)
     while made:  # one crossing search for all bodies; drop those that cross, until none
         gone = np.zeros(int(label.max()) + 1, dtype=bool)
         gone[[m[0].component for m in made]] = True
@@ -279,8 +295,14 @@ def closed_two_sided(
         crossing = crossing[crossing >= 0]
         if len(crossing) == 0:
             break
-        drop = set(crossing.tolist())
-        made = [m for i, m in enumerate(made) if i not in drop]
+        # a body that follows the local thickness and crosses gets one more try at the
+        # sheet's separation everywhere (thinner where a curved part is thick); else it goes
+        again = {
+            i: _body(vertices, made[i][0], local=False) if made[i][4] else None
+            for i in crossing.tolist()
+        }
+        made = [again[i] if i in again else m for i, m in enumerate(made)]
+        made = [m for m in made if m is not None]
     if not made:
         return None
     all_n = np.concatenate([normals, *(m[3] for m in made)])

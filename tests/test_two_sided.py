@@ -88,7 +88,8 @@ def test_data_on_the_sheet_or_on_one_side_do_not(heights):
     [
         lambda xy: 0.12 * (xy[:, 0] - 5.5),  # a plane tilted against the sheet
         lambda xy: 0.05 * ((xy - 5.5) ** 2).sum(axis=1) - 0.9,  # a bowl crossing it
-        lambda xy: 0.6 * np.sin(xy[:, 0]),  # a wave across it
+        # a wave across it (a triangle wave: a sine's mean |d| / rms d is 0.90, on the bound)
+        lambda xy: 1.2 * (np.abs((xy[:, 0] / 3.0) % 2.0 - 1.0) - 0.5),
     ],
 )
 def test_one_smooth_layer_crossing_the_sheet_is_not_two_sided(surface):
@@ -370,3 +371,41 @@ def test_a_body_that_would_cross_the_mesh_is_not_made_the_others_are():
     t = mesh_topology(vo, fo)
     assert t["components"] == 3 and t["boundary_loops"] == 1  # the second sheet stays open
     assert len(self_intersections(vo, fo)) == 0
+
+
+def test_scan_lines_alternating_between_the_faces_are_two_sided_by_their_bimodality():
+    """Lines of points 0.4 apart along, 2 apart across, every other line on the other face:
+    a point's nearest feet are mostly on its own line (mixing under 0.25), but the data are
+    two layers at +-0.4 (bimodality near 1), which the first measure takes as before."""
+    v, f, n = _grid(12)
+    x, y = np.meshgrid(np.arange(0.0, 11.0, 0.4), np.arange(0.5, 11.0, 2.0), indexing="ij")
+    z = np.where((np.round((y - 0.5) / 2.0) % 2) == 0, 0.4, -0.4)
+    data = np.column_stack([x.ravel(), y.ravel(), z.ravel()])
+    (sides,) = two_sided_sheets(v, n, f, data)
+    assert sides.mixing < MIN_MIXING and sides.bimodality > 0.99
+    assert sides.two_sided
+
+
+def test_a_local_body_that_would_cross_the_mesh_is_made_at_the_separation():
+    """Under a closed box 0.7-1.1 above the sheet the data are thicker (+-0.75): the body
+    that follows them would cross the box, the body at the separation (0.4) does not."""
+    rng = np.random.default_rng(11)
+    v, f, n = _grid(12)
+    box_v, box_f = thicken_sheet(*_grid(4)[:2], 0.2)
+    box_v = box_v + [4.0, 4.0, 0.9]
+    v_all = np.concatenate([v, box_v])
+    f_all = np.concatenate([f, box_f + len(v)])
+    n_all = np.tile([0.0, 0.0, 1.0], (len(v_all), 1))
+    data = _data(12, rng.choice([-0.4, 0.4], 4000), rng)
+    under = (np.abs(data[:, 0] - 5.5) < 1.5) & (np.abs(data[:, 1] - 5.5) < 1.5)
+    data[under, 2] *= 0.75 / 0.4
+    out = closed_two_sided(v_all, n_all, f_all, data)
+    assert out is not None and out[4] == 1
+    vo, _, fo, _, _ = out
+    assert len(self_intersections(vo, fo)) == 0
+    body = np.abs(vo[:, 2]) < 0.6  # the box's vertices lie at 0.7 and 1.1
+    assert np.allclose(np.abs(vo[body, 2]), 0.4)
+    # the local body alone: it crosses the box, and is not made
+    sheet = two_sided_sheets(v_all, n_all, f_all, data)[0]
+    local = two_sided._body(v_all, sheet, local=True)
+    assert local is not None and np.abs(local[1][:, 2]).max() > 0.7
