@@ -261,12 +261,12 @@ def closed_two_sided(
     """The mesh with each open component whose data lie on both of its sides
     (:attr:`SheetSides.two_sided`) made the thin closed body the data outline: its two faces
     at the local data's median distance either side (:data:`HALF_NEIGHBOURS`), joined round
-    its rims, wound outward (each
-    copy's vertex normals point the way it was offset). A component whose thick copy would
-    not be closed (a rim that is not simple), would enclose no positive volume (folded: thicker
-    than the sheet's radius of curvature) or would cross itself, another body or the rest of
-    the mesh stays as it is (one crossing search for all bodies, repeated without the ones
-    that cross).
+    its rims, wound outward (each copy's vertex normals point the way it was offset). A body
+    at the local thickness that would not close, would fold or would cross is tried once at
+    the separation everywhere. A component whose thick copy would not be closed (a rim that
+    is not simple), would enclose no positive volume (folded: thicker than the sheet's radius
+    of curvature) or would cross itself, another body or the rest of the mesh stays as it is
+    (one crossing search for all bodies, repeated after each retry or drop).
 
     Returns ``(vertices, normals, faces, crease, closed)`` (``crease``: the crease flags of
     the vertices, a copy's taken from its original, None when none were given; ``closed``:
