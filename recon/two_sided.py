@@ -27,9 +27,8 @@ points within ``SIDE_REACH`` of it along its nearest vertex's normal:
     difference about the spread itself (0.55-0.67 of the separation on the dev set's open
     scans); a part whose thickness varies (a blade tapering to its edge, whose ``|d|`` spread
     makes the first measure 0.86-0.89) keeps it at 0.19-0.23. Noise that varies smoothly
-    along the sheet is smooth too, which the mixing tells apart:
-
-    and the two sides interleave along the sheet: a median ``MIN_MIXING`` or more of a
+    along the sheet is smooth too, so this measure also asks that the two sides interleave
+    along the sheet: a median ``MIN_MIXING`` or more of a
     point's ``LAYER_NEIGHBOURS`` nearest feet lie on the other side (two faces' data, and
     noise: about 0.5). One layer that crosses the sheet (a sheet fitted off its data,
     tilted or bent against it) has smooth ``|d|`` too, but each point's neighbours on its
@@ -93,8 +92,8 @@ MIN_MIXING = 0.25
 #: compare.
 LAYER_NEIGHBOURS = 12
 #: Data whose feet are a vertex's nearest give a body its half-thickness there (their median
-#: ``|d|``): about the data within 1.5 r0 on the sparse blades (a knife that tapers gets a
-#: body that tapers; with 12 the constant blades' bodies came out 1 % rougher).
+#: ``|d|``): a knife that tapers gets a body that tapers; with 12 the constant blades' bodies
+#: came out 1 % rougher in Chamfer-L1.
 HALF_NEIGHBOURS = 36
 #: A body's half-thickness at a vertex, as a multiple of the separation: at least, at most.
 HALF_RANGE = (0.25, 2.0)

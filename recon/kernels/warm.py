@@ -16,9 +16,10 @@ the compiled code, hence every result, is the same either way.
 numba hangs two callbacks on llvmlite's FFI lock that emit its ``numba:llvm_lock`` events
 (the compile timers of its metadata) around every call into LLVM. A cache load makes about
 470 such calls per kernel (numba 0.68: 15,088 for the fit's kernels, in ``add_module``'s scan
-of the symbols), and the events cost 0.07-0.1 s of the 0.3-0.4 s those loads take after the
-first (measured in fresh processes on bunny-clean's kernels). :func:`load_cached` takes them
-off for each load, holding numba's compiler lock, and puts them back.
+of the symbols), and the events cost 0.07-0.16 s of the 0.32-0.41 s those loads take after
+the first (three pairs of fresh processes loading bunny-clean's kernels).
+:func:`load_cached` takes them off for each load, holding numba's compiler lock, and puts
+them back.
 """
 
 from __future__ import annotations
