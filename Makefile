@@ -19,13 +19,18 @@ demo: setup
 
 # make test: lint, the docstring examples, a pure-Python pass of the kernel tests (numba's JIT
 # off, so coverage and tracebacks see the kernels' source), the installed wheel, then the suite.
+# The two pytest passes run on TEST_WORKERS processes (pytest-xdist; one test file per worker at
+# a time, so a file's module fixtures are built once). TEST_WORKERS=0 runs them in this process.
+TEST_WORKERS ?= auto
+XDIST := -n $(TEST_WORKERS) --maxprocesses=4 --dist loadfile
+
 test: setup
 	$(PY) -m ruff check $(LINTED)
 	$(PY) -m ruff format --check $(LINTED)
 	$(PY) -m pytest -q -p no:cacheprovider --doctest-modules recon
-	NUMBA_DISABLE_JIT=1 $(PY) -m pytest -q -p no:cacheprovider tests/kernels
+	NUMBA_DISABLE_JIT=1 $(PY) -m pytest -q -p no:cacheprovider $(XDIST) tests/kernels
 	bash scripts/check_wheel.sh
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q $(XDIST)
 
 lint: setup
 	$(PY) -m ruff check $(LINTED)
