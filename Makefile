@@ -5,7 +5,7 @@ PY := .venv/bin/python
 OPRECON := .venv/bin/oprecon
 LINTED := recon cli configs tests benchmarks scripts
 
-.PHONY: setup demo test lint format bench refresh-references clean
+.PHONY: setup demo test test-checks test-suite test-wheel lint format bench refresh-references clean
 
 setup:
 	@bash scripts/setup.sh
@@ -18,19 +18,29 @@ demo: setup
 	@echo "demo: wrote demo_output/bunny-sparse.ply, its .report.json and a preview PNG"
 
 # make test: lint, the docstring examples, a pure-Python pass of the kernel tests (numba's JIT
-# off, so coverage and tracebacks see the kernels' source), the installed wheel, then the suite.
-# The two pytest passes run on TEST_WORKERS processes (pytest-xdist; one test file per worker at
-# a time, so a file's module fixtures are built once). TEST_WORKERS=0 runs them in this process.
+# off, so coverage and tracebacks see the kernels' source), then the suite; beside them, the
+# installed wheel. The wheel's fit compiles every fit kernel once more in its scratch venv
+# (about 3 minutes of one core, 2026-11-29), so it runs as a second job from the start, while the
+# docstring examples leave a core idle. The JIT-off pass and the suite run on TEST_WORKERS
+# processes (pytest-xdist, one test file per worker at a time, so a file's module fixtures are
+# built once); TEST_WORKERS=0 runs them in one process.
 TEST_WORKERS ?= auto
 XDIST := -n $(TEST_WORKERS) --maxprocesses=4 --dist loadfile
 
 test: setup
+	@$(MAKE) --no-print-directory -j2 --output-sync=line test-wheel test-suite
+
+test-checks: setup
 	$(PY) -m ruff check $(LINTED)
 	$(PY) -m ruff format --check $(LINTED)
 	$(PY) -m pytest -q -p no:cacheprovider --doctest-modules recon
 	NUMBA_DISABLE_JIT=1 $(PY) -m pytest -q -p no:cacheprovider $(XDIST) tests/kernels
-	bash scripts/check_wheel.sh
+
+test-suite: test-checks
 	$(PY) -m pytest -q $(XDIST)
+
+test-wheel: setup
+	bash scripts/check_wheel.sh
 
 lint: setup
 	$(PY) -m ruff check $(LINTED)
