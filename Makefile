@@ -28,7 +28,7 @@ TEST_WORKERS ?= auto
 XDIST := -n $(TEST_WORKERS) --maxprocesses=4 --dist loadfile
 
 test: setup
-	@$(MAKE) --no-print-directory -j2 --output-sync=line test-wheel test-suite
+	@$(MAKE) --no-print-directory -j2 test-wheel test-suite
 
 test-checks: setup
 	$(PY) -m ruff check $(LINTED)
