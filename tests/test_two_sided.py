@@ -409,3 +409,74 @@ def test_a_local_body_that_would_cross_the_mesh_is_made_at_the_separation():
     sheet = two_sided_sheets(v_all, n_all, f_all, data)[0]
     local = two_sided._body(v_all, sheet, local=True)
     assert local is not None and np.abs(local[1][:, 2]).max() > 0.7
+
+
+def _with_second_face(gap: float, rng: np.random.Generator) -> tuple:
+    """A sheet (12 x 12 grid at z = 0) fitted between a part's two faces (data at +-0.4),
+    and below its middle a second open sheet (a 5 x 5 grid at z = -``gap``), where the part
+    is thicker and its lower face was meshed on its own: its data lie on it, and those of the
+    upper face at +0.2 over it."""
+    v, f, n = _grid(12)
+    low_v, low_f, low_n = _grid(5)
+    low_v = low_v + [3.5, 3.5, -gap]
+    v_all = np.concatenate([v, low_v])
+    f_all = np.concatenate([f, low_f + len(v)])
+    n_all = np.concatenate([n, -low_n])  # the lower face's own normals point down
+    data = _data(12, rng.choice([-0.4, 0.4], 4000), rng)
+    middle = (np.abs(data[:, 0] - 5.5) < 2.0) & (np.abs(data[:, 1] - 5.5) < 2.0)
+    data[middle, 2] = np.where(data[middle, 2] > 0, 0.2, -gap)
+    return v_all, n_all, f_all, data
+
+
+def test_a_thin_parts_second_face_meshed_apart_is_left_to_the_body(monkeypatch):
+    """The knife at 3,000 points, seed 0: where the blade is thickest, its faces were meshed
+    as two sheets, the main one over the whole blade and a patch of its other face
+    (recon.two_sided.SECOND_FACE_REACH). The body of the main sheet covers the patch: the
+    result is one closed body without it."""
+    v, n, f, data = _with_second_face(1.2, np.random.default_rng(12))
+    out = closed_two_sided(v, n, f, data)
+    assert out is not None and out[4] == 1
+    vo, _, fo, _, _ = out
+    assert len(boundary_loops(fo)) == 0 and len(self_intersections(vo, fo)) == 0
+    assert mesh_topology(vo, fo)["components"] == 1
+    assert not np.any(np.isclose(vo[:, 2], -1.2))  # the patch's vertices are gone
+    assert vo[:, 2].min() < -0.5  # the body reaches down towards the lower face's data
+    _closed(vo, fo)
+    # without the rule the patch stays, an open sheet under the body
+    monkeypatch.setattr(two_sided, "SECOND_FACE_REACH", -1.0)
+    out = closed_two_sided(v, n, f, data)
+    assert out is not None and len(boundary_loops(out[2])) == 1
+
+
+@pytest.mark.parametrize("case", ["far", "across"])
+def test_an_open_sheet_beyond_reach_or_across_the_sheet_is_not_a_second_face(case):
+    rng = np.random.default_rng(13)
+    v, n, f, data = _with_second_face(3.0 if case == "far" else 1.2, rng)
+    if case == "across":  # the patch stood on its edge below the sheet: a wall within reach
+        low = np.arange(144, len(v))
+        v[low] = np.column_stack([np.full(len(low), 5.5), v[low, 1], 0.5 * (v[low, 0] - 3.5) - 2.2])
+        n[low] = [1.0, 0.0, 0.0]
+        assert np.all((v[low, 2] < 0) & (v[low, 2] > -2.5))
+    sides = two_sided_sheets(v, n, f, data)
+    assert two_sided._second_faces(v, n, sides) == []
+
+
+def test_a_second_face_stays_when_its_sheets_body_is_not_made():
+    """A box crossing the body of the sheet at its data's distance (+0.4) keeps that body
+    from being made; another two-sided sheet far off closes. The other face of the first
+    sheet must then stay: without it that part of the surface would be lost."""
+    rng = np.random.default_rng(14)
+    v, n, f, data = _with_second_face(1.2, rng)
+    box_v, box_f = thicken_sheet(*_grid(3)[:2], 0.1)
+    box_v = box_v + [0.5, 0.5, 0.4]
+    far_v, far_f, far_n = _grid(12)
+    far_v = far_v + [40.0, 0.0, 0.0]
+    far_data = _data(12, rng.choice([-0.4, 0.4], 4000), rng) + [40.0, 0.0, 0.0]
+    v_all = np.concatenate([v, box_v, far_v])
+    f_all = np.concatenate([f, box_f + len(v), far_f + len(v) + len(box_v)])
+    n_all = np.concatenate([n, np.tile([0.0, 0.0, 1.0], (len(box_v), 1)), far_n])
+    out = closed_two_sided(v_all, n_all, f_all, np.concatenate([data, far_data]))
+    assert out is not None and out[4] == 1  # the far sheet only
+    vo, _, fo, _, _ = out
+    assert np.sum(np.isclose(vo[:, 2], -1.2)) == 25  # the other face's vertices are kept
+    assert len(boundary_loops(fo)) == 2  # the sheet's rim and its other face's
