@@ -17,22 +17,22 @@ demo: setup
 		--particles demo_output/bunny-sparse-particles.ply --preview demo_output/bunny-sparse.png
 	@echo "demo: wrote demo_output/bunny-sparse.ply, its .report.json and a preview PNG"
 
-# make test: lint, the docstring examples, a pure-Python pass of the kernel tests (numba's JIT
-# off, so coverage and tracebacks see the kernels' source), then the suite; beside them, the
+# make test: lint, then the docstring examples, a pure-Python pass of the kernel tests (numba's
+# JIT off, so coverage and tracebacks see the kernels' source) and the suite; beside those, the
 # installed wheel. The wheel's fit compiles every fit kernel once more in its scratch venv
 # (about 3 minutes of one core, 2026-11-29), so it runs as a second job from the start, while the
 # docstring examples leave a core idle. The JIT-off pass and the suite run on TEST_WORKERS
 # processes (pytest-xdist, one test file per worker at a time, so a file's module fixtures are
-# built once); TEST_WORKERS=0 runs them in one process.
-TEST_WORKERS ?= auto
+# built once; `logical`: one per logical CPU, at most 4); TEST_WORKERS=0 runs them in one process.
+TEST_WORKERS ?= logical
 XDIST := -n $(TEST_WORKERS) --maxprocesses=4 --dist loadfile
 
 test: setup
+	$(PY) -m ruff check $(LINTED)
+	$(PY) -m ruff format --check $(LINTED)
 	@$(MAKE) --no-print-directory -j2 test-wheel test-suite
 
 test-checks: setup
-	$(PY) -m ruff check $(LINTED)
-	$(PY) -m ruff format --check $(LINTED)
 	$(PY) -m pytest -q -p no:cacheprovider --doctest-modules recon
 	NUMBA_DISABLE_JIT=1 $(PY) -m pytest -q -p no:cacheprovider $(XDIST) tests/kernels
 

@@ -43,8 +43,10 @@ tried once more at the separation everywhere.
 Where such a part is thicker (a blade's middle, about two spacings), its particles may part
 there, and one face's patch is meshed as an open sheet of its own beside the merged layer.
 That patch (not two-sided itself, every vertex within ``SECOND_FACE_REACH`` of the two-sided
-sheet, all on one side of it and parallel to it) is the body's face there: the bodies are
-made without it first (its data then count for the sheet), and with it when that closes none.
+sheet, over it, all on one side of it and parallel to it) is the body's face there: the
+bodies are made without it first (its data within ``SIDE_REACH`` then count for the sheet),
+and that is kept when each sheet that lost such a patch became a body; else the mesh is
+judged with the patches.
 
 On the dev set's open scans (hemispheres, faces, the square with a hole, also with 0.25 %
 noise) and the closed scans left open by missing data, the separation is at most 0.17 r0 and
@@ -112,6 +114,10 @@ HALF_RANGE = (0.25, 2.0)
 SECOND_FACE_REACH = 2.5
 #: Parallel: the median |cosine| between the face's vertex normals and the sheet's, at least.
 SECOND_FACE_PARALLEL = 0.9
+#: Over the sheet: each of the face's vertices lies within this distance [r0] of the line
+#: along its nearest sheet vertex's normal (the sheet's vertices are about a spacing apart;
+#: a patch running past the sheet's rim is farther out there, and the body would not cover it).
+SECOND_FACE_OVER = 1.0
 #: Fewest data points that make the statistics.
 MIN_POINTS = 20
 
@@ -281,8 +287,9 @@ def closed_two_sided(
     is not simple), would enclose no positive volume (folded: thicker than the sheet's radius
     of curvature) or would cross itself, another body or the rest of the mesh stays as it is
     (one crossing search for all bodies, repeated after each retry or drop). A two-sided
-    sheet's other face meshed apart (:data:`SECOND_FACE_REACH`) is left out when the bodies
-    made without it close at least one; its vertices are then dropped too.
+    sheet's other face meshed apart (:data:`SECOND_FACE_REACH`) is left out, its vertices
+    dropped too, when every sheet that lost one becomes a body without it; otherwise the mesh
+    is judged as given.
 
     Returns ``(vertices, normals, faces, crease, closed)`` (``crease``: the crease flags of
     the vertices, a copy's taken from its original, None when none were given; ``closed``:
@@ -319,9 +326,15 @@ def _second_faces(
             if not np.all(np.isfinite(dist)):
                 continue
             at = used[j]
-            d = np.einsum("ij,ij->i", vertices[mine] - vertices[at], normals[at])
+            offset = vertices[mine] - vertices[at]
+            d = np.einsum("ij,ij->i", offset, normals[at])
+            across = np.linalg.norm(offset - d[:, None] * normals[at], axis=1)
             cos = np.abs(np.einsum("ij,ij->i", normals[mine], normals[at]))
-            if (np.all(d > 0) or np.all(d < 0)) and np.median(cos) >= SECOND_FACE_PARALLEL:
+            if (
+                (np.all(d > 0) or np.all(d < 0))
+                and np.all(across <= SECOND_FACE_OVER)
+                and np.median(cos) >= SECOND_FACE_PARALLEL
+            ):
                 out.append((sheet.component, other.component))
     return out
 

@@ -448,17 +448,29 @@ def test_a_thin_parts_second_face_meshed_apart_is_left_to_the_body(monkeypatch):
     assert out is not None and len(boundary_loops(out[2])) == 1
 
 
-@pytest.mark.parametrize("case", ["far", "across"])
-def test_an_open_sheet_beyond_reach_or_across_the_sheet_is_not_a_second_face(case):
+@pytest.mark.parametrize("case", ["far", "across", "past the rim"])
+def test_an_open_sheet_beyond_reach_across_or_past_the_sheet_is_not_a_second_face(
+    case, monkeypatch
+):
     rng = np.random.default_rng(13)
     v, n, f, data = _with_second_face(3.0 if case == "far" else 1.2, rng)
+    if case == "past the rim":  # the patch and its data run 2 past the sheet's edge (x = 11)
+        v[144:, 0] += 5.5
+        data[np.isclose(data[:, 2], -1.2), 0] += 5.5
     if case == "across":  # the patch stood on its edge below the sheet: a wall within reach
         low = np.arange(144, len(v))
         v[low] = np.column_stack([np.full(len(low), 5.5), v[low, 1], 0.5 * (v[low, 0] - 3.5) - 2.2])
         n[low] = [1.0, 0.0, 0.0]
         assert np.all((v[low, 2] < 0) & (v[low, 2] > -2.5))
     sides = two_sided_sheets(v, n, f, data)
+    assert sides[0].two_sided and not sides[1].two_sided
     assert two_sided._second_faces(v, n, sides) == []
+    # each case is turned down by its own condition
+    name = {"far": "SECOND_FACE_REACH", "across": "SECOND_FACE_PARALLEL"}.get(
+        case, "SECOND_FACE_OVER"
+    )
+    monkeypatch.setattr(two_sided, name, {"SECOND_FACE_PARALLEL": 0.0}.get(name, 10.0))
+    assert two_sided._second_faces(v, n, sides) == [(0, 1)]
 
 
 def test_a_second_face_stays_when_its_sheets_body_is_not_made():
