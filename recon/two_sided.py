@@ -107,7 +107,8 @@ HALF_NEIGHBOURS = 36
 #: A body's half-thickness at a vertex, as a multiple of the separation: at least, at most.
 HALF_RANGE = (0.25, 2.0)
 #: An open component that is not two-sided, with every vertex within this distance [r0] of a
-#: two-sided sheet, all on one side of it and parallel to it, is the same part's other face
+#: two-sided sheet, over it (SECOND_FACE_OVER), all on one side of it, and parallel to it
+#: (SECOND_FACE_PARALLEL), is the same part's other face
 #: meshed on its own where the part is thicker (module docstring): a thin part's two faces
 #: are closer than about 2 spacings where their particles merge; the knife's patch at 3,000
 #: points, seed 0, lies 1.6-2.1 r0 from the merged layer.
