@@ -108,10 +108,10 @@ HALF_NEIGHBOURS = 36
 HALF_RANGE = (0.25, 2.0)
 #: An open component that is not two-sided, with every vertex within this distance [r0] of a
 #: two-sided sheet, over it (SECOND_FACE_OVER), all on one side of it, and parallel to it
-#: (SECOND_FACE_PARALLEL), is the same part's other face
-#: meshed on its own where the part is thicker (module docstring): a thin part's two faces
-#: are closer than about 2 spacings where their particles merge; the knife's patch at 3,000
-#: points, seed 0, lies 1.6-2.1 r0 from the merged layer.
+#: (SECOND_FACE_PARALLEL), is the same part's other face meshed on its own where the part is
+#: thicker (module docstring): a thin part's two faces are closer than about 2 spacings where
+#: their particles merge; the knife's patch at 3,000 points, seed 0, lies 1.6-2.1 r0 from the
+#: merged layer.
 SECOND_FACE_REACH = 2.5
 #: Parallel: the median |cosine| between the face's vertex normals and the sheet's, at least.
 SECOND_FACE_PARALLEL = 0.9
@@ -299,9 +299,7 @@ def closed_two_sided(
     label, sides = _sides(vertices, normals, faces, points)
     pairs = _second_faces(vertices, normals, sides)
     if pairs:  # the sheet's body covers its other face: try without it first
-        gone = np.zeros(int(label.max()) + 1, dtype=bool)
-        gone[[face for _, face in pairs]] = True
-        keep = ~gone[label]
+        keep = ~np.isin(label, [face for _, face in pairs])
         # each such sheet must become a body, else its other face is lost: one face of each
         must = (np.cumsum(keep) - 1)[[int(np.argmax(label == sheet)) for sheet, _ in pairs]]
         out = _bodies(vertices, normals, faces[keep], points, crease, must=must)
@@ -316,11 +314,12 @@ def _second_faces(
     """``(sheet, face)`` components of ``sides``: ``face`` is two-sided ``sheet``'s other face
     meshed apart (:data:`SECOND_FACE_REACH`)."""
     out: list[tuple[int, int]] = []
+    taken: set[int] = set()
     for sheet in (s for s in sides if s.two_sided):
         used = np.unique(sheet.faces)
         tree = cKDTree(vertices[used])
         for other in sides:
-            if other.two_sided or other.component in {face for _, face in out}:
+            if other.two_sided or other.component in taken:
                 continue
             mine = np.unique(other.faces)
             dist, j = tree.query(vertices[mine], distance_upper_bound=SECOND_FACE_REACH)
@@ -337,6 +336,7 @@ def _second_faces(
                 and np.median(cos) >= SECOND_FACE_PARALLEL
             ):
                 out.append((sheet.component, other.component))
+                taken.add(other.component)
     return out
 
 
