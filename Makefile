@@ -5,7 +5,7 @@ PY := .venv/bin/python
 OPRECON := .venv/bin/oprecon
 LINTED := recon cli configs tests benchmarks scripts
 
-.PHONY: setup demo test test-checks test-suite test-wheel lint format bench refresh-references clean
+.PHONY: setup demo test test-compile test-checks test-suite test-wheel lint format bench refresh-references clean
 
 setup:
 	@bash scripts/setup.sh
@@ -20,10 +20,13 @@ demo: setup
 # make test: lint, then the docstring examples, a pure-Python pass of the kernel tests (numba's
 # JIT off, so coverage and tracebacks see the kernels' source) and the suite; beside those, the
 # installed wheel. The wheel's fit compiles every fit kernel once more in its scratch venv
-# (about 3 minutes of one core, 2026-11-29), so it runs as a second job from the start, while the
-# docstring examples leave a core idle. The JIT-off pass and the suite run on TEST_WORKERS
-# processes (pytest-xdist, one test file per worker at a time, so a file's module fixtures are
-# built once; `logical`: one per logical CPU, at most 4); TEST_WORKERS=0 runs them in one process.
+# (about 4 minutes of one core, 2026-11-30), so it runs as a second job from the start. On the
+# other core one fit of the bundled sample compiles the fit kernels into numba's cache first
+# (test-compile: about 4 minutes on a fresh clone, a few seconds once cached): otherwise every
+# test worker compiles its own copy of the same kernels at once. The JIT-off pass and the suite
+# run on TEST_WORKERS processes (pytest-xdist, one test file per worker at a time, so a file's
+# module fixtures are built once; `logical`: one per logical CPU, at most 4); TEST_WORKERS=0
+# runs them in one process.
 TEST_WORKERS ?= logical
 XDIST := -n $(TEST_WORKERS) --maxprocesses=4 --dist loadfile
 
@@ -32,7 +35,12 @@ test: setup
 	$(PY) -m ruff format --check $(LINTED)
 	@$(MAKE) --no-print-directory -j2 test-wheel test-suite
 
-test-checks: setup
+test-compile: setup
+	@out=$$(mktemp -d) && trap 'rm -rf "$$out"' EXIT && \
+	  echo "test-compile: fitting sample_data/bunny-sparse.ply (compiles the fit kernels once)" && \
+	  $(OPRECON) fit sample_data/bunny-sparse.ply -o "$$out/bunny-sparse.ply" -q
+
+test-checks: test-compile
 	$(PY) -m pytest -q -p no:cacheprovider --doctest-modules recon
 	NUMBA_DISABLE_JIT=1 $(PY) -m pytest -q -p no:cacheprovider $(XDIST) tests/kernels
 

@@ -46,6 +46,9 @@ except ImportError:
     pass
 else:
     raise SystemExit("check_wheel: a top-level 'cli' package is importable")
+from importlib.resources import files
+example = files("recon.configs") / "examples" / "batch_example.yaml"
+assert example.is_file(), f"check_wheel: the batch example is not in the wheel ({example})"
 PY
 echo "check_wheel: fitting sample_data/square_hole-sparse.ply with --preset open_scan (installed wheel)" >&2
 "$scratch/venv/bin/oprecon" fit "$root/sample_data/square_hole-sparse.ply" -o "$scratch/out.ply" \
