@@ -22,7 +22,13 @@ from recon.batch import (
     run_batch,
 )
 
-from .common import EXIT_INTERRUPTED, catch_errors, common_run_options, resolve_preset
+from .common import (
+    EXIT_INTERRUPTED,
+    catch_errors,
+    common_run_options,
+    note_first_compile,
+    resolve_preset,
+)
 
 
 def _short(path: Path | str | None, folder: Path) -> str:
@@ -253,6 +259,8 @@ def command(
         click.echo(format_plan(plan))
         sys.exit(1 if plan.with_action("fail") else 0)
     progress = BatchProgress(total=len(plan.with_action("run")), enabled=not quiet)
+    if plan.with_action("run") and not scheduler:  # a remote cluster's caches are its own
+        note_first_compile(quiet)
     try:
         report = run_batch(
             plan,

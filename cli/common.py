@@ -48,6 +48,21 @@ def fail(message: str, code: int = EXIT_BAD_INPUT) -> None:
     sys.exit(code)
 
 
+def note_first_compile(quiet: bool) -> None:
+    """Say on stderr, before a fit starts, when it will first compile numba's kernels (no
+    cache for this version on this machine yet): minutes in which nothing else is shown."""
+    if quiet:
+        return
+    from recon.kernels.warm import SLOW_TO_COMPILE, uncached
+
+    if uncached(SLOW_TO_COMPILE):
+        click.echo(
+            "oprecon: compiling the numba kernels first (this version's first run on this "
+            "machine: a few minutes of CPU, once; later runs load them from the cache)",
+            err=True,
+        )
+
+
 def setup_logging(quiet: bool = False, verbose: bool = False) -> None:
     level = logging.WARNING if quiet else (logging.DEBUG if verbose else logging.INFO)
     root = logging.getLogger("recon")

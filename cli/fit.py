@@ -18,6 +18,7 @@ from .common import (
     config_options,
     format_rows,
     mesh_output_option,
+    note_first_compile,
     parse_viewpoint,
     threads_option,
 )
@@ -421,6 +422,7 @@ def command(
     if threads is not None:
         cfg = apply_overrides(cfg, {"threads": threads})
     progress = Progress(enabled=not quiet)
+    note_first_compile(quiet or scheduler is not None)  # a remote cluster's caches are its own
     named = [
         str(p)
         for p in (

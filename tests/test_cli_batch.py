@@ -135,6 +135,23 @@ def test_missing_dask_exits_2_with_the_install_hint(shapes, monkeypatch):
     assert 'pip install "oprecon[distributed]"' in result.stderr
 
 
+def test_a_first_run_says_it_compiles_the_kernels_first_unless_the_cluster_is_remote(
+    shapes, monkeypatch
+):
+    from recon.kernels import warm
+
+    path = shapes / "batch.yaml"
+    path.write_text("inputs: ['*/shape.xyz']\noutput_dir: out\n")
+    monkeypatch.setattr(warm, "uncached", lambda names=(): ["pair_loop.step_particles"])
+    monkeypatch.setitem(sys.modules, "dask", None)  # stops the run where the items would start
+    monkeypatch.setitem(sys.modules, "dask.distributed", None)
+    local = invoke(str(path), "--executor", "dask")
+    remote = invoke(str(path), "--executor", "dask", "--scheduler", "tcp://127.0.0.1:1")
+    assert local.exit_code == remote.exit_code == 2
+    assert "compiling the numba kernels first" in local.stderr
+    assert "compiling" not in remote.stderr
+
+
 def hang_job(spec: dict, on_progress) -> dict:
     """A fake job that writes a partial output and never finishes (runs in the child)."""
     from recon.io import atomic_output

@@ -166,3 +166,32 @@ def test_time_limit_fails_cleanly_without_output(tmp_path):
 def test_help_teaches_with_examples():
     res = _run(["fit", "--help"])
     assert "Examples" in res.output and "--max-gap" in res.output
+
+
+def _fit_stopped_before_it_starts(tmp_path, monkeypatch, uncached, *extra):
+    """`oprecon fit` with the kernels' cache state faked and the fit itself replaced by an
+    input error, so only what is said before the fit is exercised."""
+    import recon.fitting
+    from recon.errors import OpreconError
+    from recon.kernels import warm
+
+    def stop(*args, **kwargs):
+        raise OpreconError("stopped before the fit")
+
+    monkeypatch.setattr(warm, "uncached", lambda names=warm.FIT_KERNELS: list(uncached))
+    monkeypatch.setattr(recon.fitting, "fit_file", stop)
+    return _run(["fit", str(_sphere_file(tmp_path, n=50)), "-o", str(tmp_path / "m.ply"), *extra])
+
+
+def test_a_first_run_says_it_compiles_the_kernels_first(tmp_path, monkeypatch):
+    res = _fit_stopped_before_it_starts(tmp_path, monkeypatch, ["pair_loop.step_particles"])
+    assert res.exit_code == 2 and "stopped before the fit" in res.stderr
+    note = res.stderr.index("compiling the numba kernels first")
+    assert note < res.stderr.index("stopped before the fit")
+
+
+def test_no_compile_note_when_cached_or_quiet(tmp_path, monkeypatch):
+    res = _fit_stopped_before_it_starts(tmp_path, monkeypatch, [])
+    assert res.exit_code == 2 and "compiling" not in res.stderr
+    res = _fit_stopped_before_it_starts(tmp_path, monkeypatch, ["pair_loop.step_particles"], "-q")
+    assert res.exit_code == 2 and "compiling" not in res.stderr

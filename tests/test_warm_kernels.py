@@ -178,3 +178,26 @@ def test_a_load_that_raises_puts_the_callbacks_back(tmp_path, monkeypatch):
         warm.load_cached([kernel])
     assert inside == [[]]  # the load ran without them
     assert ffi.lib._lock._cblist == before  # and they are back, each once
+
+
+def test_uncached_names_the_kernels_without_a_cache(tmp_path, monkeypatch):
+    path = tmp_path / "warm_uncached.py"
+    path.write_text(SOURCE)
+    module = _import(path, "warm_uncached_a")
+    module.twice(2.0)  # compiles and writes the cache; never_called has none
+    names = ("sample.twice", "sample.never_called")
+    monkeypatch.setattr(warm, "resolve", lambda _: [module.twice, module.never_called])
+    assert warm.uncached(names) == ["sample.never_called"]
+
+
+def test_uncached_is_empty_when_numbas_cache_internals_are_renamed(monkeypatch):
+    def renamed(dispatcher):
+        raise AttributeError("'_CacheFile' object has no attribute '_load_index'")
+
+    monkeypatch.setattr(warm, "cached_signatures", renamed)
+    assert warm.uncached() == []
+
+
+def test_the_slow_kernels_are_fit_kernels():
+    assert set(warm.SLOW_TO_COMPILE) <= set(warm.FIT_KERNELS)
+    assert all(isinstance(k, Dispatcher) for k in warm.resolve(warm.SLOW_TO_COMPILE))

@@ -70,6 +70,16 @@ FIT_KERNELS: tuple[str, ...] = (
     "tri_intersect.pairs_intersect",
 )
 
+#: The kernels whose compile is most of a first fit's: 69, 31 and 20 s of the 234 s of CPU that
+#: compiling every kernel of a bunny-sparse fit took on the 2-core AVX2 development machine
+#: (numba's ``numba:compile`` events, exclusive times, 2026-11-30). While one of them has no
+#: cache, a fit compiles for minutes before its first step.
+SLOW_TO_COMPILE: tuple[str, ...] = (
+    "pair_loop.step_particles",
+    "gauss_map.gauss_map_kernel",
+    "grid_query.anchor_feet_kernel",
+)
+
 _lock = threading.Lock()
 _started: threading.Thread | None = None
 
@@ -83,6 +93,22 @@ def cached_signatures(dispatcher: Dispatcher) -> list[tuple]:
         return []
     codegen = dispatcher.targetctx.codegen()
     return [key[0] for key in cache_file._load_index() if key == cache._index_key(key[0], codegen)]
+
+
+def uncached(names: Sequence[str] = FIT_KERNELS) -> list[str]:
+    """Those of ``names`` (``module.function`` under :mod:`recon.kernels`) whose cache holds no
+    signature for the current source and machine: a fit compiles them at their first call
+    (the first run on a machine, after an upgrade, or with the cache deleted). Empty without
+    the JIT, and when numba's cache cannot be read this way (the note it feeds is then left
+    out: nothing depends on it)."""
+    try:
+        return [
+            name
+            for name, kernel in zip(names, resolve(names), strict=True)
+            if isinstance(kernel, Dispatcher) and not cached_signatures(kernel)
+        ]
+    except Exception:  # noqa: BLE001 - numba internals renamed: no note, the fit is the same
+        return []
 
 
 def load_cached(dispatchers: Sequence[object]) -> int:
