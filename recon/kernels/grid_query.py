@@ -316,44 +316,37 @@ def anchor_feet_kernel(
             )
             best_i[0] = j0
             best_d2[0] = d0
-        if certified:
-            found = 1
-            ok = True
-        else:
-            # fast path: the nearest point alone (the shells end sooner) when it agrees
-            found, ok = _knn_one(
-                query[i, 0],
-                query[i, 1],
-                query[i, 2],
-                grid,
-                cell_size,
-                1,
-                max_ring,
-                best_d2,
-                best_i,
-            )
-        if ok and found == 1:
-            j = best_i[0]
-            agrees = (
-                normals[j, 0] * qnormals[i, 0]
-                + normals[j, 1] * qnormals[i, 1]
-                + normals[j, 2] * qnormals[i, 2]
-            ) > 0.0
-            fast = agrees or not use_normals
-        else:
-            fast = False
-        if not fast:
-            found, ok = _knn_one(
-                query[i, 0],
-                query[i, 1],
-                query[i, 2],
-                grid,
-                cell_size,
-                k,
-                max_ring,
-                best_d2,
-                best_i,
-            )
+        # fast path: the nearest point alone (certified by the walk, or found by the grid,
+        # whose shells end sooner for one) when it agrees; else the k nearest. One search
+        # call site, entered at most twice: numba copies an inlined function's IR per site.
+        found = 1
+        ok = True
+        fast = False
+        want = 1
+        while not fast:
+            if want > 1 or not certified:
+                found, ok = _knn_one(
+                    query[i, 0],
+                    query[i, 1],
+                    query[i, 2],
+                    grid,
+                    cell_size,
+                    want,
+                    max_ring,
+                    best_d2,
+                    best_i,
+                )
+            if want == k:
+                break
+            if ok and found == 1:
+                j = best_i[0]
+                agrees = (
+                    normals[j, 0] * qnormals[i, 0]
+                    + normals[j, 1] * qnormals[i, 1]
+                    + normals[j, 2] * qnormals[i, 2]
+                ) > 0.0
+                fast = agrees or not use_normals
+            want = k
         out_ok[i] = ok
         if not ok or found == 0:
             out_ok[i] = False

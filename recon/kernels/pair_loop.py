@@ -228,49 +228,72 @@ def pair_interaction(rx, ry, rz, nix, niy, niz, njx, njy, njz, oriented, coef, m
 
 
 @njit(inline="always", **_JIT)
-def _pair_terms(pr, po, pt, count, coef, mode, variable_rest):
-    """Pass 2 of :func:`step_particles`: the terms of :func:`pair_interaction` (S&T92 eqs. 3-7)
-    for ``count`` gathered pairs (``pr`` rows r (3), s_ij, n_j (3), n_i (3); ``po`` oriented)
-    into ``pt`` rows E_ij, f_i (3), τ_i (3). Inlined (no array arguments at run time).
+def _poly_pair_terms(pr, po, pt, count, coef, variable_rest):
+    """Pass 2 of :func:`step_particles` for the polynomial weight: the terms of
+    :func:`pair_interaction` (S&T92 eqs. 3-7) for ``count`` gathered pairs (``pr`` rows r (3),
+    s_ij, n_j (3), n_i (3); ``po`` oriented) into ``pt`` rows E_ij, f_i (3), τ_i (3), by the
+    branch-free :func:`~recon.kernels.pair_terms.polynomial_pair_terms`.
 
-    :func:`step_particles` calls it with constant ``mode`` and ``variable_rest`` for the
-    polynomial weight, which takes the branch-free
-    :func:`~recon.kernels.pair_terms.polynomial_pair_terms`: the loop reads and writes only
+    Inlined, with ``variable_rest`` a constant at each call: the loop reads and writes only
     contiguous scratch rows and LLVM vectorises it (4 lanes with AVX2, up to 8 with AVX-512).
     A SIMD lane performs the scalar operations (add, multiply, divide, square root: exactly
-    rounded; no ``contract`` or ``reassoc``), so the terms are bit-identical. The Gaussian
-    weights call ``exp``, which would differ in a vector math library: they keep the reference."""
+    rounded; no ``contract`` or ``reassoc``), so the terms are bit-identical. The loop calls
+    nothing that is not inlined (a call in it would keep LLVM from vectorising it)."""
     for a in range(count):
-        rx, ry, rz, s_ij = pr[0, a], pr[1, a], pr[2, a], pr[3, a]
-        njx, njy, njz = pr[4, a], pr[5, a], pr[6, a]
-        nix, niy, niz = pr[7, a], pr[8, a], pr[9, a]
-        if mode == WEIGHT_POLY:
-            e, fx, fy, fz, tx, ty, tz = polynomial_pair_terms(
-                rx, ry, rz, nix, niy, niz, njx, njy, njz, po[a], coef, s_ij, variable_rest
-            )
-        else:
-            e, fx, fy, fz, tx, ty, tz, _, _, _ = pair_interaction(
-                rx,
-                ry,
-                rz,
-                nix,
-                niy,
-                niz,
-                njx,
-                njy,
-                njz,
-                po[a],
-                coef,
-                mode,
-                s_ij if variable_rest else 1.0,
-            )
-        pt[0, a] = e
-        pt[1, a] = fx
-        pt[2, a] = fy
-        pt[3, a] = fz
-        pt[4, a] = tx
-        pt[5, a] = ty
-        pt[6, a] = tz
+        e, fx, fy, fz, tx, ty, tz = polynomial_pair_terms(
+            pr[0, a],
+            pr[1, a],
+            pr[2, a],
+            pr[7, a],
+            pr[8, a],
+            pr[9, a],
+            pr[4, a],
+            pr[5, a],
+            pr[6, a],
+            po[a],
+            coef,
+            pr[3, a],
+            variable_rest,
+        )
+        _store_terms(pt, a, e, fx, fy, fz, tx, ty, tz)
+
+
+@njit(**_JIT)
+def _other_pair_terms(pr, po, pt, count, coef, mode, variable_rest):
+    """Pass 2 of :func:`step_particles` for the Gaussian and anisotropic weights: as
+    :func:`_poly_pair_terms`, by :func:`pair_interaction`. Not inlined: it is called once per
+    block of rows, so its array arguments cost a few reference counts per block, and the step
+    kernel compiles without a third copy of the pair terms (numba copies the IR of every
+    inlined call; this copy took about 5 s of the kernel's compile). These weights call
+    ``exp``, which would differ in a vector math library: the loop keeps the scalar reference."""
+    for a in range(count):
+        e, fx, fy, fz, tx, ty, tz, _, _, _ = pair_interaction(
+            pr[0, a],
+            pr[1, a],
+            pr[2, a],
+            pr[7, a],
+            pr[8, a],
+            pr[9, a],
+            pr[4, a],
+            pr[5, a],
+            pr[6, a],
+            po[a],
+            coef,
+            mode,
+            pr[3, a] if variable_rest else 1.0,
+        )
+        _store_terms(pt, a, e, fx, fy, fz, tx, ty, tz)
+
+
+@njit(inline="always", **_JIT)
+def _store_terms(pt, a, e, fx, fy, fz, tx, ty, tz):
+    pt[0, a] = e
+    pt[1, a] = fx
+    pt[2, a] = fy
+    pt[3, a] = fz
+    pt[4, a] = tx
+    pt[5, a] = ty
+    pt[6, a] = tz
 
 
 @njit(**_JIT)
@@ -330,7 +353,8 @@ def step_particles(
     gathered branch-free, with r = x_j − x_i, s_ij, n_j, n_i and whether both are oriented
     (every normal is computed from its quaternion once per call, not once per pair);
     (2) the pair terms of the whole block are computed into the scratch
-    (:func:`_pair_terms`, vectorised for the polynomial weight); (3) per row, the terms are
+    (:func:`_poly_pair_terms`, vectorised, for the polynomial weight;
+    :func:`_other_pair_terms` for the others); (3) per row, the terms are
     summed in list order, then the anchors and the step. Each pair's arithmetic (no
     ``contract`` or ``reassoc``: a SIMD lane computes what the scalar code does) and the order
     of every sum are those of a single loop over the row, so the results are bit-identical to
@@ -470,11 +494,11 @@ def step_particles(
                 po[a] = oriented
         # pass 2: the pair terms (S&T92 eqs. 3-7) of the whole block into pt
         if mode == WEIGHT_POLY and variable_rest:
-            _pair_terms(pr, po, pt, count, coef, WEIGHT_POLY, True)
+            _poly_pair_terms(pr, po, pt, count, coef, True)
         elif mode == WEIGHT_POLY:
-            _pair_terms(pr, po, pt, count, coef, WEIGHT_POLY, False)
+            _poly_pair_terms(pr, po, pt, count, coef, False)
         else:
-            _pair_terms(pr, po, pt, count, coef, mode, variable_rest)
+            _other_pair_terms(pr, po, pt, count, coef, mode, variable_rest)
         for i in range(lo, hi):
             status = 0
             x0 = position[i, 0]

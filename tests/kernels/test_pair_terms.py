@@ -15,9 +15,9 @@ from numba import njit
 from recon.config import ReconConfig
 from recon.forces import pack_coefficients
 from recon.kernels.options import JIT_OPTIONS
-from recon.kernels.pair_loop import _pair_terms, pair_interaction
+from recon.kernels.pair_loop import _other_pair_terms, _poly_pair_terms, pair_interaction
 from recon.kernels.pair_terms import isotropic_orientation_terms
-from recon.kernels.weights import WEIGHT_POLY
+from recon.kernels.weights import WEIGHT_ANISOTROPIC, WEIGHT_GAUSSIAN, WEIGHT_POLY
 from recon.params import PhysicsParams
 from tests.reference import unit
 
@@ -52,13 +52,13 @@ def test_isotropic_fast_path_equals_the_term_kernels():
 def _pass_two_uniform(pr, po, pt, count, coef):
     """The step kernel's pass 2 as ``step_particles`` inlines it (scratch rows r (3), s_ij,
     n_j (3), n_i (3); constant flags), for uniform spacing ..."""
-    _pair_terms(pr, po, pt, count, coef, WEIGHT_POLY, False)
+    _poly_pair_terms(pr, po, pt, count, coef, False)
 
 
 @njit(**_OPTIONS)
 def _pass_two_variable(pr, po, pt, count, coef):
     """... and for per-particle rest spacings."""
-    _pair_terms(pr, po, pt, count, coef, WEIGHT_POLY, True)
+    _poly_pair_terms(pr, po, pt, count, coef, True)
 
 
 @njit(**_OPTIONS)
@@ -147,6 +147,35 @@ def test_branch_free_terms_equal_the_reference_bit_for_bit(variant, variable_res
     assert (want[4:7, rest] != 0.0).any() or variant == "no orientation terms"
 
 
+@njit(**_OPTIONS)
+def _reference_any(pr, po, coef, mode, variable_rest, out):
+    for a in range(pr.shape[1]):
+        scale = pr[9, a] if variable_rest else 1.0
+        t = pair_interaction(
+            pr[0, a], pr[1, a], pr[2, a], pr[3, a], pr[4, a], pr[5, a], pr[6, a],
+            pr[7, a], pr[8, a], po[a], coef, mode, scale,
+        )  # fmt: skip
+        for k in range(7):
+            out[k, a] = t[k]
+
+
+@pytest.mark.parametrize("mode", [WEIGHT_GAUSSIAN, WEIGHT_ANISOTROPIC])
+@pytest.mark.parametrize("variable_rest", [False, True])
+def test_the_other_weights_pass_two_is_the_reference_per_pair(mode, variable_rest):
+    """The step kernel's pass 2 for the Gaussian and anisotropic weights (a function of its
+    own, called once per block) gives each pair's :func:`pair_interaction`, bit for bit."""
+    params = dataclasses.replace(PhysicsParams.from_config(ReconConfig(), 0.7), anisotropy=2.5)
+    coef = pack_coefficients(params)
+    pr, po = _pairs(np.random.default_rng(5), 503, params.cutoff)
+    got = np.empty((7, pr.shape[1]))
+    want = np.empty_like(got)
+    scratch = np.ascontiguousarray(pr[[0, 1, 2, 9, 6, 7, 8, 3, 4, 5]])  # the kernel's rows
+    _other_pair_terms(scratch, po, got, pr.shape[1], coef, mode, variable_rest)
+    _reference_any(pr, po, coef, mode, variable_rest, want)
+    np.testing.assert_array_equal(got.view(np.int64), want.view(np.int64))
+    assert np.count_nonzero(want[4:7, RANDOM_FROM:]) > 100  # torques: the pairs interact
+
+
 def _host_has_avx2() -> bool:
     import llvmlite.binding as llvm
 
@@ -167,7 +196,7 @@ def _host_has_avx2() -> bool:
 @pytest.mark.parametrize("pass_two", [_pass_two_uniform, _pass_two_variable])
 def test_the_step_kernels_term_loop_runs_in_simd_lanes_on_avx2(pass_two):
     """The reason for the module: LLVM's cost model declined the branchy reference on AVX2
-    (znver3). A branch added back to the step kernel's pass 2 (:func:`_pair_terms`, inlined
+    (znver3). A branch added back to the step kernel's pass 2 (:func:`_poly_pair_terms`, inlined
     into ``step_particles`` as here) would make it scalar again (about 2.4x slower)."""
     coef = pack_coefficients(PhysicsParams.from_config(ReconConfig(), 1.0))
     pr = np.zeros((10, 64))
