@@ -498,7 +498,10 @@ def step_particles(
         elif mode == WEIGHT_POLY:
             _poly_pair_terms(pr, po, pt, count, coef, False)
         else:
-            _other_pair_terms(pr, po, pt, count, coef, mode, variable_rest)
+            # the count read back from the int64 array: typed int64 from the start (the
+            # running `count` is first typed as the literal 0, which would compile this
+            # function twice)
+            _other_pair_terms(pr, po, pt, start[hi - lo], coef, mode, variable_rest)
         for i in range(lo, hi):
             status = 0
             x0 = position[i, 0]
