@@ -62,6 +62,12 @@ def _pass_two_variable(pr, po, pt, count, coef):
 
 
 @njit(**_OPTIONS)
+def _pass_two_either(pr, po, pt, count, coef, variable_rest):
+    """... and as ``step_particles`` calls it: the flag a run-time value."""
+    _poly_pair_terms(pr, po, pt, count, coef, variable_rest)
+
+
+@njit(**_OPTIONS)
 def _reference_loop(pr, po, coef, variable_rest, out):
     for a in range(pr.shape[1]):
         scale = pr[9, a] if variable_rest else 1.0
@@ -131,6 +137,9 @@ def test_branch_free_terms_equal_the_reference_bit_for_bit(variant, variable_res
     pass_two(scratch, po, got, pr.shape[1], coef)
     _reference_loop(pr, po, coef, variable_rest, want)
     np.testing.assert_array_equal(got.view(np.int64), want.view(np.int64))
+    either = np.empty_like(got)  # the flag as a run-time value, as the step kernel passes it
+    _pass_two_either(scratch, po, either, pr.shape[1], coef, variable_rest)
+    np.testing.assert_array_equal(either.view(np.int64), want.view(np.int64))
     # every branch of the reference is exercised by these pairs
     scale2 = pr[9] ** 2 if variable_rest else np.ones(pr.shape[1])
     d2 = np.sum(pr[0:3] ** 2, axis=0)
@@ -193,7 +202,7 @@ def _host_has_avx2() -> bool:
     or bool(os.environ.get("NUMBA_CPU_NAME") or os.environ.get("NUMBA_CPU_FEATURES")),
     reason="checks the code LLVM emits for this AVX2 host (no AVX-512, no other target set)",
 )
-@pytest.mark.parametrize("pass_two", [_pass_two_uniform, _pass_two_variable])
+@pytest.mark.parametrize("pass_two", [_pass_two_uniform, _pass_two_variable, _pass_two_either])
 def test_the_step_kernels_term_loop_runs_in_simd_lanes_on_avx2(pass_two):
     """The reason for the module: LLVM's cost model declined the branchy reference on AVX2
     (znver3). A branch added back to the step kernel's pass 2 (:func:`_poly_pair_terms`, inlined
@@ -201,7 +210,8 @@ def test_the_step_kernels_term_loop_runs_in_simd_lanes_on_avx2(pass_two):
     coef = pack_coefficients(PhysicsParams.from_config(ReconConfig(), 1.0))
     pr = np.zeros((10, 64))
     pr[3] = pr[6] = pr[9] = 1.0
-    pass_two(pr, np.ones(64, dtype=np.bool_), np.empty((7, 64)), 64, coef)
+    flag = (bool(pr[3, 0] != 1.0),) if pass_two is _pass_two_either else ()  # run-time False
+    pass_two(pr, np.ones(64, dtype=np.bool_), np.empty((7, 64)), 64, coef, *flag)
     asm = next(iter(pass_two.inspect_asm().values()))
     packed = re.findall(r"vmulpd\s+[^\n]*ymm", asm)
     assert len(packed) >= 20, f"{len(packed)} packed multiplies on ymm registers"
