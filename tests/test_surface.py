@@ -124,3 +124,28 @@ def test_walk_certifies_only_what_its_table_covers():
     assert (j, ok) == (7 * 10 + 7, True) and d2 == pytest.approx(0.04 + 0.01 + 0.01)
     # 0.8 off the grid: a point as near could lie beyond the table (2 d > its reach)
     assert _walk_nearest(7.2, 6.9, 0.8, 0, pts, nbr, reach)[2] is False
+
+
+def test_anchor_hints_give_the_same_anchors_with_one_neighbour(monkeypatch):
+    """With k = 1 (the nearest point, whatever its normal) the kernel's walk, grid and the
+    k-d tree agree too, for agreeing and disagreeing normals, with and without hints."""
+    import recon.surface as surface
+
+    monkeypatch.setattr(surface, "AGREE_K", 1)
+    rng = np.random.default_rng(6)
+    xy = rng.uniform(-10, 10, (3000, 2))
+    p = np.column_stack([xy, 0.03 * (xy**2).sum(axis=1) + rng.normal(0, 0.05, len(xy))])
+    nrm = np.tile([0.0, 0.0, 1.0], (len(p), 1))
+    s = DataSurface.build(p, nrm, k=20)
+    q = p[rng.integers(0, len(p), 2000)] + rng.normal(0, 0.3, (2000, 3))
+    q[:10] += [0.0, 0.0, 5.0]
+    qn = np.tile([0.0, 0.0, 1.0], (len(q), 1))
+    qn[::3] *= -1.0
+    _, near = cKDTree(p).query(q)
+    for normals in (qn, None):
+        tree = s._anchors_tree(q, normals)
+        np.testing.assert_array_equal(tree[3], near)  # one neighbour: the nearest point
+        for hint in (near, None):
+            got = s.anchors(q, normals, hint=hint, with_index=True)
+            for a, b in zip(got, tree, strict=True):
+                np.testing.assert_allclose(a, b, rtol=0, atol=1e-12)

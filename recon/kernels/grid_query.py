@@ -322,21 +322,20 @@ def anchor_feet_kernel(
         found = 1
         ok = True
         fast = False
-        want = 1
-        while not fast:
-            if want > 1 or not certified:
+        for attempt in range(2):
+            if attempt == 1 or not certified:
                 found, ok = _knn_one(
                     query[i, 0],
                     query[i, 1],
                     query[i, 2],
                     grid,
                     cell_size,
-                    want,
+                    1 if attempt == 0 else k,
                     max_ring,
                     best_d2,
                     best_i,
                 )
-            if want == k:
+            if attempt == 1:
                 break
             if ok and found == 1:
                 j = best_i[0]
@@ -346,7 +345,8 @@ def anchor_feet_kernel(
                     + normals[j, 2] * qnormals[i, 2]
                 ) > 0.0
                 fast = agrees or not use_normals
-            want = k
+            if fast:
+                break
         out_ok[i] = ok
         if not ok or found == 0:
             out_ok[i] = False

@@ -228,6 +228,18 @@ def pair_interaction(rx, ry, rz, nix, niy, niz, njx, njy, njz, oriented, coef, m
 
 
 @njit(inline="always", **_JIT)
+def _store_terms(pt, a, e, fx, fy, fz, tx, ty, tz):
+    """Column ``a`` of the scratch ``pt``: E_ij, f_i (3), τ_i (3) of one pair."""
+    pt[0, a] = e
+    pt[1, a] = fx
+    pt[2, a] = fy
+    pt[3, a] = fz
+    pt[4, a] = tx
+    pt[5, a] = ty
+    pt[6, a] = tz
+
+
+@njit(inline="always", **_JIT)
 def _poly_pair_terms(pr, po, pt, count, coef, variable_rest):
     """Pass 2 of :func:`step_particles` for the polynomial weight: the terms of
     :func:`pair_interaction` (S&T92 eqs. 3-7) for ``count`` gathered pairs (``pr`` rows r (3),
@@ -236,8 +248,10 @@ def _poly_pair_terms(pr, po, pt, count, coef, variable_rest):
 
     Inlined, at one call site (numba copies an inlined function's IR per site: a second copy,
     one per value of ``variable_rest``, took about 17 s of the step kernel's compile and ran no
-    faster, 17.8 ns per pair either way). The loop reads and writes only contiguous scratch
-    rows, ``variable_rest`` selects the lengths without a branch, and LLVM vectorises it
+    faster: 17.8 ns per pair for uniform spacing with the flag a constant or a run-time
+    value, 18.6 with the run-time flag for per-particle spacing). The loop reads and writes only contiguous scratch
+    rows, LLVM turns the choice of lengths by ``variable_rest`` into selects (no branch in
+    the loop; checked on AVX2 by ``tests/kernels/test_pair_terms.py``), and vectorises it
     (4 lanes with AVX2, up to 8 with AVX-512).
     A SIMD lane performs the scalar operations (add, multiply, divide, square root: exactly
     rounded; no ``contract`` or ``reassoc``), so the terms are bit-identical. The loop calls
@@ -267,7 +281,8 @@ def _other_pair_terms(pr, po, pt, count, coef, mode, variable_rest):
     :func:`_poly_pair_terms`, by :func:`pair_interaction`. Not inlined: it is called once per
     block of rows, so its array arguments cost a few reference counts per block, and the step
     kernel compiles without a third copy of the pair terms (numba copies the IR of every
-    inlined call; this copy took about 5 s of the kernel's compile). These weights call
+    inlined call; with this copy, and the general terms in the polynomial copies' untaken
+    branches, the kernel's first call took 70 s against 56 s, 2026-11-30). These weights call
     ``exp``, which would differ in a vector math library: the loop keeps the scalar reference."""
     for a in range(count):
         e, fx, fy, fz, tx, ty, tz, _, _, _ = pair_interaction(
@@ -286,17 +301,6 @@ def _other_pair_terms(pr, po, pt, count, coef, mode, variable_rest):
             pr[3, a] if variable_rest else 1.0,
         )
         _store_terms(pt, a, e, fx, fy, fz, tx, ty, tz)
-
-
-@njit(inline="always", **_JIT)
-def _store_terms(pt, a, e, fx, fy, fz, tx, ty, tz):
-    pt[0, a] = e
-    pt[1, a] = fx
-    pt[2, a] = fy
-    pt[3, a] = fz
-    pt[4, a] = tx
-    pt[5, a] = ty
-    pt[6, a] = tz
 
 
 @njit(**_JIT)
@@ -347,9 +351,11 @@ def step_particles(
 ):
     r"""Forces, torques and (optionally) one integration step for every particle.
 
-    The loop body is written out in full (no helper receives arrays): passing arrays to a
-    non-inlined numba function costs atomic reference-count updates per call, which threads
-    contend for. Run it single-threaded with :func:`recon.kernels.options.thread_limit`.
+    The per-row work is written out in full (no helper called per row or per pair receives
+    arrays): passing arrays to a non-inlined numba function costs atomic reference-count
+    updates per call, which threads contend for. The one exception is
+    :func:`_other_pair_terms`, called once per block of rows. Run it single-threaded with
+    :func:`recon.kernels.options.thread_limit`.
 
     Rows are taken in blocks of ``_BLOCK``, each with its own scratch arrays (allocated once
     per block, not per particle), in three passes: (1) the list entries within the cutoff are

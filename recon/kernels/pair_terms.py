@@ -147,7 +147,8 @@ def polynomial_pair_terms(
     scale : float64
         s_ij, the pair's rest spacing relative to r0; read only when ``variable_rest``.
     variable_rest : bool
-        A constant at the call site: with False every length is the packed one (s_ij = 1).
+        With False every length is the packed one (s_ij = 1). The step kernel passes a
+        run-time value; LLVM selects between the two sets of lengths without a branch.
 
     Returns
     -------
