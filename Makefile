@@ -20,13 +20,13 @@ demo: setup
 # make test: lint, then the docstring examples, a pure-Python pass of the kernel tests (numba's
 # JIT off, so coverage and tracebacks see the kernels' source) and the suite; beside those, the
 # installed wheel. The wheel's fit compiles every fit kernel once more in its scratch venv
-# (about 4 minutes of one core, 2026-11-30), so it runs as a second job from the start. On the
-# other core one fit of the bundled sample compiles the fit kernels into numba's cache first
-# (test-compile: about 4 minutes on a fresh clone, a few seconds once cached): otherwise every
-# test worker compiles its own copy of the same kernels at once. The JIT-off pass and the suite
-# run on TEST_WORKERS processes (pytest-xdist, one test file per worker at a time, so a file's
-# module fixtures are built once; `logical`: one per logical CPU, at most 4); TEST_WORKERS=0
-# runs them in one process.
+# (3m37s of one core on the 2-core AVX2 machine, 2026-11-30), so it runs as a second job from
+# the start. On the other core one fit of the bundled sample compiles the fit kernels into
+# numba's cache first (test-compile: 3m30s on a fresh clone there, a few seconds once cached):
+# otherwise every test worker compiles its own copy of the same kernels at once. The JIT-off
+# pass and the suite run on TEST_WORKERS processes (pytest-xdist, one test file per worker at a
+# time, so a file's module fixtures are built once; `logical`: one per logical CPU, at most 4);
+# TEST_WORKERS=0 runs them in one process.
 TEST_WORKERS ?= logical
 XDIST := -n $(TEST_WORKERS) --maxprocesses=4 --dist loadfile
 

@@ -70,10 +70,11 @@ FIT_KERNELS: tuple[str, ...] = (
     "tri_intersect.pairs_intersect",
 )
 
-#: The kernels whose compile is most of a first fit's: 69, 31 and 20 s of the 234 s of CPU that
-#: compiling every kernel of a bunny-sparse fit took on the 2-core AVX2 development machine
-#: (numba's ``numba:compile`` events, exclusive times, 2026-11-30). While one of them has no
-#: cache, a fit compiles for minutes before its first step.
+#: The kernels whose compiles are the longest of a first fit's: 26 s (and 9 s for the pass it
+#: calls), 28 and 14 s of the 182 s that compiling every kernel of a bunny-sparse fit took on
+#: the 2-core AVX2 development machine (numba's ``numba:compile`` events, exclusive times,
+#: 2026-11-30). While one of them has no cache, a fit compiles for minutes before its first
+#: step.
 SLOW_TO_COMPILE: tuple[str, ...] = (
     "pair_loop.step_particles",
     "gauss_map.gauss_map_kernel",
