@@ -249,10 +249,10 @@ def _poly_pair_terms(pr, po, pt, count, coef, variable_rest):
     Inlined, at one call site (numba copies an inlined function's IR per site: a second copy,
     one per value of ``variable_rest``, took about 17 s of the step kernel's compile and ran no
     faster: 17.8 ns per pair for uniform spacing with the flag a constant or a run-time
-    value, 18.6 with the run-time flag for per-particle spacing). The loop reads and writes only contiguous scratch
-    rows, LLVM turns the choice of lengths by ``variable_rest`` into selects (no branch in
-    the loop; checked on AVX2 by ``tests/kernels/test_pair_terms.py``), and vectorises it
-    (4 lanes with AVX2, up to 8 with AVX-512).
+    value, 18.6 with the run-time flag for per-particle spacing). The loop reads and writes
+    only contiguous scratch rows, LLVM turns the choice of lengths by ``variable_rest`` into
+    selects (no branch in the loop; checked on AVX2 by ``tests/kernels/test_pair_terms.py``),
+    and vectorises it (4 lanes with AVX2, up to 8 with AVX-512).
     A SIMD lane performs the scalar operations (add, multiply, divide, square root: exactly
     rounded; no ``contract`` or ``reassoc``), so the terms are bit-identical. The loop calls
     nothing that is not inlined (a call in it would keep LLVM from vectorising it)."""
