@@ -48,14 +48,16 @@ def fail(message: str, code: int = EXIT_BAD_INPUT) -> None:
     sys.exit(code)
 
 
-def note_first_compile(quiet: bool) -> None:
-    """Say on stderr, before a fit starts, when it will first compile numba's kernels (no
-    cache for this version on this machine yet): minutes in which nothing else is shown."""
+def note_first_compile(quiet: bool, kernels: tuple[str, ...] | None = None) -> None:
+    """Say on stderr, before a run starts, when it will first compile numba's kernels (no
+    cache for this version on this machine yet): minutes in which nothing else is shown.
+    ``kernels``: those of :data:`recon.kernels.warm.SLOW_TO_COMPILE` the command calls (all
+    of them for a fit)."""
     if quiet:
         return
     from recon.kernels.warm import SLOW_TO_COMPILE, uncached
 
-    if uncached(SLOW_TO_COMPILE):
+    if uncached(SLOW_TO_COMPILE if kernels is None else kernels):
         click.echo(
             "oprecon: compiling the numba kernels first (this version's first run on this "
             "machine: a few minutes of CPU, once; later runs load them from the cache)",

@@ -14,6 +14,7 @@ from .common import (
     common_run_options,
     format_rows,
     mesh_output_option,
+    note_first_compile,
     threads_option,
 )
 
@@ -207,6 +208,7 @@ def command(
         check_intersections=not no_intersection_check,
         threads=threads,
     )
+    note_first_compile(quiet, ("pair_loop.step_particles",))  # the particles' relaxation
     try:
         result = remesh_file(
             input_path,

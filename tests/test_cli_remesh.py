@@ -110,3 +110,26 @@ def test_a_spacing_too_small_is_refused_before_the_work(tmp_path):
     res = _run(["remesh", str(SAMPLE), "-o", str(tmp_path / "m.ply"), "--spacing", "1e-5"])
     assert res.exit_code == 2 and "particles" in res.stderr and "--spacing" in res.stderr
     assert not (tmp_path / "m.ply").exists()
+
+
+def test_a_first_run_says_it_compiles_the_step_kernel_first(tmp_path, monkeypatch):
+    import recon.remesh
+    from recon.errors import OpreconError
+    from recon.kernels import warm
+
+    asked = []
+
+    def uncached(names=warm.FIT_KERNELS):
+        asked.append(tuple(names))
+        return list(names)
+
+    def stop(*args, **kwargs):
+        raise OpreconError("stopped before the remesh")
+
+    monkeypatch.setattr(warm, "uncached", uncached)
+    monkeypatch.setattr(recon.remesh, "remesh_file", stop)
+    res = _run(["remesh", str(SAMPLE), "-o", str(tmp_path / "m.ply")])
+    assert res.exit_code == 2
+    assert res.stderr.index("compiling the numba kernels first") < res.stderr.index("stopped")
+    assert asked == [("pair_loop.step_particles",)]  # the kernels a remesh calls, not a fit's
+    assert set(asked[0]) <= set(warm.SLOW_TO_COMPILE)
