@@ -257,20 +257,11 @@ def _poly_pair_terms(pr, po, pt, count, coef, variable_rest):
     rounded; no ``contract`` or ``reassoc``), so the terms are bit-identical. The loop calls
     nothing that is not inlined (a call in it would keep LLVM from vectorising it)."""
     for a in range(count):
+        rx, ry, rz, s_ij = pr[0, a], pr[1, a], pr[2, a], pr[3, a]
+        njx, njy, njz = pr[4, a], pr[5, a], pr[6, a]
+        nix, niy, niz = pr[7, a], pr[8, a], pr[9, a]
         e, fx, fy, fz, tx, ty, tz = polynomial_pair_terms(
-            pr[0, a],
-            pr[1, a],
-            pr[2, a],
-            pr[7, a],
-            pr[8, a],
-            pr[9, a],
-            pr[4, a],
-            pr[5, a],
-            pr[6, a],
-            po[a],
-            coef,
-            pr[3, a],
-            variable_rest,
+            rx, ry, rz, nix, niy, niz, njx, njy, njz, po[a], coef, s_ij, variable_rest
         )
         _store_terms(pt, a, e, fx, fy, fz, tx, ty, tz)
 
@@ -285,20 +276,12 @@ def _other_pair_terms(pr, po, pt, count, coef, mode, variable_rest):
     branches, the kernel's first call took 70 s against 56 s, 2026-11-30). These weights call
     ``exp``, which would differ in a vector math library: the loop keeps the scalar reference."""
     for a in range(count):
+        rx, ry, rz, s_ij = pr[0, a], pr[1, a], pr[2, a], pr[3, a]
+        njx, njy, njz = pr[4, a], pr[5, a], pr[6, a]
+        nix, niy, niz = pr[7, a], pr[8, a], pr[9, a]
+        scale = s_ij if variable_rest else 1.0
         e, fx, fy, fz, tx, ty, tz, _, _, _ = pair_interaction(
-            pr[0, a],
-            pr[1, a],
-            pr[2, a],
-            pr[7, a],
-            pr[8, a],
-            pr[9, a],
-            pr[4, a],
-            pr[5, a],
-            pr[6, a],
-            po[a],
-            coef,
-            mode,
-            pr[3, a] if variable_rest else 1.0,
+            rx, ry, rz, nix, niy, niz, njx, njy, njz, po[a], coef, mode, scale
         )
         _store_terms(pt, a, e, fx, fy, fz, tx, ty, tz)
 

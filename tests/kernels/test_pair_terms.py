@@ -68,15 +68,19 @@ def _pass_two_either(pr, po, pt, count, coef, variable_rest):
 
 
 @njit(**_OPTIONS)
-def _reference_loop(pr, po, coef, variable_rest, out):
+def _reference_any(pr, po, coef, mode, variable_rest, out):
     for a in range(pr.shape[1]):
         scale = pr[9, a] if variable_rest else 1.0
         t = pair_interaction(
             pr[0, a], pr[1, a], pr[2, a], pr[3, a], pr[4, a], pr[5, a], pr[6, a],
-            pr[7, a], pr[8, a], po[a], coef, WEIGHT_POLY, scale,
+            pr[7, a], pr[8, a], po[a], coef, mode, scale,
         )  # fmt: skip
         for k in range(7):
             out[k, a] = t[k]
+
+
+def _reference_loop(pr, po, coef, variable_rest, out):
+    _reference_any(pr, po, coef, WEIGHT_POLY, variable_rest, out)
 
 
 #: Rows of :func:`_pairs` with a special case: coincident particles (with the JIT only), NaN
@@ -154,18 +158,6 @@ def test_branch_free_terms_equal_the_reference_bit_for_bit(variant, variable_res
     assert np.isnan(nan_rows[:, 1:]).all()
     assert np.isnan(nan_rows[:, 0]).all() or variant == "no spacing term"
     assert (want[4:7, rest] != 0.0).any() or variant == "no orientation terms"
-
-
-@njit(**_OPTIONS)
-def _reference_any(pr, po, coef, mode, variable_rest, out):
-    for a in range(pr.shape[1]):
-        scale = pr[9, a] if variable_rest else 1.0
-        t = pair_interaction(
-            pr[0, a], pr[1, a], pr[2, a], pr[3, a], pr[4, a], pr[5, a], pr[6, a],
-            pr[7, a], pr[8, a], po[a], coef, mode, scale,
-        )  # fmt: skip
-        for k in range(7):
-            out[k, a] = t[k]
 
 
 @pytest.mark.parametrize("mode", [WEIGHT_GAUSSIAN, WEIGHT_ANISOTROPIC])
