@@ -48,21 +48,28 @@ def fail(message: str, code: int = EXIT_BAD_INPUT) -> None:
     sys.exit(code)
 
 
-def note_first_compile(quiet: bool, kernels: tuple[str, ...] | None = None) -> None:
+#: The summary's last line after a run that compiled (its phase times hold the compiles).
+COMPILE_TIMES_NOTE = "  note: the times above include compiling the numba kernels (first run)"
+
+
+def note_first_compile(quiet: bool, kernels: tuple[str, ...] | None = None) -> bool:
     """Say on stderr, before a run starts, when it will first compile numba's kernels (no
     cache for this version on this machine yet): minutes in which nothing else is shown.
     ``kernels``: those of :data:`recon.kernels.warm.SLOW_TO_COMPILE` the command calls (all
-    of them for a fit)."""
+    of them for a fit). Returns whether it said so (then the summary ends with
+    :data:`COMPILE_TIMES_NOTE`)."""
     if quiet:
-        return
+        return False
     from recon.kernels.warm import SLOW_TO_COMPILE, uncached
 
-    if uncached(SLOW_TO_COMPILE if kernels is None else kernels):
-        click.echo(
-            "oprecon: compiling the numba kernels first (this version's first run on this "
-            "machine: a few minutes of CPU, once; later runs load them from the cache)",
-            err=True,
-        )
+    if not uncached(SLOW_TO_COMPILE if kernels is None else kernels):
+        return False
+    click.echo(
+        "oprecon: compiling the numba kernels first (this version's first run on this "
+        "machine: a few minutes of CPU, once; later runs load them from the cache)",
+        err=True,
+    )
+    return True
 
 
 def setup_logging(quiet: bool = False, verbose: bool = False) -> None:

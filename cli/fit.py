@@ -12,6 +12,7 @@ from recon.config import apply_overrides, with_values
 from recon.errors import OpreconError
 
 from .common import (
+    COMPILE_TIMES_NOTE,
     build_config,
     catch_errors,
     common_run_options,
@@ -422,7 +423,8 @@ def command(
     if threads is not None:
         cfg = apply_overrides(cfg, {"threads": threads})
     progress = Progress(enabled=not quiet)
-    note_first_compile(quiet or scheduler is not None)  # a remote cluster's caches are its own
+    # with a remote scheduler the fit compiles on the workers, whose caches are their own
+    compiles = note_first_compile(quiet or scheduler is not None)
     named = [
         str(p)
         for p in (
@@ -471,6 +473,8 @@ def command(
     if not quiet:
         click.echo(f"oprecon: wrote {output_path}", err=True)
         click.echo(format_summary(result.report), err=True)
+        if compiles:
+            click.echo(COMPILE_TIMES_NOTE, err=True)
     if as_json:
         click.echo(dumps(result.report.to_dict()))
 

@@ -9,6 +9,7 @@ from typing import Any
 import click
 
 from .common import (
+    COMPILE_TIMES_NOTE,
     EXIT_CHECK_FAILED,
     catch_errors,
     common_run_options,
@@ -208,7 +209,7 @@ def command(
         check_intersections=not no_intersection_check,
         threads=threads,
     )
-    note_first_compile(quiet, ("pair_loop.step_particles",))  # the particles' relaxation
+    compiles = note_first_compile(quiet, ("pair_loop.step_particles",))  # the relaxation
     try:
         result = remesh_file(
             input_path,
@@ -226,6 +227,8 @@ def command(
     if not quiet:
         click.echo(f"oprecon: wrote {output_path}", err=True)
         click.echo(format_summary(report), err=True)
+        if compiles:
+            click.echo(COMPILE_TIMES_NOTE, err=True)
     if as_json:
         click.echo(dumps(report))
     if not report["topology_preserved"]:

@@ -195,3 +195,16 @@ def test_no_compile_note_when_cached_or_quiet(tmp_path, monkeypatch):
     assert res.exit_code == 2 and "compiling" not in res.stderr
     res = _fit_stopped_before_it_starts(tmp_path, monkeypatch, ["pair_loop.step_particles"], "-q")
     assert res.exit_code == 2 and "compiling" not in res.stderr
+
+
+def test_a_first_runs_summary_says_its_times_include_the_compile(tmp_path, monkeypatch):
+    from recon.kernels import warm
+
+    src = _sphere_file(tmp_path)
+    for uncached, said in ((["pair_loop.step_particles"], True), ([], False)):
+        monkeypatch.setattr(warm, "uncached", lambda names=(), u=uncached: list(u))
+        res = _run(["fit", str(src), "-o", str(tmp_path / "m.ply"), *FAST])
+        assert res.exit_code == 0, res.output
+        lines = res.stderr.rstrip().splitlines()
+        assert ("include compiling the numba kernels" in lines[-1]) is said
+        assert "min angle" in res.stderr  # the summary itself
