@@ -450,6 +450,7 @@ def command(
             scheduler=scheduler,
             quiet=quiet,
             as_json=as_json,
+            compiles=compiles,
         ):
             return
     try:
@@ -569,8 +570,10 @@ def _fit_tiles(
     scheduler: str | None,
     quiet: bool,
     as_json: bool,
+    compiles: bool = False,
 ) -> bool:
-    """The tiled fit; False when --tiles auto found that one fit will do."""
+    """The tiled fit; False when --tiles auto found that one fit will do. ``compiles``: the
+    run said it compiles the kernels first (its summary then says the times include it)."""
     from recon.serialize import dumps
     from recon.tiling import TileError, fit_tiled
 
@@ -608,6 +611,8 @@ def _fit_tiles(
     if not quiet:
         click.echo(f"oprecon: wrote {output_path}", err=True)
         click.echo(format_tiled_summary(result.report), err=True)
+        if compiles:
+            click.echo(COMPILE_TIMES_NOTE, err=True)
     if as_json:
         click.echo(dumps(result.report))
     return True

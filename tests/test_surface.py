@@ -128,15 +128,17 @@ def test_walk_certifies_only_what_its_table_covers():
 
 def test_anchor_hints_give_the_same_anchors_with_one_neighbour(monkeypatch):
     """With k = 1 (the nearest point, whatever its normal) the kernel's walk, grid and the
-    k-d tree agree too, for agreeing and disagreeing normals, with and without hints."""
+    k-d tree agree too, for agreeing and disagreeing normals, with and without hints. (It
+    guards the answers, not how many searches give them.)"""
     import recon.surface as surface
 
-    monkeypatch.setattr(surface, "AGREE_K", 1)
     rng = np.random.default_rng(6)
     xy = rng.uniform(-10, 10, (3000, 2))
     p = np.column_stack([xy, 0.03 * (xy**2).sum(axis=1) + rng.normal(0, 0.05, len(xy))])
     nrm = np.tile([0.0, 0.0, 1.0], (len(p), 1))
     s = DataSurface.build(p, nrm, k=20)
+    assert s.grid.cell_size > 0.0  # the grid as usual (its cell from the 8th neighbours)
+    monkeypatch.setattr(surface, "AGREE_K", 1)
     q = p[rng.integers(0, len(p), 2000)] + rng.normal(0, 0.3, (2000, 3))
     q[:10] += [0.0, 0.0, 5.0]
     qn = np.tile([0.0, 0.0, 1.0], (len(q), 1))

@@ -250,9 +250,9 @@ def _poly_pair_terms(pr, po, pt, count, coef, variable_rest):
     one per value of ``variable_rest``, took about 17 s of the step kernel's compile and ran no
     faster: 17.8 ns per pair for uniform spacing with the flag a constant or a run-time
     value, 18.6 with the run-time flag for per-particle spacing). The loop reads and writes
-    only contiguous scratch rows, LLVM turns the choice of lengths by ``variable_rest`` into
-    selects (no branch in the loop; checked on AVX2 by ``tests/kernels/test_pair_terms.py``),
-    and vectorises it (4 lanes with AVX2, up to 8 with AVX-512).
+    only contiguous scratch rows, and LLVM vectorises it with the flag a run-time value too
+    (4 lanes with AVX2, up to 8 with AVX-512; packed multiplies on AVX2 are checked by
+    ``tests/kernels/test_pair_terms.py``).
     A SIMD lane performs the scalar operations (add, multiply, divide, square root: exactly
     rounded; no ``contract`` or ``reassoc``), so the terms are bit-identical. The loop calls
     nothing that is not inlined (a call in it would keep LLVM from vectorising it)."""
@@ -370,7 +370,7 @@ def step_particles(
         (is_pinned, is_oriented).
     inertial : tuple of three float64 arrays
         (mass (n,), inertia (n,), rest): rest spacings relative to r0, (n,) or empty for all
-        ones (the uniform fast path); a pair uses (rest_i + rest_j)/2 (:func:`pair_interaction`).
+        ones (uniform spacing); a pair uses (rest_i + rest_j)/2 (:func:`pair_interaction`).
     neighbors : (offsets (n + 1,) int64, indices (nnz,) int32)
         Full CSR neighbour list, radius ≥ r_c · max(rest).
     reference_position : (n, 3) float64
