@@ -148,7 +148,8 @@ def polynomial_pair_terms(
         s_ij, the pair's rest spacing relative to r0; read only when ``variable_rest``.
     variable_rest : bool
         With False every length is the packed one (s_ij = 1). The step kernel passes a
-        run-time value; LLVM selects between the two sets of lengths without a branch.
+        run-time value; its term loop still runs in SIMD lanes on AVX2
+        (``tests/kernels/test_pair_terms.py``).
 
     Returns
     -------
