@@ -7,8 +7,8 @@
 #
 # The fit runs with numba's JIT off, on a coarse spacing (74 particles): every stage's code runs
 # from the installed files in 15 s. With the JIT on it would compile every kernel for 3.5
-# minutes, since numba's cache belongs to the source files' paths and the suite has already
-# compiled the same sources in the checkout.
+# minutes, since numba's cache belongs to the source files' paths; `make test` compiles the same
+# sources in the checkout.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 root=$(pwd)
