@@ -511,6 +511,21 @@ def test_max_points(tmp_path):
     _bad(path, "exceed", "max_points", max_points=50)
 
 
+def test_a_ragged_row_is_named_in_our_words(tmp_path):
+    """Regression: a row with fewer or more values than the rows before it gave numpy's
+    message, whose advice ("use `usecols` ...") names a numpy argument the user cannot pass."""
+    ply = tmp_path / "a.ply"
+    ply.write_bytes(_ply_header(4, "ascii") + b"0.5 0.5 0.5\n1.5 0.5 0.5\n1.5 1.5\n0.5 0.5 1.5\n")
+    xyz = tmp_path / "a.xyz"
+    xyz.write_text("0 0 0\n1 0 0\n1 1 1 1 1 1 1\n0 0 1\n")
+    pcd = tmp_path / "a.pcd"
+    header = _pcd_header(3, "ascii", "x y z", "4 4 4", "F F F")
+    pcd.write_text(header + "0.5 0.5 0.5\n1.5 0.5\n0.5 0.5 1.5\n")
+    for path, row, got in ((ply, 3, 2), (xyz, 3, 7), (pcd, 2, 2)):
+        msg = str(_bad(path, f"row {row} has {got} columns", "the rows before it have 3"))
+        assert "usecols" not in msg, msg
+
+
 def test_non_numeric_tokens(tmp_path):
     ply = tmp_path / "a.ply"
     ply.write_bytes(_ply_header(4, "ascii") + b"0 0 0\n1 0 0\n0 1 abc\n0 0 1\n")

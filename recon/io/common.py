@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import re
 import warnings
 from collections.abc import Iterator, Sequence
 from pathlib import Path
@@ -144,8 +145,18 @@ def loadtxt(*args: Any, **kwargs: Any) -> np.ndarray:
         return np.loadtxt(*args, **kwargs)
 
 
+#: numpy's message for a row whose number of values differs from the rows before it (numpy
+#: >= 1.23), which ends with advice about a numpy argument.
+_RAGGED = re.compile(r"the number of columns changed from (\d+) to (\d+) at row (\d+)")
+
+
 def loadtxt_message(exc: ValueError) -> str:
+    """The message of ``np.loadtxt``'s ``exc`` for a user: a ragged row is said in our words."""
     msg = str(exc).strip().rstrip(".")
+    ragged = _RAGGED.search(msg)
+    if ragged:
+        before, got, row = ragged.groups()
+        return f"row {row} has {got} columns, the rows before it have {before}"
     return msg[0].lower() + msg[1:] if msg else "malformed numeric data"
 
 
