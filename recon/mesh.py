@@ -69,6 +69,7 @@ __all__ = [
     "face_area_vectors",
     "face_components",
     "face_normals",
+    "first_faces",
     "handle_bridges",
     "handle_count",
     "opposed_faces",
@@ -102,6 +103,30 @@ def face_keys(faces: np.ndarray, n_vertices: int) -> np.ndarray:
     if n_vertices < FACE_KEY_LIMIT:
         return (key[:, 0] * n_vertices + key[:, 1]) * n_vertices + key[:, 2]
     return key
+
+
+def first_faces(faces: np.ndarray, n_vertices: int) -> np.ndarray:
+    """Ascending indices of the first of each set of ``faces`` with the same vertices in any
+    order (:func:`face_keys`).
+
+    Above ``FACE_KEY_LIMIT`` vertices the sorted triples are ordered by two int64 keys (the
+    first two vertices as one, then the third) in a stable sort: ``np.unique`` of the rows
+    sorts them as opaque bytes, 10.7 s against about 1 s for 5.3M faces.
+
+    Examples
+    --------
+    >>> first_faces(np.array([[0, 1, 2], [1, 2, 3], [2, 0, 1]]), 4).tolist()
+    [0, 1]
+    """
+    key = face_keys(faces, n_vertices)
+    if key.ndim == 1:
+        _, first = np.unique(key, return_index=True)
+        return np.sort(first)
+    hi = key[:, 0] * n_vertices + key[:, 1]  # below n^2 < 2^63 for n up to 3e9
+    order = np.lexsort((key[:, 2], hi))
+    hi, lo = hi[order], key[order, 2]
+    start = np.r_[True, (hi[1:] != hi[:-1]) | (lo[1:] != lo[:-1])]
+    return np.sort(order[start])
 
 
 def unique_edges(faces: np.ndarray, n_vertices: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -57,7 +57,7 @@ from .mesh import (
     boundary_components,
     boundary_loop_perimeters,
     count_edge_faces,
-    face_keys,
+    first_faces,
     orientation_flips,
     vertex_components,
 )
@@ -297,13 +297,7 @@ def _mesh_topology(
         genus = int(np.sum((2 - (v_c - e_c + f_c)) // 2))
 
     perimeters = boundary_loop_perimeters(v, f) if n_boundary else np.zeros(0)
-    key = face_keys(f, n_vertices)
-    if key.ndim == 1:
-        key = np.sort(key)
-        duplicates = int(np.count_nonzero(key[1:] == key[:-1]))
-    else:
-        key = key[np.lexsort(key.T[::-1])]
-        duplicates = int(np.all(key[1:] == key[:-1], axis=1).sum())
+    duplicates = len(f) - len(first_faces(f, n_vertices))
 
     return {
         "n_vertices": n_vertices,

@@ -41,7 +41,7 @@ from .mesh import (
     edge_keys,
     face_area_vectors,
     face_components,
-    face_keys,
+    first_faces,
     handle_bridges,
     handle_count,
     opposed_faces,
@@ -687,9 +687,7 @@ def remove_non_manifold_faces(faces: np.ndarray, n_vertices: int) -> np.ndarray:
         return faces
     ok = (faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 0] != faces[:, 2])
     faces = faces[ok]
-    key = face_keys(faces, n_vertices)
-    _, first = np.unique(key, axis=0 if key.ndim == 2 else None, return_index=True)
-    faces = faces[np.sort(first)]
+    faces = faces[first_faces(faces, n_vertices)]
     for _ in range(NON_MANIFOLD_EDGE_ROUNDS):
         uniq, inv, cnt = unique_edges(faces, n_vertices)
         over = cnt[inv] > 2

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from mesh_shapes import icosphere, open_cylinder
 
 from recon.kernels.mesh_tables import half_edge_order
@@ -85,6 +86,25 @@ def test_face_keys_are_equal_for_the_same_vertices_in_any_order_on_both_paths():
         same = [[bool(np.all(k[i] == k[j])) for j in range(len(f))] for i in range(len(f))]
         assert same[0][:3] == [True, True, True] and not any(same[0][3:])
         assert not same[3][4]
+
+
+@pytest.mark.parametrize("n_vertices", [30, "limit"])
+def test_first_faces_keeps_the_first_of_each_vertex_set_on_both_key_paths(n_vertices):
+    """Above FACE_KEY_LIMIT vertices the rows are ordered by two int64 keys (np.unique of the
+    rows took 10.7 s on 5.3M faces); both paths keep what a scan in face order keeps."""
+    from recon.mesh import FACE_KEY_LIMIT, first_faces
+
+    n = FACE_KEY_LIMIT if n_vertices == "limit" else n_vertices
+    rng = np.random.default_rng(7)
+    faces = rng.integers(0, 30, (400, 3)) * (1 if n == 30 else 66_000)  # spread over 2M
+    faces = np.vstack([faces, faces[rng.integers(0, 400, 150)][:, [2, 0, 1]]])
+    faces = faces[rng.permutation(len(faces))]
+    seen, expected = set(), []
+    for i, f in enumerate(faces.tolist()):
+        if tuple(sorted(f)) not in seen:
+            seen.add(tuple(sorted(f)))
+            expected.append(i)
+    assert first_faces(faces, n).tolist() == expected
 
 
 def test_orientation_flips_take_the_callers_sort_of_the_half_edges():
