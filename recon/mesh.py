@@ -110,8 +110,9 @@ def first_faces(faces: np.ndarray, n_vertices: int) -> np.ndarray:
     order (:func:`face_keys`).
 
     Above ``FACE_KEY_LIMIT`` vertices the sorted triples are ordered by two int64 keys (the
-    first two vertices as one, then the third) in a stable sort: ``np.unique`` of the rows
-    sorts them as opaque bytes, 10.7 s against about 1 s for 5.3M faces.
+    first two vertices as one, then the third) in a stable sort. ``np.unique`` of the rows
+    sorts them as opaque bytes: on 5.3M faces it took 10.7 of the 13.9 s of
+    :func:`recon.triangulate.remove_non_manifold_faces`, which takes 3.8 s with these keys.
 
     Examples
     --------
