@@ -99,7 +99,7 @@ def face_keys(faces: np.ndarray, n_vertices: int) -> np.ndarray:
     """One key per face, equal for two faces with the same vertices in any order: below
     ``FACE_KEY_LIMIT`` vertices an int64 ``(F,)`` of the sorted triple (``np.unique`` of rows
     is ~7x slower), else the sorted triples ``(F, 3)`` themselves."""
-    key = np.sort(faces, axis=1)
+    key = np.sort(faces, axis=1).astype(np.int64, copy=False)  # int32 faces would wrap
     if n_vertices < FACE_KEY_LIMIT:
         return (key[:, 0] * n_vertices + key[:, 1]) * n_vertices + key[:, 2]
     return key
@@ -126,7 +126,8 @@ def first_faces(faces: np.ndarray, n_vertices: int) -> np.ndarray:
     hi = key[:, 0] * n_vertices + key[:, 1]  # below n^2 < 2^63 for n up to 3e9
     order = np.lexsort((key[:, 2], hi))
     hi, lo = hi[order], key[order, 2]
-    start = np.r_[True, (hi[1:] != hi[:-1]) | (lo[1:] != lo[:-1])]
+    start = np.ones(len(order), dtype=bool)
+    start[1:] = (hi[1:] != hi[:-1]) | (lo[1:] != lo[:-1])
     return np.sort(order[start])
 
 

@@ -58,5 +58,7 @@ PY
 echo "check_wheel: fitting sample_data/square_hole-sparse.ply with --preset open_scan (installed wheel, JIT off)" >&2
 NUMBA_DISABLE_JIT=1 "$scratch/venv/bin/oprecon" fit "$root/sample_data/square_hole-sparse.ply" \
   -o "$scratch/out.ply" --preset open_scan --spacing-relative 0.1 -q
-test -s "$scratch/out.ply" && test -s "$scratch/out.report.json"
+# one test per line: set -e does not stop at the first command of an && list
+test -s "$scratch/out.ply"
+test -s "$scratch/out.report.json"
 echo "check_wheel: ok ($(basename "$wheel"))" >&2

@@ -107,6 +107,19 @@ def test_first_faces_keeps_the_first_of_each_vertex_set_on_both_key_paths(n_vert
     assert first_faces(faces, n).tolist() == expected
 
 
+def test_first_faces_takes_no_faces_and_int32_faces_past_the_limit():
+    """Regression (a second read): past FACE_KEY_LIMIT, no faces raised an IndexError, and
+    int32 faces wrapped the two-vertex key, so a face sharing its last two vertices with
+    another one was dropped as a duplicate."""
+    from recon.mesh import FACE_KEY_LIMIT, first_faces
+    from recon.triangulate import remove_non_manifold_faces
+
+    assert first_faces(np.zeros((0, 3), dtype=np.int64), FACE_KEY_LIMIT).tolist() == []
+    assert len(remove_non_manifold_faces(np.array([[5, 5, 6]]), FACE_KEY_LIMIT)) == 0
+    faces = np.array([[0, 3000, 3001], [2048, 3000, 3001]], dtype=np.int32)
+    assert first_faces(faces, 2**21).tolist() == [0, 1]
+
+
 def test_orientation_flips_take_the_callers_sort_of_the_half_edges():
     v, f = open_cylinder(12, 4)
     f = f.copy()
