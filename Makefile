@@ -23,7 +23,7 @@ demo: setup
 #   own copy of the same kernels at once. Between them they call every kernel of a fit; the
 #   remesh compiles the step kernel and the mesh kernels while the fit compiles the normals'
 #   and the seeds' kernels, then loads the step kernel from the cache (on a fresh clone of the
-#   2-core AVX2 machine, 2026-11-30: the fit alone compiles for 3m25s, the remesh for 1m28s
+#   2-core AVX2 machine, 2026-11-30: the fit alone compiles for 3m26s, the remesh for 1m28s
 #   and the fit after it for 1m58s; a few seconds each once cached).
 # - test-nojit: the kernel tests once more in pure Python (numba's JIT off), so coverage and
 #   tracebacks see the kernels' source. It starts when a compile command ends.

@@ -202,7 +202,7 @@ def test_the_step_kernels_term_loop_runs_in_simd_lanes_on_avx2(pass_two):
     coef = pack_coefficients(PhysicsParams.from_config(ReconConfig(), 1.0))
     pr = np.zeros((10, 64))
     pr[3] = pr[6] = pr[9] = 1.0
-    flag = (bool(pr[3, 0] != 1.0),) if pass_two is _pass_two_either else ()  # run-time False
+    flag = (False,) if pass_two is _pass_two_either else ()  # an argument: a run-time value
     pass_two(pr, np.ones(64, dtype=np.bool_), np.empty((7, 64)), 64, coef, *flag)
     asm = next(iter(pass_two.inspect_asm().values()))
     packed = re.findall(r"vmulpd\s+[^\n]*ymm", asm)
