@@ -20,8 +20,8 @@ from scipy.spatial import cKDTree
 
 from .geometry import median_variation
 from .kernels.options import query_workers
-from .normals import SIDES_K, across_neighbours
 from .particle_signs import consistent_normals
+from .thin_split import SIDES_GAP, SIDES_K, across_neighbours
 
 __all__ = [
     "CLEAN_VARIATION",
@@ -77,7 +77,10 @@ THIN_SCAN_CHUNK = 16384
 
 
 def outward_across(
-    points: np.ndarray, normals: np.ndarray, neighbors: np.ndarray | None = None
+    points: np.ndarray,
+    normals: np.ndarray,
+    neighbors: np.ndarray | None = None,
+    gap: float = SIDES_GAP,
 ) -> tuple[np.ndarray, bool]:
     """Consistently signed normals of a scan with thin closed parts, turned outward as a
     whole: the other face of a thin part lies *behind* each face (the space
@@ -89,7 +92,7 @@ def outward_across(
     the open-scan rule (its least-variance axis up) and its sign is a guess. Here each point
     whose neighbourhood spans two faces (:func:`recon.normals.across_neighbours` over the
     ``SIDES_K`` nearest; ``neighbors``: each point's nearest, itself first, when already
-    queried) votes with the mean offset of its
+    queried; ``gap``: ``normals.thin_gap``) votes with the mean offset of its
     neighbours on the other face along its normal: negative when they lie behind. When at
     least ``THIN_SCAN_SHARE`` of the points vote and the inward votes outnumber the outward
     ones by ``THIN_SCAN_AGREE`` of them (three in four inward), every sign is turned over;
@@ -109,7 +112,7 @@ def outward_across(
     for lo in range(0, n, THIN_SCAN_CHUNK):
         hi = min(lo + THIN_SCAN_CHUNK, n)
         idx = wide[lo:hi, 1:]
-        across, two_sided = across_neighbours(points, normals, idx, SIDES_K, start=lo)
+        across, two_sided = across_neighbours(points, normals, idx, SIDES_K, lo, gap)
         offset = np.einsum("ijk,ik->ij", points[idx] - points[lo:hi, None, :], normals[lo:hi])
         mean = np.sum(offset * across, axis=1) / np.maximum(across.sum(axis=1), 1)
         behind[lo:hi] = np.where(two_sided, np.sign(mean), 0.0)

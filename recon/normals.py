@@ -65,7 +65,6 @@ from .errors import ConfigError, InputError
 from .geometry import as_points
 from .kernels.options import query_workers
 from .kernels.pca import scatter_matrices
-from .kernels.thin_sides import span_screen, split_sides_kernel
 from .normal_scales import (  # noqa: F401 (choose_neighborhood_size: the public name here)
     MAX_SCALE,
     THIN_VARIATION,
@@ -77,6 +76,7 @@ from .normal_scales import (  # noqa: F401 (choose_neighborhood_size: the public
 )
 from .orientation_graph import edge_costs
 from .row_blocks import for_row_blocks, row_blocks
+from .thin_split import SIDES_GAP, SIDES_K, SIDES_MIN, SIDES_SEPARATION, across_neighbours
 
 if TYPE_CHECKING:
     from .cloud import PointCloud
@@ -111,17 +111,6 @@ _MIN_COMPONENT = 10
 _EXTREME_FRACTION = 0.01
 #: ... but at most this many.
 _EXTREME_MAX = 200
-#: A neighbourhood spans the two faces of a thin part when its offsets along the point's normal
-#: split into two groups whose means are this many pooled standard deviations apart (one
-#: Gaussian sheet splits at about 2.7; see ``across_neighbours``) ...
-_SIDES_SEPARATION = 5.0
-#: ... and at least this fraction of the neighbourhood's radius apart (a curved sheet's
-#: offsets spread over ``radius^2 / 2R``: only curvature radii below the neighbourhood's
-#: size, an undersampled surface, reach it) ...
-_SIDES_GAP = 0.5
-#: ... each group of at least this many points (itself included), of ``SIDES_K`` or more.
-_SIDES_MIN = 3
-SIDES_K = 30
 #: Points per chunk in the PCA (bounds memory at about chunk * k * 100 bytes).
 _CHUNK = 16384
 
@@ -238,7 +227,7 @@ def estimate_normals(
         idx = idx.reshape(len(query), k_eff)
         if len(scales) > 1:
             normals[b] = best_scale_normals(
-                pts, query, idx, scales, _SIDES_MIN, _SIDES_SEPARATION, lambda r: wider(r + b.start)
+                pts, query, idx, scales, SIDES_MIN, SIDES_SEPARATION, lambda r: wider(r + b.start)
             )
             return
         if radius is not None:
@@ -293,53 +282,13 @@ def _fibonacci_directions(m: int = 25) -> np.ndarray:
 _DIRECTIONS = _fibonacci_directions()
 
 
-def across_neighbours(
-    points: np.ndarray, normals: np.ndarray, idx: np.ndarray, k: int, start: int = 0
-) -> tuple[np.ndarray, np.ndarray]:
-    """Which neighbours lie on the other face of a thin part.
-
-    The offsets along n_i of i and its neighbours ``idx[i]`` (a wide neighbourhood) are split
-    in two by 1-D two-means (the split of the sorted offsets with the least within-group sum
-    of squares). The neighbourhood spans two faces when the groups' means lie more than
-    ``_SIDES_SEPARATION`` pooled standard deviations and ``_SIDES_GAP`` neighbourhood radii
-    apart, each group holding ``_SIDES_MIN`` points. Noise around one sheet is one Gaussian
-    group (its best split is about 2.7 deviations apart); two faces a thickness t apart with
-    noise sigma split t / sigma apart.
-
-    The rows of ``idx`` are the points ``start, start + 1, ...`` (a block of a large cloud).
-
-    Returns
-    -------
-    across : (n, k) bool
-        Neighbour ``idx[i, j]`` (``j < k``) is in the group without i.
-    two_sided : (n,) bool
-        i's neighbourhood spans two faces (so its first ``k`` neighbours are classified).
-    """
-    n, k_wide = idx.shape
-    if k_wide < SIDES_K:  # too few neighbours: a split would be chance
-        return np.zeros((n, k), dtype=bool), np.zeros(n, dtype=bool)
-    across, two_sided = np.zeros((n, k), dtype=bool), np.zeros(n, dtype=bool)
-    sure = np.zeros(n, dtype=bool)  # certainly one-sided (most of a smooth scan): not gathered
-    span_screen(points, normals, idx, start, _SIDES_GAP, sure)
-    rows = np.flatnonzero(~sure)
-    if 2 * len(rows) > n:  # mostly unsure (noisy data): all rows, no sub-gathers (same rows)
-        rows = np.arange(n)
-    rel = points[idx[rows]] - points[start + rows, None, :]
-    offsets = np.einsum("ijk,ik->ij", rel, normals[start + rows])
-    radius = np.linalg.norm(rel[:, -1], axis=1)
-    part, part_sided = np.zeros((len(rows), k), dtype=bool), np.zeros(len(rows), dtype=bool)
-    args = (_SIDES_MIN, _SIDES_SEPARATION, _SIDES_GAP, part, part_sided)
-    split_sides_kernel(offsets, radius, k, *args)  # the split, row by row
-    across[rows], two_sided[rows] = part, part_sided
-    return across, two_sided
-
-
 def _knn_graph(
     points: np.ndarray,
     normals: np.ndarray,
     k: int,
     across_cost: float = 0.0,
     neighbors: np.ndarray | None = None,
+    gap: float = SIDES_GAP,
 ) -> tuple[sparse.csr_matrix, sparse.csr_matrix | None, np.ndarray | None]:
     """Symmetric k-NN graph with Hoppe's cost ``1 - |n_i . n_j| + eps``.
 
@@ -378,7 +327,7 @@ def _knn_graph(
     for lo in range(0, n, _CHUNK):  # in blocks: the split holds ~10 (block, k_wide) arrays
         hi = min(lo + _CHUNK, n)
         across[lo:hi], two_sided[lo:hi] = across_neighbours(
-            points, normals, wide[lo:hi, 1:], k_wide, start=lo
+            points, normals, wide[lo:hi, 1:], k_wide, start=lo, gap=gap
         )
     # across when both ends see it so (where only one end's neighbourhood looks two-sided,
     # that is more often noise than a thin part)
@@ -556,13 +505,16 @@ def orient_normals(
     viewpoint: np.ndarray | None = None,
     across_cost: float = 0.0,
     neighbors: np.ndarray | None = None,
+    thin_gap: float = SIDES_GAP,
 ) -> tuple[np.ndarray, OrientationInfo]:
     """Consistently orient normals (Hoppe et al. 1992 MST propagation, then a global sign).
 
     ``across_cost`` (``normals.thin_parts``): extra MST cost of edges that cross the surface
     (see ``_knn_graph``); > 0 also detects neighbourhoods that span both faces of a thin part,
     whose edges across then ask for opposed signs: thin parts keep their two faces opposed
-    even where no smooth path runs around their rim.
+    even where no smooth path runs around their rim; ``thin_gap`` (``normals.thin_gap``): how
+    far apart, in neighbourhood radii, two faces must lie to be found
+    (:func:`recon.thin_split.across_neighbours`).
 
     Parameters
     ----------
@@ -612,7 +564,7 @@ def orient_normals(
     if n < 2:
         return nrm.copy(), OrientationInfo(orientation, n, n, {"none": n}, 0.0)
 
-    graph, flip, _ = _knn_graph(pts, nrm, k, across_cost, neighbors)
+    graph, flip, _ = _knn_graph(pts, nrm, k, across_cost, neighbors, thin_gap)
     sign, labels, n_comp = _propagate_signs(nrm, graph, _REGION_TAU, flip)
     oriented = nrm * sign[:, None]
     sizes = np.bincount(labels, minlength=n_comp)
@@ -772,6 +724,7 @@ def compute_normals(
             orientation=cfg.orientation,
             viewpoint=viewpoint,
             across_cost=cfg.thin_parts,
+            thin_gap=cfg.thin_gap,
             neighbors=None if neighbors is None else neighbors[1],
         )
         info = {"source": "estimated", "n_filled": 0, "k": k, "radius": cfg.radius}

@@ -301,8 +301,8 @@ def test_a_plate_a_spacing_thick_is_signed_outward(monkeypatch):
     (recon.normal_signs.outward_across) turns it outward."""
     turned = []
 
-    def spy(points, normals, neighbors=None):
-        out = outward_across(points, normals, neighbors)
+    def spy(points, normals, neighbors=None, gap=0.5):
+        out = outward_across(points, normals, neighbors, gap)
         turned.append(out[1])
         return out
 

@@ -531,7 +531,8 @@ def _fit_sheet(
         if cfg.normals.exterior_signs:  # signs of a closed scan's thin parts from outside
             normals, _ = resign_by_exterior(points, normals, d_nn, tree)
         if normals_info.get("component_methods") == {"up": 1}:  # one part, signed as open
-            normals, _ = outward_across(points, normals, None if knn is None else knn[1])
+            wide = None if knn is None else knn[1]
+            normals, _ = outward_across(points, normals, wide, cfg.normals.thin_gap)
     del tree
     check_grid_size(points, r0)
     cfg = with_max_gap(cfg, r0, d_nn)
