@@ -128,7 +128,7 @@ class NormalsConfig(Schema):
         "30 nearest along its normal split into two groups this many neighbourhood radii "
         "apart (and 5 deviations). 0.2 finds the faces of a blade that tapers to its edge "
         "down to about half a sample spacing apart (a knife at 5,000 points: watertight, "
-        "F@1% 0.99 against 0.97-0.99); a blade thinner than about one spacing everywhere "
+        "F@1% 0.99 against 0.97-1.0); a blade thinner than about one spacing everywhere "
         "keeps its rim better as one layer at 0.5 (F@1% 0.98-0.99 at 0.2 against 0.99-1.0).",
         0.05,
         1.0,

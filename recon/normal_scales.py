@@ -15,7 +15,7 @@ to the noise rule's widest), the neighbourhood whose normal is best determined: 
 ratio ``l0 / l1`` (per-point scale selection, after [MNG04]). A wider one counts only where
 it is thin itself or holds the two faces of a thin part (its offsets along its normal split
 in two groups ``separation`` pooled deviations apart: the test of
-:func:`recon.normals.across_neighbours` without its gap). Across a crease or a wedge's edge
+:func:`recon.thin_split.across_neighbours` without its gap). Across a crease or a wedge's edge
 the offsets along a wide normal, the bisector's, spread with the distance from the edge and
 do not split, so the point keeps its own scale.
 

@@ -90,7 +90,7 @@ def outward_across(
     which on a plate about a point spacing thick are mostly its rim's, whose PCA normals
     span both faces: 0.22 of their weight (the 0.5 a closed scan needs), so such a scan takes
     the open-scan rule (its least-variance axis up) and its sign is a guess. Here each point
-    whose neighbourhood spans two faces (:func:`recon.normals.across_neighbours` over the
+    whose neighbourhood spans two faces (:func:`recon.thin_split.across_neighbours` over the
     ``SIDES_K`` nearest; ``neighbors``: each point's nearest, itself first, when already
     queried; ``gap``: ``normals.thin_gap``) votes with the mean offset of its
     neighbours on the other face along its normal: negative when they lie behind. When at

@@ -58,6 +58,8 @@ def across_neighbours(
     two_sided : (n,) bool
         i's neighbourhood spans two faces (so its first ``k`` neighbours are classified).
     """
+    if not gap > 0.0:
+        raise ValueError(f"gap: expected a number > 0 (neighbourhood radii), got {gap}")
     n, k_wide = idx.shape
     if k_wide < SIDES_K:  # too few neighbours: a split would be chance
         return np.zeros((n, k), dtype=bool), np.zeros(n, dtype=bool)
