@@ -298,8 +298,8 @@ def _knn_graph(
     the gap (which orients one face inward). It also perturbs the tree on very noisy data.
 
     With ``across_cost`` > 0 it also returns which edges join the two faces of a thin part
-    (:func:`across_neighbours` over the ``SIDES_K`` nearest, seen so from both ends; else
-    None), along which the propagation asks for opposed normals (and which carry no
+    (:func:`across_neighbours` over the ``SIDES_K`` nearest with ``gap``, seen so from both
+    ends; else None), along which the propagation asks for opposed normals (and which carry no
     ``across_cost``), and which points have a two-sided neighbourhood. Those edges join the
     graph even where they are not among the k nearest: a part thicker than the k-neighbour
     radius but within the wider one has no k-NN edge between its faces, and its rim, narrower
