@@ -93,6 +93,10 @@ def run_method(
     from recon.geometry import SPACING_SAMPLE_SEED, median_nearest_neighbor_distance
     from recon.io import read_points
 
+    if method == "oprecon":
+        from recon.heap import keep_freed_memory
+
+        keep_freed_memory()  # as `oprecon fit` does (this process runs one fit)
     cloud = read_points(input_path)
     pts = cloud.points
     t0 = time.perf_counter()

@@ -453,6 +453,9 @@ def command(
             compiles=compiles,
         ):
             return
+    from recon.heap import keep_freed_memory
+
+    keep_freed_memory()  # one fit in this process: reuse freed memory (recon/heap.py)
     try:
         result = fit_file(
             input_path,

@@ -192,6 +192,7 @@ def command(
     if (min_spacing is not None or max_spacing is not None) and not adaptive:
         raise click.UsageError("--min-spacing and --max-spacing need --adaptive")
     from recon.errors import OpreconError
+    from recon.heap import keep_freed_memory
     from recon.remesh import RemeshOptions, remesh_file
     from recon.remesh.pipeline import RELAX_STEPS
     from recon.serialize import dumps
@@ -210,6 +211,7 @@ def command(
         threads=threads,
     )
     compiles = note_first_compile(quiet, ("pair_loop.step_particles",))  # the relaxation
+    keep_freed_memory()
     try:
         result = remesh_file(
             input_path,

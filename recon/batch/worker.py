@@ -22,6 +22,7 @@ from typing import Any
 
 from ..config import config_from_dict
 from ..errors import LimitExceeded, OpreconError
+from ..heap import keep_freed_memory
 from ..interrupts import deferred_interrupts
 from .protocol import JobRef, read_frame, write_frame
 from .summary import metrics_from_report
@@ -141,6 +142,7 @@ def child_main() -> None:
     root.addHandler(handler)
     root.setLevel(logging.WARNING)
 
+    keep_freed_memory()  # this process runs one item and exits (recon/heap.py)
     t0 = time.perf_counter()
     try:
         job, prepare = JobRef.from_spec(spec).load()

@@ -11,7 +11,7 @@ of whole ``oprecon fit`` runs, so that the estimate is never below the measured 
 (``python benchmarks/bench_memory.py --points 20000 80000 --spacing-factors 1 2.5
 --scale-json scale.json --fit``: synthetic terrain + building scenes at r0 = 1 and 2.5 median
 spacings, and the 100k, 1M and 4M-point tori of ``benchmarks/bench_scale.py``); measured, it
-is 0 to 36 % above the peak (``ESTIMATE_FACTOR``); the README gives the table.
+is 1 to 46 % above the peak (``ESTIMATE_FACTOR``); the README gives the table.
 """
 
 from __future__ import annotations
@@ -37,14 +37,15 @@ __all__ = [
     "parse_size",
 ]
 
-#: The process before any data: Python, numpy, scipy, numba and the JIT-compiled kernels.
-BASE_BYTES = 330 * 2**20
+#: The process before any data: Python, numpy, scipy, numba and the JIT-compiled kernels
+#: (350 MiB since the commands keep freed memory for reuse, :mod:`recon.heap`; 330 before).
+BASE_BYTES = 350 * 2**20
 #: Per input point: coordinates, normals, k-d trees, neighbourhoods, local surfaces.
 BYTES_PER_POINT = 125
 #: Per particle at the peak: state, neighbour lists, growth candidates, triangulation.
 BYTES_PER_PARTICLE = 2700
-#: The estimate lies within this factor of the measured peak (from 20k to 4M points: 1.0 to
-#: 1.36 times it, never below).
+#: The estimate lies within this factor of the measured peak (from 20k to 4M points: 1.01 to
+#: 1.46 times it, never below; README, "Predictable memory").
 ESTIMATE_FACTOR = 1.5
 
 
@@ -96,7 +97,7 @@ def estimate_peak_memory(
 
     >>> e = estimate_peak_memory(1_000_000, 2.5, 1.0)
     >>> e.particles, round(e.peak_bytes / 2**30, 2)
-    (739030, 2.3)
+    (739030, 2.32)
     """
     ratio = (median_spacing / r0) ** 2 if r0 > 0 else 0.0
     particles = int(round(AREA_PER_POINT * n_points * ratio / HEX_AREA))
