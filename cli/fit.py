@@ -360,6 +360,8 @@ def command(
     When the input has colours, every mesh vertex gets the distance-weighted mean colour of
     its nearest input points (PLY red/green/blue; OBJ with --obj-colors). Before fitting, the
     peak memory is estimated from the point count and r0 (--max-memory refuses past a limit).
+    An untiled fit keeps the memory it frees for reuse (4M points: 440 -> 365 s, peak +4 %);
+    OPRECON_MALLOC=system keeps glibc's own policy instead.
 
     \b
     Examples:

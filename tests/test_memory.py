@@ -47,11 +47,11 @@ def test_estimate_is_within_its_stated_error_of_a_small_fits_peak(tmp_path):
         f"sys.argv = ['oprecon', 'fit', {str(src)!r}, '-o', {str(tmp_path / 'm.ply')!r}, '-q']\n"
         "runpy.run_module('recon.cli.main', run_name='__main__')\n"
     )
-    # the first fit may compile kernels the numba cache lacks (LLVM's memory is no part of a
-    # fit's peak): the second, measured one loads them from the cache
     # as a user runs it: with the heap policy of `oprecon fit` (recon/heap.py), whatever the
     # developer's environment says
     env = {k: v for k, v in os.environ.items() if k != OPT_OUT_ENV}
+    # the first fit may compile kernels the numba cache lacks (LLVM's memory is no part of a
+    # fit's peak): the second, measured one loads them from the cache
     for _ in range(2):
         proc = subprocess.run(
             [sys.executable, "-c", code],
