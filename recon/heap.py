@@ -43,6 +43,7 @@ import ctypes
 import logging
 import os
 import sys
+from collections.abc import Mapping
 
 log = logging.getLogger(__name__)
 
@@ -81,7 +82,7 @@ OPT_OUT_ENV = "OPRECON_MALLOC"
 _applied = False
 
 
-def _user_tuned(environ: dict[str, str] | os._Environ[str]) -> str | None:
+def _user_tuned(environ: Mapping[str, str]) -> str | None:
     """The variable by which the environment sets the policy itself, or None."""
     choice = environ.get(OPT_OUT_ENV, "").strip().lower()
     if choice == "system":
