@@ -126,11 +126,21 @@ class NormalsConfig(Schema):
         0.5,
         "Orientation: two faces of a thin part are told apart where the offsets of a point's "
         "30 nearest along its normal split into two groups this many neighbourhood radii "
-        "apart (and 5 deviations). 0.2 finds the faces of a blade that tapers to its edge "
-        "down to about half a sample spacing apart (a knife at 5,000 points: watertight, "
-        "F@1% 0.99 against 0.97-1.0); a blade thinner than about one spacing everywhere "
-        "keeps its rim better as one layer at 0.5 (F@1% 0.98-0.99 at 0.2 against 0.99-1.0).",
+        "apart (and 5 deviations). Where a part tapers, thin_gap_taper goes further; a "
+        "blade thinner than about one spacing everywhere keeps its rim better as one layer "
+        "(F@1% 0.98-0.99 at 0.2 everywhere against 0.99-1.0).",
         0.05,
+        1.0,
+    )
+    thin_gap_taper: float = option(
+        0.2,
+        "Orientation: where a thin part tapers to its edge, its faces are also told apart "
+        "where they split only this many neighbourhood radii apart, on the rows joined "
+        "(through rows that split) to a patch of 10 or more that split at thin_gap; a part "
+        "thinner than thin_gap everywhere has no such patch and is meshed as one layer "
+        "(a knife at 5,000 points: watertight, F@1% 0.99 against 0.97-1.0 without the rule). "
+        "0, or thin_gap or more: off.",
+        0.0,
         1.0,
     )
     exterior_signs: bool = option(

@@ -76,7 +76,15 @@ from .normal_scales import (  # noqa: F401 (choose_neighborhood_size: the public
 )
 from .orientation_graph import edge_costs
 from .row_blocks import for_row_blocks, row_blocks
-from .thin_split import SIDES_GAP, SIDES_K, SIDES_MIN, SIDES_SEPARATION, across_neighbours
+from .thin_split import (
+    SIDES_GAP,
+    SIDES_K,
+    SIDES_MIN,
+    SIDES_SEPARATION,
+    TAPER_GAP,
+    across_neighbours,
+    thin_sides,
+)
 
 if TYPE_CHECKING:
     from .cloud import PointCloud
@@ -289,6 +297,7 @@ def _knn_graph(
     across_cost: float = 0.0,
     neighbors: np.ndarray | None = None,
     gap: float = SIDES_GAP,
+    taper_gap: float = TAPER_GAP,
 ) -> tuple[sparse.csr_matrix, sparse.csr_matrix | None, np.ndarray | None]:
     """Symmetric k-NN graph with Hoppe's cost ``1 - |n_i . n_j| + eps``.
 
@@ -298,14 +307,14 @@ def _knn_graph(
     the gap (which orients one face inward). It also perturbs the tree on very noisy data.
 
     With ``across_cost`` > 0 it also returns which edges join the two faces of a thin part
-    (:func:`across_neighbours` over the ``SIDES_K`` nearest with ``gap``, seen so from both
-    ends; else None), along which the propagation asks for opposed normals (and which carry no
-    ``across_cost``), and which points have a two-sided neighbourhood. Those edges join the
-    graph even where they are not among the k nearest: a part thicker than the k-neighbour
-    radius but within the wider one has no k-NN edge between its faces, and its rim, narrower
-    than a PCA neighbourhood, carries the sign over unchanged (one face inward). Two sheets
-    with nothing between them always face opposite ways (the space between is inside both
-    or outside both), so an opposed sign is right for any pair found across."""
+    (:func:`recon.thin_split.thin_sides` over the ``SIDES_K`` nearest with ``gap`` and
+    ``taper_gap``, seen so from both ends; else None), along which the propagation asks for
+    opposed normals (and which carry no ``across_cost``), and which points have a two-sided
+    neighbourhood. Those edges join the graph even where they are not among the k nearest: a part
+    thicker than the k-neighbour radius but within the wider one has no k-NN edge between its faces,
+    and its rim, narrower than a PCA neighbourhood, carries the sign over unchanged (one face
+    inward). Two sheets with nothing between them always face opposite ways (the space between is
+    inside both or outside both), so an opposed sign is right for any pair found across."""
     n = points.shape[0]
     k_eff = int(min(k, n - 1))
     k_wide = int(min(max(k, SIDES_K), n - 1)) if across_cost > 0.0 else k_eff
@@ -322,13 +331,7 @@ def _knn_graph(
     if across_cost <= 0.0:
         cost = edge_costs(points, normals, rows, cols, _EDGE_EPSILON)
         return _symmetric(cost, rows, cols, n), None, None
-    across = np.zeros((n, k_wide), dtype=bool)
-    two_sided = np.zeros(n, dtype=bool)
-    for lo in range(0, n, _CHUNK):  # in blocks: the split holds ~10 (block, k_wide) arrays
-        hi = min(lo + _CHUNK, n)
-        across[lo:hi], two_sided[lo:hi] = across_neighbours(
-            points, normals, wide[lo:hi, 1:], k_wide, start=lo, gap=gap
-        )
+    across, two_sided = thin_sides(points, normals, wide[:, 1:], k_wide, gap, taper_gap, _CHUNK)
     # across when both ends see it so (where only one end's neighbourhood looks two-sided,
     # that is more often noise than a thin part)
     w_rows, w_cols = np.nonzero(across)
@@ -506,6 +509,7 @@ def orient_normals(
     across_cost: float = 0.0,
     neighbors: np.ndarray | None = None,
     thin_gap: float = SIDES_GAP,
+    thin_gap_taper: float = TAPER_GAP,
 ) -> tuple[np.ndarray, OrientationInfo]:
     """Consistently orient normals (Hoppe et al. 1992 MST propagation, then a global sign).
 
@@ -513,8 +517,9 @@ def orient_normals(
     (see ``_knn_graph``); > 0 also detects neighbourhoods that span both faces of a thin part,
     whose edges across then ask for opposed signs: thin parts keep their two faces opposed
     even where no smooth path runs around their rim; ``thin_gap`` (``normals.thin_gap``): how
-    far apart, in neighbourhood radii, two faces must lie to be found
-    (:func:`recon.thin_split.across_neighbours`).
+    far apart, in neighbourhood radii, two faces must lie to be found, and ``thin_gap_taper``
+    (``normals.thin_gap_taper``) how close where they taper from a part found so
+    (:func:`recon.thin_split.thin_sides`).
 
     Parameters
     ----------
@@ -564,7 +569,7 @@ def orient_normals(
     if n < 2:
         return nrm.copy(), OrientationInfo(orientation, n, n, {"none": n}, 0.0)
 
-    graph, flip, _ = _knn_graph(pts, nrm, k, across_cost, neighbors, thin_gap)
+    graph, flip, _ = _knn_graph(pts, nrm, k, across_cost, neighbors, thin_gap, thin_gap_taper)
     sign, labels, n_comp = _propagate_signs(nrm, graph, _REGION_TAU, flip)
     oriented = nrm * sign[:, None]
     sizes = np.bincount(labels, minlength=n_comp)
@@ -725,6 +730,7 @@ def compute_normals(
             viewpoint=viewpoint,
             across_cost=cfg.thin_parts,
             thin_gap=cfg.thin_gap,
+            thin_gap_taper=cfg.thin_gap_taper,
             neighbors=None if neighbors is None else neighbors[1],
         )
         info = {"source": "estimated", "n_filled": 0, "k": k, "radius": cfg.radius}
