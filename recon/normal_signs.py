@@ -21,7 +21,7 @@ from scipy.spatial import cKDTree
 from .geometry import median_variation
 from .kernels.options import query_workers
 from .particle_signs import consistent_normals
-from .thin_split import SIDES_GAP, SIDES_K, across_neighbours
+from .thin_split import SIDES_GAP, SIDES_K, TAPER_GAP, thin_sides
 
 __all__ = [
     "CLEAN_VARIATION",
@@ -81,6 +81,7 @@ def outward_across(
     normals: np.ndarray,
     neighbors: np.ndarray | None = None,
     gap: float = SIDES_GAP,
+    taper_gap: float = TAPER_GAP,
 ) -> tuple[np.ndarray, bool]:
     """Consistently signed normals of a scan with thin closed parts, turned outward as a
     whole: the other face of a thin part lies *behind* each face (the space
@@ -109,13 +110,15 @@ def outward_across(
     else:
         _, wide = cKDTree(points).query(points, k=SIDES_K + 1, workers=query_workers())
     behind = np.zeros(n)  # per two-sided point: -1 other face behind, +1 in front
-    for lo in range(0, n, THIN_SCAN_CHUNK):
-        hi = min(lo + THIN_SCAN_CHUNK, n)
-        idx = wide[lo:hi, 1:]
-        across, two_sided = across_neighbours(points, normals, idx, SIDES_K, lo, gap)
-        offset = np.einsum("ijk,ik->ij", points[idx] - points[lo:hi, None, :], normals[lo:hi])
-        mean = np.sum(offset * across, axis=1) / np.maximum(across.sum(axis=1), 1)
-        behind[lo:hi] = np.where(two_sided, np.sign(mean), 0.0)
+    across, two_sided = thin_sides(
+        points, normals, wide[:, 1:], SIDES_K, gap, taper_gap, THIN_SCAN_CHUNK
+    )
+    rows = np.flatnonzero(two_sided)
+    for lo in range(0, len(rows), THIN_SCAN_CHUNK):
+        r = rows[lo : lo + THIN_SCAN_CHUNK]
+        offset = np.einsum("ijk,ik->ij", points[wide[r, 1:]] - points[r, None, :], normals[r])
+        mean = np.sum(offset * across[r], axis=1) / np.maximum(across[r].sum(axis=1), 1)
+        behind[r] = np.sign(mean)
     voters = int(np.count_nonzero(behind))
     inward = float(behind.sum())  # in front minus behind
     log.debug("thin-part sides: %d of %d points vote, %+d in front", voters, n, inward)

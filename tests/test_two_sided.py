@@ -13,7 +13,7 @@ from recon.holes import thicken_sheet
 from recon.intersections import self_intersections
 from recon.mesh import boundary_loops, capped_volume
 from recon.normal_signs import outward_across
-from recon.thin_split import SIDES_GAP
+from recon.thin_split import SIDES_GAP, TAPER_GAP
 from recon.topology import mesh_topology
 from recon.two_sided import (
     MAX_ROUGHNESS,
@@ -302,8 +302,8 @@ def test_a_plate_a_spacing_thick_is_signed_outward(monkeypatch):
     (recon.normal_signs.outward_across) turns it outward."""
     turned = []
 
-    def spy(points, normals, neighbors=None, gap=SIDES_GAP):
-        out = outward_across(points, normals, neighbors, gap)
+    def spy(points, normals, neighbors=None, gap=SIDES_GAP, taper_gap=TAPER_GAP):
+        out = outward_across(points, normals, neighbors, gap, taper_gap)
         turned.append(out[1])
         return out
 

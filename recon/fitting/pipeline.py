@@ -532,7 +532,10 @@ def _fit_sheet(
             normals, _ = resign_by_exterior(points, normals, d_nn, tree)
         if normals_info.get("component_methods") == {"up": 1}:  # one part, signed as open
             wide = None if knn is None else knn[1]
-            normals, _ = outward_across(points, normals, wide, cfg.normals.thin_gap)
+            gaps = cfg.normals.thin_gap, cfg.normals.thin_gap_taper
+            normals, turned = outward_across(points, normals, wide, *gaps)
+            if turned and found is not None:  # the creases' sides follow their members
+                found = replace(found, side_normals=-found.side_normals)
     del tree
     check_grid_size(points, r0)
     cfg = with_max_gap(cfg, r0, d_nn)
