@@ -152,3 +152,17 @@ def sphere_with_tunnel(radius: float = 6.0, gap: float = 3.0) -> tuple[np.ndarra
         bx, by = f[b, (-i) % 3], f[b, (1 - i) % 3]
         tube += [[a0, a1, bx], [a0, bx, by]]
     return v, np.vstack([f[keep], np.array(tube, dtype=np.int64)])
+
+
+def flat_ellipsoid(n: int, axes, seed: int, noise: float) -> tuple[np.ndarray, np.ndarray]:
+    """Area-uniform samples of an ellipsoid (with noise) and its outward normals."""
+    rng = np.random.default_rng(seed)
+    axes = np.asarray(axes, dtype=float)
+    u = rng.normal(size=(20 * n, 3))
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    # the map u -> axes * u scales the area element by prod(axes) * |u / axes|
+    scale = np.linalg.norm(u / axes, axis=1)
+    u = u[rng.uniform(size=len(u)) < scale / scale.max()][:n]
+    gt = u / axes
+    gt /= np.linalg.norm(gt, axis=1, keepdims=True)
+    return u * axes + rng.normal(scale=noise, size=u.shape), gt

@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from mesh_shapes import flat_ellipsoid
 
 from recon.config import NormalsConfig
 from recon.errors import ConfigError, InputError
@@ -350,20 +351,6 @@ def test_orient_plate_thinner_than_the_neighbourhood_keeps_the_two_faces_opposed
     assert frac > 0.98
 
 
-def _flat_ellipsoid(n: int, axes, seed: int, noise: float):
-    """Area-uniform samples of an ellipsoid (with noise) and its outward normals."""
-    rng = np.random.default_rng(seed)
-    axes = np.asarray(axes, dtype=float)
-    u = rng.normal(size=(20 * n, 3))
-    u /= np.linalg.norm(u, axis=1, keepdims=True)
-    # the map u -> axes * u scales the area element by prod(axes) * |u / axes|
-    scale = np.linalg.norm(u / axes, axis=1)
-    u = u[rng.uniform(size=len(u)) < scale / scale.max()][:n]
-    gt = u / axes
-    gt /= np.linalg.norm(gt, axis=1, keepdims=True)
-    return u * axes + rng.normal(scale=noise, size=u.shape), gt
-
-
 @pytest.mark.parametrize("seed", range(10))
 def test_orient_thin_ear_keeps_its_two_faces_opposed(seed):
     """A thin ear (a flat ellipsoid 0.04 thick, as the eared shape of bench_thin_parts): its
@@ -374,7 +361,7 @@ def test_orient_thin_ear_keeps_its_two_faces_opposed(seed):
     eared shape's fit came out with a one-sided ear). The pairs the two-sided test finds
     across among the 30 nearest, seen so from both ends, join the faces with opposed signs
     where they are further apart than 10 neighbours reach."""
-    points, gt = _flat_ellipsoid(1500, (0.08, 0.35, 0.02), seed, noise=0.001)
+    points, gt = flat_ellipsoid(1500, (0.08, 0.35, 0.02), seed, noise=0.001)
     est = estimate_normals(points, k=20)
     n, _ = orient_normals(points, est, k=10, orientation="outward", across_cost=0.3)
     frac, _ = accuracy(n, gt)
@@ -391,7 +378,7 @@ def test_thin_gap_finds_the_faces_of_a_blade_that_tapers_to_its_edge(seed):
     the signs there are a coin toss (0.75-0.96 right in the band below at seeds 0-5); at 0.2,
     or at the default where the taper rule (``normals.thin_gap_taper``) links them to the
     middle, whose faces split at 0.5, they are told apart down to about half a spacing."""
-    points, gt = _flat_ellipsoid(5000, (1.0, 0.3, 0.012), seed, noise=0.001)
+    points, gt = flat_ellipsoid(5000, (1.0, 0.3, 0.012), seed, noise=0.001)
     r = np.hypot(points[:, 0], points[:, 1] / 0.3)  # 0 at the middle, 1 at the edge
     band = (r > 0.5) & (r < 0.9)  # faces 0.010-0.021 apart: under half the radius
 
