@@ -58,9 +58,25 @@ class deferred_interrupts:  # noqa: N801 - used like a function
     when it has its default action, so that temporary files are removed then too. Does nothing
     outside the main thread, when SIGINT has a custom handler already, or without
     ``setitimer`` (Windows).
+
+    Parameters
+    ----------
+    once : bool
+        Raise one KeyboardInterrupt at most: later interrupts within the block are ignored,
+        so that a sender which repeats its interrupt (it may have been lost, see
+        :func:`recon.batch.worker.child_main`) never breaks the clean-up of the first.
+
+    Attributes
+    ----------
+    raised : threading.Event
+        Set just before the block's KeyboardInterrupt is raised.
     """
 
     RETRY_S = 0.02
+
+    def __init__(self, once: bool = False) -> None:
+        self.once = once
+        self.raised = threading.Event()
 
     def __enter__(self) -> deferred_interrupts:
         self.active = (
@@ -85,10 +101,13 @@ class deferred_interrupts:  # noqa: N801 - used like a function
                 signal.signal(signal.SIGTERM, signal.SIG_DFL)
 
     def _handle(self, signum: int, frame: Any) -> None:
+        if self.once and self.raised.is_set():
+            return
         if _unsafe_to_interrupt(frame):
             signal.setitimer(signal.ITIMER_REAL, self.RETRY_S)
             return
         signal.setitimer(signal.ITIMER_REAL, 0.0)
+        self.raised.set()
         raise KeyboardInterrupt
 
 

@@ -2,7 +2,7 @@
 
 The items run through the real supervisor and child processes, but with fake jobs (defined
 below, imported by name in the child) whose behaviour is written into the input file: ``ok``,
-``fail``, ``bug``, ``crash``, ``hang``, ``limit``. The real fit is exercised end to end in
+``fail``, ``bug``, ``crash``, ``hang``, ``deaf``, ``limit``. The real fit is exercised end to end in
 ``test_cli_batch.py``.
 """
 
@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 import os
 import re
+import signal
 import sys
 import time
 from pathlib import Path
@@ -52,6 +53,18 @@ def fake_job(spec: dict, on_progress) -> dict:
             tmp.write_text("partial")
             on_progress("release", {"step": 2, "particles": 7, "coverage": 0.6})
             time.sleep(3600 if action == "hang" else 3)
+    if action == "deaf":  # hangs, and loses the first interrupt
+        with atomic_output(spec["meshes"][0]) as tmp:
+            tmp.write_text("partial")
+            # as when SIGINT lands after the last check for signals and before a blocking call
+            # starts: the flag is set, the handler waits for the call to return
+            signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+            on_progress("release", {"step": 2, "particles": 7, "coverage": 0.6})
+            while signal.SIGINT not in signal.sigpending():
+                time.sleep(0.01)
+            signal.sigwait({signal.SIGINT})
+            signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+            time.sleep(3600)
     if action == "limit":
         time.sleep(spec["time_limit"] + 0.05)
         raise LimitExceeded(f"time limit of {spec['time_limit']:g} s reached")
@@ -577,12 +590,15 @@ def test_interrupt_keeps_finished_items_and_leaves_no_partial_files(tmp_path):
     assert statuses(run(path))["a"] == "skipped"
 
 
-def test_child_stops_and_cleans_up_when_its_stdin_closes(tmp_path):
+@pytest.mark.parametrize("action", ["hang", "deaf"])
+def test_child_stops_and_cleans_up_when_its_stdin_closes(tmp_path, action):
     """A parent that dies (or asks to stop) closes the child's stdin: the child interrupts its
-    job, even one sleeping in C, and atomic_output removes the partial file."""
+    job, even one sleeping in C, and atomic_output removes the partial file. An interrupt that
+    is lost (``deaf``: it landed just before the sleep started; it flaked so under load) is
+    sent again."""
     import subprocess
 
-    make_inputs(tmp_path, **{"a.xyz": "hang"})
+    make_inputs(tmp_path, **{"a.xyz": action})
     out = tmp_path / "out"
     out.mkdir()
     spec = {
@@ -604,9 +620,11 @@ def test_child_stops_and_cleans_up_when_its_stdin_closes(tmp_path):
         assert read_frame(proc.stdout)[0] == "progress"
         assert read_frame(proc.stdout)[1] == "release"  # inside atomic_output
         assert len(temp_files(out)) == 1
+        t0 = time.monotonic()
         proc.stdin.close()
         assert read_frame(proc.stdout)[0] == "interrupted"
         assert proc.wait(timeout=10) == 130
+        assert time.monotonic() - t0 < 10  # not the orphan's exit (15 s)
     finally:
         if proc.poll() is None:
             proc.kill()

@@ -33,6 +33,10 @@ __all__ = ["RUN_ITEM", "child_main", "prepare_run_item", "run_item"]
 
 #: A child whose stdin closed (stop request, or its parent died) exits after this at the latest [s].
 _ORPHAN_EXIT = 15.0
+#: ... and sends its main thread the interrupt again at this interval until it is raised [s]: a
+#: signal that lands after the interpreter's last check and before a blocking call (a sleep, a
+#: wait) starts is handled only when the call returns.
+_RESEND_S = 0.25
 
 
 def run_item(
@@ -124,16 +128,19 @@ def child_main() -> None:
     if spec is None:
         sys.exit(2)
     finished = threading.Event()
+    guard = deferred_interrupts(once=True)
 
     def watch_stdin() -> None:
         # the parent closes our stdin to ask us to stop, or because it died
         with contextlib.suppress(Exception):
             sys.stdin.buffer.read()
-        if finished.is_set():
-            return
-        _interrupt_main_thread()
-        if not finished.wait(_ORPHAN_EXIT):
-            os._exit(130)  # stuck in native code and nobody left to kill us
+        deadline = time.monotonic() + _ORPHAN_EXIT
+        while not finished.is_set():
+            if time.monotonic() > deadline:
+                os._exit(130)  # stuck in native code and nobody left to kill us
+            if not guard.raised.is_set():
+                _interrupt_main_thread()
+            finished.wait(_RESEND_S)
 
     threading.Thread(target=watch_stdin, daemon=True).start()
     handler = logging.StreamHandler(sys.stderr)
@@ -144,21 +151,22 @@ def child_main() -> None:
 
     keep_freed_memory()  # this process runs one item and exits (recon/heap.py)
     t0 = time.perf_counter()
+
+    def on_progress(phase: str, info: dict[str, Any]) -> None:
+        write_frame(proto, ("progress", str(phase), _plain(info)))
+
     try:
-        job, prepare = JobRef.from_spec(spec).load()
-        if prepare is not None:  # imports and compilation do not count against the limit
-            prepare()
-        write_frame(proto, ("start", os.getpid()))
-        t0 = time.perf_counter()
-
-        def on_progress(phase: str, info: dict[str, Any]) -> None:
-            write_frame(proto, ("progress", str(phase), _plain(info)))
-
-        with deferred_interrupts():  # never stop a k-d tree query or a compile half-way
+        with guard:  # never stop an import, a compile or a k-d tree query half-way
+            job, prepare = JobRef.from_spec(spec).load()
+            if prepare is not None:  # imports and compilation do not count against the limit
+                prepare()
+            write_frame(proto, ("start", os.getpid()))
+            t0 = time.perf_counter()
             metrics = job(spec, on_progress)
         finished.set()
         write_frame(proto, ("done", dict(metrics or {}), time.perf_counter() - t0))
     except KeyboardInterrupt:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)  # a repeated interrupt (watch_stdin) is late
         finished.set()
         with contextlib.suppress(Exception):
             write_frame(proto, ("interrupted", time.perf_counter() - t0))
