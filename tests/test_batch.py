@@ -2,7 +2,7 @@
 
 The items run through the real supervisor and child processes, but with fake jobs (defined
 below, imported by name in the child) whose behaviour is written into the input file: ``ok``,
-``fail``, ``bug``, ``crash``, ``hang``, ``deaf``, ``limit``. The real fit is exercised end to end in
+``fail``, ``bug``, ``crash``, ``hang``, ``deaf``, ``slowclean``, ``limit``. The real fit is exercised end to end in
 ``test_cli_batch.py``.
 """
 
@@ -65,6 +65,13 @@ def fake_job(spec: dict, on_progress) -> dict:
             signal.sigwait({signal.SIGINT})
             signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
             time.sleep(3600)
+    if action == "slowclean":  # hangs; its clean-up after an interrupt takes a while
+        try:
+            on_progress("release", {"step": 2, "particles": 7, "coverage": 0.6})
+            time.sleep(3600)
+        finally:
+            time.sleep(1.0)
+            Path(spec["meshes"][0]).with_suffix(".cleaned").write_text("done\n")
     if action == "limit":
         time.sleep(spec["time_limit"] + 0.05)
         raise LimitExceeded(f"time limit of {spec['time_limit']:g} s reached")
@@ -629,6 +636,41 @@ def test_child_stops_and_cleans_up_when_its_stdin_closes(tmp_path, action):
         if proc.poll() is None:
             proc.kill()
     assert temp_files(out) == []
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_a_child_interrupted_and_orphaned_at_once_finishes_its_clean_up(tmp_path, sig):
+    """Ctrl-C (or a scheduler's SIGTERM) reaches the child as its parent dies: the interrupt
+    the child repeats after its stdin closed must not break the clean-up of the first."""
+    import subprocess
+
+    make_inputs(tmp_path, **{"a.xyz": "slowclean"})
+    out = tmp_path / "out"
+    out.mkdir()
+    spec = {
+        "input": str(tmp_path / "a.xyz"),
+        "meshes": [str(out / "a.ply")],
+        "time_limit": None,
+        "job": f"{fake_job.__module__}:fake_job",
+        "job_path": str(Path(__file__).parent),
+    }
+    proc = subprocess.Popen(
+        child_command(), stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL
+    )
+    try:
+        write_frame(proc.stdin, spec)
+        assert read_frame(proc.stdout)[0] == "start"
+        assert read_frame(proc.stdout)[0] == "progress"
+        assert read_frame(proc.stdout)[1] == "release"
+        proc.send_signal(sig)
+        time.sleep(0.3)  # the child is cleaning up (for 1 s) when its stdin closes
+        proc.stdin.close()
+        assert read_frame(proc.stdout)[0] == "interrupted"
+        assert proc.wait(timeout=10) == 130
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert (out / "a.cleaned").read_text() == "done\n"
 
 
 def test_a_failing_progress_callback_stops_the_children(tmp_path):

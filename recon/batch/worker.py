@@ -118,8 +118,12 @@ def child_main() -> None:
     os.dup2(2, 1)  # anything written to stdout (C libraries too) goes to the captured stderr
     sys.stdout = sys.stderr
     signal.signal(signal.SIGINT, signal.default_int_handler)
+    guard = deferred_interrupts(once=True)
 
     def on_term(signum: int, frame: Any) -> None:
+        if guard.raised.is_set():  # one interrupt: its clean-up runs to the end
+            return
+        guard.raised.set()  # (watch_stdin repeats an interrupt only while none was raised)
         raise KeyboardInterrupt
 
     with contextlib.suppress(ValueError, OSError, AttributeError):
@@ -128,7 +132,6 @@ def child_main() -> None:
     if spec is None:
         sys.exit(2)
     finished = threading.Event()
-    guard = deferred_interrupts(once=True)
 
     def watch_stdin() -> None:
         # the parent closes our stdin to ask us to stop, or because it died
