@@ -2,8 +2,8 @@
 
 The items run through the real supervisor and child processes, but with fake jobs (defined
 below, imported by name in the child) whose behaviour is written into the input file: ``ok``,
-``fail``, ``bug``, ``crash``, ``hang``, ``deaf``, ``slowclean``, ``limit``. The real fit is exercised end to end in
-``test_cli_batch.py``.
+``fail``, ``bug``, ``crash``, ``hang``, ``deaf``, ``slowclean``, ``limit``. The real fit is
+exercised end to end in ``test_cli_batch.py``.
 """
 
 from __future__ import annotations
