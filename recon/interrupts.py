@@ -70,6 +70,8 @@ class deferred_interrupts:  # noqa: N801 - used like a function
     ----------
     raised : threading.Event
         Set just before the block's KeyboardInterrupt is raised.
+    active : bool
+        Whether the block holds interrupts back (see above); False until it is entered.
     """
 
     RETRY_S = 0.02
@@ -77,6 +79,7 @@ class deferred_interrupts:  # noqa: N801 - used like a function
     def __init__(self, once: bool = False) -> None:
         self.once = once
         self.raised = threading.Event()
+        self.active = False
 
     def __enter__(self) -> deferred_interrupts:
         self.active = (

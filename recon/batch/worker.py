@@ -138,11 +138,14 @@ def child_main() -> None:
         with contextlib.suppress(Exception):
             sys.stdin.buffer.read()
         deadline = time.monotonic() + _ORPHAN_EXIT
+        sent = False
         while not finished.is_set():
             if time.monotonic() > deadline:
                 os._exit(130)  # stuck in native code and nobody left to kill us
-            if not guard.raised.is_set():
+            # (again only where the guard raises one interrupt: not on Windows)
+            if not guard.raised.is_set() and not (sent and not guard.active):
                 _interrupt_main_thread()
+                sent = True
             finished.wait(_RESEND_S)
 
     threading.Thread(target=watch_stdin, daemon=True).start()
