@@ -715,6 +715,22 @@ def test_dask_missing_gives_an_install_hint(tmp_path, monkeypatch):
     assert not (tmp_path / "out").exists()
 
 
+def test_two_local_dask_clusters_at_once_take_no_fixed_port(recwarn):
+    """Two runs on local Dask clusters at the same time (two batches, or a batch and a tiled
+    fit): the second scheduler's HTTP server found Dask's default port 8787 taken and warned
+    (``UserWarning: Port 8787 is already in use``)."""
+    pytest.importorskip("dask.distributed")
+    from recon.batch.executors import dask_client
+
+    def http_host(dask_scheduler) -> str:
+        return dask_scheduler.http_server.address
+
+    with dask_client(None, 1) as (first, _), dask_client(None, 1) as (second, _):
+        hosts = [c.run_on_scheduler(http_host) for c in (first, second)]
+    assert not [w for w in recwarn if "already in use" in str(w.message)]
+    assert hosts == ["127.0.0.1", "127.0.0.1"]  # as at 8787: not every interface
+
+
 def test_dask_local_cluster_gives_the_same_statuses_as_local_processes(tmp_path):
     pytest.importorskip("dask.distributed")
     make_inputs(tmp_path, **{"a.xyz": "ok", "b.xyz": "fail"})

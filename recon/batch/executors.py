@@ -195,6 +195,9 @@ def dask_client(scheduler: str | None, jobs: int) -> Iterator[tuple[Any, dict[st
                         processes=True,
                         threads_per_worker=1,
                         dashboard_address=None,
+                        # its HTTP server (health, metrics) on a free local port, not 8787:
+                        # a second cluster at the same time warned that 8787 was taken
+                        scheduler_kwargs={"dashboard_address": "127.0.0.1:0"},
                         silence_logs=logging.ERROR,
                     )
                 client = dd.Client(cluster, set_as_default=False)
