@@ -63,21 +63,26 @@ class deferred_interrupts:  # noqa: N801 - used like a function
     ----------
     once : bool
         Raise one KeyboardInterrupt at most: later interrupts within the block are ignored,
-        so that a sender which repeats its interrupt (it may have been lost, see
+        and SIGINT stays ignored after a block that raised one (the process is on its way
+        out), so that a sender which repeats its interrupt (it may have been lost, see
         :func:`recon.batch.worker.child_main`) never breaks the clean-up of the first.
+    term : bool
+        Treat SIGTERM as Ctrl-C within the block also when it has a handler of its own
+        (put back after the block).
 
     Attributes
     ----------
     raised : threading.Event
         Set just before the block's KeyboardInterrupt is raised.
     active : bool
-        Whether the block holds interrupts back (see above); False until it is entered.
+        Whether the block holds interrupts back (see above): False outside it.
     """
 
     RETRY_S = 0.02
 
-    def __init__(self, once: bool = False) -> None:
+    def __init__(self, once: bool = False, term: bool = False) -> None:
         self.once = once
+        self.take_term = term
         self.raised = threading.Event()
         self.active = False
 
@@ -90,7 +95,8 @@ class deferred_interrupts:  # noqa: N801 - used like a function
         if self.active:
             self.old_alarm = signal.signal(signal.SIGALRM, self._handle)
             signal.signal(signal.SIGINT, self._handle)
-            self.term = signal.getsignal(signal.SIGTERM) == signal.SIG_DFL
+            self.old_term = signal.getsignal(signal.SIGTERM)
+            self.term = self.take_term or self.old_term == signal.SIG_DFL
             if self.term:
                 signal.signal(signal.SIGTERM, self._handle)
         return self
@@ -98,10 +104,12 @@ class deferred_interrupts:  # noqa: N801 - used like a function
     def __exit__(self, *exc: object) -> None:
         if self.active:
             signal.setitimer(signal.ITIMER_REAL, 0.0)
-            signal.signal(signal.SIGINT, signal.default_int_handler)
+            done = self.once and self.raised.is_set()
+            signal.signal(signal.SIGINT, signal.SIG_IGN if done else signal.default_int_handler)
             signal.signal(signal.SIGALRM, self.old_alarm)
             if self.term:
-                signal.signal(signal.SIGTERM, signal.SIG_DFL)
+                signal.signal(signal.SIGTERM, self.old_term)
+            self.active = False
 
     def _handle(self, signum: int, frame: Any) -> None:
         if self.once and self.raised.is_set():

@@ -40,4 +40,25 @@ def test_a_repeated_interrupt_breaks_the_clean_up_unless_once(default_sigint, on
             cleaned = True
     assert guard.raised.is_set()
     assert cleaned is once
-    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    # after a block that raised its one interrupt, a late repeat is ignored
+    after = signal.SIG_IGN if once else signal.default_int_handler
+    assert signal.getsignal(signal.SIGINT) is after
+    assert not guard.active
+
+
+def test_term_takes_sigterm_over_a_handler_of_its_own_and_puts_it_back(default_sigint):
+    def own(signum, frame):  # the handler outside the block
+        raise AssertionError("SIGTERM reached the outer handler inside the block")
+
+    old = signal.signal(signal.SIGTERM, own)
+    try:
+        guard = deferred_interrupts(once=True, term=True)
+        with pytest.raises(KeyboardInterrupt), guard:
+            signal.pthread_kill(threading.main_thread().ident, signal.SIGTERM)
+            time.sleep(0.01)
+        assert guard.raised.is_set()
+        assert signal.getsignal(signal.SIGTERM) is own
+        with deferred_interrupts():  # without term: the block leaves it alone
+            assert signal.getsignal(signal.SIGTERM) is own
+    finally:
+        signal.signal(signal.SIGTERM, old)

@@ -118,9 +118,10 @@ def child_main() -> None:
     os.dup2(2, 1)  # anything written to stdout (C libraries too) goes to the captured stderr
     sys.stdout = sys.stderr
     signal.signal(signal.SIGINT, signal.default_int_handler)
-    guard = deferred_interrupts(once=True)
+    # (SIGTERM too: within the block it waits, as Ctrl-C does, for a safe point)
+    guard = deferred_interrupts(once=True, term=True)
 
-    def on_term(signum: int, frame: Any) -> None:
+    def on_term(signum: int, frame: Any) -> None:  # outside the guard's block
         if guard.raised.is_set():  # one interrupt: its clean-up runs to the end
             return
         guard.raised.set()  # (watch_stdin repeats an interrupt only while none was raised)
