@@ -10,9 +10,12 @@ from __future__ import annotations
 import tracemalloc
 
 import numpy as np
+import pytest
 from scipy.spatial import cKDTree
 
 from recon.config import ReconConfig
+
+pytestmark = pytest.mark.usefixtures("no_kernel_loading")  # (tracemalloc: every thread)
 
 
 def _traced_peak(fn, *args, **kwargs):

@@ -201,3 +201,15 @@ def test_uncached_is_empty_when_numbas_cache_internals_are_renamed(monkeypatch):
 def test_the_slow_kernels_are_fit_kernels():
     assert set(warm.SLOW_TO_COMPILE) <= set(warm.FIT_KERNELS)
     assert all(isinstance(k, Dispatcher) for k in warm.resolve(warm.SLOW_TO_COMPILE))
+
+
+def test_finish_warming_waits_for_the_loading_thread(monkeypatch):
+    import time
+
+    loading = threading.Thread(target=time.sleep, args=(0.3,), daemon=True)
+    monkeypatch.setattr(warm, "_started", loading)
+    loading.start()
+    warm.finish_warming()
+    assert not loading.is_alive()
+    monkeypatch.setattr(warm, "_started", None)
+    warm.finish_warming()  # no thread started: returns at once
