@@ -15,6 +15,7 @@ import signal
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -597,54 +598,12 @@ def test_interrupt_keeps_finished_items_and_leaves_no_partial_files(tmp_path):
     assert statuses(run(path))["a"] == "skipped"
 
 
-@pytest.mark.parametrize("action", ["hang", "deaf"])
-def test_child_stops_and_cleans_up_when_its_stdin_closes(tmp_path, action):
-    """A parent that dies (or asks to stop) closes the child's stdin: the child interrupts its
-    job, even one sleeping in C, and atomic_output removes the partial file. An interrupt that
-    is lost (``deaf``: it landed just before the sleep started; it flaked so under load) is
-    sent again."""
+def start_child(tmp_path: Path, action: str) -> tuple[Any, Path]:
+    """A child process running ``fake_job`` with ``action``, past its "release" progress
+    frame (inside its work); returns the process and the output folder."""
     import subprocess
 
     make_inputs(tmp_path, **{"a.xyz": action})
-    out = tmp_path / "out"
-    out.mkdir()
-    spec = {
-        "input": str(tmp_path / "a.xyz"),
-        "meshes": [str(out / "a.ply")],
-        "time_limit": None,
-        "job": f"{fake_job.__module__}:fake_job",
-        "job_path": str(Path(__file__).parent),
-    }
-    proc = subprocess.Popen(
-        child_command(),
-        stdin=subprocess.PIPE,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.DEVNULL,
-    )
-    try:
-        write_frame(proc.stdin, spec)
-        assert read_frame(proc.stdout)[0] == "start"
-        assert read_frame(proc.stdout)[0] == "progress"
-        assert read_frame(proc.stdout)[1] == "release"  # inside atomic_output
-        assert len(temp_files(out)) == 1
-        t0 = time.monotonic()
-        proc.stdin.close()
-        assert read_frame(proc.stdout)[0] == "interrupted"
-        assert proc.wait(timeout=10) == 130
-        assert time.monotonic() - t0 < 10  # not the orphan's exit (15 s)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-    assert temp_files(out) == []
-
-
-@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
-def test_a_child_interrupted_and_orphaned_at_once_finishes_its_clean_up(tmp_path, sig):
-    """Ctrl-C (or a scheduler's SIGTERM) reaches the child as its parent dies: the interrupt
-    the child repeats after its stdin closed must not break the clean-up of the first."""
-    import subprocess
-
-    make_inputs(tmp_path, **{"a.xyz": "slowclean"})
     out = tmp_path / "out"
     out.mkdir()
     spec = {
@@ -662,6 +621,38 @@ def test_a_child_interrupted_and_orphaned_at_once_finishes_its_clean_up(tmp_path
         assert read_frame(proc.stdout)[0] == "start"
         assert read_frame(proc.stdout)[0] == "progress"
         assert read_frame(proc.stdout)[1] == "release"
+    except BaseException:
+        proc.kill()
+        raise
+    return proc, out
+
+
+@pytest.mark.parametrize("action", ["hang", "deaf"])
+def test_child_stops_and_cleans_up_when_its_stdin_closes(tmp_path, action):
+    """A parent that dies (or asks to stop) closes the child's stdin: the child interrupts its
+    job, even one sleeping in C, and atomic_output removes the partial file. An interrupt that
+    is lost (``deaf``: it landed just before the sleep started; it flaked so under load) is
+    sent again."""
+    proc, out = start_child(tmp_path, action)
+    try:
+        assert len(temp_files(out)) == 1  # inside atomic_output
+        t0 = time.monotonic()
+        proc.stdin.close()
+        assert read_frame(proc.stdout)[0] == "interrupted"
+        assert proc.wait(timeout=10) == 130
+        assert time.monotonic() - t0 < 10  # not the orphan's exit (15 s)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert temp_files(out) == []
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_a_child_interrupted_and_orphaned_at_once_finishes_its_clean_up(tmp_path, sig):
+    """Ctrl-C (or a scheduler's SIGTERM) reaches the child as its parent dies: the interrupt
+    the child repeats after its stdin closed must not break the clean-up of the first."""
+    proc, out = start_child(tmp_path, "slowclean")
+    try:
         proc.send_signal(sig)
         time.sleep(0.3)  # the child is cleaning up (for 1 s) when its stdin closes
         proc.stdin.close()
