@@ -22,4 +22,4 @@ def no_kernel_loading():
     fit in this process: its 17 MB fell inside a split's measurement once, under load."""
     from recon.kernels.warm import finish_warming
 
-    finish_warming()
+    finish_warming(timeout=120.0)
