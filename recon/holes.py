@@ -79,7 +79,9 @@ def fill_small_holes(
       at most ``covered_max_perimeter`` and data lies at its centroid, or
     * it is a *seam*: narrower than ``max_perimeter / pi`` (:func:`loop_width`, however long)
       and data lies at ``SEAM_SUPPORT`` of the points across it (:func:`across_points`): the
-      rim is supported by data all round.
+      rim is supported by data all round. ``is_covered`` is called with ``across=True`` for
+      those points (judged together, they may be judged at the reach of the local sampling:
+      :func:`recon.fitting.pipeline.covered`).
 
     A loop whose rim faces point against the patch that would close it is the outer rim of an
     open sheet and stays open. Loops are closed by :func:`zip_loop` (no new vertex), wound
@@ -115,8 +117,8 @@ def fill_small_holes(
         comp, weights=0.5 * np.linalg.norm(face_area_vectors(vertices, faces), axis=1)
     )
 
-    def covered(points: np.ndarray, s: float) -> np.ndarray:
-        return _covered_at(is_covered, points, None if scale is None else s)
+    def covered(points: np.ndarray, s: float, across: bool = False) -> np.ndarray:
+        return _covered_at(is_covered, points, None if scale is None else s, across)
 
     new_faces, zipped = [], []
     for loop in loops:
@@ -131,7 +133,7 @@ def fill_small_holes(
             if perim <= covered_max_perimeter * s:
                 fill = bool(covered(ring.mean(axis=0)[None], s)[0])
             if not fill and len(loop) >= 5 and loop_width(ring) <= max_perimeter / np.pi * s:
-                support = float(np.mean(covered(across_points(ring), s)))
+                support = float(np.mean(covered(across_points(ring), s, across=True)))
                 fill = support >= SEAM_SUPPORT
         if not fill:
             if log.isEnabledFor(logging.DEBUG):  # which rule keeps it open [local spacings]
@@ -194,7 +196,7 @@ def zip_supported_loops(
     patches = []
     for loop in loops:
         s = None if scale is None else float(scale[loop].mean())
-        support = np.mean(_covered_at(is_covered, across_points(vertices[loop]), s))
+        support = np.mean(_covered_at(is_covered, across_points(vertices[loop]), s, True))
         if support < SEAM_SUPPORT:
             continue
         patch = zip_loop(vertices, loop[::-1], set(edges))
@@ -207,12 +209,17 @@ def zip_supported_loops(
 
 
 def _covered_at(
-    is_covered: Callable[..., np.ndarray], points: np.ndarray, s: float | None
+    is_covered: Callable[..., np.ndarray],
+    points: np.ndarray,
+    s: float | None,
+    across: bool = False,
 ) -> np.ndarray:
-    """``is_covered`` of ``points``, at the local spacing ``s`` when one is given."""
+    """``is_covered`` of ``points``, at the local spacing ``s`` when one is given; ``across``:
+    they are the points across a seam (:func:`across_points`), judged together."""
+    extra = {"across": True} if across else {}
     if s is None:
-        return np.asarray(is_covered(points))
-    return np.asarray(is_covered(points, np.full(len(points), s)))
+        return np.asarray(is_covered(points, **extra))
+    return np.asarray(is_covered(points, np.full(len(points), s), **extra))
 
 
 def loop_width(ring: np.ndarray) -> float:

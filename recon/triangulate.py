@@ -134,7 +134,8 @@ def triangulate_particles(
         ``points (m, 3) -> (m,) bool``: does data lie at these points? Loops over data are
         closed up to ``COVERED_HOLE_FACTOR`` times the ``max_hole`` perimeter, and narrow seams
         over data however long. With ``local_spacing`` it is called as
-        ``is_covered(points, spacing)`` with the local spacing [r0] at each point.
+        ``is_covered(points, spacing)`` with the local spacing [r0] at each point; for the
+        points across a seam, judged together, with ``across=True`` as well.
     local_spacing : (n,) float64 [r0], optional
         Each particle's rest spacing (None: 1 everywhere, the uniform r0). Ball-pivoting radii
         (:func:`ball_radii`; a face is kept when its circumradius fits the largest radius times

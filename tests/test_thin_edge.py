@@ -212,7 +212,7 @@ def test_the_body_loop_beside_a_joined_sheet_is_zipped_where_data_lies_across_it
     strip = _body_open_beside_sheet()
     thick = _sheets_thickened(strip, open_body=True)
     assert thick is not None and handle_count(thick.faces, len(thick.vertices)) == (1, 1, 0)
-    covered = lambda p: np.full(len(p), data)  # noqa: E731
+    covered = lambda p, across=False: np.full(len(p), data)  # noqa: E731
     zipped = _rest_zipped(thick, strip, strip.vertices, 1.0, (None, 4.0, covered, None, None))
     if not data:
         assert zipped is None  # no data across the loop: a real boundary, kept

@@ -255,7 +255,7 @@ def test_seam_between_two_fronts_is_zipped_and_a_real_hole_stays():
     hole = np.linalg.norm(pts[:, :2] - [0.0, -10.0], axis=1) < 6.0
     keep = ~slit & ~hole
 
-    def is_covered(c):
+    def is_covered(c, across=False):  # the seam's points come with across=True
         return ~(np.linalg.norm(c[:, :2] - [0.0, -10.0], axis=1) < 5.5)
 
     def loops(fill):

@@ -250,13 +250,26 @@ def sparse_cover(sampling: np.ndarray, median: float, max_density_scale: float) 
 
 
 def covered(
-    dist: np.ndarray, sparser: np.ndarray, spacing: float | np.ndarray, reach: float
+    dist: np.ndarray,
+    sparser: np.ndarray,
+    spacing: float | np.ndarray,
+    reach: float,
+    across: bool = False,
 ) -> np.ndarray:
     """Hole points whose nearest data point (at ``dist`` [r0], its :func:`sparse_cover`
     ``sparser``) covers them: within ``HOLE_COVER_DISTANCE`` times the larger of the local
-    ``spacing`` and ``sparser``, or within ``reach`` (:func:`cover_reach`)."""
+    ``spacing`` and ``sparser``, or within ``reach`` (:func:`cover_reach`).
+
+    ``across``: the points are those across a seam (:func:`recon.holes.across_points`), which
+    the seam rule judges together (it asks for data at ``SEAM_SUPPORT`` of them). The reach
+    then follows the local sampling as well: ``reach`` x ``sparser``, the distance within
+    which 95 % of a surface sampled that sparsely lies from a sample. A single point (a
+    hole's centroid, judged alone) keeps the median reach, so that a small real opening in
+    sparse data stays open (face-sparse: a centroid 3.0 r0 from data 1.8x sparser than the
+    median, 1.8 r0 of reach).
+    """
     near = HOLE_COVER_DISTANCE * np.maximum(spacing, sparser)
-    return dist < np.maximum(near, reach)
+    return dist < np.maximum(near, reach * sparser if across else reach)
 
 
 def _triangulate(
@@ -285,9 +298,11 @@ def _triangulate(
     sparser = sparse_cover(sampling, median, tri_cfg.max_density_scale)
 
     def mesh(reach: float) -> tuple[TriangulationResult, int, int]:
-        def is_covered(c: np.ndarray, spacing: float | np.ndarray = 1.0) -> np.ndarray:
+        def is_covered(
+            c: np.ndarray, spacing: float | np.ndarray = 1.0, across: bool = False
+        ) -> np.ndarray:
             dist, idx = surface.nearest(surface.project(c)[0])
-            return covered(dist, sparser[idx], spacing, reach)
+            return covered(dist, sparser[idx], spacing, reach, across)
 
         result = triangulate_particles(
             state.position,

@@ -567,7 +567,10 @@ def _triangulate(surface: MeshSurface, lines: FeatureLines, particles: Particles
     shared line particles: a triangle never spans a crease, so every crease stays an edge
     chain. Line particles take the normal of the patch being meshed."""
 
-    def is_covered(points: np.ndarray, scale: np.ndarray | None = None) -> np.ndarray:
+    def is_covered(
+        points: np.ndarray, scale: np.ndarray | None = None, across: bool = False
+    ) -> np.ndarray:
+        # the distance to the input surface: a seam's points (``across``) are judged alike
         limit = COVER_DISTANCE if scale is None else COVER_DISTANCE * np.asarray(scale)
         return surface.distance(points) <= limit
 

@@ -414,11 +414,11 @@ def mesh_task(job: MeshJob) -> dict:
         tiles): the result, the vertices' global ids (``-1 - j`` for the ``j``-th new one),
         the untangled vertices, crossings found and left."""
 
-        def is_covered(c: np.ndarray, s: Any = 1.0) -> np.ndarray:
+        def is_covered(c: np.ndarray, s: Any = 1.0, across: bool = False) -> np.ndarray:
             if tree is None:
                 return np.zeros(len(c), dtype=bool)
             dist, idx = tree.query(c)
-            return covered(dist, sparser[idx], s, reach)
+            return covered(dist, sparser[idx], s, reach, across)
 
         tri = triangulate_particles(
             x,
