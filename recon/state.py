@@ -360,7 +360,11 @@ class ParticleState:
             A permutation of 0 … n − 1.
         """
         perm = np.asarray(order)
-        if perm.shape != (self._n,) or not np.array_equal(np.sort(perm), np.arange(self._n)):
+        ok = perm.shape == (self._n,) and perm.dtype.kind in "iu"
+        if ok and self._n:  # each index once, in O(n) (a sort was 13-17 ms per bunny fit)
+            ok = 0 <= perm.min() and perm.max() < self._n
+            ok = ok and bool(np.all(np.bincount(perm, minlength=self._n) == 1))
+        if not ok:
             raise ValueError(f"order: expected a permutation of {self._n} indices")
         for name in self._BUFFERS:
             buf = getattr(self, name)

@@ -105,3 +105,39 @@ def test_anchors_follow_their_particles_through_a_growth_round():
     exact, exact_n, _ = anchors(state.position, state.normal)
     assert queried == [7]
     assert np.array_equal(pts, exact) and np.array_equal(nrm, exact_n)
+
+
+def test_when_every_particle_moved_the_anchors_come_from_one_hinted_call():
+    """A release step moves every particle: one call over all of them, started from the
+    previous anchors' data points, gives what a fresh refresh gives; a later partial refresh
+    still updates only the particle that moved."""
+    from recon.config import ReconConfig
+    from recon.fitting.schedule import ANCHOR_MOVE, Clock, _Schedule
+    from recon.state import ParticleState
+    from recon.surface import DataSurface
+
+    rng = np.random.default_rng(4)
+    xy = rng.uniform(-10, 10, (3000, 2))
+    data = np.column_stack([xy, 0.02 * (xy**2).sum(axis=1)])
+    surface = DataSurface.build(data, np.tile([0.0, 0.0, 1.0], (len(data), 1)), k=16)
+    sched = _Schedule(surface, ReconConfig(), np.random.default_rng(0), Clock(None), None)
+    pos = np.column_stack([rng.uniform(-5, 5, (30, 2)), np.full(30, 0.3)])
+    state = ParticleState.from_points(pos, np.tile([0.0, 0.0, 1.0], (30, 1)))
+    sched.refresh_anchors(state)
+    state.position[:, :2] += ANCHOR_MOVE + 0.05
+    calls = []
+    anchors = surface.anchors
+
+    def spy(positions, normals=None, **kw):
+        calls.append((len(positions), kw.get("hint") is not None))
+        return anchors(positions, normals, **kw)
+
+    surface.anchors = spy
+    pts, nrm = sched.refresh_anchors(state)
+    exact, exact_n, _ = anchors(state.position, state.normal)
+    assert calls == [(30, True)]
+    assert np.array_equal(pts, exact) and np.array_equal(nrm, exact_n)
+    state.position[5, 0] += ANCHOR_MOVE + 0.1
+    pts, _ = sched.refresh_anchors(state)
+    exact, _, _ = anchors(state.position, state.normal)
+    assert calls[1:] == [(1, True)] and np.array_equal(pts, exact)

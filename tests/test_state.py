@@ -102,6 +102,25 @@ def test_reorder_permutes_every_array():
     np.testing.assert_allclose(s.normal, normals[[3, 0, 2, 1]])
 
 
+@pytest.mark.parametrize(
+    "order",
+    [[0, 0, 2, 1], [0, 1, 2, 4], [-1, 0, 1, 2], [0, 1, 2], [0.0, 1.0, 2.0, 3.0], [[0, 1, 2, 3]]],
+    ids=["repeated", "past the end", "negative", "short", "float", "2-D"],
+)
+def test_reorder_rejects_what_is_not_a_permutation(order):
+    s = ParticleState.from_points(_points(4), _normals(4))
+    before = s.position.copy()
+    with pytest.raises(ValueError, match="expected a permutation of 4 indices"):
+        s.reorder(np.array(order))
+    np.testing.assert_array_equal(s.position, before)
+
+
+def test_reorder_of_no_particles_is_allowed():
+    s = ParticleState.from_points(np.zeros((0, 3)), None)
+    s.reorder(np.zeros(0, dtype=np.int64))
+    assert s.n == 0
+
+
 def test_input_validation_names_the_problem():
     with pytest.raises(ValueError, match=r"positions: expected shape \(n, 3\)"):
         ParticleState.from_points(np.zeros((3, 2)), None)

@@ -377,21 +377,26 @@ class _Schedule:
         moved more than ``ANCHOR_MOVE`` since their anchor was found (all of them after
         :meth:`forget_anchors`)."""
         pos = state.position
-        if self._anchor_ref is None or len(self._anchor_ref) != state.n:
-            pts, nrm, _, idx = self.surface.anchors(pos, state.normal, with_index=True)
-            self._anchor_ref, self._anchor_pts, self._anchor_nrm = pos.copy(), pts, nrm
-            self._anchor_idx = idx
-            return pts, nrm
-        d = pos - self._anchor_ref
-        moved = np.flatnonzero(np.einsum("ij,ij->i", d, d) > ANCHOR_MOVE * ANCHOR_MOVE)
-        if len(moved):
+        hint = None
+        if self._anchor_ref is not None and len(self._anchor_ref) == state.n:
+            d = pos - self._anchor_ref
+            moved = np.flatnonzero(np.einsum("ij,ij->i", d, d) > ANCHOR_MOVE * ANCHOR_MOVE)
             # the previous anchors' data points start the search (same anchors, found sooner)
-            pts, nrm, _, idx = self.surface.anchors(
-                pos[moved], state.normal[moved], hint=self._anchor_idx[moved], with_index=True
-            )
-            self._anchor_pts[moved], self._anchor_nrm[moved] = pts, nrm
-            self._anchor_ref[moved], self._anchor_idx[moved] = pos[moved], idx
-        return self._anchor_pts, self._anchor_nrm
+            hint = self._anchor_idx
+            if len(moved) < state.n:
+                if len(moved):
+                    pts, nrm, _, idx = self.surface.anchors(
+                        pos[moved], state.normal[moved], hint=hint[moved], with_index=True
+                    )
+                    self._anchor_pts[moved], self._anchor_nrm[moved] = pts, nrm
+                    self._anchor_ref[moved], self._anchor_idx[moved] = pos[moved], idx
+                return self._anchor_pts, self._anchor_nrm
+        # every anchor is new, or every particle moved (each step of the release): one call
+        # over all of them, without gathering and scattering the rows
+        pts, nrm, _, idx = self.surface.anchors(pos, state.normal, hint=hint, with_index=True)
+        self._anchor_ref, self._anchor_pts, self._anchor_nrm = pos.copy(), pts, nrm
+        self._anchor_idx = idx
+        return pts, nrm
 
     def reorder_anchors(self, added: int, order: np.ndarray) -> None:
         """``added`` particles were appended and then all reordered by ``order`` (new i = old
