@@ -33,19 +33,16 @@ from .config import TriangulationConfig
 from .crease_mesh import flip_straddling_edges, insert_crease_edges, pivot_positions
 from .holes import fill_small_holes, join_closed_parts, loft_nearest_loops, zip_supported_loops
 from .kernels.circumsphere import circumsphere_kernel
-from .kernels.mesh_tables import circumradii, half_edge_winding
+from .kernels.mesh_tables import circumradii
 from .mesh import (
     boundary_loops,
     capped_volume,
     drop_unreferenced,
-    edge_keys,
-    face_area_vectors,
     face_components,
     first_faces,
     handle_bridges,
     handle_count,
     opposed_faces,
-    orientation_flips,
     overlapping_faces,
     ranked_fans,
     unique_edges,
@@ -53,6 +50,12 @@ from .mesh import (
 from .neighbors import build_neighbor_list
 from .particle_signs import consistent_normals
 from .thin_sheets import thicken_sheets
+from .winding import (
+    MIN_COMPONENT_FACES,
+    consistently_wound,
+    orient_consistently,
+    orient_faces,
+)
 
 log = logging.getLogger(__name__)
 
@@ -84,9 +87,8 @@ SHEET_NECK_GAP = 1.0
 SHEET_HALF_THICKNESS = 0.15
 #: A closed part this close [r0] to the closed body joins it (the largest ball's diameter).
 PART_NECK_GAP = 4.0
-#: Debris removal: components with fewer faces than this and than ``MIN_COMPONENT_FRACTION``
-#: of the largest component are dropped.
-MIN_COMPONENT_FACES = 50
+#: Debris removal: components with fewer faces than ``MIN_COMPONENT_FACES``
+#: (:mod:`recon.winding`) and than this fraction of the largest component are dropped.
 MIN_COMPONENT_FRACTION = 0.01
 #: Hole-filling passes: a fill can meet an edge that already exists elsewhere; the repair after
 #: it can open a new small loop, which the second pass closes.
@@ -101,8 +103,6 @@ NON_MANIFOLD_VERTEX_ROUNDS = 5
 #: way to its fan's centroid, so the copies do not coincide (coincident vertices of different
 #: faces read as a self-intersection to Open3D's ``is_watertight``).
 SPLIT_SHIFT = 0.3
-#: Rounds of dropping faces on orientation conflicts (a dropped face can expose another).
-ORIENTATION_ROUNDS = 5
 
 
 def triangulate_particles(
@@ -255,7 +255,12 @@ def _parts_joined(result: TriangulationResult, cloud: bool = True) -> Triangulat
     joined = join_closed_parts(result.vertices, result.faces, PART_NECK_GAP) if cloud else None
     if joined is None:
         return result
-    alt = replace(result, faces=orient_consistently(result.vertices, result.normals, joined))
+    if not consistently_wound(joined, len(result.vertices)):
+        joined = orient_consistently(result.vertices, result.normals, joined)
+    # else the parts keep their windings, the tubes wound as both (neck_between): each part
+    # was wound outward on its own, by its volume where its normals' vote disagreed (a sparse
+    # tail's normals can face in); one vote over the joined body would turn it against it
+    alt = replace(result, faces=joined)
     return alt if _better(alt, result) else result
 
 
@@ -523,18 +528,6 @@ def circumsphere_triangles(
     return out[mask]
 
 
-def orient_faces(vertices: np.ndarray, normals: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """Flip each face whose winding disagrees with the mean of its vertex normals."""
-    if len(faces) == 0:
-        return faces
-    fn = face_area_vectors(vertices, faces)
-    vn = normals[faces].sum(axis=1)
-    flip = np.einsum("ij,ij->i", fn, vn) < 0
-    faces = faces.copy()
-    faces[flip] = faces[flip][:, [0, 2, 1]]
-    return faces
-
-
 def drop_overlaps(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """Drop the later face of every pair that covers the same wedge at a shared vertex
     (:func:`recon.mesh.overlapping_faces`; faces oriented by their vertex normals first).
@@ -549,133 +542,6 @@ def drop_overlaps(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     for i, j in pairs[np.lexsort((pairs[:, 0], pairs[:, 1]))].tolist():
         drop[j] |= not drop[i]
     return faces[~drop]
-
-
-def twisted_faces(vertices: np.ndarray, normals: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """Faces on the manifold edges where the surface turns over: each face wound to agree with
-    its vertex normals (:func:`orient_faces`), the two faces of the edge run it the same way.
-    A boolean mask over faces.
-
-    On an orientable mesh with consistent vertex normals there are none; where a fold or a
-    twist joins a sheet to itself one-sidedly, these are the faces that join it.
-    """
-    twist = np.zeros(len(faces), dtype=bool)
-    if len(faces) == 0:
-        return twist
-    wound = orient_faces(vertices, normals, faces)
-    keys = edge_keys(wound, len(vertices))
-    forward = (wound < np.roll(wound, -1, axis=1)).ravel()  # edge k runs from lo to hi
-    order = np.argsort(keys, kind="stable")
-    k = keys[order]
-    first = np.ones(len(k), dtype=bool)
-    first[1:] = k[1:] != k[:-1]
-    start = np.flatnonzero(first)
-    count = np.diff(np.append(start, len(k)))
-    pair = start[count == 2]
-    a, b = order[pair], order[pair + 1]
-    same = forward[a] == forward[b]
-    twist[a[same] // 3] = True
-    twist[b[same] // 3] = True
-    return twist
-
-
-def orient_consistently(vertices: np.ndarray, normals: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """One winding per component, facing the side its vertex normals face (outward).
-
-    Flips propagate across manifold edges (:func:`recon.mesh.orientation_flips`); where they
-    conflict (a one-sided, Moebius-like seam, e.g. two sheets of a thin part glued crosswise)
-    faces are dropped, which opens a small hole for hole filling: the faces where the surface
-    turns over (:func:`twisted_faces`) when dropping them makes the mesh orientable and drops
-    no more faces than the conflicts, else the faces on the conflicting edges (which lie
-    where the search's fronts met, possibly far from the cause).
-    Each component then keeps the winding that agrees with its vertex normals (area-weighted),
-    and a closed component whose signed volume is negative is turned inside out.
-
-    A fold is cut too, though it meets no conflict: a part (a leg) joined to the body by a
-    band of faces that each face their vertex normals' way but are wound against their
-    neighbours (ball pivoting at a sparse leg's concave root; :func:`twisted_faces` marks
-    them). The mesh is orientable, so the propagation winds the whole part as the body and
-    turns it over against its normals: the part comes out inside out, and the seam between
-    the two windings is left as a boundary loop at its root by the repairs after.
-    When the consistent winding leaves at least ``MIN_COMPONENT_FACES`` faces (the
-    debris limit's face count) against the side their component's normals vote for, the
-    mesh without the twisted faces is oriented instead if that costs fewer faces than it
-    sets right: the faces dropped plus those still against their component's side after
-    the cut are fewer than those against it without. The part is then its own component,
-    wound outward; in :func:`triangulate_particles` hole filling caps both cuts and
-    :func:`recon.holes.join_closed_parts` joins it to the body again. Faces against the
-    normals here and there (noise, the merged normals at a thin edge) are not a fold: on
-    the dev cases and the held-out fits measured the twisted faces about them outnumber
-    them, and the consistent winding stays. The rule reads the winding and the normals
-    only, not the geometry: a large compact patch whose vertex normals are wrong on a
-    surface without a fold passes it too, and is then cut off wound by those normals
-    (inside out), where the consistent winding would have set it right. The particles'
-    normals are re-signed over the sheet before ball pivoting (:mod:`recon.particle_signs`),
-    which leaves few such patches; on the 27 dev cases and 23 held-out fits the cut fired
-    only at folds (issue 11's history: docs/topology-history.md).
-    """
-    if len(faces) == 0:
-        return faces
-    out, against = _wound(vertices, normals, faces)
-    if against < MIN_COMPONENT_FACES:
-        return out
-    twist = twisted_faces(vertices, normals, faces)
-    n_twist = int(np.count_nonzero(twist))
-    if n_twist == 0 or n_twist >= against:
-        return out  # the cut would cost at least what it sets right (or leave no face)
-    cut, against_cut = _wound(vertices, normals, faces[~twist])
-    if n_twist + against_cut < against:
-        log.debug(
-            "cut a fold at %d twisted faces (%d faces against their normals -> %d)",
-            n_twist,
-            against,
-            against_cut,
-        )
-        return cut
-    return out
-
-
-def _wound(vertices: np.ndarray, normals: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, int]:
-    """:func:`orient_consistently` without the fold cut, and how many faces are wound against
-    their vertex normals relative to the rest of their component: against the side its
-    normals' area-weighted vote takes (not against the normals themselves: a closed
-    component is turned by its volume, whichever way its normals face as a whole)."""
-    faces = faces.copy()
-    # one sort of the half-edges for the winding test, the open faces and the first round
-    order, consistent, open_face = half_edge_winding(
-        faces.astype(np.int64), max(len(vertices), faces.max() + 1)
-    )
-    known = {"order": order, "consistent": consistent}
-    for _ in range(0 if consistent else ORIENTATION_ROUNDS):
-        flip, conflict = orientation_flips(faces, **known)
-        known = {}  # later rounds see flipped or fewer faces
-        if conflict.any():
-            # cut where the surface turns over, if that is a smaller cut that works: the
-            # search's conflicts lie where its fronts happened to meet
-            twist = twisted_faces(vertices, normals, faces)
-            if 0 < twist.sum() <= conflict.sum():
-                cut_flip, cut_conflict = orientation_flips(faces[~twist])
-                if not cut_conflict.any():
-                    faces, flip, conflict = faces[~twist], cut_flip, cut_conflict
-        faces[flip] = faces[flip][:, [0, 2, 1]]
-        if not conflict.any():
-            break
-        faces = faces[~conflict]
-    n, labels = face_components(faces, len(vertices))
-    fn = face_area_vectors(vertices, faces)
-    agree = np.einsum("ij,ij->i", fn, normals[faces].sum(axis=1))
-    vote = np.bincount(labels, weights=agree, minlength=n)
-    # signed volume (x6) of each component; meaningful for closed ones
-    p = vertices[faces]
-    vol = np.bincount(labels, weights=np.einsum("ij,ij->i", p[:, 0], fn), minlength=n)
-    if len(faces) < len(open_face):  # the loop dropped faces (flips keep the edges): again
-        _, inv, cnt = unique_edges(faces, len(vertices))
-        open_face = (cnt[inv.reshape(-1)] == 1).reshape(-1, 3).any(axis=1)
-    closed = np.bincount(labels, weights=open_face, minlength=n) == 0
-    turn = np.where(closed, vol < 0, vote < 0)
-    bad = turn[labels]
-    faces[bad] = faces[bad][:, [0, 2, 1]]
-    return faces, int(np.count_nonzero(agree * np.sign(vote)[labels] < 0))
 
 
 def remove_non_manifold_faces(faces: np.ndarray, n_vertices: int) -> np.ndarray:

@@ -71,3 +71,31 @@ def test_the_tube_is_wound_as_both_parts_so_neither_turns_over():
     assert t["components"] == 1 and t["watertight"] and t["genus"] == 0, t
     flip, conflict = orientation_flips(joined)
     assert not conflict.any() and not flip.any()  # one winding: neither part turns over
+
+
+def test_a_joined_part_whose_normals_face_in_keeps_its_outward_winding():
+    """Regression (#11, held-out eared body, 5,000 points, seed 9): a sparse tail meshed as a
+    closed part of its own, wound outward by its volume though its particles' normals face
+    in (but where it meets the body). Its join (:func:`recon.triangulate._parts_joined`) is
+    wound consistently as it stands; orienting the joined body by one vote of its vertex
+    normals then cut it at the faces where the normals turn over (there: 3 components, 20
+    loops), so the join was not kept. A join that is consistent as it stands keeps both
+    parts' windings."""
+    from recon.triangulate import MIN_COMPONENT_FACES, TriangulationResult, _parts_joined
+
+    v1, f1 = sphere((0.0, 0.0, 0.0), 10.0, 20)
+    v2, f2 = sphere((14.0, 0.0, 0.0), 3.0, 12)
+    assert len(f2) >= MIN_COMPONENT_FACES
+    v, f = np.concatenate([v1, v2]), np.concatenate([f1, f2 + len(v1)])
+    n1 = v1 / np.linalg.norm(v1, axis=1, keepdims=True)
+    # the part's normals face in but on the side towards the body: the surface "turns over"
+    # along a ring of faces round the part (recon.triangulate.twisted_faces)
+    n2 = (v2 - [14.0, 0.0, 0.0]) / 3.0
+    n2[v2[:, 0] > 13.0] *= -1.0
+    result = TriangulationResult(v, f, np.concatenate([n1, n2]))
+    joined = _parts_joined(result)
+    t = mesh_topology(v, joined.faces)
+    assert t["components"] == 1 and t["watertight"] and t["genus"] == 0, t
+    tri = v[joined.faces]
+    volume = np.einsum("ij,ij->i", tri[:, 0], np.cross(tri[:, 1], tri[:, 2])).sum() / 6.0
+    assert volume > 0.9 * (4.0 / 3.0) * np.pi * (10.0**3 + 3.0**3)  # both parts outward

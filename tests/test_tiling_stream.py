@@ -400,7 +400,7 @@ def test_the_seam_repair_cuts_a_one_sided_zone_where_the_normals_turn_over():
     from a wall 1.6 m beside a seam, and left three holes (70, 41 and 3 edges); now 2 faces."""
     from recon.mesh import face_area_vectors, orientation_flips
     from recon.tiling.stitch import _orient_with_frame
-    from tests.test_triangulate import _moebius
+    from tests.test_winding import _moebius
 
     p, nrm, f = _moebius()
     assert orientation_flips(f)[1].any()

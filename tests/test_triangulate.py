@@ -7,7 +7,6 @@ from recon.mesh import boundary_loop_perimeters, boundary_loops, face_area_vecto
 from recon.topology import mesh_topology
 from recon.triangulate import (
     circumsphere_triangles,
-    orient_faces,
     remove_non_manifold_faces,
     triangulate_particles,
 )
@@ -100,13 +99,6 @@ def test_duplicate_faces_are_found_by_one_key_per_triple_as_by_rows():
     assert np.array_equal(small, rows)
     keys = {tuple(sorted(f)) for f in small.tolist()}
     assert len(keys) == len(small) and all(len(set(f)) == 3 for f in small.tolist())
-
-
-def test_orient_faces_follows_normals():
-    v = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]])
-    f = np.array([[0, 2, 1]])
-    out = orient_faces(v, np.tile([0.0, 0, 1], (3, 1)), f)
-    assert out.tolist() == [[0, 1, 2]]
 
 
 def test_circumsphere_test_on_hex_sheet_gives_equilateral_triangles():
@@ -375,105 +367,6 @@ def test_single_covers_have_no_overlapping_faces():
     plate = np.vstack([grid, grid + [0.0, 0.0, 0.1]])
     both = np.vstack([top[:, ::-1], top + 16])  # the lower face wound downward
     assert len(overlapping_faces(plate, both)) == 0
-
-
-def _moebius(n=48, rows=3, radius=8.0, width=2.0, root_at=12):
-    """A Moebius strip, ``n`` columns of ``rows`` vertices, with its analytic normals (which
-    turn over across the seam between the last column and the first); faces numbered from
-    column ``root_at`` on, so the face-graph search of the orientation starts there."""
-    u = 2 * np.pi * np.arange(n) / n
-    s = np.linspace(-width / 2, width / 2, rows)
-    uu, ss = np.meshgrid(u, s, indexing="ij")
-    c, h = np.cos(uu / 2), np.sin(uu / 2)
-    p = np.stack(
-        [(radius + ss * c) * np.cos(uu), (radius + ss * c) * np.sin(uu), ss * h], axis=-1
-    ).reshape(-1, 3)
-    du = np.stack(  # d/du and d/ds of the surface, at s = 0 (the normal's direction there)
-        [-radius * np.sin(u), radius * np.cos(u), np.zeros(n)], axis=-1
-    )
-    ds = np.stack([np.cos(u / 2) * np.cos(u), np.cos(u / 2) * np.sin(u), np.sin(u / 2)], axis=-1)
-    nrm = np.cross(du, ds)
-    nrm = np.repeat(nrm / np.linalg.norm(nrm, axis=1, keepdims=True), rows, axis=0)
-    faces = []
-    for k in range(root_at, root_at + n):
-        i, j = k % n, (k + 1) % n
-        for r in range(rows - 1):
-            # across the seam the strip comes back turned over: row r meets row rows-1-r
-            rj, rj1 = (r, r + 1) if j > i else (rows - 1 - r, rows - 2 - r)
-            a, b, cc, d = i * rows + r, i * rows + r + 1, j * rows + rj, j * rows + rj1
-            faces += [[a, cc, d], [a, d, b]]
-    return p, nrm, orient_faces(p, nrm, np.array(faces))
-
-
-def test_orientation_conflict_is_cut_where_the_normals_turn_over():
-    """A one-sided (Moebius-like) connection is cut where the surface's normals turn over
-    against the winding, not where the face-graph search happens to close its cycle (on
-    bunny-sparse fitted with exact normals that cut ran across the head and opened a hole of
-    234 r0 perimeter, far from the one folded edge that made the mesh one-sided)."""
-    from recon.mesh import orientation_flips
-    from recon.triangulate import orient_consistently, twisted_faces
-
-    p, nrm, f = _moebius()
-    assert orientation_flips(f)[1].any()  # not orientable as it stands
-    twist = twisted_faces(p, nrm, f)
-    # the edges where the windings meet wrong lie on the seam (column 47 to column 0) only
-    col = f // 3
-    seam = ((col == 47) | (col == 0)).any(axis=1)
-    assert twist.any() and not (twist & ~seam).any()
-    kept = orient_consistently(p, nrm, f)
-    assert not orientation_flips(kept)[1].any()
-    assert len(kept) >= len(f) - 2 * 2 * 2  # at most the seam's faces (2 quads x 2 columns)
-    # every face left agrees with its vertex normals: the cut is at the seam
-    agree = np.einsum("ij,ij->i", face_area_vectors(p, kept), nrm[kept].sum(axis=1))
-    assert np.all(agree > 0)
-
-
-def _folded_column(n=12, body_rows=8, leg_rows=5, fold=True):
-    """A capped cylinder (radius 1, along z, outward normals): a body of ``body_rows`` rows
-    below z = 0 and a leg of ``leg_rows`` rows above z = 0.5, joined by one band between the
-    rings at z = 0 and z = 0.5. ``fold``: the band joins the rings crosswise (body vertex i to
-    leg vertex -i), so that one winding across it turns the leg over against its normals."""
-    t = 2 * np.pi * np.arange(n) / n
-    ring = np.stack([np.cos(t), np.sin(t), np.zeros(n)], 1)
-    zs = [*np.linspace(-0.5 * body_rows, 0.0, body_rows + 1)]
-    zs += [*np.linspace(0.5, 0.5 + 0.5 * leg_rows, leg_rows + 1)]
-    v = np.concatenate([ring + [0, 0, z] for z in zs] + [[[0, 0, zs[0]], [0, 0, zs[-1]]]])
-    nrm = np.concatenate([ring] * len(zs) + [[[0, 0, -1], [0, 0, 1]]])
-    k, f = np.arange(n), []
-    for r in range(len(zs) - 1):
-        a, b = r * n + k, r * n + (k + 1) % n
-        c, d = (r + 1) * n + k, (r + 1) * n + (k + 1) % n
-        if fold and r == body_rows:
-            c, d = (r + 1) * n + (-k) % n, (r + 1) * n + (-k - 1) % n
-        f += [np.stack([a, b, d], 1), np.stack([a, d, c], 1)]
-    last = (len(zs) - 1) * n
-    f += [np.stack([np.full(n, len(zs) * n), (k + 1) % n, k], 1)]
-    f += [np.stack([np.full(n, len(zs) * n + 1), last + k, last + (k + 1) % n], 1)]
-    return v, nrm, np.concatenate(f)
-
-
-def test_a_fold_at_a_parts_root_is_cut_not_turned_inside_out():
-    """A leg joined to the body by a band wound against its neighbours (a fold: ball pivoting
-    at a sparse leg's root, held-out legs, 3,000 points, seed 2) is orientable, so winding
-    propagation meets no conflict: it turns the whole leg over, inside out, with the body.
-    The fold is cut at its twisted faces instead, and the leg keeps its own outward winding;
-    a column without the fold is left whole."""
-    from recon.mesh import face_components, orientation_flips
-    from recon.triangulate import orient_consistently, twisted_faces
-
-    p, nrm, f = _folded_column(fold=False)
-    kept = orient_consistently(p, nrm, f)
-    assert len(kept) == len(f) and not twisted_faces(p, nrm, f).any()
-
-    p, nrm, f = _folded_column()
-    assert not orientation_flips(f)[1].any()  # orientable: no conflict to cut at
-    twist = twisted_faces(p, nrm, f)
-    kept = orient_consistently(p, nrm, f)
-    agree = np.einsum("ij,ij->i", face_area_vectors(p, kept), nrm[kept].sum(axis=1))
-    assert np.all(agree > 0)  # the leg faces outward (turned over: 144 faces inward)
-    assert len(kept) == len(f) - twist.sum() == len(f) - 2 * 12  # only the band is cut
-    assert face_components(kept, len(p))[0] == 2
-    assert not orientation_flips(kept)[0].any()  # each part wound consistently
 
 
 def _fibonacci_sphere(n=1200):

@@ -47,11 +47,8 @@ from ..kernels.options import query_workers, thread_count
 from ..mesh import boundary_loops
 from ..metrics import compare_meshes, point_to_mesh_distance
 from ..topology import mesh_topology, triangle_quality
-from ..triangulate import (
-    orient_consistently,
-    repair_non_manifold,
-    triangulate_particles,
-)
+from ..triangulate import repair_non_manifold, triangulate_particles
+from ..winding import orient_consistently
 from .improve import improve
 from .mesh_check import check_mesh
 from .relax import (

@@ -20,12 +20,8 @@ from scipy.spatial import cKDTree
 
 from ..holes import loop_width, zip_loop
 from ..mesh import boundary_loops, face_components, orientation_flips
-from ..triangulate import (
-    MIN_COMPONENT_FACES,
-    orient_consistently,
-    remove_non_manifold_faces,
-    twisted_faces,
-)
+from ..triangulate import remove_non_manifold_faces
+from ..winding import MIN_COMPONENT_FACES, orient_consistently, twisted_faces
 from .grid import TileGrid
 
 __all__ = ["SEAM_BAND", "agree_signs", "face_keys", "repair_cell", "same_winding"]
