@@ -134,8 +134,9 @@ def triangulate_particles(
         ``points (m, 3) -> (m,) bool``: does data lie at these points? Loops over data are
         closed up to ``COVERED_HOLE_FACTOR`` times the ``max_hole`` perimeter, and narrow seams
         over data however long. With ``local_spacing`` it is called as
-        ``is_covered(points, spacing)`` with the local spacing [r0] at each point; for the
-        points across a seam, judged together, with ``across=True`` as well.
+        ``is_covered(points, spacing)`` with the local spacing [r0] at each point. For the
+        points across a seam, judged together, it is called with the keyword ``across=True``
+        as well, which it must accept (:func:`recon.fitting.pipeline.covered`).
     local_spacing : (n,) float64 [r0], optional
         Each particle's rest spacing (None: 1 everywhere, the uniform r0). Ball-pivoting radii
         (:func:`ball_radii`; a face is kept when its circumradius fits the largest radius times
@@ -251,7 +252,8 @@ def _parts_joined(result: TriangulationResult, cloud: bool = True) -> Triangulat
     """``result`` with the closed parts beside its body joined to it, when that has fewer
     components (:func:`recon.holes.join_closed_parts`: a sparse thin part meshed on its own);
     else ``result``. Only for a point cloud's particles (``cloud``): a remeshed input's
-    components are its own."""
+    components are its own. A join wound consistently as it stands keeps both parts'
+    windings; one that is not is oriented again (:func:`recon.winding.orient_consistently`)."""
     joined = join_closed_parts(result.vertices, result.faces, PART_NECK_GAP) if cloud else None
     if joined is None:
         return result

@@ -48,7 +48,8 @@ def consistently_wound(faces: np.ndarray, n_vertices: int) -> bool:
     """Does every directed edge lie in one face at most (every edge in at most two faces,
     wound opposite ways: a consistently oriented edge-manifold mesh)?"""
     he = faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2).astype(np.int64)
-    keys = he[:, 0] * n_vertices + he[:, 1]
+    n = max(n_vertices, int(he.max()) + 1) if len(he) else 1  # keys unique per pair
+    keys = he[:, 0] * n + he[:, 1]
     return len(np.unique(keys)) == len(keys)
 
 
@@ -103,8 +104,8 @@ def orient_consistently(vertices: np.ndarray, normals: np.ndarray, faces: np.nda
     mesh without the twisted faces is oriented instead if that costs fewer faces than it
     sets right: the faces dropped plus those still against their component's side after
     the cut are fewer than those against it without. The part is then its own component,
-    wound outward; in :func:`triangulate_particles` hole filling caps both cuts and
-    :func:`recon.holes.join_closed_parts` joins it to the body again. Faces against the
+    wound outward; in :func:`recon.triangulate.triangulate_particles` hole filling caps both
+    cuts and :func:`recon.holes.join_closed_parts` joins it to the body again. Faces against the
     normals here and there (noise, the merged normals at a thin edge) are not a fold: on
     the dev cases and the held-out fits measured the twisted faces about them outnumber
     them, and the consistent winding stays. The rule reads the winding and the normals

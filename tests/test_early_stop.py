@@ -107,10 +107,10 @@ def test_anchors_follow_their_particles_through_a_growth_round():
     assert np.array_equal(pts, exact) and np.array_equal(nrm, exact_n)
 
 
-def test_when_every_particle_moved_the_anchors_come_from_one_hinted_call():
-    """A release step moves every particle: one call over all of them, started from the
-    previous anchors' data points, gives what a fresh refresh gives; a later partial refresh
-    still updates only the particle that moved."""
+def test_when_every_particle_moved_the_anchors_equal_a_fresh_refresh():
+    """A release step moves every particle: the anchors (one call over all of them, started
+    from the previous anchors' data points) equal a fresh refresh's, and a later partial
+    refresh still updates only the particle that moved."""
     from recon.config import ReconConfig
     from recon.fitting.schedule import ANCHOR_MOVE, Clock, _Schedule
     from recon.state import ParticleState

@@ -89,7 +89,7 @@ def test_a_joined_part_whose_normals_face_in_keeps_its_outward_winding():
     v, f = np.concatenate([v1, v2]), np.concatenate([f1, f2 + len(v1)])
     n1 = v1 / np.linalg.norm(v1, axis=1, keepdims=True)
     # the part's normals face in but on the side towards the body: the surface "turns over"
-    # along a ring of faces round the part (recon.triangulate.twisted_faces)
+    # along a ring of faces round the part (recon.winding.twisted_faces)
     n2 = (v2 - [14.0, 0.0, 0.0]) / 3.0
     n2[v2[:, 0] > 13.0] *= -1.0
     result = TriangulationResult(v, f, np.concatenate([n1, n2]))

@@ -119,3 +119,9 @@ def test_consistently_wound_asks_every_directed_edge_once():
     assert not consistently_wound(np.array([[0, 1, 2], [1, 2, 3]]), 4)
     assert not consistently_wound(np.array([[0, 1, 2], [2, 1, 3], [1, 2, 4]]), 5)
     assert consistently_wound(np.zeros((0, 3), dtype=np.int64), 0)
+
+
+def test_consistently_wound_tells_edges_apart_past_the_vertex_count_it_is_given():
+    """Vertex 4 of the second face is past ``n_vertices`` = 4: its edge (1, 4) must not take
+    the key of the first face's edge (2, 0) (1 x 4 + 4 = 2 x 4 + 0)."""
+    assert consistently_wound(np.array([[0, 1, 2], [3, 1, 4]]), 4)
