@@ -76,6 +76,7 @@ __all__ = [
     "orientation_flips",
     "overlapping_faces",
     "ranked_fans",
+    "runs_of_equal",
     "unique_edges",
     "vertex_components",
     "vertex_fans",
@@ -150,6 +151,24 @@ def unique_edges(faces: np.ndarray, n_vertices: int) -> tuple[np.ndarray, np.nda
         keys = edge_keys(f, n_vertices)
         return np.unique(keys, return_inverse=True, return_counts=True)
     return edge_table(f, int(n_vertices))
+
+
+def runs_of_equal(keys: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``keys`` sorted (stably) into runs of equal keys: the sort ``order``, where each run
+    starts in it, and each run's length.
+
+    Examples
+    --------
+    >>> order, start, count = runs_of_equal(np.array([7, 3, 7, 5, 3]))
+    >>> order.tolist(), start.tolist(), count.tolist()
+    ([1, 4, 3, 0, 2], [0, 2, 3], [2, 1, 2])
+    """
+    order = np.argsort(keys, kind="stable")
+    k = keys[order]
+    first = np.ones(len(k), dtype=bool)
+    first[1:] = k[1:] != k[:-1]
+    start = np.flatnonzero(first)
+    return order, start, np.diff(np.append(start, len(k)))
 
 
 def count_edge_faces(faces: Any) -> tuple[np.ndarray, np.ndarray]:

@@ -12,7 +12,14 @@ import logging
 import numpy as np
 
 from .kernels.mesh_tables import half_edge_winding
-from .mesh import edge_keys, face_area_vectors, face_components, orientation_flips, unique_edges
+from .mesh import (
+    edge_keys,
+    face_area_vectors,
+    face_components,
+    orientation_flips,
+    runs_of_equal,
+    unique_edges,
+)
 
 log = logging.getLogger(__name__)
 
@@ -67,12 +74,7 @@ def twisted_faces(vertices: np.ndarray, normals: np.ndarray, faces: np.ndarray) 
     wound = orient_faces(vertices, normals, faces)
     keys = edge_keys(wound, len(vertices))
     forward = (wound < np.roll(wound, -1, axis=1)).ravel()  # edge k runs from lo to hi
-    order = np.argsort(keys, kind="stable")
-    k = keys[order]
-    first = np.ones(len(k), dtype=bool)
-    first[1:] = k[1:] != k[:-1]
-    start = np.flatnonzero(first)
-    count = np.diff(np.append(start, len(k)))
+    order, start, count = runs_of_equal(keys)
     pair = start[count == 2]
     a, b = order[pair], order[pair + 1]
     same = forward[a] == forward[b]

@@ -146,3 +146,14 @@ def test_count_edge_faces_matches_a_row_unique_of_the_face_edges():
         assert edges.dtype == np.int64 and counts.dtype == np.int64
         np.testing.assert_array_equal(edges, want.reshape(-1, 2))
         np.testing.assert_array_equal(counts, want_counts)
+
+
+def test_runs_of_equal_gives_each_run_in_the_stable_order():
+    from recon.mesh import runs_of_equal
+
+    keys = np.array([4, 1, 4, 4, 2, 1])
+    order, start, count = runs_of_equal(keys)
+    assert order.tolist() == [1, 5, 4, 0, 2, 3]  # equal keys keep their input order
+    assert start.tolist() == [0, 2, 3] and count.tolist() == [2, 1, 3]
+    empty = runs_of_equal(np.zeros(0, dtype=np.int64))
+    assert [len(a) for a in empty] == [0, 0, 0]

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..mesh import face_area_vectors
+from ..mesh import face_area_vectors, runs_of_equal
 
 __all__ = [
     "FeatureLines",
@@ -209,12 +209,7 @@ def edge_faces(
     (``-1`` where there is none)."""
     he = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
     key = he[:, 0] * np.int64(n_vertices) + he[:, 1]
-    order = np.argsort(key, kind="stable")
-    ks = key[order]
-    new = np.ones(len(ks), dtype=bool)
-    new[1:] = ks[1:] != ks[:-1]
-    first = np.flatnonzero(new)
-    counts = np.diff(np.append(first, len(ks)))
+    order, first, counts = runs_of_equal(key)
     face_of = order // 3
     f0 = face_of[first]
     second = first + 1
