@@ -229,3 +229,16 @@ def test_a_thin_parts_two_rims_are_judged_the_same_from_either_loop(b_first):
         f = np.concatenate([fa, fb + len(va)])
         lofted = loft_nearest_loops(v, f, 4.0, None, n)
         assert (len(lofted) > len(f)) == joined
+
+
+def test_the_points_across_a_slit_are_each_pairs_midpoint_once():
+    """A slit 1 wide and 9 long: away from its ends each rim vertex's nearest across is the
+    one facing it, and each facing pair gives one midpoint, not one per vertex (the seam
+    rule's support is a share of distinct points)."""
+    x = np.arange(10.0)
+    top = np.stack([x, np.full(10, 0.5), np.zeros(10)], axis=1)
+    ring = np.vstack([top, top[::-1] * [1.0, -1.0, 1.0]])  # round the slit
+    pts = holes.across_points(ring)
+    assert len(pts) < len(ring) + 1  # one per vertex and the centroid: 21
+    for xi in range(3, 8):  # the facing pairs' midpoints on the slit's axis, once each
+        assert np.sum(np.all(np.isclose(pts, [xi, 0.0, 0.0]), axis=1)) == 1
