@@ -103,14 +103,18 @@ def _draw_view(
     faces: np.ndarray,
     edge_sets: list[tuple[np.ndarray, str, float]],
     all_vertices: np.ndarray,
+    extent: np.ndarray,
     markers: np.ndarray | None = None,
 ) -> None:
+    """One view: ``vertices``/``faces`` (the drawing's, maybe simplified) shaded, the
+    ``edge_sets`` (vertex pairs into ``all_vertices``, the mesh's own) on top, and the view
+    framed on the points ``extent`` (the vertices the faces use)."""
     from matplotlib.collections import LineCollection, PolyCollection
 
     ax.set_axis_off()
     ax.set_title(name, fontsize=9)
-    q = all_vertices @ basis.T
-    lo, hi = q[:, :2].min(axis=0), q[:, :2].max(axis=0)
+    frame = extent @ basis.T
+    lo, hi = frame[:, :2].min(axis=0), frame[:, :2].max(axis=0)
     pad = 0.04 * float(np.max(hi - lo)) if np.max(hi - lo) > 0 else 1.0
     ax.set_xlim(lo[0] - pad, hi[0] + pad)
     ax.set_ylim(lo[1] - pad, hi[1] + pad)
@@ -136,10 +140,13 @@ def _draw_view(
                 linewidths=0.3,
             )
         )
-    q2 = q[:, :2]
     for edges, color, width in edge_sets:
         if len(edges):
-            ax.add_collection(LineCollection(q2[edges], colors=color, linewidths=width, zorder=3))
+            # project only the edges' ends (a subset of a possibly large vertex array)
+            ends, pair = np.unique(edges, return_inverse=True)
+            q2 = (all_vertices[ends] @ basis.T)[:, :2]
+            lines = q2[pair.reshape(edges.shape)]
+            ax.add_collection(LineCollection(lines, colors=color, linewidths=width, zorder=3))
     if markers is not None and len(markers):
         m = markers @ basis.T
         ax.scatter(m[:, 0], m[:, 1], s=40, facecolors="none", edgecolors=NON_MANIFOLD_COLOR,
@@ -275,7 +282,8 @@ def render_mesh_png(
 
     v, f = validate_mesh(vertices, faces)
     if len(v):  # centre: keeps precision for georeferenced coordinates (x ~ 1e6)
-        v = v - 0.5 * (v.min(axis=0) + v.max(axis=0))
+        drawn = v[np.unique(f)] if len(f) else v  # the vertices the faces use frame the views
+        v = v - 0.5 * (drawn.min(axis=0) + drawn.max(axis=0))
     width, height = (int(s) for s in size)
     if width < 100 or height < 100:
         raise InputError(f"image size must be at least 100 x 100 pixels, got {width} x {height}")
@@ -313,7 +321,8 @@ def render_mesh_png(
     ]
     for col, (name, direction, up) in enumerate(VIEWS):
         ax = fig.add_subplot(views[0, col])
-        _draw_view(ax, name, _view_basis(direction, up), draw_v, draw_f, edge_sets, used, bow_ties)
+        basis = _view_basis(direction, up)
+        _draw_view(ax, name, basis, draw_v, draw_f, edge_sets, v, used, bow_ties)
     if hist is not None:
         panel = outer[1].subgridspec(2, 1, hspace=0.08)
         _draw_history(fig, (panel[0, 0], panel[1, 0]), hist)

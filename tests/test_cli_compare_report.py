@@ -242,6 +242,17 @@ def test_report_png_with_fit_history(files, tmp_path):
     assert image.shape[:2] == (500, 1500) and image[..., :3].std() > 0.05
 
 
+def test_report_png_of_a_mesh_with_unreferenced_vertices(tmp_path):
+    # regression: a traceback (IndexError) instead of the picture
+    v, f = open_cylinder(16, 3)
+    mesh = tmp_path / "loose.ply"
+    write_mesh(mesh, np.vstack([[[9.0, 9.0, 9.0]], v]), f + 1)
+    r = run("report", mesh, "--png", tmp_path / "loose.png")
+    assert r.exit_code == 0, r.output
+    assert "unreferenced vertices   1" in r.stdout
+    assert mpimg.imread(tmp_path / "loose.png")[..., :3].std() > 0.05
+
+
 def test_report_png_survives_a_broken_fit_report(files, tmp_path):
     mesh = tmp_path / "m.ply"
     write_mesh(mesh, *icosphere(1))

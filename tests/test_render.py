@@ -47,6 +47,16 @@ def test_open_mesh_shows_red_boundary(tmp_path):
     assert red.sum() > 50
 
 
+def test_unreferenced_vertices_change_nothing_in_the_picture(tmp_path):
+    # regression: the boundary edges index every vertex, but were drawn from the referenced
+    # ones only (an IndexError, or lines between the wrong vertices)
+    v, f = open_cylinder(24, 4)
+    render_mesh_png(tmp_path / "plain.png", v, f, size=(600, 300))
+    far = np.array([[50.0, -40.0, 30.0], [-9.0, 7.0, 12.0]])  # unused, outside the view
+    render_mesh_png(tmp_path / "unused.png", np.vstack([far, v]), f + len(far), size=(600, 300))
+    assert np.array_equal(read_png(tmp_path / "plain.png"), read_png(tmp_path / "unused.png"))
+
+
 def test_non_manifold_edge_is_magenta(tmp_path):
     v = np.array([[0, 0, 0], [1, 0, 0], [0.5, 1, 0.2], [0.5, -1, 0.2], [0.5, 0.1, 1]], float)
     f = np.array([[0, 1, 2], [1, 0, 3], [0, 1, 4]])
