@@ -90,6 +90,7 @@ def polish_and_untangle(
     flips: bool = True,
     fixed: np.ndarray | None = None,
     cut_handles: bool = True,
+    tunnel_perimeter: float | None = None,
 ) -> tuple[TriangulationResult, int, int]:
     """:func:`polish`, then :func:`recon.intersections.untangle`; returns the mesh and
     untangle's crossing pairs found and left. ``fixed`` (V,): vertices neither step moves
@@ -104,7 +105,9 @@ def polish_and_untangle(
     (``polish_kept``: "polished", "held" or "unpolished") and how many vertices were held
     (``polish_held``). Last, with ``cut_handles``, a handle that fits in a geodesic ball of
     a few spacings is cut out and its hole zipped
-    (:func:`recon.small_handles.without_small_handles`; vertices inside the cut are dropped).
+    (:func:`recon.small_handles.without_small_handles`; vertices inside the cut are dropped),
+    and with ``tunnel_perimeter`` also a handle at a thin stalk beside a tunnel at most that
+    long round.
     Without it the mesh keeps the faces and vertices it came with, moved only: what a tile
     of a tiled fit needs, whose mesh is a part of the whole and must stay one with its
     neighbours'.
@@ -120,7 +123,9 @@ def polish_and_untangle(
         # a tunnel a few spacings across is cut once the mesh has its final shape (the
         # polish smooths the particles' jagged rings: before it the same handle can span a
         # wider ball)
-        return (without_small_handles(best[0]), *best[1:]) if cut_handles else best
+        if not cut_handles:
+            return best
+        return (without_small_handles(best[0], tunnel_perimeter=tunnel_perimeter), *best[1:])
 
     best = finish(polish(result, surface, rounds, flips, fixed=fixed), "polished", 0)
     if best[2] == 0 or rounds <= 0:

@@ -16,6 +16,8 @@ from dataclasses import replace
 from typing import TYPE_CHECKING
 
 import numpy as np
+from scipy import sparse
+from scipy.sparse import csgraph
 
 from .holes import zip_loop
 from .intersections import self_intersections
@@ -98,10 +100,15 @@ def small_handles(
     """The vertices whose geodesic ball of radius ``reach`` holds a handle, and the number of
     faces of each ball: ``(m,)`` int64 each, vertices ascending. ``threads``: blocks of
     sources scanned in parallel (default: numba's thread count); the result is the same."""
-    return _sources(_Tables(np.asarray(vertices, dtype=np.float64), faces), reach, threads)
+    t = _Tables(np.asarray(vertices, dtype=np.float64), faces)
+    return _sources(t, reach, threads)[:2]
 
 
-def _sources(t: _Tables, reach: float, threads: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+def _sources(
+    t: _Tables, reach: float, threads: int | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Small-handle sources and their balls' face counts, then the same for the vertices
+    whose ball is an annulus round a thin stalk (:func:`small_handle_sources`)."""
     blocks = source_blocks(t.n, current_threads() if threads is None else threads)
     with thread_limit(blocks > 1):  # one block: no threaded region to wake
         return small_handle_sources(
@@ -120,17 +127,18 @@ def _sources(t: _Tables, reach: float, threads: int | None = None) -> tuple[np.n
         )
 
 
-def _ball_faces(t: _Tables, source: int, radius: float) -> tuple[int, np.ndarray]:
-    """(handles, face mask) of the geodesic ball of ``radius`` round ``source``."""
+def _ball_faces(t: _Tables, source: int, radius: float) -> tuple[int, np.ndarray, bool]:
+    """(handles, face mask, is an annulus) of the geodesic ball of ``radius`` round
+    ``source``."""
     mark = np.full(t.n, -1, dtype=np.int64)
     dist = np.zeros(t.n)
     ball = np.empty(MAX_BALL_VERTICES, dtype=np.int64)
     k = geodesic_ball(source, radius, t.vv_offsets, t.vv_nbr, t.vv_len, mark, dist, ball, source)
     fmark = np.full(len(t.faces), -1, dtype=np.int64)
     if k < 0:
-        return 0, fmark >= 0
+        return 0, fmark >= 0, False
     local = np.full(t.n, -1, dtype=np.int64)
-    h, _ = ball_handles(
+    h, _, ring = ball_handles(
         t.faces,
         ball,
         k,
@@ -143,57 +151,166 @@ def _ball_faces(t: _Tables, source: int, radius: float) -> tuple[int, np.ndarray
         t.edge_faces,
         local,
     )
-    return int(h), fmark == source
+    return int(h), fmark == source, bool(ring)
+
+
+def _rim_loops(faces: np.ndarray, inside: np.ndarray) -> tuple[np.ndarray, list[np.ndarray]]:
+    """The faces outside a ball (face mask ``inside``) and the boundary loops of those
+    faces that touch the ball."""
+    kept = faces[~inside]
+    rim = set(np.unique(faces[inside]).tolist())
+    return kept, [loop for loop in boundary_loops(kept) if rim.intersection(loop.tolist())]
+
+
+def _zipped(
+    vertices: np.ndarray,
+    kept: np.ndarray,
+    loops: list[np.ndarray],
+    counts: tuple[int, int, int],
+) -> tuple[np.ndarray, tuple[int, int, int]] | None:
+    """``kept`` with each of ``loops`` zipped (:func:`recon.holes.zip_loop`), and its
+    :func:`recon.mesh.handle_count`, when that leaves fewer handles, no more components or
+    boundary loops than ``counts`` and no face of the patches crossing another; else None."""
+    he = kept[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
+    edges = set(map(tuple, np.sort(he, axis=1).tolist()))
+    patches = []
+    for loop in loops:
+        patch = zip_loop(vertices, loop[::-1], edges)
+        edges |= set(map(tuple, np.sort(patch[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), 1).tolist()))
+        patches.append(patch)
+    trial = np.concatenate([kept, *patches])
+    c, b, h = handle_count(trial, len(vertices))
+    c0, b0, h0 = counts
+    if c > c0 or b > b0 or h >= h0:
+        return None
+    if len(self_intersections(vertices, trial, np.arange(len(kept), len(trial)))):
+        return None
+    return trial, (c, b, h)
+
+
+def _rim_distance(
+    vertices: np.ndarray, kept: np.ndarray, a: np.ndarray, b: np.ndarray, limit: float
+) -> float:
+    """Shortest path along the edges of ``kept`` from a vertex of loop ``a`` to one of loop
+    ``b``; inf when longer than ``limit``. Only the faces within ``limit`` (straight line) of
+    ``a`` are searched: a path that leaves them is longer than ``limit``."""
+    near = np.linalg.norm(vertices - vertices[a].mean(axis=0), axis=1)
+    span = float(np.max(np.linalg.norm(vertices[a] - vertices[a].mean(axis=0), axis=1)))
+    sub = kept[(near[kept] <= limit + span).all(axis=1)]
+    if len(sub) == 0:
+        return np.inf
+    ids, local = np.unique(sub, return_inverse=True)
+    local = local.reshape(sub.shape)
+    i, j = local[:, [0, 1, 2]].ravel(), local[:, [1, 2, 0]].ravel()
+    length = np.linalg.norm(vertices[ids[i]] - vertices[ids[j]], axis=1)
+    graph = sparse.coo_matrix((length, (i, j)), shape=(len(ids), len(ids))).tocsr()
+    where = np.full(len(vertices), -1, dtype=np.int64)
+    where[ids] = np.arange(len(ids))
+    start, end = where[a], where[b]
+    if (start < 0).all() or (end < 0).all():
+        return np.inf
+    dist = csgraph.dijkstra(
+        graph, directed=False, indices=start[start >= 0], min_only=True, limit=limit
+    )
+    return float(dist[end[end >= 0]].min())
 
 
 def _cut_one(
-    vertices: np.ndarray, faces: np.ndarray, reach: float, counts: tuple[int, int, int]
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    reach: float,
+    counts: tuple[int, int, int],
+    tunnel_perimeter: float | None = None,
 ) -> tuple[np.ndarray, tuple[int, int, int]] | None:
     """``faces`` with one small handle cut out and its hole zipped, and its
     :func:`recon.mesh.handle_count`; None when no small handle can be cut cleanly (one rim,
-    fewer handles, no new crossing). ``counts``: ``handle_count`` of ``faces``."""
+    fewer handles, no new crossing). ``counts``: ``handle_count`` of ``faces``.
+
+    With ``tunnel_perimeter``, a handle too large for the ball may still be cut at a thin
+    stalk (:func:`_cut_stalk`)."""
     t = _Tables(vertices, faces)
-    hits, sizes = _sources(t, reach)
-    if len(hits) == 0:
-        return None
-    c0, b0, h0 = counts
+    hits, sizes, rings, ring_sizes = _sources(t, reach)
     for s in hits[np.argsort(sizes, kind="stable")][:MAX_TRIES]:
         for fraction in RADIUS_LADDER:
-            h, inside = _ball_faces(t, int(s), fraction * reach)
+            h, inside, _ = _ball_faces(t, int(s), fraction * reach)
             if h <= 0:
                 continue
-            kept = faces[~inside]
-            rim = set(np.unique(faces[inside]).tolist())
-            loops = [loop for loop in boundary_loops(kept) if rim.intersection(loop.tolist())]
+            kept, loops = _rim_loops(faces, inside)
             if len(loops) != 1:
                 continue  # no simple rim (it touches itself) or more than one: a wider ball
-            he = kept[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
-            edges = set(map(tuple, np.sort(he, axis=1).tolist()))
-            patch = zip_loop(vertices, loops[0][::-1], edges)
-            trial = np.concatenate([kept, patch])
-            c, b, h1 = handle_count(trial, len(vertices))
-            if c > c0 or b > b0 or h1 >= h0:
+            done = _zipped(vertices, kept, loops, counts)
+            if done is not None:
+                return done
+    if tunnel_perimeter is None or len(rings) == 0:
+        return None
+    return _cut_stalk(vertices, faces, t, rings[np.argsort(ring_sizes, kind="stable")],
+                      reach, counts, tunnel_perimeter)  # fmt: skip
+
+
+def _cut_stalk(
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    t: _Tables,
+    sources: np.ndarray,
+    reach: float,
+    counts: tuple[int, int, int],
+    tunnel_perimeter: float,
+) -> tuple[np.ndarray, tuple[int, int, int]] | None:
+    """Cut a handle at a thin stalk: the ball round one of ``sources`` (smallest first) is an
+    annulus round a stalk thinner than ``reach``; it is removed and both its rims zipped
+    when the tunnel beside the stalk is short: the shortest path from one rim to the other
+    round the tunnel, plus the ball's diameter it closes across, is at most
+    ``tunnel_perimeter`` (the perimeter of the largest hole that hole filling closes). A true
+    ring or tube is far longer round its other cycle; a stalk whose cut would split the mesh
+    has no such path. Otherwise as :func:`_cut_one`."""
+    tried = np.zeros(t.n, dtype=bool)
+    tries = 0
+    for s in sources:
+        if tries == MAX_TRIES:
+            break
+        if tried[s]:
+            continue  # inside the ball of a stalk already tried
+        tries += 1
+        for fraction in RADIUS_LADDER:
+            radius = fraction * reach
+            if radius > reach:
+                break  # wider balls than the scan's need not be annuli round the same stalk
+            _, inside, ring = _ball_faces(t, int(s), radius)
+            if not ring:
                 continue
-            new = np.arange(len(kept), len(trial))
-            if len(self_intersections(vertices, trial, new)):
+            kept, loops = _rim_loops(faces, inside)
+            if len(loops) != 2:
                 continue
-            return trial, (c, b, h1)
+            limit = tunnel_perimeter - 2.0 * radius
+            if _rim_distance(vertices, kept, loops[0], loops[1], limit) > limit:
+                break  # the tunnel is longer (or the stalk splits the mesh): not this stalk
+            done = _zipped(vertices, kept, loops, counts)
+            if done is not None:
+                return done
+        tried[np.unique(faces[_ball_faces(t, int(s), reach)[1]])] = True
     return None
 
 
 def cut_small_handles(
-    vertices: np.ndarray, faces: np.ndarray, reach: float = SMALL_HANDLE_REACH
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    reach: float = SMALL_HANDLE_REACH,
+    tunnel_perimeter: float | None = None,
 ) -> tuple[np.ndarray, int]:
     """``faces`` with every handle that fits in a geodesic ball of radius ``reach`` cut out
     and its hole zipped (no new vertex; vertices inside a cut ball are left unreferenced),
     and the number of cuts. A cut is kept only when the mesh then has fewer handles, no more
-    components or boundary loops, and no face of the patch crosses another."""
+    components or boundary loops, and no face of the patch crosses another.
+
+    ``tunnel_perimeter`` (default: none): also cut a handle at a stalk thinner than
+    ``reach`` when the tunnel beside it is at most this long round (:func:`_cut_stalk`):
+    an ear joined to the head by two thin stalks with a window between them."""
     v = np.ascontiguousarray(vertices, dtype=np.float64)
     f = np.ascontiguousarray(faces, dtype=np.int64)
     cuts = 0
     counts = handle_count(f, len(v))
     while cuts < MAX_CUTS and counts[2] > 0:
-        trial = _cut_one(v, f, reach, counts)
+        trial = _cut_one(v, f, reach, counts, tunnel_perimeter)
         if trial is None:
             break
         (f, counts), cuts = trial, cuts + 1
@@ -201,12 +318,15 @@ def cut_small_handles(
 
 
 def without_small_handles(
-    result: TriangulationResult, reach: float = SMALL_HANDLE_REACH
+    result: TriangulationResult,
+    reach: float = SMALL_HANDLE_REACH,
+    tunnel_perimeter: float | None = None,
 ) -> TriangulationResult:
-    """``result`` with its small handles cut (:func:`cut_small_handles`; ``reach`` in the
-    mesh's units, r0 for a fit's particle mesh), the vertices inside the cut balls dropped,
-    and ``stats["small_handles_cut"]`` set; ``result`` itself when it has none."""
-    faces, cuts = cut_small_handles(result.vertices, result.faces, reach)
+    """``result`` with its small handles cut (:func:`cut_small_handles`; ``reach`` and
+    ``tunnel_perimeter`` in the mesh's units, r0 for a fit's particle mesh), the vertices
+    inside the cut balls dropped, and ``stats["small_handles_cut"]`` set (the cuts at thin
+    stalks included); ``result`` itself when it has none."""
+    faces, cuts = cut_small_handles(result.vertices, result.faces, reach, tunnel_perimeter)
     if cuts == 0:
         return result
     v, n, f, crease = drop_unreferenced(result.vertices, result.normals, faces, result.crease)

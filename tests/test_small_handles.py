@@ -2,13 +2,19 @@
 
 import numpy as np
 import open3d as o3d
+import pytest
 
 from recon.intersections import self_intersections
 from recon.kernels.mesh_tables import winding_consistent
-from recon.mesh import handle_count
-from recon.small_handles import SMALL_HANDLE_REACH, cut_small_handles, without_small_handles
+from recon.mesh import boundary_loops, handle_count
+from recon.small_handles import (
+    SMALL_HANDLE_REACH,
+    _rim_distance,
+    cut_small_handles,
+    without_small_handles,
+)
 from recon.triangulate import TriangulationResult
-from tests.mesh_shapes import sphere_with_tunnel, torus
+from tests.mesh_shapes import open_cylinder, sphere_with_tunnel, torus
 
 
 def _o3d(v, f):
@@ -63,3 +69,42 @@ def test_a_tunnel_seven_spacings_long_is_cut_at_the_default_reach():
     assert out.stats["small_handles_cut"] == 1
     assert handle_count(out.faces, len(out.vertices)) == (1, 0, 0)
     assert len(self_intersections(out.vertices, out.faces)) == 0
+
+
+def _thin_ring():
+    # a tube 1.26 round (5 edges of 0.25) on a ring 12.6 round (24 edges of 0.52): no ball
+    # of radius 1 holds the handle, but one wraps round the tube
+    return torus(24, 5, 2.0, 0.2)
+
+
+def test_a_handle_is_cut_at_a_thin_stalk_only_when_the_tunnel_beside_it_is_short():
+    """The held-out eared shape (5,000 points, seed 12): an ear joined to the head by two
+    thin stalks, the window between them ~20 r0 round: no ball of 5 r0 holds that handle.
+    A ball round one stalk is an annulus; cutting it there is right when the tunnel is no
+    longer round than the largest hole hole-filling closes, and wrong on a true ring."""
+    v, f = _thin_ring()
+    assert handle_count(f, len(v)) == (1, 0, 1)
+    assert cut_small_handles(v, f, 1.0)[1] == 0  # not a small handle
+    assert cut_small_handles(v, f, 1.0, tunnel_perimeter=11.0)[1] == 0  # the ring is longer
+    cut, n = cut_small_handles(v, f, 1.0, tunnel_perimeter=13.0)
+    assert n == 1
+    assert handle_count(cut, len(v)) == (1, 0, 0)
+    m = _o3d(v, cut)
+    assert m.is_watertight() and m.is_vertex_manifold() and m.is_orientable()
+    assert winding_consistent(cut, len(v))
+    assert len(self_intersections(v, cut)) == 0
+    assert len(cut) > 0.9 * len(f)  # one stalk's ball went, not the ring
+
+
+def test_the_path_between_two_rims_runs_along_the_mesh_up_to_a_limit():
+    # the stalk test's measure: the two rims of a tube 6 long are 6 apart along it; past the
+    # limit, or with no path at all (a stalk whose cut splits the mesh), the tunnel is "long"
+    v, f = open_cylinder(6, 12)
+    v = v * [0.2, 0.2, 6.0]
+    loops = boundary_loops(f)
+    assert len(loops) == 2
+    assert _rim_distance(v, f, loops[0], loops[1], 7.0) == pytest.approx(6.0)
+    assert _rim_distance(v, f, loops[0], loops[1], 5.0) == np.inf
+    apart = np.vstack([f, f + len(v)])
+    both = np.vstack([v, v + [5.0, 0.0, 0.0]])
+    assert _rim_distance(both, apart, loops[0], loops[1] + len(v), 50.0) == np.inf

@@ -315,7 +315,8 @@ def _triangulate(
         )
         # without project_to_data (noisy scans) the polish stays in the tangent planes too
         onto = surface if tri_cfg.project_to_data else None
-        return polish_and_untangle(result, onto, tri_cfg.smooth_rounds, tri_cfg.smooth_flips)
+        rounds, flips, tunnel = tri_cfg.smooth_rounds, tri_cfg.smooth_flips, np.pi * max_hole
+        return polish_and_untangle(result, onto, rounds, flips, tunnel_perimeter=tunnel)
 
     reach = cover_reach(median_spacing)
     result, found, left = mesh(reach)

@@ -93,8 +93,10 @@ def ball_handles(
     """Handles ``h = (2c - b - chi) / 2`` of the faces of a geodesic ball (module docstring):
     the faces whose corners all carry ``stamp`` in ``mark``. ``fmark`` (per face) and
     ``local`` (per vertex) are scratch: faces of the ball get ``stamp`` in ``fmark``.
-    Returns (handles, faces of the ball); handles is -1 where an edge of the ball has more
-    than two faces (not a manifold: the count means nothing there)."""
+    Returns (handles, faces of the ball, ring); handles is -1 where an edge of the ball has
+    more than two faces (not a manifold: the count means nothing there); ring is true when
+    the ball is one annulus (one component, two boundary loops, no handle): it wraps round a
+    part thinner than the ball."""
     nf = 0
     # the ball's faces, each once; its vertices numbered for the union-finds
     nv = 0
@@ -119,7 +121,7 @@ def ball_handles(
                     local[v] = nv
                     nv += 1
     if nf == 0:
-        return 0, 0
+        return 0, 0, False
     parent_v = np.arange(nv)  # components of the faces (through their corners)
     parent_b = np.arange(nv)  # components of the boundary edges (through their ends)
     on_rim = np.zeros(nv, dtype=np.bool_)
@@ -138,7 +140,7 @@ def ball_handles(
                 g0 = edge_faces[e, 0]
                 g1 = edge_faces[e, 1]
                 if edge_faces[e, 2] >= 0:
-                    return -1, nf
+                    return -1, nf, False
                 other = g1 if g0 == f else g0
                 if other < 0 or fmark[other] != stamp:
                     n_rim += 1
@@ -154,7 +156,8 @@ def ball_handles(
             loops += 1
     edges = (3 * nf + n_rim) // 2
     chi = nv - edges + nf
-    return (2 * components - loops - chi) // 2, nf
+    h = (2 * components - loops - chi) // 2
+    return h, nf, h == 0 and components == 1 and loops == 2
 
 
 @njit(**_PARALLEL_EXACT)
@@ -173,8 +176,9 @@ def small_handle_sources(
     blocks,
 ):  # pragma: no cover - numba
     """Every vertex whose geodesic ball of radius ``reach`` holds a handle, and the number of
-    faces of that ball (``(m,)`` int64 each, vertices ascending). Balls of more than
-    ``max_ball`` vertices are skipped.
+    faces of that ball (``(m,)`` int64 each, vertices ascending); then the same for the
+    vertices whose ball is one annulus (``ring`` of :func:`ball_handles`: it wraps round a
+    stalk thinner than the ball). Balls of more than ``max_ball`` vertices are skipped.
 
     Each source's ball is independent of the others: the vertices are split into ``blocks``
     blocks (at least 1; :func:`source_blocks`), each with its own scratch marks (stamped with
@@ -184,6 +188,7 @@ def small_handle_sources(
     size = (n_vertices + blocks - 1) // blocks
     handles = np.zeros(n_vertices, dtype=np.int64)
     ball_faces = np.zeros(n_vertices, dtype=np.int64)
+    rings = np.zeros(n_vertices, dtype=np.bool_)
     for b in prange(blocks):
         mark = np.full(n_vertices, -1, dtype=np.int64)
         dist = np.zeros(n_vertices)
@@ -196,10 +201,12 @@ def small_handle_sources(
             k = geodesic_ball(s, reach, vv_offsets, vv_nbr, vv_len, mark, dist, ball, s)
             if k < 0:
                 continue
-            h, nf = ball_handles(
+            h, nf, ring = ball_handles(
                 faces, ball, k, s, mark, fmark, vf_offsets, vf_faces, he_edge, edge_faces, local
             )
             handles[s] = h
             ball_faces[s] = nf
-    hits = np.flatnonzero(handles > 0)
-    return hits.astype(np.int64), ball_faces[hits]
+            rings[s] = ring
+    hits = np.flatnonzero(handles > 0).astype(np.int64)
+    around = np.flatnonzero(rings).astype(np.int64)
+    return hits, ball_faces[hits], around, ball_faces[around]
