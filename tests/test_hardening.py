@@ -11,6 +11,7 @@ import hashlib
 import json
 import os
 import struct
+import warnings
 from collections.abc import Callable
 from pathlib import Path
 
@@ -407,6 +408,21 @@ def test_ply_version_2_0_exits_2_and_writes_nothing(tmp_path, command):
     assert os.listdir(out_dir) == []
     assert os.listdir(src.parent) == ["scan.ply"]
     assert _sha(src) == before
+
+
+@pytest.mark.parametrize("spacing", ["1e-300", "1e-200"])
+def test_a_spacing_far_below_the_datas_fails_cleanly(tmp_path, spacing):
+    """Regression: ``--spacing 1e-300`` overflowed the memory estimate's particle count
+    (OverflowError traceback, exit 1), and the grid-size check warned of an overflow."""
+    src = tmp_path / "scan.ply"
+    src.write_bytes(ply_bytes(S))
+    out = tmp_path / "out"
+    out.mkdir()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        res = _run(["fit", str(src), "-o", str(out / "mesh.ply"), "--spacing", spacing, *FAST])
+    _assert_clean_failure(res, 2, [str(src)], ("spacing", "too many cells"))
+    assert os.listdir(out) == []
 
 
 def test_there_are_at_least_thirty_adversarial_cases():

@@ -47,6 +47,9 @@ BYTES_PER_PARTICLE = 2700
 #: The estimate lies within this factor of the measured peak (from 20k to 4M points: 1.01 to
 #: 1.46 times it, never below; README, "Predictable memory").
 ESTIMATE_FACTOR = 1.5
+#: The estimate's particle count never exceeds this (an r0 many orders of magnitude below the
+#: data's spacing asks for more particles than a float counts exactly).
+MAX_ESTIMATED_PARTICLES = float(2**53)
 
 
 @dataclass(frozen=True)
@@ -99,10 +102,12 @@ def estimate_peak_memory(
     >>> e.particles, round(e.peak_bytes / 2**30, 2)
     (739030, 2.32)
     """
-    ratio = (median_spacing / r0) ** 2 if r0 > 0 else 0.0
-    particles = int(round(AREA_PER_POINT * n_points * ratio / HEX_AREA))
+    ratio = median_spacing / r0 if r0 > 0 else 0.0
+    # as floats: an r0 far below the spacing overflows to inf, which the caps bound
+    wanted = AREA_PER_POINT * n_points * (ratio * ratio) / HEX_AREA
     if max_particles is not None:
-        particles = min(particles, int(max_particles))
+        wanted = min(wanted, float(max_particles))
+    particles = int(round(min(wanted, MAX_ESTIMATED_PARTICLES)))
     peak = BASE_BYTES + BYTES_PER_POINT * n_points + BYTES_PER_PARTICLE * particles
     return MemoryEstimate(int(n_points), particles, int(peak))
 

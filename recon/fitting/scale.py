@@ -150,7 +150,9 @@ def check_grid_size(points: np.ndarray, r0: float) -> None:
     Far outliers (or a tiny spacing) would make the neighbour search's cell grid overflow.
     """
     span = points.max(axis=0) - points.min(axis=0)
-    if float(np.prod(np.floor(span / r0) + 1.0)) > MAX_GRID_CELLS:
+    with np.errstate(over="ignore"):  # a spacing far below the span: inf cells, refused
+        cells = float(np.prod(np.floor(span / r0) + 1.0))
+    if cells > MAX_GRID_CELLS:
         raise InputError(
             f"the points span {', '.join(f'{x:.3g}' for x in span)} (x, y, z) but the rest "
             f"spacing r0 is {r0:.3g}: far too many cells for the neighbour search; remove far "
