@@ -438,6 +438,10 @@ def command(
         )
         if p
     ]
+    if particles_path is not None:  # refused before the fit, not after it
+        from recon.io import check_points_output
+
+        check_points_output(particles_path)
     if cfg.tiling.size is not None or cfg.tiling.auto:
         if _fit_tiles(
             input_path,

@@ -110,7 +110,7 @@ def command(
     """
     from recon.config import apply_overrides, with_values
     from recon.heap import keep_freed_memory
-    from recon.io import check_output_path, read_points, write_points
+    from recon.io import check_output_path, check_points_output, read_points, write_points
     from recon.kernels.options import thread_count
     from recon.normals import compute_normals
 
@@ -130,6 +130,7 @@ def command(
     if threads is not None:
         cfg = apply_overrides(cfg, {"threads": threads})
     output_path = check_output_path(output_path, inputs=[input_path], mkdir=mkdir)
+    check_points_output(output_path)
     keep_freed_memory()  # one command in this process: reuse freed memory (recon/heap.py)
     cloud = read_points(
         input_path, max_points=cfg.io.max_points, merge_duplicates=cfg.io.merge_duplicates

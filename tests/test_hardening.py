@@ -549,7 +549,7 @@ PATH_CASES = [
 def test_output_path_refused(tmp_path, monkeypatch, case, command):
     cid, make_out, words = case
     if command == "normals" and cid == "output-bad-extension":
-        pytest.skip("normals writes PLY whatever the extension")
+        words = ("cannot write point clouds", "use .ply")  # regression: was PLY as .stl
     (tmp_path / "sub").mkdir()
     src = tmp_path / "scan.ply"
     src.write_bytes(ply_bytes(S))
@@ -573,6 +573,17 @@ def test_particles_or_preview_onto_input_refused(tmp_path):
         _assert_clean_failure(res, 2, [str(src)], ("refusing to overwrite",))
     assert sorted(os.listdir(tmp_path)) == ["scan.ply"]
     assert _sha(src) == before
+
+
+@pytest.mark.parametrize("name", ["particles.xyz", "particles.obj", "particles"])
+def test_particles_in_another_format_than_ply_are_refused_before_the_fit(tmp_path, name):
+    """Regression: ``--particles p.xyz`` (and ``normals -o n.xyz``) wrote binary PLY under
+    that name, which no reader of the extension could read."""
+    src = tmp_path / "scan.ply"
+    src.write_bytes(ply_bytes(S))
+    res = _run(["fit", str(src), "-o", str(tmp_path / "m.ply"), "--particles", name, *FAST])
+    _assert_clean_failure(res, 2, [name], ("cannot write point clouds", "use .ply"))
+    assert sorted(os.listdir(tmp_path)) == ["scan.ply"]
 
 
 def test_report_path_onto_input_refused(tmp_path):

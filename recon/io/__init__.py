@@ -50,6 +50,7 @@ __all__ = [
     "atomic_output",
     "atomic_outputs",
     "check_output_path",
+    "check_points_output",
     "choose_origin",
     "cloud_from_arrays",
     "read_mesh",
@@ -275,6 +276,16 @@ def read_mesh(path: str | os.PathLike[str]) -> tuple[np.ndarray, np.ndarray]:
 # writers
 
 
+def check_points_output(path: str | os.PathLike[str]) -> None:
+    """Raise :class:`~recon.errors.InputError` unless ``path`` names a PLY file: the commands
+    write point clouds as PLY only, and check the name before the work that produces them
+    (a PLY named ``.xyz`` is read by no other tool)."""
+    p = Path(path)
+    if p.suffix.lower() != ".ply":
+        what = f"'{p.suffix}'" if p.suffix else "a file without an extension"
+        raise input_error(p, f"cannot write point clouds as {what}; use .ply")
+
+
 def write_points(
     path: str | os.PathLike[str],
     points: np.ndarray,
@@ -289,7 +300,8 @@ def write_points(
     Parameters
     ----------
     path : path-like
-        Output file (PLY whatever the extension).
+        Output file (PLY whatever the extension; the commands ask for ``.ply``:
+        :func:`check_points_output`).
     points : (n, 3) float64 [length]
         Coordinates relative to ``origin``.
     normals : (n, 3) float64, optional
