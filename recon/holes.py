@@ -400,6 +400,23 @@ def _ring_step(loop: np.ndarray, a: int, b: int) -> int:
     return 1 if d == 1 else -1 if d == len(loop) - 1 else d
 
 
+def _closest_pair(pa: np.ndarray, pb: np.ndarray) -> tuple[int, int]:
+    """``(i, j)`` of the closest ``pa[i]``, ``pb[j]``, the first in row-major order on a tie
+    (as the argmin of their whole distance matrix, without the ``m x n`` matrix: each row's
+    nearest from a k-d tree, then the rows within rounding of the least measured exactly)."""
+    near, _ = cKDTree(pb).query(pa)
+    rows = np.flatnonzero(near <= near.min() * (1.0 + 1e-9))
+    best = (np.inf, 0, 0)
+    step = max(1, PAIR_BLOCK * 64 // max(len(pb), 1))  # rows per block: ~64k distances
+    for start in range(0, len(rows), step):  # many rows tie on symmetric loops
+        block = rows[start : start + step]
+        dist = np.linalg.norm(pa[block][:, None, :] - pb[None, :, :], axis=2)
+        r, j = np.unravel_index(np.argmin(dist), dist.shape)
+        if dist[r, j] < best[0]:
+            best = (float(dist[r, j]), int(block[r]), int(j))
+    return best[1], best[2]
+
+
 def loft_loops(
     vertices: np.ndarray, a: np.ndarray, b: np.ndarray, directed: bool = False
 ) -> np.ndarray:
@@ -423,8 +440,7 @@ def loft_loops(
     """
     a, b = np.asarray(a, dtype=np.int64), np.asarray(b, dtype=np.int64)
     m, n = len(a), len(b)
-    dist = np.linalg.norm(vertices[a][:, None, :] - vertices[b][None, :, :], axis=2)
-    i0, j0 = np.unravel_index(np.argmin(dist), dist.shape)
+    i0, j0 = _closest_pair(vertices[a], vertices[b])
     a = np.roll(a, -int(i0))
     b_fwd = np.roll(b, -int(j0))
     best = None
@@ -487,9 +503,7 @@ def loft_nearest_loops(
     # loops: every pair took 106 s on one, and their matrix grows as the loops squared).
     reach = max_gap * (1.0 if spacing is None else float(np.max(spacing[np.concatenate(loops)])))
     owner = np.repeat(np.arange(len(loops)), [len(loop) for loop in loops])
-    close = cKDTree(vertices[np.concatenate(loops)]).query_pairs(reach, output_type="ndarray")
-    pairs = np.unique(np.sort(owner[close], axis=1), axis=0) if len(close) else np.zeros((0, 2))
-    pairs = pairs[pairs[:, 0] != pairs[:, 1]].astype(np.int64)
+    pairs = _close_owner_pairs(vertices[np.concatenate(loops)], owner, reach)
     if normals is not None:  # only the two faces of a thin part are candidates
         faces_of_part = [
             _two_faces(vertices, normals, loops[i], loops[j], (trees[i], trees[j]))
@@ -523,6 +537,33 @@ def loft_nearest_loops(
         if best[i] <= max_gap * here:
             strips.append(loft_loops(vertices, loops[i], loops[j]))
     return np.concatenate([faces, *strips]) if strips else faces
+
+
+#: Points per block of :func:`_close_owner_pairs`' search: a block's point pairs are
+#: reduced to owner pairs before the next block, so memory stays bounded however many pairs.
+PAIR_BLOCK = 1024
+
+
+def _close_owner_pairs(points: np.ndarray, owner: np.ndarray, reach: float) -> np.ndarray:
+    """``(m, 2)`` int64: the pairs of owners ``(a, b)``, ``a < b`` ascending, that own two
+    ``points`` at most ``reach`` apart.
+
+    Block by block: the point pairs themselves can be far too many to hold (a sheet that
+    stopped at the particle cap has rims of tens of thousands of vertices, 75 million pairs
+    within the reach: a 24 GB peak), while the owner pairs are few."""
+    if len(points) < 2:
+        return np.zeros((0, 2), dtype=np.int64)
+    tree = cKDTree(points)
+    n = int(owner.max()) + 1
+    keys = []
+    for start in range(0, len(points), PAIR_BLOCK):
+        block = cKDTree(points[start : start + PAIR_BLOCK])
+        near = block.sparse_distance_matrix(tree, reach, output_type="ndarray")
+        a, b = owner[near["i"] + start], owner[near["j"]]
+        keep = a < b  # each unordered pair once (the block meets both of its orders)
+        keys.append(np.unique(a[keep].astype(np.int64) * n + b[keep]))
+    key = np.unique(np.concatenate(keys))
+    return np.stack([key // n, key % n], axis=1)
 
 
 def _two_faces(

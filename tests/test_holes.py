@@ -242,3 +242,81 @@ def test_the_points_across_a_slit_are_each_pairs_midpoint_once():
     assert len(pts) < len(ring) + 1  # one per vertex and the centroid: 21
     for xi in range(3, 8):  # the facing pairs' midpoints on the slit's axis, once each
         assert np.sum(np.all(np.isclose(pts, [xi, 0.0, 0.0]), axis=1)) == 1
+
+
+@pytest.mark.parametrize("block", [7, 4096])
+def test_the_owner_pairs_within_the_reach_are_those_of_every_point_pair(monkeypatch, block):
+    monkeypatch.setattr(holes, "PAIR_BLOCK", block)
+    rng = np.random.default_rng(3)
+    points = rng.random((300, 3))
+    owner = np.sort(rng.integers(0, 25, 300))
+    d = np.linalg.norm(points[:, None] - points[None], axis=2)
+    i, j = np.nonzero(d <= 0.12)
+    a, b = owner[i], owner[j]
+    expected = np.unique(np.stack([a[a < b], b[a < b]], axis=1), axis=0)
+    got = holes._close_owner_pairs(points, owner, 0.12)
+    assert got.dtype == np.int64 and np.array_equal(got, expected)
+    assert holes._close_owner_pairs(points[:1], owner[:1], 0.5).shape == (0, 2)
+
+
+def test_the_loop_pair_search_holds_one_blocks_point_pairs_at_a_time():
+    """Regression: the rims of a sheet that stopped at the particle cap (a 1,000-point sphere
+    at --spacing 1e-3: 2,000,000 particles) met in 75 million point pairs within the reach,
+    all held at once: the process grew to 24 GB and was killed. Here two discs (fans) whose
+    dense rims touch at one point: about 5.7 million point pairs within the reach, nearly all
+    along each rim, and no strip (the rims are far apart in median)."""
+    import tracemalloc
+
+    n = 12_000
+    t = np.linspace(0, 2 * np.pi, n, endpoint=False)
+    ring = np.stack([np.cos(t), np.sin(t), np.zeros_like(t)], axis=1) * 40.0
+    k = np.arange(n)
+    fan = np.stack([np.full(n, n), k, (k + 1) % n], axis=1)
+    disc = np.vstack([ring, [[0.0, 0.0, 0.0]]])
+    v = np.vstack([disc, disc + [80.3, 0.0, 0.0]])
+    f = np.vstack([fan, fan + len(disc)])
+    tracemalloc.start()
+    try:
+        out = loft_nearest_loops(v, f, 5.0)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert np.array_equal(out, f)
+    # all the pairs at once: their owners alone are 5.7e6 x 16 bytes (91 MB), sorted twice
+    assert peak < 80 * 2**20, peak
+
+
+def test_the_closest_pair_of_two_loops_is_the_first_of_the_distance_matrix_on_ties():
+    rng = np.random.default_rng(1)
+    for _ in range(200):
+        m, n = rng.integers(1, 40, 2)
+        pa = rng.integers(0, 4, (m, 3)) * 0.5  # a coarse lattice: many equal distances
+        pb = rng.integers(0, 4, (n, 3)) * 0.5 + rng.choice([0.0, 0.25])
+        d = np.linalg.norm(pa[:, None] - pb[None], axis=2)
+        i, j = np.unravel_index(np.argmin(d), d.shape)
+        assert holes._closest_pair(pa, pb) == (i, j)
+
+
+def test_a_strip_between_two_long_rims_holds_one_byte_per_vertex_pair():
+    """Regression: the strip between two rims of m and n vertices held their m x n distance
+    matrix (with its differences, 7 x 8 bytes a pair) and the path's m x n costs (8 bytes):
+    2.2 GB for two rims of 6,000 vertices, which two long rims of a thin plate's faces
+    multiply. Now the path's moves only, one byte a pair."""
+    import tracemalloc
+
+    n = 2000
+    t = np.linspace(0, 2 * np.pi, n, endpoint=False)
+    ring = np.stack([np.cos(t), np.sin(t), np.zeros_like(t)], axis=1) * 20.0
+    v = np.vstack([ring, ring + [0.05, 0.0, 0.3]])
+    a, b = np.arange(n), np.arange(n, 2 * n)
+    tracemalloc.start()
+    try:
+        strip = holes.loft_loops(v, a, b[::-1])
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert strip.shape == (2 * n, 3)
+    # every face joins the rims: two corners on one, one on the other, side by side
+    on_a = (strip < n).sum(axis=1)
+    assert np.all((on_a == 1) | (on_a == 2))
+    assert peak < 3 * n * n // 2, peak  # the moves (n^2 bytes) and a little
