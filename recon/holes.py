@@ -403,9 +403,13 @@ def _ring_step(loop: np.ndarray, a: int, b: int) -> int:
 def _closest_pair(pa: np.ndarray, pb: np.ndarray) -> tuple[int, int]:
     """``(i, j)`` of the closest ``pa[i]``, ``pb[j]``, the first in row-major order on a tie
     (as the argmin of their whole distance matrix, without the ``m x n`` matrix: each row's
-    nearest from a k-d tree, then the rows within rounding of the least measured exactly)."""
-    near, _ = cKDTree(pb).query(pa)
-    rows = np.flatnonzero(near <= near.min() * (1.0 + 1e-9))
+    nearest from a k-d tree, then the rows within rounding of the least measured exactly;
+    loops small enough for one block are measured whole)."""
+    if len(pa) * len(pb) <= PAIR_BLOCK * 64:
+        rows = np.arange(len(pa))
+    else:
+        near, _ = cKDTree(pb).query(pa)
+        rows = np.flatnonzero(near <= near.min() * (1.0 + 1e-9))
     best = (np.inf, 0, 0)
     step = max(1, PAIR_BLOCK * 64 // max(len(pb), 1))  # rows per block: ~64k distances
     for start in range(0, len(rows), step):  # many rows tie on symmetric loops

@@ -286,7 +286,11 @@ def test_the_loop_pair_search_holds_one_blocks_point_pairs_at_a_time():
     assert peak < 80 * 2**20, peak
 
 
-def test_the_closest_pair_of_two_loops_is_the_first_of_the_distance_matrix_on_ties():
+@pytest.mark.parametrize("block", [1, 4096])  # 1: the k-d tree's rows, a few at a time
+def test_the_closest_pair_of_two_loops_is_the_first_of_the_distance_matrix_on_ties(
+    monkeypatch, block
+):
+    monkeypatch.setattr(holes, "PAIR_BLOCK", block)
     rng = np.random.default_rng(1)
     for _ in range(200):
         m, n = rng.integers(1, 40, 2)
