@@ -316,14 +316,17 @@ def command(
         raise InputError(
             f"{reference_path}: is a point cloud; --same-topology needs a reference mesh"
         )
-    result = compare_meshes(
-        mesh,
-        reference,
-        n_samples=pick("samples", samples),
-        tau=tau_abs,
-        tau_relative=tau_rel,
-        seed=pick("seed", seed),
-    )
+    try:
+        result = compare_meshes(
+            mesh,
+            reference,
+            n_samples=pick("samples", samples),
+            tau=tau_abs,
+            tau_relative=tau_rel,
+            seed=pick("seed", seed),
+        )
+    except InputError as exc:  # name the files (the library's messages do not know them)
+        raise InputError(f"{mesh_path} against {reference_path}: {exc}") from None
     checks = check_comparison(result, **limits)
     passed = all(c["passed"] for c in checks)
 

@@ -62,6 +62,7 @@ from .mesh import face_area_vectors, face_normals
 from .topology import mesh_topology, topology_and_quality, triangle_quality, validate_mesh
 
 __all__ = [
+    "check_closest_found",
     "check_comparison",
     "compare_meshes",
     "fidelity",
@@ -108,7 +109,22 @@ def _closest_on_mesh(
     ans = scene.compute_closest_points(query)
     closest = ans["points"].numpy().astype(np.float64) + centre
     face_idx = ans["primitive_ids"].numpy().astype(np.int64)
+    check_closest_found(face_idx, len(faces), np.vstack([points, lo, hi]))
     return np.linalg.norm(points - closest, axis=1), face_idx
+
+
+def check_closest_found(face_idx: np.ndarray, n_faces: int, points: np.ndarray) -> None:
+    """Raise :class:`~recon.errors.InputError` when Embree's closest-point query (float32)
+    returned no face for some points (its invalid id): coordinates or distances past what
+    it resolves (surfaces 1e12 apart, or spans near 1e19)."""
+    missed = int(np.count_nonzero((face_idx < 0) | (face_idx >= n_faces)))
+    if missed:
+        span = float(np.max(points.max(axis=0) - points.min(axis=0)))
+        raise InputError(
+            f"the closest-point query found no face for {missed:,} of {len(face_idx):,} points "
+            f"(the surfaces span {span:.3g} units together, past what its float32 resolves); "
+            "rescale the data or bring the surfaces together"
+        )
 
 
 def distance_stats(d: np.ndarray, diag: float) -> dict[str, float | int | None]:

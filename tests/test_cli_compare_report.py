@@ -296,3 +296,43 @@ def test_compare_tolerances_share_the_config_machinery(tmp_path):
         load_tolerances(tol)
     tol.write_text("max-chamfer: 1\nseed: 3\n")
     assert load_tolerances(tol) == {"max_chamfer": 1.0, "seed": 3}
+
+
+@pytest.mark.parametrize("command", ["report", "remesh", "compare"])
+def test_a_mesh_with_coordinates_past_1e100_is_refused_by_name(tmp_path, command):
+    """Regression: the mesh commands did not check the coordinates' range as the point
+    commands do (remesh: a ValueError traceback; report: overflow warnings and nan angles)."""
+    v, f = icosphere(1)
+    mesh = tmp_path / "huge.ply"
+    write_mesh(mesh, v * 1e300, f)
+    args = {"report": [mesh], "remesh": [mesh, "-o", tmp_path / "r.ply"]}.get(command)
+    if args is None:
+        ref = tmp_path / "unit.ply"
+        write_mesh(ref, v, f)
+        args = [ref, mesh]
+    r = run(command, *args)
+    one_line_error(r, str(mesh), "too large")
+    assert not (tmp_path / "r.ply").exists()
+
+
+@pytest.mark.parametrize("swap", [False, True])
+def test_surfaces_too_far_apart_for_the_float32_query_are_refused_by_name(tmp_path, swap):
+    """Regression: a sphere of radius 1e12 against a unit sphere: Embree's float32 closest-point
+    query returned its invalid face id, and compare died with an IndexError traceback."""
+    v, f = icosphere(1)
+    big, unit = tmp_path / "big.ply", tmp_path / "unit.ply"
+    write_mesh(big, v * 1e12, f)
+    write_mesh(unit, v, f)
+    pair = (unit, big) if swap else (big, unit)
+    r = run("compare", *pair)
+    one_line_error(r, f"{pair[0]} against {pair[1]}", "closest-point query found no face")
+
+
+def test_remesh_of_a_mesh_past_the_float32_query_is_refused_by_name(tmp_path):
+    """Regression: remesh of a sphere of radius 1e20 died with an IndexError traceback."""
+    v, f = icosphere(2)
+    mesh = tmp_path / "far.ply"
+    write_mesh(mesh, v * 1e20, f)
+    r = run("remesh", mesh, "-o", tmp_path / "r.ply")
+    one_line_error(r, str(mesh), "closest-point query found no face")
+    assert not (tmp_path / "r.ply").exists()

@@ -39,7 +39,7 @@ import numpy as np
 from ..cloud import PointCloud
 from ..errors import InputError
 from . import e57, las, obj, pcd, ply, xyz
-from .clean import choose_origin, make_cloud
+from .clean import check_coordinate_range, choose_origin, make_cloud
 from .common import as_input_points, check_readable, input_error, reading
 from .files import AtomicOutputs, atomic_output, atomic_outputs, check_output_path
 
@@ -269,6 +269,7 @@ def read_mesh(path: str | os.PathLike[str]) -> tuple[np.ndarray, np.ndarray]:
     used = vertices[np.unique(faces)] if faces.size else vertices
     if not np.isfinite(used).all():
         raise input_error(p, "non-finite vertex coordinates")
+    check_coordinate_range(p, used)
     return vertices, faces
 
 

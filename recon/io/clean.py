@@ -21,7 +21,7 @@ from .common import input_error
 #: One logger for the io package (its messages name the file).
 logger = logging.getLogger("recon.io")
 
-__all__ = ["choose_origin", "make_cloud"]
+__all__ = ["check_coordinate_range", "choose_origin", "make_cloud"]
 
 
 #: A normal is invalid when it is non-finite or shorter than this.
@@ -205,6 +205,18 @@ def _first_occurrences(xyz: np.ndarray) -> np.ndarray:
     return np.flatnonzero(~dup)
 
 
+def check_coordinate_range(path: Path | None, xyz: np.ndarray) -> None:
+    """Raise :class:`~recon.errors.InputError` (naming ``path``) when a coordinate's
+    magnitude passes ``_MAX_COORDINATE``: squared distances would overflow."""
+    biggest = float(np.max(np.abs(xyz))) if xyz.size else 0.0
+    if biggest > _MAX_COORDINATE:
+        raise input_error(
+            path,
+            f"coordinates up to {biggest:.3g} are too large (their magnitude must stay below "
+            f"{_MAX_COORDINATE:g}); rescale the data",
+        )
+
+
 def _check_spans_plane(path: Path | None, xyz: np.ndarray) -> None:
     """Enough points, coordinates in a usable range, not all identical, not all on one line.
 
@@ -214,13 +226,7 @@ def _check_spans_plane(path: Path | None, xyz: np.ndarray) -> None:
     n = xyz.shape[0]
     if n < 4:
         raise input_error(path, f"only {n} distinct finite point(s); at least 4 are needed")
-    biggest = float(np.max(np.abs(xyz)))
-    if biggest > _MAX_COORDINATE:
-        raise input_error(
-            path,
-            f"coordinates up to {biggest:.3g} are too large (their magnitude must stay below "
-            f"{_MAX_COORDINATE:g}); rescale the data",
-        )
+    check_coordinate_range(path, xyz)
     extent = float(np.max(xyz.max(axis=0) - xyz.min(axis=0)))
     if extent == 0.0:
         raise input_error(path, "all points are identical; the points must span at least a plane")

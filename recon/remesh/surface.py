@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..mesh import face_area_vectors, runs_of_equal
+from ..metrics import check_closest_found
 
 __all__ = [
     "FeatureLines",
@@ -124,6 +125,7 @@ class MeshSurface:
         ans = self._scene.compute_closest_points(query)
         foot = ans["points"].numpy().astype(np.float64) + self.centre
         face = ans["primitive_ids"].numpy().astype(np.int64)
+        check_closest_found(face, len(self.faces), np.vstack([pts, self.vertices]))
         return closest_on_triangles(pts, self.vertices[self.faces[face]], foot), face
 
     def sample(self, n: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
