@@ -140,6 +140,18 @@ def test_a_tunnel_at_a_sparse_ears_base_is_cut(n, seed, monkeypatch):
     assert _topology(recon.fit(points))["genus"] == 1
 
 
+def _closed_genus_0(res) -> tuple[np.ndarray, np.ndarray]:
+    """The fit's mesh, checked watertight, one component, genus 0 (ours), manifold (Open3D)
+    and free of crossing faces."""
+    v, f = res.mesh.vertices, res.mesh.faces
+    t = mesh_topology(v, f)
+    assert t["watertight"] and t["components"] == 1 and t["genus"] == 0, t
+    m = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(v), o3d.utility.Vector3iVector(f))
+    assert m.is_vertex_manifold() and m.is_edge_manifold(allow_boundary_edges=False)
+    assert len(self_intersections(v, f)) == 0
+    return v, f
+
+
 #: bench_thin_parts.py's eared shape (a body, two thin ears, a tail) at 5,000 points, seed 12
 #: (sample_data/README.md).
 EARED_STALKS = Path(__file__).resolve().parents[1] / "sample_data" / "eared-stalks.ply"
@@ -153,12 +165,7 @@ def test_an_ear_held_by_two_thin_stalks_comes_out_genus_0(monkeypatch):
     the largest hole that hole filling closes (pi x max_gap)."""
     points = read_points(EARED_STALKS).absolute_points()
     res = recon.fit(points)
-    v, f = res.mesh.vertices, res.mesh.faces
-    t = mesh_topology(v, f)
-    assert t["watertight"] and t["components"] == 1 and t["genus"] == 0, t
-    m = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(v), o3d.utility.Vector3iVector(f))
-    assert m.is_vertex_manifold() and m.is_edge_manifold(allow_boundary_edges=False)
-    assert len(self_intersections(v, f)) == 0
+    _closed_genus_0(res)
     assert res.report.fidelity.within_r0 >= 0.99  # the cut took a stalk, not the data's surface
     # the mechanism: without the cut at a stalk the handle stays
     monkeypatch.setattr(small_handles, "_cut_stalk", lambda *args: None)
@@ -190,12 +197,7 @@ def test_a_seam_at_the_sparse_end_of_a_density_gradient_is_closed(monkeypatch):
     sampling (``covered(..., across=True)``)."""
     points = read_points(GRADIENT).absolute_points()
     res = recon.fit(points)
-    v, f = res.mesh.vertices, res.mesh.faces
-    t = mesh_topology(v, f)
-    assert t["watertight"] and t["components"] == 1 and t["genus"] == 0, t
-    m = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(v), o3d.utility.Vector3iVector(f))
-    assert m.is_vertex_manifold() and m.is_edge_manifold(allow_boundary_edges=False)
-    assert len(self_intersections(v, f)) == 0
+    v, f = _closed_genus_0(res)
     # on the ellipsoid: every vertex within 1 % of the diagonal (first-order distance)
     q = v / GRADIENT_AXES
     k0, k1 = np.linalg.norm(q, axis=1), np.linalg.norm(q / GRADIENT_AXES, axis=1)
