@@ -129,8 +129,9 @@ def command(
     )
     if threads is not None:
         cfg = apply_overrides(cfg, {"threads": threads})
+    if not output_path.is_dir():  # (a folder: check_output_path says so)
+        check_points_output(output_path)  # before --mkdir makes a folder for a refused name
     output_path = check_output_path(output_path, inputs=[input_path], mkdir=mkdir)
-    check_points_output(output_path)
     keep_freed_memory()  # one command in this process: reuse freed memory (recon/heap.py)
     cloud = read_points(
         input_path, max_points=cfg.io.max_points, merge_duplicates=cfg.io.merge_duplicates

@@ -405,6 +405,8 @@ def _closest_pair(pa: np.ndarray, pb: np.ndarray) -> tuple[int, int]:
     (as the argmin of their whole distance matrix, without the ``m x n`` matrix: each row's
     nearest from a k-d tree, then the rows within rounding of the least measured exactly;
     loops small enough for one block are measured whole)."""
+    if len(pa) == 0 or len(pb) == 0:
+        raise ValueError("the closest pair of an empty loop")
     if len(pa) * len(pb) <= PAIR_BLOCK * 64:
         rows = np.arange(len(pa))
     else:

@@ -109,17 +109,20 @@ def _closest_on_mesh(
     ans = scene.compute_closest_points(query)
     closest = ans["points"].numpy().astype(np.float64) + centre
     face_idx = ans["primitive_ids"].numpy().astype(np.int64)
-    check_closest_found(face_idx, len(faces), np.vstack([points, lo, hi]))
+    check_closest_found(face_idx, len(faces), points, vertices)
     return np.linalg.norm(points - closest, axis=1), face_idx
 
 
-def check_closest_found(face_idx: np.ndarray, n_faces: int, points: np.ndarray) -> None:
+def check_closest_found(face_idx: np.ndarray, n_faces: int, *coordinates: np.ndarray) -> None:
     """Raise :class:`~recon.errors.InputError` when Embree's closest-point query (float32)
     returned no face for some points (its invalid id): coordinates or distances past what
-    it resolves (surfaces 1e12 apart, or spans near 1e19)."""
+    it resolves (surfaces 1e12 apart, or spans near 1e19). ``coordinates``: the query
+    points and the mesh's vertices, for the span the message gives."""
     missed = int(np.count_nonzero((face_idx < 0) | (face_idx >= n_faces)))
     if missed:
-        span = float(np.max(points.max(axis=0) - points.min(axis=0)))
+        lo = np.min([c.min(axis=0) for c in coordinates if len(c)], axis=0)
+        hi = np.max([c.max(axis=0) for c in coordinates if len(c)], axis=0)
+        span = float(np.max(hi - lo))
         raise InputError(
             f"the closest-point query found no face for {missed:,} of {len(face_idx):,} points "
             f"(the surfaces span {span:.3g} units together, past what its float32 resolves); "

@@ -192,16 +192,17 @@ def _rim_distance(
     vertices: np.ndarray, kept: np.ndarray, a: np.ndarray, b: np.ndarray, limit: float
 ) -> float:
     """Shortest path along the edges of ``kept`` from a vertex of loop ``a`` to one of loop
-    ``b``; inf when longer than ``limit``. Only the faces within ``limit`` (straight line) of
-    ``a`` are searched: a path that leaves them is longer than ``limit``."""
-    near = np.linalg.norm(vertices - vertices[a].mean(axis=0), axis=1)
-    span = float(np.max(np.linalg.norm(vertices[a] - vertices[a].mean(axis=0), axis=1)))
-    sub = kept[(near[kept] <= limit + span).all(axis=1)]
-    if len(sub) == 0:
+    ``b``; inf when longer than ``limit``. Only the edges whose ends lie within ``limit``
+    (straight line) of ``a`` are searched: a path that leaves them is longer than ``limit``."""
+    centre = vertices[a].mean(axis=0)
+    near = np.linalg.norm(vertices - centre, axis=1)
+    span = float(np.max(np.linalg.norm(vertices[a] - centre, axis=1)))
+    edges = np.sort(kept[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+    edges = np.unique(edges[(near[edges] <= limit + span).all(axis=1)], axis=0)  # each once
+    if len(edges) == 0:
         return np.inf
-    ids, local = np.unique(sub, return_inverse=True)
-    local = local.reshape(sub.shape)
-    i, j = local[:, [0, 1, 2]].ravel(), local[:, [1, 2, 0]].ravel()
+    ids, local = np.unique(edges, return_inverse=True)
+    i, j = local.reshape(edges.shape).T
     length = np.linalg.norm(vertices[ids[i]] - vertices[ids[j]], axis=1)
     graph = sparse.coo_matrix((length, (i, j)), shape=(len(ids), len(ids))).tocsr()
     where = np.full(len(vertices), -1, dtype=np.int64)

@@ -410,18 +410,26 @@ def test_ply_version_2_0_exits_2_and_writes_nothing(tmp_path, command):
     assert _sha(src) == before
 
 
-@pytest.mark.parametrize("spacing", ["1e-300", "1e-200"])
-def test_a_spacing_far_below_the_datas_fails_cleanly(tmp_path, spacing):
+@pytest.mark.parametrize(
+    ("spacing", "extra", "words"),
+    [
+        ("1e-300", [], ("spacing", "too many cells")),
+        ("1e-200", [], ("spacing", "too many cells")),
+        ("1e-300", ["--tiles", "auto"], ()),  # the tile sizing met 0 points x inf: nan
+    ],
+)
+def test_a_spacing_far_below_the_datas_fails_cleanly(tmp_path, spacing, extra, words):
     """Regression: ``--spacing 1e-300`` overflowed the memory estimate's particle count
     (OverflowError traceback, exit 1), and the grid-size check warned of an overflow."""
     src = tmp_path / "scan.ply"
     src.write_bytes(ply_bytes(S))
     out = tmp_path / "out"
     out.mkdir()
+    args = ["fit", str(src), "-o", str(out / "mesh.ply"), "--spacing", spacing, *extra, *FAST]
     with warnings.catch_warnings():
         warnings.simplefilter("error", RuntimeWarning)
-        res = _run(["fit", str(src), "-o", str(out / "mesh.ply"), "--spacing", spacing, *FAST])
-    _assert_clean_failure(res, 2, [str(src)], ("spacing", "too many cells"))
+        res = _run(args)
+    _assert_clean_failure(res, 2, [str(src)], words)
     assert os.listdir(out) == []
 
 
@@ -581,7 +589,8 @@ def test_particles_in_another_format_than_ply_are_refused_before_the_fit(tmp_pat
     that name, which no reader of the extension could read."""
     src = tmp_path / "scan.ply"
     src.write_bytes(ply_bytes(S))
-    res = _run(["fit", str(src), "-o", str(tmp_path / "m.ply"), "--particles", name, *FAST])
+    out = tmp_path / name
+    res = _run(["fit", str(src), "-o", str(tmp_path / "m.ply"), "--particles", str(out), *FAST])
     _assert_clean_failure(res, 2, [name], ("cannot write point clouds", "use .ply"))
     assert sorted(os.listdir(tmp_path)) == ["scan.ply"]
 

@@ -102,9 +102,10 @@ def estimate_peak_memory(
     >>> e.particles, round(e.peak_bytes / 2**30, 2)
     (739030, 2.32)
     """
-    ratio = median_spacing / r0 if r0 > 0 else 0.0
-    # as floats: an r0 far below the spacing overflows to inf, which the caps bound
-    wanted = AREA_PER_POINT * n_points * (ratio * ratio) / HEX_AREA
+    ratio = float(median_spacing) / float(r0) if r0 > 0 else 0.0
+    # as floats: an r0 far below the spacing overflows to inf, which the caps bound (and no
+    # points need no particles, whatever the ratio: 0 x inf would be nan)
+    wanted = AREA_PER_POINT * n_points * (ratio * ratio) / HEX_AREA if n_points > 0 else 0.0
     if max_particles is not None:
         wanted = min(wanted, float(max_particles))
     particles = int(round(min(wanted, MAX_ESTIMATED_PARTICLES)))

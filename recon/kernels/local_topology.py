@@ -95,8 +95,9 @@ def ball_handles(
     ``local`` (per vertex) are scratch: faces of the ball get ``stamp`` in ``fmark``.
     Returns (handles, faces of the ball, ring); handles is -1 where an edge of the ball has
     more than two faces (not a manifold: the count means nothing there); ring is true when
-    the ball is one annulus (one component, two boundary loops, no handle): it wraps round a
-    part thinner than the ball."""
+    the ball is one annulus (one component, two boundary loops, no handle) whose rims are
+    not the mesh's own boundary: it wraps round a part thinner than the ball (a ball round
+    a small hole of the mesh is an annulus too)."""
     nf = 0
     # the ball's faces, each once; its vertices numbered for the union-finds
     nv = 0
@@ -126,6 +127,7 @@ def ball_handles(
     parent_b = np.arange(nv)  # components of the boundary edges (through their ends)
     on_rim = np.zeros(nv, dtype=np.bool_)
     n_rim = 0  # boundary half-edges
+    open_mesh = False  # a rim edge on the mesh's own boundary: a hole's rim, not a stalk
     for a in range(k):
         u = ball[a]
         for p in range(vf_offsets[u], vf_offsets[u + 1]):
@@ -143,6 +145,7 @@ def ball_handles(
                     return -1, nf, False
                 other = g1 if g0 == f else g0
                 if other < 0 or fmark[other] != stamp:
+                    open_mesh = open_mesh or other < 0
                     n_rim += 1
                     on_rim[x] = True
                     on_rim[y] = True
@@ -157,7 +160,7 @@ def ball_handles(
     edges = (3 * nf + n_rim) // 2
     chi = nv - edges + nf
     h = (2 * components - loops - chi) // 2
-    return h, nf, h == 0 and components == 1 and loops == 2
+    return h, nf, h == 0 and components == 1 and loops == 2 and not open_mesh
 
 
 @njit(**_PARALLEL_EXACT)

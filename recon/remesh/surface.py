@@ -125,7 +125,7 @@ class MeshSurface:
         ans = self._scene.compute_closest_points(query)
         foot = ans["points"].numpy().astype(np.float64) + self.centre
         face = ans["primitive_ids"].numpy().astype(np.int64)
-        check_closest_found(face, len(self.faces), np.vstack([pts, self.vertices]))
+        check_closest_found(face, len(self.faces), pts, self.vertices)
         return closest_on_triangles(pts, self.vertices[self.faces[face]], foot), face
 
     def sample(self, n: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:

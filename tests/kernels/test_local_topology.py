@@ -60,3 +60,38 @@ def test_the_sources_are_the_same_however_the_vertices_are_split(monkeypatch):
     for threads in (2, 3, 4, 16):  # 16: capped at MAX_BLOCKS
         split = small_handles(verts, faces, reach, threads=threads)
         assert np.array_equal(one[0], split[0]) and np.array_equal(one[1], split[1])
+
+
+def _grid_with_hole(n: int = 30, hole: int = 2):
+    """A flat n x n grid of unit squares (two triangles each) without the hole x hole squares
+    at its centre."""
+    x, y = np.meshgrid(np.arange(n + 1.0), np.arange(n + 1.0), indexing="ij")
+    v = np.stack([x.ravel(), y.ravel(), np.zeros(x.size)], axis=1)
+    faces = []
+    lo = (n - hole) // 2
+    for i in range(n):
+        for j in range(n):
+            if lo <= i < lo + hole and lo <= j < lo + hole:
+                continue
+            a, b, c, d = (
+                i * (n + 1) + j,
+                (i + 1) * (n + 1) + j,
+                (i + 1) * (n + 1) + j + 1,
+                i * (n + 1) + j + 1,
+            )
+            faces += [[a, b, c], [a, c, d]]
+    return v, np.array(faces)
+
+
+def test_a_ball_round_a_thin_stalk_is_a_ring_and_one_round_a_hole_is_not():
+    """The stalk sources: balls that are one annulus wrapped round a part thinner than the
+    ball. A ball round a small hole of the mesh is an annulus too, but its inner rim is the
+    mesh's own boundary: not a stalk (it wasted the stalk cut's tries)."""
+    from recon.small_handles import _sources, _Tables
+
+    v, f = _grid_with_hole()
+    hits, _, rings, _ = _sources(_Tables(v, f), 5.0)  # 6 ring sources before
+    assert len(hits) == 0 and len(rings) == 0
+    v, f = torus(24, 5, 2.0, 0.2)  # a tube 1.26 round
+    hits, _, rings, sizes = _sources(_Tables(v, f), 1.0)
+    assert len(hits) == 0 and len(rings) == len(v) and np.all(sizes > 0)
