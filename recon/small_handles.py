@@ -5,7 +5,10 @@ sheets into a tunnel a few spacings across: a handle the true surface does not h
 sampling cannot resolve a tunnel that small (growth closes holes narrower than ``max_gap``
 for the same reason), so a handle that fits in a geodesic ball of ``reach`` is taken as a
 defect: the smallest such ball is removed and its rim zipped into a disc
-(:func:`recon.holes.zip_loop`), which takes the handle with it. The kernels are in
+(:func:`recon.holes.zip_loop`), which takes the handle with it. A handle too large for the
+ball can still be cut at a stalk thinner than it, when the tunnel beside the stalk is no
+longer round than the largest hole that hole filling closes (:func:`_cut_stalk`: an ear
+joined to the head by two thin stalks). The kernels are in
 :mod:`recon.kernels.local_topology`.
 """
 
