@@ -413,7 +413,7 @@ def _closest_pair(pa: np.ndarray, pb: np.ndarray) -> tuple[int, int]:
         near, _ = cKDTree(pb).query(pa)
         rows = np.flatnonzero(near <= near.min() * (1.0 + 1e-9))
     best = (np.inf, 0, 0)
-    step = max(1, PAIR_BLOCK * 64 // max(len(pb), 1))  # rows per block: ~64k distances
+    step = max(1, PAIR_BLOCK * 64 // len(pb))  # rows per block: ~64k distances
     for start in range(0, len(rows), step):  # many rows tie on symmetric loops
         block = rows[start : start + step]
         dist = np.linalg.norm(pa[block][:, None, :] - pb[None, :, :], axis=2)

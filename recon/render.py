@@ -140,13 +140,10 @@ def _draw_view(
                 linewidths=0.3,
             )
         )
+    q2 = (all_vertices @ basis.T)[:, :2]
     for edges, color, width in edge_sets:
         if len(edges):
-            # project only the edges' ends (a subset of a possibly large vertex array)
-            ends, pair = np.unique(edges, return_inverse=True)
-            q2 = (all_vertices[ends] @ basis.T)[:, :2]
-            lines = q2[pair.reshape(edges.shape)]
-            ax.add_collection(LineCollection(lines, colors=color, linewidths=width, zorder=3))
+            ax.add_collection(LineCollection(q2[edges], colors=color, linewidths=width, zorder=3))
     if markers is not None and len(markers):
         m = markers @ basis.T
         ax.scatter(m[:, 0], m[:, 1], s=40, facecolors="none", edgecolors=NON_MANIFOLD_COLOR,
@@ -281,9 +278,9 @@ def render_mesh_png(
     from matplotlib.figure import Figure
 
     v, f = validate_mesh(vertices, faces)
+    referenced = np.unique(f) if len(f) else np.arange(len(v))  # they frame the views
     if len(v):  # centre: keeps precision for georeferenced coordinates (x ~ 1e6)
-        drawn = v[np.unique(f)] if len(f) else v  # the vertices the faces use frame the views
-        v = v - 0.5 * (drawn.min(axis=0) + drawn.max(axis=0))
+        v = v - 0.5 * (v[referenced].min(axis=0) + v[referenced].max(axis=0))
     width, height = (int(s) for s in size)
     if width < 100 or height < 100:
         raise InputError(f"image size must be at least 100 x 100 pixels, got {width} x {height}")
@@ -301,7 +298,7 @@ def render_mesh_png(
         )
         bow_ties = v[np.asarray(marks.get("bow_ties", []), dtype=np.int64)]
         n_faces = int(marks["faces"])
-    used = v[np.unique(f)] if len(f) else (v if len(v) else np.zeros((1, 3)))
+    used = v[referenced] if len(v) else np.zeros((1, 3))
     if marks is not None and len(v):
         used = v  # the marked edges index every vertex (the drawing's and the marked ones)
     draw_v, draw_f = _simplify_for_drawing(v, f, max_faces)
