@@ -31,7 +31,9 @@ _SIZE_UNITS = {"": 1, "B": 1, "K": 1 << 10, "M": 1 << 20, "G": 1 << 30, "T": 1 <
 
 
 def parse_size(text: str | float, key: str = "size") -> int:
-    """Bytes of a size such as ``'8G'``, ``'512M'``, ``'1.5GiB'`` or ``4e9`` (powers of 1024).
+    """Bytes of a size such as ``'8G'``, ``'512M'``, ``'1.5GiB'``, ``4e9`` or ``4000000000``.
+
+    Units are powers of 1024; a plain number (a YAML integer or a string of digits) is bytes.
 
     Raises
     ------
@@ -40,13 +42,21 @@ def parse_size(text: str | float, key: str = "size") -> int:
 
     Examples
     --------
-    >>> parse_size("8G"), parse_size("512MiB"), parse_size("1000")
-    (8589934592, 536870912, 1000)
+    >>> parse_size("8G"), parse_size("512MiB"), parse_size("1000"), parse_size(4000000000)
+    (8589934592, 536870912, 1000, 4000000000)
     """
     import re
 
-    if isinstance(text, (int, float)) and not isinstance(text, bool):
-        value, unit = float(text), ""
+    if isinstance(text, bool):
+        raise ConfigError(
+            f"{key}: {text!r} is not a size; write e.g. 8G, 512M or a number of bytes"
+        )
+    if isinstance(text, int):  # exact, however large
+        if not 0 < text < 2**63:
+            raise ConfigError(f"{key}: {text!r} must be a positive size, e.g. 8G")
+        return text
+    if isinstance(text, float):
+        value, unit = text, ""
     else:
         m = re.fullmatch(
             r"\s*([0-9]*\.?[0-9]+(?:[eE][+-]?[0-9]+)?)\s*([kKmMgGtT]?)(?:i?[bB])?\s*", str(text)
@@ -72,10 +82,10 @@ class IOConfig(Schema):
     classes: list[int] = option(
         [], "Keep only the points of these LAS/LAZ classes, e.g. [2, 6]; [] keeps all.", 0, 255
     )
-    max_memory: str | None = option(
+    max_memory: str | int | None = option(
         None,
-        "Refuse fits whose estimated peak memory exceeds this: a string such as '8G', '512M' "
-        "or '1000000000' (a number of bytes, or K/M/G/T, powers of 1024); null = no limit.",
+        "Refuse fits whose estimated peak memory exceeds this: a size such as '8G', '512M' "
+        "or 1000000000 (a number of bytes, or K/M/G/T, powers of 1024); null = no limit.",
     )
 
     def check(self, prefix: str) -> None:
@@ -525,10 +535,10 @@ class TilingConfig(Schema):
         "Tile when one fit would exceed the memory budget (io.max_memory, else "
         "tiling.memory), with the largest tile size whose fit stays within it (--tiles auto).",
     )
-    memory: str = option(
+    memory: str | int = option(
         "2G",
         "Memory budget of one tile's fit with tiling.auto when io.max_memory is unset "
-        "(a size such as '2G').",
+        "(a size such as '2G' or a number of bytes).",
     )
     halo: float = option(
         4.0,

@@ -25,6 +25,7 @@ import dataclasses
 import functools
 import math
 import re
+import types
 from collections.abc import Iterator, Mapping
 from contextvars import ContextVar
 from dataclasses import MISSING, field, fields, is_dataclass
@@ -72,12 +73,19 @@ def option(
     return field(default=default, metadata=meta)
 
 
+#: How a message names a value of each plain type (``expected an integer, got ...``).
+_EXPECTED = {bool: "true or false", int: "an integer", float: "a number", str: "a string"}
+
+
 def _type_name(tp: Any) -> str:
     return getattr(tp, "__name__", str(tp)).replace("NoneType", "null")
 
 
 def coerce(key: str, value: Any, tp: Any) -> Any:
     """Check ``value`` against the annotation ``tp``; return it converted (int -> float ok).
+
+    A union of several types (``str | int | None``) takes the value as the first of them that
+    accepts it.
 
     Raises
     ------
@@ -86,11 +94,17 @@ def coerce(key: str, value: Any, tp: Any) -> Any:
     """
     origin = get_origin(tp)
     args = get_args(tp)
-    if origin is Union or (origin is not None and type(None) in args and len(args) >= 2):
+    if origin is Union or origin is types.UnionType:
         if value is None and type(None) in args:
             return None
         inner = [a for a in args if a is not type(None)]
-        return coerce(key, value, inner[0])
+        if len(inner) == 1:
+            return coerce(key, value, inner[0])
+        for alternative in inner:  # e.g. a size: str | int, the first that takes the value
+            with contextlib.suppress(ConfigError):
+                return coerce(key, value, alternative)
+        expected = " or ".join(_EXPECTED.get(a, _type_name(a)) for a in inner)
+        raise ConfigError(f"{key}: expected {expected}, got {value!r}")
     if value is None:
         raise ConfigError(f"{key}: null is not allowed (expected {_type_name(tp)})")
     if origin is list:

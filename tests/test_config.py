@@ -193,3 +193,49 @@ def test_a_float_key_accepts_exponent_notation_without_a_dot():
     assert cfg.dynamics.kinetic_tolerance == 1e-4
     with pytest.raises(ConfigError, match="expected a number"):
         apply_overrides(ReconConfig(), dict([parse_override("dynamics.dt=fast")]))
+
+
+@pytest.mark.parametrize("key", ["io.max_memory", "tiling.memory"])
+def test_a_size_key_accepts_a_number_of_bytes(tmp_path, key):
+    """Regression: a size given as a YAML number (``max_memory: 4000000000``, as the key's own
+    documentation offers "a number of bytes") was refused with "expected a string"."""
+    section, name = key.split(".")
+    path = tmp_path / "c.yaml"
+    path.write_text(f"{section}:\n  {name}: 4000000000\n")
+    r = run("config", "validate", path)
+    assert r.exit_code == 0, r.output
+    cfg = load_config(path)
+    assert getattr(getattr(cfg, section), name) == 4000000000
+    assert load_config(None, [f"{key}=4000000000"]) == cfg
+    assert load_config(None, [f"{key}=4.0e+9"]) == cfg  # a whole float is a whole number
+    # config show prints it back as a number and reads back to the same configuration
+    r = run("config", "show", "--config", path, "--no-comments")
+    assert r.exit_code == 0, r.output
+    assert yaml.safe_load(r.stdout)[section][name] == 4000000000
+    assert config_from_dict(yaml.safe_load(dump_config(cfg))) == cfg
+    # the string forms still work
+    assert getattr(getattr(load_config(None, [f"{key}=8G"]), section), name) == "8G"
+
+
+@pytest.mark.parametrize(
+    "value,needle",
+    [
+        ("true", "expected a string or an integer, got True"),
+        ("-5", "-5 must be a positive size"),
+        ("0", "0 must be a positive size"),
+        ("1.5", "expected a string or an integer, got 1.5"),
+        ("[1, 2]", "expected a string or an integer, got [1, 2]"),
+        ("lots", "'lots' is not a size"),
+    ],
+)
+@pytest.mark.parametrize("key", ["io.max_memory", "tiling.memory"])
+def test_a_size_key_refuses_what_is_not_a_size(tmp_path, key, value, needle):
+    path = tmp_path / "c.yaml"
+    section, name = key.split(".")
+    path.write_text(f"{section}:\n  {name}: {value}\n")
+    r = run("config", "validate", path)
+    assert r.exit_code == 2
+    assert r.stderr.count("\n") == 1 and "Traceback" not in r.output, r.output
+    assert f"{path}: {key}: {needle}" in r.stderr, r.stderr
+    with pytest.raises(ConfigError, match=f"^{key}: "):
+        load_config(None, [f"{key}={value}"])
