@@ -188,7 +188,8 @@ def format_summary(report: FitReport) -> str:
     "--preview",
     "preview_path",
     type=click.Path(path_type=Path),
-    help="Also render a PNG: the mesh from three sides and the convergence plot.",
+    help="Also render a PNG (the name must end in .png): the mesh from three sides and the "
+    "convergence plot.",
 )
 @click.option(
     "--spacing",
@@ -442,6 +443,10 @@ def command(
         from recon.io import check_points_output
 
         check_points_output(particles_path)
+    if preview_path is not None:
+        from recon.io import check_png_output
+
+        check_png_output(preview_path, "the preview")
     if cfg.tiling.size is not None or cfg.tiling.auto:
         if _fit_tiles(
             input_path,

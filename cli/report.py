@@ -172,7 +172,8 @@ def format_quality(report: dict[str, Any], mesh_name: str, input_name: str | Non
     metavar="OUT.png",
     type=click.Path(path_type=Path),
     help="Also draw the mesh from three sides (boundary edges red, non-manifold magenta), "
-    "plus the convergence plot when the <name>.report.json of `oprecon fit` is beside MESH.",
+    "plus the convergence plot when the <name>.report.json of `oprecon fit` is beside MESH; "
+    "a PNG image, so the name must end in .png.",
 )
 @catch_errors
 def command(mesh_path: Path, input_path: Path | None, as_json: bool, png_path: Path | None) -> None:
@@ -192,13 +193,14 @@ def command(mesh_path: Path, input_path: Path | None, as_json: bool, png_path: P
 
     Exit codes: 0 success, 2 bad input or usage, 130 interrupted.
     """
-    from recon.io import check_output_path, read_points
+    from recon.io import check_output_path, check_png_output, read_points
     from recon.metrics import quality_report
 
     if png_path is not None:
         check_output_path(
             png_path, [p for p in (mesh_path, input_path) if p is not None], mkdir_option=None
         )
+        check_png_output(png_path, "the picture")
     vertices, faces = read_mesh_checked(mesh_path)
     points = None
     if input_path is not None:

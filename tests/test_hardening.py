@@ -576,9 +576,12 @@ def test_particles_or_preview_onto_input_refused(tmp_path):
     src = tmp_path / "scan.ply"
     src.write_bytes(ply_bytes(S))
     before = _sha(src)
-    for opt in ("--particles", "--preview"):
+    for opt, words in (
+        ("--particles", ("refusing to overwrite",)),
+        ("--preview", ("the preview is a PNG image",)),  # refused by its name before the fit
+    ):
         res = _run(["fit", str(src), "-o", str(tmp_path / "m.ply"), opt, str(src), *FAST])
-        _assert_clean_failure(res, 2, [str(src)], ("refusing to overwrite",))
+        _assert_clean_failure(res, 2, [str(src)], words)
     assert sorted(os.listdir(tmp_path)) == ["scan.ply"]
     assert _sha(src) == before
 
@@ -593,6 +596,41 @@ def test_particles_in_another_format_than_ply_are_refused_before_the_fit(tmp_pat
     res = _run(["fit", str(src), "-o", str(tmp_path / "m.ply"), "--particles", str(out), *FAST])
     _assert_clean_failure(res, 2, [name], ("cannot write point clouds", "use .ply"))
     assert sorted(os.listdir(tmp_path)) == ["scan.ply"]
+
+
+@pytest.mark.parametrize("name", ["preview.jpg", "preview.JPEG", "preview.svg", "preview"])
+def test_a_preview_in_another_format_than_png_is_refused_before_the_fit(
+    tmp_path, monkeypatch, name
+):
+    """Regression: ``--preview p.jpg`` wrote PNG bytes under that name, after the whole fit."""
+    import recon.fitting
+
+    def no_fit(*args, **kwargs):
+        raise AssertionError("the fit started")
+
+    monkeypatch.setattr(recon.fitting, "fit_file", no_fit)
+    src = tmp_path / "scan.ply"
+    src.write_bytes(ply_bytes(S))
+    out = tmp_path / name
+    res = _run(["fit", str(src), "-o", str(tmp_path / "m.ply"), "--preview", str(out), *FAST])
+    _assert_clean_failure(res, 2, [name], ("the preview is a PNG image", "use .png"))
+    assert sorted(os.listdir(tmp_path)) == ["scan.ply"]
+
+
+@pytest.mark.parametrize("name", ["m.jpg", "m"])
+def test_a_report_picture_in_another_format_than_png_is_refused(tmp_path, name):
+    """Regression: ``oprecon report MESH --png m.jpg`` wrote PNG bytes under that name."""
+    from recon.io import write_mesh
+
+    mesh = tmp_path / "a.ply"
+    write_mesh(mesh, sphere(40), np.array([[0, 1, 2], [0, 2, 3], [0, 3, 1], [1, 3, 2]]))
+    out = tmp_path / name
+    res = _run(["report", str(mesh), "--png", str(out)])
+    _assert_clean_failure(res, 2, [str(out)], ("the picture is a PNG image", "use .png"))
+    assert sorted(os.listdir(tmp_path)) == ["a.ply"]
+    res = _run(["report", str(mesh), "--png", str(tmp_path / "m.PNG")])  # any case of .png
+    assert res.exit_code == 0, res.output
+    assert (tmp_path / "m.PNG").read_bytes().startswith(b"\x89PNG")
 
 
 def test_report_path_onto_input_refused(tmp_path):

@@ -50,6 +50,7 @@ __all__ = [
     "atomic_output",
     "atomic_outputs",
     "check_output_path",
+    "check_png_output",
     "check_points_output",
     "choose_origin",
     "cloud_from_arrays",
@@ -285,6 +286,17 @@ def check_points_output(path: str | os.PathLike[str]) -> None:
     if p.suffix.lower() != ".ply":
         what = f"'{p.suffix}'" if p.suffix else "a file without an extension"
         raise input_error(p, f"cannot write point clouds as {what}; use .ply")
+
+
+def check_png_output(path: str | os.PathLike[str], what: str = "the picture") -> None:
+    """Raise :class:`~recon.errors.InputError` unless ``path`` ends in ``.png`` (any case): the
+    pictures (``fit --preview``, ``report --png``) are PNG only, and the commands check the
+    name before the work that produces them (PNG bytes named ``.jpg`` mislead every viewer).
+    ``what`` names the picture in the message (``"the preview"``)."""
+    p = Path(path)
+    if p.suffix.lower() != ".png":
+        as_ = f"'{p.suffix}'" if p.suffix else "a file without an extension"
+        raise input_error(p, f"{what} is a PNG image and cannot be written as {as_}; use .png")
 
 
 def write_points(
