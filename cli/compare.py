@@ -280,7 +280,7 @@ def command(
     Exit codes: 0 within tolerance (or no tolerance given), 1 a check failed (the table says
     which, its value, the limit and by how much), 2 bad input or usage, 130 interrupted.
     """
-    from recon.metrics import check_comparison, compare_meshes
+    from recon.metrics import SurfaceError, check_comparison, compare_meshes
 
     ctx = click.get_current_context()
     file_values = load_tolerances(tolerances_path) if tolerances_path is not None else {}
@@ -325,6 +325,11 @@ def command(
             tau_relative=tau_rel,
             seed=pick("seed", seed),
         )
+    except SurfaceError as exc:  # about one of the two: name that file first
+        path = mesh_path if exc.side == "mesh" else reference_path
+        raise InputError(
+            f"{path}: {exc} (comparing {mesh_path} against {reference_path})"
+        ) from None
     except InputError as exc:  # name the files (the library's messages do not know them)
         raise InputError(f"{mesh_path} against {reference_path}: {exc}") from None
     checks = check_comparison(result, **limits)

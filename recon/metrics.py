@@ -62,6 +62,7 @@ from .mesh import face_area_vectors, face_normals
 from .topology import mesh_topology, topology_and_quality, triangle_quality, validate_mesh
 
 __all__ = [
+    "SurfaceError",
     "check_closest_found",
     "check_comparison",
     "compare_meshes",
@@ -72,6 +73,17 @@ __all__ = [
     "sample_surface",
     "triangle_quality",
 ]
+
+
+class SurfaceError(InputError):
+    """An :class:`~recon.errors.InputError` of :func:`compare_meshes` about one of its two
+    surfaces (zero area, an empty or zero-size reference cloud): ``side`` is ``"mesh"`` or
+    ``"reference"``, so a caller that read them from files can name the file."""
+
+    def __init__(self, message: str, side: str) -> None:
+        super().__init__(message)
+        self.side = side
+
 
 #: Topology fields that ``same_topology`` compares.
 TOPOLOGY_KEYS = ("components", "boundary_loops", "genus", "watertight")
@@ -350,7 +362,10 @@ def compare_meshes(
     Raises
     ------
     InputError
-        Malformed inputs, a mesh without faces or area, a non-positive threshold.
+        Malformed inputs, a mesh without faces, a non-positive threshold.
+    SurfaceError
+        One of the two surfaces has no area (or the reference cloud no extent); its ``side``
+        says which.
 
     Examples
     --------
@@ -374,14 +389,20 @@ def compare_meshes(
     seq_mesh, seq_ref = np.random.SeedSequence(int(seed)).spawn(2)
     notes: list[str] = []
 
-    pts_m, nrm_m = sample_surface(v_m, f_m, n_samples, np.random.default_rng(seq_mesh))
+    try:
+        pts_m, nrm_m = sample_surface(v_m, f_m, n_samples, np.random.default_rng(seq_mesh))
+    except InputError as exc:  # zero area
+        raise SurfaceError(str(exc), "mesh") from None
     fn_m = face_normals(v_m, f_m)
 
     if kind == "mesh":
         v_r, f_r = validate_mesh(ref_a, ref_b)
         _require_faces(v_r, f_r, "reference mesh")
         diag = _bbox_diag(v_r[np.unique(f_r)])
-        pts_r, nrm_r = sample_surface(v_r, f_r, n_samples, np.random.default_rng(seq_ref))
+        try:
+            pts_r, nrm_r = sample_surface(v_r, f_r, n_samples, np.random.default_rng(seq_ref))
+        except InputError as exc:  # zero area
+            raise SurfaceError(f"reference {exc}", "reference") from None
         d_mr, face_r = _closest_on_mesh(pts_m, v_r, f_r)
         d_rm, face_m = _closest_on_mesh(pts_r, v_m, f_m)
         dots = np.concatenate(
@@ -396,7 +417,7 @@ def compare_meshes(
 
         pts_r = as_points(ref_a, "reference points", finite=True, error=InputError)
         if len(pts_r) == 0:
-            raise InputError("reference point cloud is empty")
+            raise SurfaceError("reference point cloud is empty", "reference")
         nrm_r = None if ref_b is None else np.asarray(ref_b, dtype=np.float64)
         if nrm_r is not None and nrm_r.shape != pts_r.shape:
             raise InputError(
@@ -435,7 +456,7 @@ def compare_meshes(
         topo_ref = None
 
     if diag <= 0:
-        raise InputError("reference has a zero-size bounding box")
+        raise SurfaceError("reference has a zero-size bounding box", "reference")
     tau_abs = float(tau) if tau is not None else float(tau_relative) * diag
     if not (np.isfinite(tau_abs) and tau_abs > 0):
         raise InputError(f"F-score threshold tau must be > 0, got {tau_abs}")

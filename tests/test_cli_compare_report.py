@@ -186,6 +186,18 @@ def test_compare_bad_inputs_exit_2(files, tmp_path):
     assert run("compare", files["sphere"], files["big"], "--seed", "-1").exit_code == 2
 
 
+@pytest.mark.parametrize("flat_is_reference", [False, True])
+def test_compare_names_the_mesh_that_has_zero_area(files, tmp_path, flat_is_reference):
+    """Regression: a mesh of one degenerate triangle against a sphere said "A against B: mesh
+    has zero surface area", without saying which of the two meshes it was."""
+    flat = tmp_path / "flat.ply"
+    write_mesh(flat, np.array([[0.0, 0, 0], [1, 0, 0], [2, 0, 0]]), np.array([[0, 1, 2]]))
+    pair = (files["sphere"], flat) if flat_is_reference else (flat, files["sphere"])
+    r = run("compare", *pair, *FAST)
+    one_line_error(r, "zero surface area", f"comparing {pair[0]} against {pair[1]}")
+    assert r.stderr.startswith(f"oprecon: error: {flat}: "), r.stderr
+
+
 # ---------------------------------------------------------------------------- report
 
 

@@ -10,6 +10,7 @@ from mesh_shapes import grid, icosphere, tetrahedron
 
 from recon.errors import InputError
 from recon.metrics import (
+    SurfaceError,
     check_comparison,
     compare_meshes,
     fidelity,
@@ -190,6 +191,21 @@ def test_compare_rejects_bad_input():
         compare_meshes((v, f), (v, f), tau=0.0, n_samples=100)
     with pytest.raises(InputError, match="reference must be"):
         compare_meshes((v, f), v)
+
+
+def test_compare_says_which_surface_has_zero_area():
+    """Regression: a zero-area mesh or reference both gave "mesh has zero surface area"."""
+    v, f = tetrahedron()
+    flat = (np.array([[0.0, 0, 0], [1, 0, 0], [2, 0, 0]]), np.array([[0, 1, 2]]))
+    with pytest.raises(SurfaceError, match="^mesh has zero surface area") as err:
+        compare_meshes(flat, (v, f), n_samples=100)
+    assert err.value.side == "mesh"
+    with pytest.raises(SurfaceError, match="^reference mesh has zero surface area") as err:
+        compare_meshes((v, f), flat, n_samples=100)
+    assert err.value.side == "reference"
+    with pytest.raises(SurfaceError, match="zero-size bounding box") as err:
+        compare_meshes((v, f), (np.ones((5, 3)), None), n_samples=100)
+    assert err.value.side == "reference" and isinstance(err.value, InputError)
 
 
 # ---------------------------------------------------------------------------- tolerances
