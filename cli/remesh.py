@@ -82,7 +82,9 @@ def format_summary(report: dict[str, Any]) -> str:
 @click.option(
     "--spacing",
     type=click.FloatRange(min=0, min_open=True),
-    help="Target edge length in input units (default: the input's mean edge length).",
+    help="Target edge length in input units (default: the input's mean edge length, at most "
+    "a tenth of its bounding-box diagonal, so a coarse CAD mesh is not meshed by a handful of "
+    "particles).",
 )
 @click.option(
     "--spacing-relative",

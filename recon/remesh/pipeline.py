@@ -105,6 +105,11 @@ OFF_SURFACE = 0.15
 LINE_GAP = 0.5
 #: Passes of gap closing (a zip can open a new small loop that the next pass closes).
 GAP_PASSES = 3
+#: The default spacing, the input's mean edge length, is at most this fraction of the
+#: bounding-box diagonal: a coarse mesh whose edges are long for its shape (a CAD cube of 12
+#: triangles: mean edge 0.66 x diagonal, about 5 particles) gets ten spacings across its
+#: diagonal instead; a mesh with more than ten mean edges across it keeps its mean edge.
+MAX_DEFAULT_SPACING = 0.1
 #: Refuse a spacing that needs more particles than this (``dynamics.max_particles``'s default).
 MAX_PARTICLES = 2_000_000
 #: Points sampled per mesh for the distance measures.
@@ -114,7 +119,8 @@ DISTANCE_SAMPLES = 100_000
 @dataclass(frozen=True)
 class RemeshOptions:
     """What to make. Give at most one of ``spacing``, ``spacing_relative``, ``faces``; with
-    none the spacing is the mean edge length of the input.
+    none the spacing is the mean edge length of the input, at most
+    :data:`MAX_DEFAULT_SPACING` (a tenth) of its bounding-box diagonal.
 
     Attributes
     ----------
@@ -385,7 +391,7 @@ def _remesh(vertices, faces, opts: RemeshOptions, name: str) -> RemeshResult:
         s0 = math.sqrt(4.0 * area / (math.sqrt(3.0) * opts.faces))
     else:
         e = v_in[f_in] - v_in[np.roll(f_in, -1, axis=1)]
-        s0 = float(np.linalg.norm(e, axis=2).mean())
+        s0 = min(float(np.linalg.norm(e, axis=2).mean()), MAX_DEFAULT_SPACING * diag)
     estimate = area / (CELL_AREA * s0**2)
     if opts.adaptive:
         lo_abs = opts.min_spacing if opts.min_spacing is not None else ADAPTIVE_MIN * s0
