@@ -41,6 +41,15 @@ NEAR_DATA = 0.5
 #: (within ``max_gap``, in its tangent plane) is below this [deg]: growth fills holes but never
 #: extends an open boundary (a point past a boundary sees a gap of 180 deg or more).
 SUPPORT_ANGLE_DEG = 150.0
+#: The fold rule (:func:`past_a_fold`): the other face of a thin part counts as converging
+#: on a data point when it has a point within the point's sampling spacing, its distance to
+#: its ``FOLD_NEIGHBOUR``-th nearest data point (the k of the fit's local density,
+#: ``recon.fitting.pipeline.DENSITY_NEIGHBOURS``).
+FOLD_NEIGHBOUR = 6
+#: ... and a candidate lies past that rim when the data within this many sampling spacings
+#: lies on one side of it (95 % of a uniformly sampled surface lies within 2.1 spacings of a
+#: sample: ``recon.fitting.report.SAMPLING_REACH``).
+FOLD_REACH = 2.1
 #: The stretching rule pairs only particles whose normals agree: n_i . n_j above this
 #: (cos 60 deg), so that two sides of a thin part are never bridged.
 STRETCH_NORMAL_AGREEMENT = 0.5
@@ -173,7 +182,11 @@ def accept_candidates(
     * it is not within ``near_data`` of the data and the data does not surround it in its
       tangent plane within ``max_gap`` (largest angular gap of the surrounding data >=
       ``SUPPORT_ANGLE_DEG`` = 150°):
-      growth fills holes but never extends an open boundary.
+      growth fills holes but never extends an open boundary;
+    * it is not within ``near_data`` of the data and lies past the rim of a thin part
+      (:func:`past_a_fold`; only with ``normals``): the gap beside a thin part's rim is not
+      a hole of the surface, even where other data surrounds it within ``max_gap`` (the
+      notch between two ears).
 
     Survivors are projected onto the local data plane and thinned to ``reject_radius`` among
     themselves (first come, first served, in candidate order: deterministic).
@@ -198,6 +211,7 @@ def accept_candidates(
     supported = d_data <= 0.5 * cfg.max_gap
     n_unsup = int((~supported).sum())
     c, d_data, radius = c[supported], d_data[supported], radius[supported]
+    nearest = nearest[supported]
     cn = None if cn is None else cn[supported]
     _, pn, off = surface.project(c, cn)
     on_plane = np.abs(off) < cfg.tangent_tolerance
@@ -205,9 +219,17 @@ def accept_candidates(
         on_plane &= np.einsum("ij,ij->i", pn, cn) > 0.0
     n_off = int((~on_plane).sum())
     c, pn, off, d_data = c[on_plane], pn[on_plane], off[on_plane], d_data[on_plane]
-    radius = radius[on_plane]
+    radius, nearest = radius[on_plane], nearest[on_plane]
+    cn = None if cn is None else cn[on_plane]
     c = c - off[:, None] * pn
     far = d_data > near_data
+    if far.any() and cn is not None:
+        f = np.flatnonzero(far)
+        fold = past_a_fold(c[f], pn[f], cn[f], nearest[f], surface)
+        n_unsup += int(fold.sum())
+        keep = np.ones(len(c), dtype=bool)
+        keep[f[fold]] = False
+        c, pn, radius, far = c[keep], pn[keep], radius[keep], far[keep]
     if far.any():
         gap = max_angular_gap(c[far], pn[far], seed_tree, seed_points, cfg.max_gap)
         inside = gap < np.deg2rad(SUPPORT_ANGLE_DEG)
@@ -226,3 +248,59 @@ def accept_candidates(
         n_close += int((~mutual).sum())
         c, pn = c[mutual], pn[mutual]
     return Acceptance(np.ascontiguousarray(c), np.ascontiguousarray(pn), m, n_close, n_unsup, n_off)
+
+
+def past_a_fold(
+    candidates: np.ndarray,
+    plane_normals: np.ndarray,
+    sheet_normals: np.ndarray,
+    nearest: np.ndarray,
+    surface: DataSurface,
+) -> np.ndarray:
+    """The fold rule: whether each candidate off the data would extend a thin part past its
+    rim (bool (m,)).
+
+    Where the two faces of a thin part (an ear, a blade) meet at its rim, the data wraps
+    round: the nearest data point to a candidate past the rim has, within its own sampling
+    spacing (the distance to its ``FOLD_NEIGHBOUR``-th nearest data point), a point of the
+    other face, whose normal opposes the candidate's sheet. A hole of a sheet has no such
+    point at its rim. The candidate lies past the rim when, besides, the data within
+    ``FOLD_REACH`` sampling spacings of it lies on one side of it in its tangent plane (an
+    angular gap of pi or more): candidates between the samples of the thin part's faces
+    keep data all round.
+
+    Parameters
+    ----------
+    candidates : (m, 3) float64 [r0]
+        Candidate positions, on the local data surface.
+    plane_normals : (m, 3) float64
+        The data surface's normal at each candidate (its tangent plane).
+    sheet_normals : (m, 3) float64
+        The normal of the sheet each candidate grows on (its parent's).
+    nearest : (m,) int
+        Each candidate's nearest data point.
+    surface : DataSurface
+        The data (normals consistently oriented).
+    """
+    m = len(candidates)
+    if m == 0:
+        return np.zeros(0, dtype=bool)
+    pts = surface.points
+    k = FOLD_NEIGHBOUR + 1  # the point itself and its FOLD_NEIGHBOUR nearest
+    table = surface.walk_neighbors
+    if table is not None and table.shape[1] >= k:
+        rows = table[nearest, :k]
+    else:
+        rows = surface.tree.query(pts[nearest], k=min(k, len(pts)), workers=query_workers())[1]
+        rows = np.reshape(rows, (m, -1))
+    dist = np.linalg.norm(pts[rows] - pts[nearest][:, None, :], axis=2)
+    spacing = dist.max(axis=1) if rows.shape[1] < k else dist[:, FOLD_NEIGHBOUR]
+    opposed = np.einsum("mkj,mj->mk", surface.normals[rows], sheet_normals) < 0.0
+    fold = (opposed & (dist <= spacing[:, None])).any(axis=1)
+    if fold.any():
+        f = np.flatnonzero(fold)
+        gap = max_angular_gap(
+            candidates[f], plane_normals[f], surface.tree, pts, FOLD_REACH * spacing[f]
+        )
+        fold[f[gap < np.pi]] = False
+    return fold

@@ -337,14 +337,15 @@ def max_angular_gap(
     normals: np.ndarray,
     tree: cKDTree,
     tree_points: np.ndarray,
-    radius: float,
+    radius: float | np.ndarray,
     k: int = 48,
 ) -> np.ndarray:
     """Largest angle [rad] between successive directions to nearby points, in the tangent plane.
 
     A point strictly inside the data (or inside a hole of the data) sees data all around it:
     its largest gap is below pi. A point past an open boundary sees data on one side only:
-    a gap of pi or more. Points up to ``radius`` away (at most ``k`` of them) count.
+    a gap of pi or more. Points up to ``radius`` away (at most ``k`` of them) count;
+    ``radius`` is one distance for every centre or one per centre.
     """
     if len(centers) == 0:
         return np.zeros(0)
@@ -355,18 +356,23 @@ def max_angular_gap(
                 normals[i : i + _GAP_CHUNK],
                 tree,
                 tree_points,
-                radius,
+                radius if np.ndim(radius) == 0 else radius[i : i + _GAP_CHUNK],
                 k,
             )
             for i in range(0, len(centers), _GAP_CHUNK)
         ]
         return np.concatenate(parts)
     k = int(min(k, len(tree_points)))
-    dist, idx = tree.query(centers, k=k, distance_upper_bound=radius, workers=query_workers())
+    bound = float(np.max(radius))
+    dist, idx = tree.query(centers, k=k, distance_upper_bound=bound, workers=query_workers())
     dist = dist.reshape(len(centers), k)
     idx = idx.reshape(len(centers), k)
     # the query returns each row sorted by distance: the points within ``radius`` come first
-    count = np.isfinite(dist).sum(axis=1).astype(np.int64)
+    if np.ndim(radius) == 0:
+        count = np.isfinite(dist).sum(axis=1).astype(np.int64)
+    else:
+        count = (dist < np.asarray(radius, dtype=np.float64)[:, None]).sum(axis=1)
+        count = count.astype(np.int64)
     return max_angular_gap_kernel(
         np.ascontiguousarray(centers),
         np.ascontiguousarray(normals),

@@ -3,7 +3,12 @@ import pytest
 from scipy.spatial import cKDTree
 
 from recon.config import GrowthConfig
-from recon.growth import accept_candidates, grow_candidates, stretch_candidates
+from recon.growth import (
+    accept_candidates,
+    grow_candidates,
+    past_a_fold,
+    stretch_candidates,
+)
 from recon.neighbors import build_neighbor_list
 from recon.surface import DataSurface
 
@@ -164,3 +169,74 @@ def test_candidates_carry_their_parent_normals():
     assert len(mid) == 1 and np.allclose(
         mid_n[0], (both[0] + both[1]) / np.linalg.norm(both[0] + both[1])
     )
+
+
+def _two_ears(thickness=0.3, spacing=0.5, notch=1.5):
+    """Two thin plates side by side in the plane z = 0 (x < -notch and x > notch), joined
+    below y = -3 (a U-shaped notch 2 ``notch`` wide between them), each sampled on both
+    faces: the top face at z = +thickness / 2 with normal +z, the bottom face at
+    -thickness / 2 with normal -z (the faces meet at the rims, as an ear's do)."""
+    g = np.arange(-6.0, 6.0 + 1e-9, spacing)
+    xy = np.stack(np.meshgrid(g, g), -1).reshape(-1, 2)
+    xy = xy[(np.abs(xy[:, 0]) >= notch) | (xy[:, 1] <= -3.0)]
+    pts = np.vstack(
+        [
+            np.column_stack([xy, np.full(len(xy), 0.5 * thickness)]),
+            np.column_stack([xy, np.full(len(xy), -0.5 * thickness)]),
+        ]
+    )
+    nrm = np.vstack([np.tile([0.0, 0, 1], (len(xy), 1)), np.tile([0.0, 0, -1], (len(xy), 1))])
+    return DataSurface.build(pts, nrm, k=12)
+
+
+def test_the_notch_beside_a_thin_parts_rim_is_not_a_hole():
+    """Regression (held-out eared shape, 3,000 points, seeds 2 and 3): the top face of an ear
+    grew into the notch between the ears, which the data surrounds within ``max_gap`` (ear,
+    head, ear), and the mesh kept a web there with holes, back faces and 5-6 handles."""
+    s = _two_ears()
+    up = np.array([[0.0, 0, 1]])
+    cand = np.array([[0.0, 0.0, 0.15]])  # mid-notch, 1.5 from either rim (3 < max_gap 4)
+    far = np.array([[5.0, 5.0, 0.0]])
+    # the data surrounds it: without its sheet's normal (no fold rule) it is taken
+    assert len(_accept(s, cand, far).positions) == 1
+    acc = accept_candidates(cand, cKDTree(far), s, cKDTree(s.points), s.points, GAP4, normals=up)
+    assert len(acc.positions) == 0 and acc.n_unsupported == 1
+
+
+def test_a_hole_in_a_sheet_is_still_filled_with_the_fold_rule():
+    """The fold rule asks for the other face at the rim: a hole in a single sheet has none."""
+    s = _plane_with_hole(1.5)
+    far = np.array([[5.0, 5.0, 0.0]])
+    acc = accept_candidates(
+        np.array([[0.0, 0.0, 0.3]]),
+        cKDTree(far),
+        s,
+        cKDTree(s.points),
+        s.points,
+        GAP4,
+        normals=np.array([[0.0, 0, 1]]),
+    )
+    assert len(acc.positions) == 1
+
+
+def test_past_a_fold_needs_the_opposed_face_and_data_on_one_side():
+    s = _two_ears()
+    up = np.array([[0.0, 0, 1]] * 3)
+    cands = np.array(
+        [
+            [0.8, 0.0, 0.15],  # 0.7 past the right ear's inner rim
+            [3.0, 0.0, 0.15],  # on the ear's top face
+            [0.8, 0.0, 0.15],  # the same as the first, on a sheet facing down
+        ]
+    )
+    sheet = np.array([[0.0, 0, 1], [0.0, 0, 1], [0.0, 0, -1]])
+    nearest = s.tree.query(cands)[1]
+    fold = past_a_fold(cands, up, sheet, nearest, s)
+    # the first: the rim's bottom face opposes its sheet and the data lies on one side; the
+    # second is among the face's samples; the third's own sheet faces down, where the
+    # rim's top face opposes it
+    assert fold.tolist() == [True, False, True]
+    # a single sheet's open edge is no fold (the support test, not this rule, judges it)
+    plane = _plane_with_hole(0.0)
+    edge = np.array([[8.7, 0.0, 0.0]])
+    assert not past_a_fold(edge, up[:1], up[:1], plane.tree.query(edge)[1], plane)[0]

@@ -41,6 +41,11 @@ def test_angular_gap_inside_vs_past_the_boundary():
     gap = max_angular_gap(centers, up, tree, pts, radius=5.0)
     assert gap[0] < np.deg2rad(90)
     assert gap[1] >= np.pi
+    # one radius per centre: the hole's centre sees no data within 2 (a full turn's gap)
+    # and the rim all round within 5; the same as one radius for each
+    each = max_angular_gap(centers[[0, 0]], up, tree, pts, radius=np.array([2.0, 5.0]))
+    assert each[0] == pytest.approx(2 * np.pi) and each[1] == pytest.approx(gap[0])
+    assert each[0] == pytest.approx(max_angular_gap(centers[:1], up[:1], tree, pts, 2.0)[0])
 
 
 def _thin_slab(thickness=1.0, spacing=0.5, half=6.0):
