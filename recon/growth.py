@@ -50,6 +50,8 @@ FOLD_NEIGHBOUR = 6
 #: lies on one side of it (95 % of a uniformly sampled surface lies within 2.1 spacings of a
 #: sample: ``recon.fitting.report.SAMPLING_REACH``).
 FOLD_REACH = 2.1
+#: Candidates per block of the fold rule's neighbour gathers.
+FOLD_BLOCK = 65_536
 #: The stretching rule pairs only particles whose normals agree: n_i . n_j above this
 #: (cos 60 deg), so that two sides of a thin part are never bridged.
 STRETCH_NORMAL_AGREEMENT = 0.5
@@ -283,20 +285,24 @@ def past_a_fold(
         The data (normals consistently oriented).
     """
     m = len(candidates)
-    if m == 0:
-        return np.zeros(0, dtype=bool)
+    fold = np.zeros(m, dtype=bool)
+    spacing = np.zeros(m)
     pts = surface.points
     k = FOLD_NEIGHBOUR + 1  # the point itself and its FOLD_NEIGHBOUR nearest
     table = surface.walk_neighbors
-    if table is not None and table.shape[1] >= k:
-        rows = table[nearest, :k]
-    else:
-        rows = surface.tree.query(pts[nearest], k=min(k, len(pts)), workers=query_workers())[1]
-        rows = np.reshape(rows, (m, -1))
-    dist = np.linalg.norm(pts[rows] - pts[nearest][:, None, :], axis=2)
-    spacing = dist.max(axis=1) if rows.shape[1] < k else dist[:, FOLD_NEIGHBOUR]
-    opposed = np.einsum("mkj,mj->mk", surface.normals[rows], sheet_normals) < 0.0
-    fold = (opposed & (dist <= spacing[:, None])).any(axis=1)
+    for lo in range(0, m, FOLD_BLOCK):  # bounded temporaries: about 0.5 kB per candidate
+        hi = min(lo + FOLD_BLOCK, m)
+        near = nearest[lo:hi]
+        if table is not None and table.shape[1] >= k:
+            rows = table[near, :k]
+        else:
+            rows = surface.tree.query(pts[near], k=min(k, len(pts)), workers=query_workers())[1]
+            rows = np.reshape(rows, (hi - lo, -1))
+        dist = np.linalg.norm(pts[rows] - pts[near][:, None, :], axis=2)
+        own = dist.max(axis=1) if rows.shape[1] < k else dist[:, FOLD_NEIGHBOUR]
+        opposed = np.einsum("mkj,mj->mk", surface.normals[rows], sheet_normals[lo:hi]) < 0.0
+        fold[lo:hi] = (opposed & (dist <= own[:, None])).any(axis=1)
+        spacing[lo:hi] = own
     if fold.any():
         f = np.flatnonzero(fold)
         gap = max_angular_gap(

@@ -2,6 +2,7 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
+import recon.growth as growth
 from recon.config import GrowthConfig
 from recon.growth import (
     accept_candidates,
@@ -219,7 +220,7 @@ def test_a_hole_in_a_sheet_is_still_filled_with_the_fold_rule():
     assert len(acc.positions) == 1
 
 
-def test_past_a_fold_needs_the_opposed_face_and_data_on_one_side():
+def test_past_a_fold_needs_the_opposed_face_and_data_on_one_side(monkeypatch):
     s = _two_ears()
     up = np.array([[0.0, 0, 1]] * 3)
     cands = np.array(
@@ -236,6 +237,8 @@ def test_past_a_fold_needs_the_opposed_face_and_data_on_one_side():
     # second is among the face's samples; the third's own sheet faces down, where the
     # rim's top face opposes it
     assert fold.tolist() == [True, False, True]
+    monkeypatch.setattr(growth, "FOLD_BLOCK", 2)  # in blocks: the same answer
+    assert past_a_fold(cands, up, sheet, nearest, s).tolist() == [True, False, True]
     # a single sheet's open edge is no fold (the support test, not this rule, judges it)
     plane = _plane_with_hole(0.0)
     edge = np.array([[8.7, 0.0, 0.0]])
