@@ -47,8 +47,10 @@ SUPPORT_ANGLE_DEG = 150.0
 #: ``recon.fitting.pipeline.DENSITY_NEIGHBOURS``).
 FOLD_NEIGHBOUR = 6
 #: ... and a candidate lies past that rim when the data within this many sampling spacings
-#: lies on one side of it (95 % of a uniformly sampled surface lies within 2.1 spacings of a
-#: sample: ``recon.fitting.report.SAMPLING_REACH``).
+#: (6th-neighbour distances, about 2.9 nearest-neighbour spacings each on a uniform random
+#: sample: the reach is about 6 of those, past the rim's own neighbourhood) lies on one side
+#: of it. Measured on the held-out eared shape at 3,000 points (docs/topology-history.md,
+#: "The fold rule"); not tuned further.
 FOLD_REACH = 2.1
 #: Candidates per block of the fold rule's neighbour gathers.
 FOLD_BLOCK = 65_536
@@ -268,8 +270,13 @@ def past_a_fold(
     other face, whose normal opposes the candidate's sheet. A hole of a sheet has no such
     point at its rim. The candidate lies past the rim when, besides, the data within
     ``FOLD_REACH`` sampling spacings of it lies on one side of it in its tangent plane (an
-    angular gap of pi or more): candidates between the samples of the thin part's faces
-    keep data all round.
+    angular gap of pi or more; fewer than three points within that reach count as one side):
+    candidates between the samples of the thin part's faces keep data all round.
+
+    A hole *through* a thin part (a washer's) has the same rim, where the data wraps round:
+    it is an opening of the shape, not missing data, and growth does not cover it either. A
+    notch narrower than the reach is still taken for a hole (the data then lies on both
+    sides of the candidate).
 
     Parameters
     ----------

@@ -202,6 +202,27 @@ def test_the_notch_beside_a_thin_parts_rim_is_not_a_hole():
     assert len(_accept(s, cand, far).positions) == 1
     acc = accept_candidates(cand, cKDTree(far), s, cKDTree(s.points), s.points, GAP4, normals=up)
     assert len(acc.positions) == 0 and acc.n_unsupported == 1
+    # a notch narrower than the rule's reach keeps data on both sides: still taken for a hole
+    s = _two_ears(notch=0.75)
+    acc = accept_candidates(cand, cKDTree(far), s, cKDTree(s.points), s.points, GAP4, normals=up)
+    assert len(acc.positions) == 1
+
+
+def test_an_opening_through_a_thin_part_is_not_grown_over():
+    """A hole through a thin plate (a washer's) has the notch's rim: the data wraps round it.
+    It is an opening of the shape, not missing data."""
+    g = np.arange(-6.0, 6.0 + 1e-9, 0.5)
+    xy = np.stack(np.meshgrid(g, g), -1).reshape(-1, 2)
+    xy = xy[np.linalg.norm(xy, axis=1) >= 1.5]
+    pts = np.vstack([np.column_stack([xy, np.full(len(xy), z)]) for z in (0.15, -0.15)])
+    nrm = np.vstack([np.tile([0.0, 0, z], (len(xy), 1)) for z in (1.0, -1.0)])
+    s = DataSurface.build(pts, nrm, k=12)
+    cand, far = np.array([[0.0, 0.0, 0.15]]), np.array([[5.0, 5.0, 0.0]])
+    assert len(_accept(s, cand, far).positions) == 1  # within max_gap 4: a hole, without it
+    acc = accept_candidates(
+        cand, cKDTree(far), s, cKDTree(s.points), s.points, GAP4, normals=np.array([[0.0, 0, 1]])
+    )
+    assert len(acc.positions) == 0
 
 
 def test_a_hole_in_a_sheet_is_still_filled_with_the_fold_rule():
