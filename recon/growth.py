@@ -46,6 +46,10 @@ SUPPORT_ANGLE_DEG = 150.0
 #: its ``FOLD_NEIGHBOUR``-th nearest data point (the k of the fit's local density,
 #: ``recon.fitting.pipeline.DENSITY_NEIGHBOURS``).
 FOLD_NEIGHBOUR = 6
+#: ... the other face's normal opposes the candidate's sheet: their dot product is below this
+#: (more than 120 deg apart: the faces of a thin part are nearly antiparallel at its rim,
+#: while the two sides of a concave junction, a leg on a body, meet at about 90 deg).
+FOLD_OPPOSED = -0.5
 #: ... and a candidate lies past that rim when the data within this many sampling spacings
 #: (6th-neighbour distances, about 2.9 nearest-neighbour spacings each on a uniform random
 #: sample: the reach is about 6 of those, past the rim's own neighbourhood) lies on one side
@@ -307,7 +311,9 @@ def past_a_fold(
             rows = np.reshape(rows, (hi - lo, -1))
         dist = np.linalg.norm(pts[rows] - pts[near][:, None, :], axis=2)
         own = dist.max(axis=1) if rows.shape[1] < k else dist[:, FOLD_NEIGHBOUR]
-        opposed = np.einsum("mkj,mj->mk", surface.normals[rows], sheet_normals[lo:hi]) < 0.0
+        opposed = (
+            np.einsum("mkj,mj->mk", surface.normals[rows], sheet_normals[lo:hi]) < FOLD_OPPOSED
+        )
         fold[lo:hi] = (opposed & (dist <= own[:, None])).any(axis=1)
         spacing[lo:hi] = own
     if fold.any():

@@ -264,3 +264,31 @@ def test_past_a_fold_needs_the_opposed_face_and_data_on_one_side(monkeypatch):
     plane = _plane_with_hole(0.0)
     edge = np.array([[8.7, 0.0, 0.0]])
     assert not past_a_fold(edge, up[:1], up[:1], plane.tree.query(edge)[1], plane)[0]
+
+
+def _folded_sheet(turn_deg, spacing=0.5, half=6.0):
+    """The sheet z = 0, x <= 0 (normal +z) and a second sheet leaving its edge (the y axis)
+    turned by ``turn_deg``: along (cos t, 0, -sin t), normal (sin t, 0, cos t), so the two
+    normals are ``turn_deg`` apart (0: one plane; near 180: the two faces of a knife)."""
+    t = np.radians(turn_deg)
+    g = np.arange(-half, half + 1e-9, spacing)
+    steps = np.arange(spacing, half + 1e-9, spacing)
+    a = np.stack(np.meshgrid(-steps[::-1], g), -1).reshape(-1, 2)
+    a = np.vstack([a, np.column_stack([np.zeros(len(g)), g])])  # the edge belongs to it
+    s, y = (m.ravel() for m in np.meshgrid(steps, g))
+    b = np.column_stack([s * np.cos(t), y, -s * np.sin(t)])
+    pts = np.vstack([np.column_stack([a, np.zeros(len(a))]), b])
+    nrm = np.vstack(
+        [np.tile([0.0, 0, 1], (len(a), 1)), np.tile([np.sin(t), 0, np.cos(t)], (len(b), 1))]
+    )
+    return DataSurface.build(pts, nrm, k=12)
+
+
+@pytest.mark.parametrize(("turn_deg", "fold"), [(100.0, False), (150.0, True)])
+def test_a_fold_is_a_turn_of_more_than_120_degrees(turn_deg, fold):
+    """Past the edge of a sheet whose data turns back under it: a turn of 150 deg is the rim
+    of a thin part; one of 100 deg (a box's edge, a leg's junction with a body, where noisy
+    normals stray past 90 deg) is not, though some of its normals oppose the sheet's."""
+    s = _folded_sheet(turn_deg)
+    cand, up = np.array([[0.7, 0.0, 0.0]]), np.array([[0.0, 0, 1]])
+    assert past_a_fold(cand, up, up, s.tree.query(cand)[1], s)[0] == fold
