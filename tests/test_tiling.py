@@ -609,10 +609,7 @@ def test_tiles_cover_a_holes_inside_as_the_untiled_fit_does(tmp_path):
     then), and a 12-edge hole on a roof of the 10M bench scene, inside tile 78, was the tile's
     alone. With the growth's active set that seed keeps a loop at the ear's tip whatever the
     reach, and the tiles run in worker processes where the reach cannot be patched, so the
-    reach each tile reports is what shows the rule at work. The holes' insides are what the
-    rule governs: since the fold rule (seventeenth round) this seed's tiles close every hole
-    but keep a handle at the seam across the ear's base, which a tiled fit does not cut
-    (README, "Where it stops": tiled fits)."""
+    reach each tile reports is what shows the rule at work."""
     from test_sparse_holes import EARED, union_points
 
     from recon.fitting.pipeline import HOLE_COVER_DISTANCE
@@ -633,7 +630,7 @@ def test_tiles_cover_a_holes_inside_as_the_untiled_fit_does(tmp_path):
     v, f = read_mesh(tmp_path / "tiled.ply")
     topo = mesh_topology(v, f)
     assert whole.report.topology.boundary_loops == 0
-    assert topo["boundary_loops"] == 0 and topo["watertight"], topo
+    assert topo["boundary_loops"] == 0 and topo["watertight"] and topo["genus"] == 0, topo
 
 
 def test_a_tile_with_a_small_handle_keeps_its_vertices(tmp_path):
