@@ -586,23 +586,25 @@ def test_particles_or_preview_onto_input_refused(tmp_path):
     assert _sha(src) == before
 
 
-@pytest.mark.parametrize("name", ["particles.xyz", "particles.obj", "particles"])
-def test_particles_in_another_format_than_ply_are_refused_before_the_fit(tmp_path, name):
-    """Regression: ``--particles p.xyz`` (and ``normals -o n.xyz``) wrote binary PLY under
-    that name, which no reader of the extension could read."""
-    src = tmp_path / "scan.ply"
-    src.write_bytes(ply_bytes(S))
-    out = tmp_path / name
-    res = _run(["fit", str(src), "-o", str(tmp_path / "m.ply"), "--particles", str(out), *FAST])
-    _assert_clean_failure(res, 2, [name], ("cannot write point clouds", "use .ply"))
-    assert sorted(os.listdir(tmp_path)) == ["scan.ply"]
-
-
-@pytest.mark.parametrize("name", ["preview.jpg", "preview.JPEG", "preview.svg", "preview"])
-def test_a_preview_in_another_format_than_png_is_refused_before_the_fit(
-    tmp_path, monkeypatch, name
+@pytest.mark.parametrize(
+    ("option", "name", "words"),
+    [
+        *(
+            ("--particles", n, ("cannot write point clouds", "use .ply"))
+            for n in ("particles.xyz", "particles.obj", "particles")
+        ),
+        *(
+            ("--preview", n, ("the preview is a PNG image", "use .png"))
+            for n in ("preview.jpg", "preview.JPEG", "preview.svg", "preview")
+        ),
+    ],
+)
+def test_an_output_in_another_format_is_refused_before_the_fit(
+    tmp_path, monkeypatch, option, name, words
 ):
-    """Regression: ``--preview p.jpg`` wrote PNG bytes under that name, after the whole fit."""
+    """Regression: ``--particles p.xyz`` (and ``normals -o n.xyz``) wrote binary PLY under
+    that name, which no reader of the extension could read; ``--preview p.jpg`` wrote PNG
+    bytes under that name, after the whole fit."""
     import recon.fitting
 
     def no_fit(*args, **kwargs):
@@ -612,8 +614,8 @@ def test_a_preview_in_another_format_than_png_is_refused_before_the_fit(
     src = tmp_path / "scan.ply"
     src.write_bytes(ply_bytes(S))
     out = tmp_path / name
-    res = _run(["fit", str(src), "-o", str(tmp_path / "m.ply"), "--preview", str(out), *FAST])
-    _assert_clean_failure(res, 2, [name], ("the preview is a PNG image", "use .png"))
+    res = _run(["fit", str(src), "-o", str(tmp_path / "m.ply"), option, str(out), *FAST])
+    _assert_clean_failure(res, 2, [name], words)
     assert sorted(os.listdir(tmp_path)) == ["scan.ply"]
 
 
