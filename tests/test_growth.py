@@ -285,10 +285,11 @@ def _folded_sheet(turn_deg, spacing=0.5, half=6.0):
 
 
 @pytest.mark.parametrize(("turn_deg", "fold"), [(100.0, False), (150.0, True)])
-def test_a_fold_is_a_turn_of_more_than_120_degrees(turn_deg, fold):
+def test_a_fold_is_a_turn_well_past_a_right_angle(turn_deg, fold):
     """Past the edge of a sheet whose data turns back under it: a turn of 150 deg is the rim
     of a thin part; one of 100 deg (a box's edge, a leg's junction with a body, where noisy
-    normals stray past 90 deg) is not, though some of its normals oppose the sheet's."""
+    normals stray past 90 deg) is not, though its normals oppose the sheet's (dot -0.17;
+    the rule asks for less than ``FOLD_OPPOSED`` = -0.25, about 105 deg)."""
     s = _folded_sheet(turn_deg)
     cand, up = np.array([[0.7, 0.0, 0.0]]), np.array([[0.0, 0, 1]])
     assert past_a_fold(cand, up, up, s.tree.query(cand)[1], s)[0] == fold
