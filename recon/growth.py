@@ -50,8 +50,9 @@ FOLD_NEIGHBOUR = 6
 #: (more than about 105 deg apart: the faces of a thin part turn by nearly 180 deg at its rim,
 #: while the two sides of a concave junction, a leg on a body, meet at about 90 deg and noisy
 #: normals stray a little past it). Measured on the held-out shapes: -0.5 (120 deg) missed
-#: rims where estimated normals blend both faces (eared, 5,000 points, seed 12: an ear wound
-#: inward), 0 took a leg's junction for a fold (legs, noise 0.1 %, seed 0: a loop there).
+#: rims where estimated normals blend both faces (eared, 5,000 points, seed 12: a part wound
+#: inward, 4.5 % of the area), 0 took a leg's junction for a fold (legs, noise 0.1 %, seed 0:
+#: a loop there).
 FOLD_OPPOSED = -0.25
 #: ... and a candidate lies past that rim when the data within this many sampling spacings
 #: (6th-neighbour distances, about 2.9 nearest-neighbour spacings each on a uniform random
