@@ -349,6 +349,7 @@ def max_angular_gap(
     """
     if len(centers) == 0:
         return np.zeros(0)
+    radius = np.broadcast_to(np.asarray(radius, dtype=np.float64), (len(centers),))
     if len(centers) > _GAP_CHUNK:  # bound the (m, k) temporaries: ~0.8 kB per centre
         parts = [
             max_angular_gap(
@@ -356,7 +357,7 @@ def max_angular_gap(
                 normals[i : i + _GAP_CHUNK],
                 tree,
                 tree_points,
-                radius if np.ndim(radius) == 0 else radius[i : i + _GAP_CHUNK],
+                radius[i : i + _GAP_CHUNK],
                 k,
             )
             for i in range(0, len(centers), _GAP_CHUNK)
@@ -367,12 +368,9 @@ def max_angular_gap(
     dist, idx = tree.query(centers, k=k, distance_upper_bound=bound, workers=query_workers())
     dist = dist.reshape(len(centers), k)
     idx = idx.reshape(len(centers), k)
-    # the query returns each row sorted by distance: the points within ``radius`` come first
-    if np.ndim(radius) == 0:
-        count = np.isfinite(dist).sum(axis=1).astype(np.int64)
-    else:
-        count = (dist < np.asarray(radius, dtype=np.float64)[:, None]).sum(axis=1)
-        count = count.astype(np.int64)
+    # each row sorted by distance: its points within its radius come first (the bound is
+    # strict, inf past it, so with one radius for all this counts the finite distances)
+    count = (dist < radius[:, None]).sum(axis=1).astype(np.int64)
     return max_angular_gap_kernel(
         np.ascontiguousarray(centers),
         np.ascontiguousarray(normals),
