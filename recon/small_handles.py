@@ -225,10 +225,13 @@ def _cut_one(
     reach: float,
     counts: tuple[int, int, int],
     tunnel_perimeter: float | None = None,
-) -> tuple[np.ndarray, tuple[int, int, int]] | None:
-    """``faces`` with one small handle cut out and its hole zipped, and its
-    :func:`recon.mesh.handle_count`; None when no small handle can be cut cleanly (one rim,
-    fewer handles, no new crossing). ``counts``: ``handle_count`` of ``faces``.
+    editable: np.ndarray | None = None,
+) -> tuple[np.ndarray, tuple[int, int, int], np.ndarray | None] | None:
+    """``faces`` with one small handle cut out and its hole zipped, its
+    :func:`recon.mesh.handle_count`, and which of its faces are ``editable`` (the patch's
+    are); None when no small handle can be cut cleanly (one rim, fewer handles, no new
+    crossing) within the ``editable`` faces (all when None). ``counts``: ``handle_count`` of
+    ``faces``.
 
     With ``tunnel_perimeter``, a handle too large for the ball may still be cut at a thin
     stalk (:func:`_cut_stalk`)."""
@@ -237,18 +240,33 @@ def _cut_one(
     for s in hits[np.argsort(sizes, kind="stable")][:MAX_TRIES]:
         for fraction in RADIUS_LADDER:
             h, inside, _ = _ball_faces(t, int(s), fraction * reach)
-            if h <= 0:
+            if h <= 0 or not _all_editable(inside, editable):
                 continue
             kept, loops = _rim_loops(faces, inside)
             if len(loops) != 1:
                 continue  # no simple rim (it touches itself) or more than one: a wider ball
             done = _zipped(vertices, kept, loops, counts)
             if done is not None:
-                return done
+                return (*done, _editable_after(editable, inside, done[0]))
     if tunnel_perimeter is None or len(rings) == 0:
         return None
     return _cut_stalk(vertices, faces, t, rings[np.argsort(ring_sizes, kind="stable")],
-                      reach, counts, tunnel_perimeter)  # fmt: skip
+                      reach, counts, tunnel_perimeter, editable)  # fmt: skip
+
+
+def _all_editable(inside: np.ndarray, editable: np.ndarray | None) -> bool:
+    """Whether every face of a ball (face mask ``inside``) may be removed."""
+    return editable is None or not bool(np.any(inside & ~editable))
+
+
+def _editable_after(
+    editable: np.ndarray | None, inside: np.ndarray, trial: np.ndarray
+) -> np.ndarray | None:
+    """The editable mask of ``trial`` (the faces outside the ball, then the patch's)."""
+    if editable is None:
+        return None
+    kept = editable[~inside]
+    return np.concatenate([kept, np.ones(len(trial) - len(kept), dtype=bool)])
 
 
 def _cut_stalk(
@@ -259,7 +277,8 @@ def _cut_stalk(
     reach: float,
     counts: tuple[int, int, int],
     tunnel_perimeter: float,
-) -> tuple[np.ndarray, tuple[int, int, int]] | None:
+    editable: np.ndarray | None = None,
+) -> tuple[np.ndarray, tuple[int, int, int], np.ndarray | None] | None:
     """Cut a handle at a thin stalk: the ball round one of ``sources`` (smallest first) is an
     annulus round a stalk thinner than ``reach``; it is removed and both its rims zipped
     when the tunnel beside the stalk is short: the shortest path from one rim to the other
@@ -280,7 +299,7 @@ def _cut_stalk(
             if radius > reach:
                 break  # wider balls than the scan's need not be annuli round the same stalk
             _, inside, ring = _ball_faces(t, int(s), radius)
-            if not ring:
+            if not ring or not _all_editable(inside, editable):
                 continue
             kept, loops = _rim_loops(faces, inside)
             if len(loops) != 2:
@@ -290,7 +309,7 @@ def _cut_stalk(
                 break  # the tunnel is longer (or the stalk splits the mesh): not this stalk
             done = _zipped(vertices, kept, loops, counts)
             if done is not None:
-                return done
+                return (*done, _editable_after(editable, inside, done[0]))
         tried[np.unique(faces[_ball_faces(t, int(s), reach)[1]])] = True
     return None
 
@@ -300,24 +319,33 @@ def cut_small_handles(
     faces: np.ndarray,
     reach: float = SMALL_HANDLE_REACH,
     tunnel_perimeter: float | None = None,
+    editable: np.ndarray | None = None,
 ) -> tuple[np.ndarray, int]:
     """``faces`` with every handle that fits in a geodesic ball of radius ``reach`` cut out
     and its hole zipped (no new vertex; vertices inside a cut ball are left unreferenced),
     and the number of cuts. A cut is kept only when the mesh then has fewer handles, no more
-    components or boundary loops, and no face of the patch crosses another.
+    components or boundary loops, and no face of the patch crosses another. The patch's
+    faces come last, after the kept faces in their order.
 
     ``tunnel_perimeter`` (default: none): also cut a handle at a stalk thinner than
     ``reach`` when the tunnel beside it is at most this long round (:func:`_cut_stalk`):
-    an ear joined to the head by two thin stalks with a window between them."""
+    an ear joined to the head by two thin stalks with a window between them.
+
+    ``editable`` (F,) bool, optional: the faces a cut may remove; a ball that holds any
+    other face is not cut (a tile of a tiled fit keeps the faces its neighbours see, the
+    seam's repair keeps the faces round its zone)."""
     v = np.ascontiguousarray(vertices, dtype=np.float64)
     f = np.ascontiguousarray(faces, dtype=np.int64)
+    edit = None if editable is None else np.asarray(editable, dtype=bool)
+    if edit is not None and not edit.any():
+        return f, 0
     cuts = 0
     counts = handle_count(f, len(v))
     while cuts < MAX_CUTS and counts[2] > 0:
-        trial = _cut_one(v, f, reach, counts, tunnel_perimeter)
+        trial = _cut_one(v, f, reach, counts, tunnel_perimeter, edit)
         if trial is None:
             break
-        (f, counts), cuts = trial, cuts + 1
+        (f, counts, edit), cuts = trial, cuts + 1
     return f, cuts
 
 

@@ -108,3 +108,28 @@ def test_the_path_between_two_rims_runs_along_the_mesh_up_to_a_limit():
     apart = np.vstack([f, f + len(v)])
     both = np.vstack([v, v + [5.0, 0.0, 0.0]])
     assert _rim_distance(both, apart, loops[0], loops[1] + len(v), 50.0) == np.inf
+
+
+def _face_rows(faces: np.ndarray) -> set[tuple[int, ...]]:
+    return set(map(tuple, np.sort(faces, axis=1).tolist()))
+
+
+def test_a_cut_removes_only_the_editable_faces():
+    """A tile of a tiled fit may cut a handle only where the faces are its own and away from
+    its seams (``editable``); a ball that holds any other face is not cut."""
+    v, f = sphere_with_tunnel()
+    edge = float(np.median(np.linalg.norm(v[f[:, 0]] - v[f[:, 1]], axis=1)))
+    x = v / edge
+    centroid = x[f].mean(axis=1)
+    tunnel = centroid[len(f) - 6 :].mean(axis=0)  # the tube's six faces come last
+    near = np.linalg.norm(centroid - tunnel, axis=1) < 8.0
+    assert cut_small_handles(x, f, 5.0, editable=~near)[1] == 0  # the tunnel is held
+    assert cut_small_handles(x, f, 5.0, editable=np.zeros(len(f), bool))[1] == 0
+    cut, n = cut_small_handles(x, f, 5.0, editable=near)
+    assert n == 1 and handle_count(cut, len(v)) == (1, 0, 0)
+    assert _face_rows(f[~near]) <= _face_rows(cut)  # every held face is still there
+    m = _o3d(v, cut)
+    assert m.is_watertight() and m.is_vertex_manifold()
+    # with every face editable, the same cut as without the mask
+    every = cut_small_handles(x, f, 5.0, editable=np.ones(len(f), bool))[0]
+    assert np.array_equal(every, cut_small_handles(x, f, 5.0)[0])

@@ -9,6 +9,7 @@ from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
 from pathlib import Path
 
 import numpy as np
+import open3d as o3d
 import pytest
 
 from recon.config import ReconConfig, apply_overrides, with_values
@@ -633,20 +634,53 @@ def test_tiles_cover_a_holes_inside_as_the_untiled_fit_does(tmp_path):
     assert topo["boundary_loops"] == 0 and topo["watertight"] and topo["genus"] == 0, topo
 
 
-def test_a_tile_with_a_small_handle_keeps_its_vertices(tmp_path):
-    """Regression: the polish's cut of small handles (recon.small_handles) drops the vertices
+def test_a_tile_cuts_a_small_handle_inside_its_core_and_keeps_its_vertices(tmp_path):
+    """The one-eared body at 1,500 points, seed 1, in tiles of 0.8: a tunnel at the ear's
+    base, 1-8 r0 from a seam, inside one tile's core.
+
+    Regression 1: the polish's cut of small handles (recon.small_handles) drops the vertices
     inside the cut, but a tile's polished vertices must stay those of its particles: the mesh
-    phase failed with "operands could not be broadcast together" (the one-eared body at
-    1,500 points, seed 1, with the growth's active set). Tiles keep their meshes whole."""
+    phase failed with "operands could not be broadcast together" (with the growth's active
+    set). A tile's cut leaves the vertices in place, unreferenced.
+    Regression 2: tiles did not cut small handles at all, and the stitched mesh came out
+    watertight with genus 1 where the untiled fit's is 0. A tile now cuts the handles whose
+    ball holds only faces it writes, away from its seams (tasks.inner_handles_cut)."""
     from test_sparse_holes import EARED, union_points
 
     src = tmp_path / "eared.ply"
     write_points(src, union_points(EARED, 1500, 1))
     cfg = apply_overrides(ReconConfig(), {"growth.active_radius": 3.0})
     tiled = fit_tiled(src, tmp_path / "tiled.ply", with_values(cfg, tiling={"size": 0.8}), jobs=1)
-    assert tiled.report["tiles"]["count"] == 3
+    tiles = tiled.report["tiles"]
+    assert tiles["count"] == 3
+    assert tiles["small_handles_cut"] == 1 and tiles["repair"]["small_handles_cut"] == 0, tiles
     v, f = read_mesh(tmp_path / "tiled.ply")
-    assert mesh_topology(v, f)["components"] == 1
+    topo = mesh_topology(v, f)
+    assert topo["components"] == 1 and topo["watertight"] and topo["genus"] == 0, topo
+    assert topo["unreferenced_vertices"] == 0, topo
+
+
+def test_the_seam_repair_cuts_a_small_handle_across_the_seam(tmp_path):
+    """The one-eared body at 1,500 points, seed 7, in tiles of 0.8: the tunnel at the ear's
+    base lies on a seam (0-0.6 r0 from it), where no tile may change its faces. Before, the
+    stitched mesh came out watertight with genus 1; the coordinator's repair of the seam's
+    zone now cuts a handle whose ball holds only the zone's faces (stitch.repair_cell)."""
+    from test_sparse_holes import EARED, union_points
+
+    src = tmp_path / "eared.ply"
+    write_points(src, union_points(EARED, 1500, 7))
+    tiled = fit_tiled(
+        src, tmp_path / "tiled.ply", with_values(ReconConfig(), tiling={"size": 0.8}), jobs=1
+    )
+    tiles = tiled.report["tiles"]
+    assert tiles["repair"]["small_handles_cut"] == 1 and tiles["small_handles_cut"] == 0, tiles
+    v, f = read_mesh(tmp_path / "tiled.ply")
+    topo = mesh_topology(v, f)
+    assert topo["components"] == 1 and topo["watertight"] and topo["genus"] == 0, topo
+    m = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(v), o3d.utility.Vector3iVector(f))
+    # (Open3D's is_watertight also asks for no self-intersection: the seam keeps 2 crossing
+    # pairs here, as before the cut)
+    assert m.is_edge_manifold(allow_boundary_edges=False) and m.is_vertex_manifold()
 
 
 def test_tiles_polish_their_triangles_as_the_untiled_fit_does(fits):

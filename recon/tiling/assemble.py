@@ -346,6 +346,7 @@ def stitch_streamed(
     done = np.zeros(n_cells, dtype=bool)
     repair = {"faces_merged": 0, "faces_dropped": 0, "seam_loops_zipped": 0}
     repair["cut_orientation_conflicts"] = 0
+    repair["small_handles_cut"] = 0
     max_cell_faces = 0
     for c in np.flatnonzero(has_zone).tolist():
         edit = np.vstack(_load_filed(work, grid, "zone", c))
@@ -371,7 +372,8 @@ def stitch_streamed(
         zone_rows[len(frame) - n_rim : len(frame)] = False
         cut = cut_stars(grid, c, pos, local, zone_rows, RIM_BAND * r0)
         v2, n2, fl, st = repair_cell(grid, pos, nrm, local, len(frame), r0, max_hole, cut)
-        for k in ("faces_dropped", "seam_loops_zipped", "cut_orientation_conflicts"):
+        for k in ("faces_dropped", "seam_loops_zipped", "cut_orientation_conflicts",
+                  "small_handles_cut"):  # fmt: skip
             repair[k] += st[k]
         gmap = np.concatenate([ids, np.full(len(v2) - len(ids), -1, dtype=np.int64)])
         extra = np.unique(fl[fl >= len(ids)])

@@ -32,6 +32,7 @@ ROW = np.dtype(
         ("new_vertices", "<i8"),
         ("self_intersections_found", "<i8"),
         ("self_intersections_left", "<i8"),
+        ("small_handles_cut", "<i8"),
     ]
 )
 
@@ -65,6 +66,7 @@ class TileRecords:
             "cover_reach",
             "self_intersections_found",
             "self_intersections_left",
+            "small_handles_cut",
         ):
             r[key] = result.get(key, 0)
 

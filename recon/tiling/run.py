@@ -392,6 +392,8 @@ def fit_tiled(
                     "found": records.total("self_intersections_found"),
                     "left": records.total("self_intersections_left"),
                 },
+                # small handles cut inside the tiles' cores (across the seams: "repair")
+                "small_handles_cut": records.total("small_handles_cut"),
                 "per_tile": records.per_tile(flips),
             },
             "warnings": warnings,

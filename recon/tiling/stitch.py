@@ -20,6 +20,7 @@ from scipy.spatial import cKDTree
 
 from ..holes import loop_width, zip_loop
 from ..mesh import boundary_loops, face_components, orientation_flips
+from ..small_handles import SMALL_HANDLE_REACH, cut_small_handles
 from ..triangulate import remove_non_manifold_faces
 from ..winding import MIN_COMPONENT_FACES, orient_consistently, twisted_faces
 from .grid import TileGrid
@@ -243,20 +244,27 @@ def repair_cell(
     """Repair the seam zone of one dual cell: ``faces[n_frame:]`` may change, the first
     ``n_frame`` (the frame: neighbouring cells' and tile interiors' faces around them) may not.
 
-    The rules of the untiled fit: faces on over-shared edges
-    dropped (the frame's kept first), bow-ties split (and the debris a split cuts loose
-    dropped: :func:`_debris`), seam cracks (loops along a seam, small or
-    narrow) zipped, the winding made consistent (and agreeing with the frame), then the small
-    holes orienting opened closed. Only loops through a vertex of an editable face are zipped,
-    never one through a vertex whose star the sub-mesh cuts off: ``cut`` marks those (one
-    flag per vertex); without it, the vertices only the frame uses.
+    The rules of the untiled fit: faces on over-shared edges dropped (the frame's kept
+    first), bow-ties split (and the debris a split cuts loose dropped: :func:`_debris`), seam
+    cracks (loops along a seam, small or narrow) zipped, the winding made consistent (and
+    agreeing with the frame), then the small holes orienting opened closed, and last the
+    small handles cut (:func:`recon.small_handles.cut_small_handles`: a handle across the
+    seam, which no tile sees whole) where a cut removes only editable faces none of whose
+    vertices has its star cut off. Only loops through a vertex of an editable face are
+    zipped, never one through a vertex whose star the sub-mesh cuts off: ``cut`` marks those
+    (one flag per vertex); without it, the vertices only the frame uses.
 
     Returns the vertices (with copies appended), normals, the editable faces after the repair,
     and counts (``cut_orientation_conflicts``: frame faces next to the editable ones whose
-    winding disagrees with the repaired zone's).
+    winding disagrees with the repaired zone's; ``small_handles_cut``).
     """
 
-    stats = {"faces_dropped": 0, "seam_loops_zipped": 0, "cut_orientation_conflicts": 0}
+    stats = {
+        "faces_dropped": 0,
+        "seam_loops_zipped": 0,
+        "cut_orientation_conflicts": 0,
+        "small_handles_cut": 0,
+    }
     faces = np.asarray(faces, dtype=np.int64)
     frame_faces = faces[:n_frame]
     frame_ref = {int(k): tuple(f) for k, f in zip(face_keys(frame_faces), frame_faces, strict=True)}
@@ -353,4 +361,12 @@ def repair_cell(
     faces, is_frame, left = orient(vertices, normals, faces, is_frame)
     vertices, normals, faces, is_frame = repair(vertices, normals, faces)
     stats["cut_orientation_conflicts"] = left
+    # a small handle across the seam (the untiled fit cuts it, a tile cannot see it whole):
+    # cut where every face of the ball is the zone's and no vertex's star is cut off
+    editable = ~is_frame & ~opened_at(faces, is_frame, len(vertices))[faces].any(axis=1)
+    faces, stats["small_handles_cut"] = cut_small_handles(
+        vertices / r0, faces, SMALL_HANDLE_REACH, np.pi * max_hole, editable
+    )
+    if stats["small_handles_cut"]:
+        is_frame = tag(faces)
     return vertices, normals, faces[~is_frame], stats

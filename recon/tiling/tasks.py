@@ -25,7 +25,7 @@ import numpy as np
 from .assemble import write_tile_mesh
 from .grid import TileGrid
 from .source import TileStore, read_box, read_tile
-from .stitch import SIGN_PAIR_DISTANCE
+from .stitch import SEAM_BAND, SIGN_PAIR_DISTANCE
 
 __all__ = [
     "SIGN_BAND",
@@ -408,11 +408,12 @@ def mesh_task(job: MeshJob) -> dict:
         spacing = rest if spacing is None else np.maximum(spacing, rest)
     sparser = sparse_cover(sampling, median_d6, tri_cfg.max_density_scale)
 
-    def mesh(reach: float) -> tuple[Any, np.ndarray, np.ndarray, int, int]:
+    def mesh(reach: float) -> tuple[Any, np.ndarray, np.ndarray, np.ndarray, int, int, int]:
         """Triangulate with the coverage ``reach``, untangle over the tile's core and halo
         moving only its own particles and new vertices (the neighbours' belong to their
-        tiles): the result, the vertices' global ids (``-1 - j`` for the ``j``-th new one),
-        the untangled vertices, crossings found and left."""
+        tiles), cut the small handles inside the core (:func:`inner_handles_cut`): the
+        result, the vertices' global ids (``-1 - j`` for the ``j``-th new one), the untangled
+        vertices, the faces, handles cut, crossings found and left."""
 
         def is_covered(c: np.ndarray, s: Any = 1.0, across: bool = False) -> np.ndarray:
             if tree is None:
@@ -431,7 +432,7 @@ def mesh_task(job: MeshJob) -> dict:
             join_sheets=False,  # a thin part's faces cut by the tile are not its edge
         )
         if len(tri.faces) == 0:
-            return tri, np.zeros(0, dtype=np.int64), tri.vertices, 0, 0
+            return tri, np.zeros(0, dtype=np.int64), tri.vertices, tri.faces, 0, 0, 0
         # result vertices -> input particles (order kept; repair adds shifted copies at the end)
         d, src = cKDTree(x).query(tri.vertices)
         original = d <= 1e-9
@@ -445,15 +446,18 @@ def mesh_task(job: MeshJob) -> dict:
         polished, found, left = polish_and_untangle(
             tri, None, tri_cfg.smooth_rounds, flips=False, fixed=fixed, cut_handles=False
         )
-        return tri, code, polished.vertices, found, left
+        faces, cuts = inner_handles_cut(
+            grid, job.tile, tri.vertices * r0 + centre, polished.vertices, tri.faces, r0,
+            np.pi * max_hole,
+        )  # fmt: skip
+        return tri, code, polished.vertices, faces, cuts, found, left
 
     with thread_count(cfg.threads):
         reach = cover_reach(job.median_spacing / r0)
-        tri, code, moved_x, found, left = mesh(reach)
+        tri, code, moved_x, faces, cuts, found, left = mesh(reach)
         if left and reach > HOLE_COVER_DISTANCE:  # as the untiled fit: see its _triangulate
             reach = 0.0
-            tri, code, moved_x, found, left = mesh(reach)
-    faces = tri.faces
+            tri, code, moved_x, faces, cuts, found, left = mesh(reach)
     if len(faces) == 0:
         write_tile_mesh(job.work, job.tile, grid, r0, *_no_mesh())
         return empty
@@ -485,11 +489,40 @@ def mesh_task(job: MeshJob) -> dict:
         "crease_particles": 0 if crease is None else int(np.count_nonzero(crease)),
         "self_intersections_found": int(found),
         "self_intersections_left": int(left),
+        "small_handles_cut": int(cuts),
         # data covered a hole's inside within this distance [r0] (at least r0)
         "cover_reach": max(reach, HOLE_COVER_DISTANCE),
         "seconds": time.perf_counter() - t0,
         "stats": tri.stats,
     }
+
+
+def inner_handles_cut(
+    grid: TileGrid,
+    tile: int,
+    where: np.ndarray,
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    r0: float,
+    tunnel_perimeter: float,
+) -> tuple[np.ndarray, int]:
+    """A tile's ``faces`` with the small handles cut (:func:`recon.small_handles.cut_small_handles`
+    at ``vertices`` [r0], with the untiled fit's stalk cut up to ``tunnel_perimeter`` [r0])
+    where the cut removes only faces this tile writes (centroid in its core, at the particles'
+    positions ``where`` [length]) that share no vertex with a face it does not write and have
+    every vertex ``SEAM_BAND`` r0 or more from an inner tile face: the faces along a seam
+    stay those the neighbour tiles see. A handle across the seam is the coordinator's
+    (:func:`recon.tiling.stitch.repair_cell` cuts those in the seam's zone).
+    Returns the faces (a cut's patch last) and the number of cuts."""
+    from ..small_handles import SMALL_HANDLE_REACH, cut_small_handles
+
+    if len(faces) == 0:
+        return faces, 0
+    in_core = grid.in_core(tile, where[faces].mean(axis=1))
+    held = grid.seam_distance(where) < SEAM_BAND * r0
+    held[faces[~in_core].ravel()] = True
+    editable = in_core & ~held[faces].any(axis=1)
+    return cut_small_handles(vertices, faces, SMALL_HANDLE_REACH, tunnel_perimeter, editable)
 
 
 def _no_mesh() -> tuple[np.ndarray, ...]:
