@@ -95,11 +95,12 @@ def _excess_text(check: dict[str, Any]) -> str:
     if check["passed"] or check["excess"] is None:
         return ""
     limit = check["limit"]
-    pct = (
-        f" ({100 * check['excess'] / abs(limit):.0f}% {'over' if check['op'] == '<=' else 'under'})"
-    )
     sign = "+" if check["op"] == "<=" else "-"
-    return f"{sign}{fmt(check['excess'], 3)}" + (pct if limit else "")
+    text = f"{sign}{fmt(check['excess'], 3)}"
+    if not limit:  # no share of a zero limit
+        return text
+    side = "over" if check["op"] == "<=" else "under"
+    return f"{text} ({100 * check['excess'] / abs(limit):.0f}% {side})"
 
 
 def format_comparison(

@@ -89,6 +89,18 @@ def test_compare_outside_tolerance_exits_1_with_a_table(files):
     assert "result: FAIL (1 of 3 checks outside tolerance)" in r.stdout
 
 
+@pytest.mark.parametrize("option", ["--max-chamfer", "--max-chamfer-abs", "--max-hausdorff95"])
+def test_a_limit_of_zero_fails_with_the_table_not_a_traceback(files, option):
+    """Regression: a check failing against a limit of 0 raised ZeroDivisionError (the
+    percentage over the limit) with a traceback and no verdict."""
+    r = run("compare", files["sphere"], files["big"], *FAST, option, "0")
+    assert r.exit_code == 1, r.output
+    assert r.exception is None or isinstance(r.exception, SystemExit), r.exception
+    failed = [ln for ln in r.stdout.splitlines() if "FAIL" in ln and option in ln]
+    assert len(failed) == 1 and "% over" not in failed[0], r.stdout
+    assert "result: FAIL (1 of 1 checks outside tolerance)" in r.stdout
+
+
 def test_compare_failure_in_json_still_exits_1(files):
     r = run("compare", files["sphere"], files["big"], *FAST, "--max-chamfer-abs", "0.001", "--json")
     assert r.exit_code == 1
