@@ -152,6 +152,20 @@ def test_a_first_run_says_it_compiles_the_kernels_first_unless_the_cluster_is_re
     assert "compiling" not in remote.stderr
 
 
+@pytest.mark.parametrize("address", ["notaurl", "tcp://scheduler-host"])
+def test_a_scheduler_address_without_a_port_is_refused_by_name(shapes, address):
+    """Regression: Dask's ValueError ("missing port number") came with a traceback and exit 1,
+    after its half-made client waited 40 s to close."""
+    pytest.importorskip("dask.distributed")
+    path = shapes / "batch.yaml"
+    path.write_text("inputs: ['*/shape.xyz']\noutput_dir: out\n")
+    result = invoke(str(path), "--executor", "dask", "--scheduler", address)
+    assert result.exit_code == 2, result.output
+    assert "Traceback" not in result.output
+    assert f"--scheduler '{address}': not a Dask scheduler address" in result.stderr
+    assert "missing port" in result.stderr
+
+
 def hang_job(spec: dict, on_progress) -> dict:
     """A fake job that writes a partial output and never finishes (runs in the child)."""
     from recon.io import atomic_output
