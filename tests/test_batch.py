@@ -347,6 +347,43 @@ def test_expand_inputs_globs_missing_and_output_dir(tmp_path):
     ]
 
 
+def test_no_two_items_write_the_same_file(tmp_path):
+    """Regression: item ``a`` wrote its particles to ``a.particles.ply``, the mesh of the item
+    made from ``a.particles.ply``; both reported ok and one output was lost for good (a rerun
+    found both up to date). The later item now takes a name whose outputs are free."""
+    make_inputs(tmp_path, **{"in/a.ply": "ok", "in/a.particles.ply": "ok", "in/a.png": "ok"})
+    path = write_batch(
+        tmp_path, "inputs: [in/a.particles.ply, in/a.ply]\noutput_dir: out\nparticles: true\n"
+    )
+    plan = plan_batch(load_batch(path))
+    names = [it.name for it in plan.items]
+    assert names == ["a.particles", "a-2"], names
+    files = [q.resolve() for it in plan.items for q in it.outputs.all_files()]
+    assert len(files) == len(set(files)), files
+    # the same inputs plan the same names (a rerun finds its outputs)
+    assert [it.name for it in plan_batch(load_batch(path)).items] == names
+
+
+def test_an_existing_path_with_brackets_is_a_file_not_a_pattern(tmp_path):
+    """Regression: ``in/scan[1].ply`` (a file that exists) was taken for a glob, matched
+    nothing ('[1]' is the character class of '1'), and failed as "no file matches"."""
+    make_inputs(tmp_path, **{"in/scan[1].ply": "ok", "in/scan1.ply": "ok"})
+    got = expand_inputs(["in/scan[1].ply", "in/scan[0-9].ply"], tmp_path)
+    rel = [(e, p.relative_to(tmp_path).as_posix() if p else None) for e, p in got]
+    assert rel == [("in/scan[1].ply", "in/scan[1].ply"), ("in/scan[0-9].ply", "in/scan1.ply")]
+
+
+def test_a_pattern_whose_files_all_lie_in_output_dir_says_so(tmp_path):
+    """Regression: with ``output_dir: .`` every input lies inside it, so a glob's files were
+    all left out as outputs, and the item said "no file matches" although files matched."""
+    make_inputs(tmp_path, **{"in/s.ply": "ok"})
+    path = write_batch(tmp_path, "inputs: [in/*.ply]\noutput_dir: .\n")
+    (item,) = plan_batch(load_batch(path)).items
+    assert item.action == "fail"
+    assert "1 file matches 'in/*.ply'" in item.reason and "inside output_dir" in item.reason
+    assert "no file matches" not in item.reason
+
+
 def test_plan_marks_missing_inputs_and_applies_overrides_in_order(tmp_path):
     make_inputs(tmp_path, **{"in/bunny.xyz": "ok", "in/dragon.xyz": "ok"})
     path = write_batch(

@@ -20,7 +20,7 @@ import fnmatch
 import glob
 import logging
 import os
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -66,7 +66,9 @@ def expand_inputs(
     Parameters
     ----------
     entries : sequence of str
-        Paths and glob patterns; relative ones resolve against ``folder``.
+        Paths and glob patterns; relative ones resolve against ``folder``. An entry that
+        names an existing file is that file, even with glob characters in its name
+        (``scan[1].ply``).
     folder : Path
     exclude : Path, optional
         Files a glob finds inside this folder are left out (the batch's own outputs).
@@ -88,11 +90,8 @@ def expand_inputs(
 
     for entry in entries:
         text = os.path.expanduser(entry)
-        if _is_glob(text):
-            root = None if os.path.isabs(text) else str(folder)
-            found = sorted(glob.glob(text, root_dir=root, recursive=True))
-            paths = [Path(os.path.abspath(folder / f if root else f)) for f in found]
-            paths = [q for q in paths if q.is_file()]
+        if _is_glob(text) and not (folder / text).is_file():
+            paths = _glob_files(text, folder)
             if exclude is not None:
                 paths = [q for q in paths if not _inside(q, exclude)]
             if not paths:
@@ -102,6 +101,46 @@ def expand_inputs(
         else:
             add(entry, Path(os.path.abspath(folder / text)))
     return out
+
+
+def _glob_files(text: str, folder: Path) -> list[Path]:
+    """The files a glob pattern matches (relative to ``folder`` unless absolute), sorted."""
+    root = None if os.path.isabs(text) else str(folder)
+    found = sorted(glob.glob(text, root_dir=root, recursive=True))
+    paths = [Path(os.path.abspath(folder / f if root else f)) for f in found]
+    return [q for q in paths if q.is_file()]
+
+
+def _unmatched_reason(entry: str, folder: Path, output_dir: Path) -> str:
+    """Why a glob entry gave no input: no file matches, or every match is a batch output."""
+    n = len(_glob_files(os.path.expanduser(entry), folder))
+    if n == 0:
+        return f"no file matches '{entry}'"
+    files = "1 file matches" if n == 1 else f"{n} files match"
+    return (
+        f"{files} '{entry}', all inside output_dir {output_dir} (a batch never reads files "
+        "there: they may be its own outputs); move the inputs or choose another output_dir"
+    )
+
+
+def _free_name(
+    name: str,
+    outputs_of: Callable[[str], ItemOutputs],
+    taken: set[str],
+    used: set[str],
+) -> tuple[str, ItemOutputs]:
+    """``name``, or ``name-2``, ``name-3`` ..., the first whose outputs no earlier item writes
+    (``taken``: their resolved paths, lower case) and that no other item is called (``used``,
+    lower case): item ``a``'s particles ``a.particles.ply`` are the mesh of an item named
+    ``a.particles``."""
+    final, n = name, 1
+    while True:
+        outputs = outputs_of(final)
+        keys = {str(q.resolve()).lower() for q in outputs.all_files()}
+        if not keys & taken and (final == name or final.lower() not in used):
+            return final, outputs
+        n += 1
+        final = f"{name}-{n}"
 
 
 def assign_names(paths: Sequence[Path]) -> list[str]:
@@ -267,6 +306,8 @@ def plan_batch(
     names = assign_names([p for _, p in found])
     name_of = {id(p): n for (_, p), n in zip(found, names, strict=True)}
     inputs_resolved = {p.resolve() for _, p in found}
+    used = {n.lower() for n in names}
+    taken: set[str] = set()  # every output path an item writes (resolved, lower case)
     items: list[BatchItem] = []
     for entry, path in expanded:
         if path is None:
@@ -276,11 +317,18 @@ def plan_batch(
                     input_path=None,
                     entry=entry,
                     action="fail",
-                    reason=f"no file matches '{entry}'",
+                    reason=_unmatched_reason(entry, spec.folder, spec.output_dir),
                 )
             )
             continue
-        name = name_of[id(path)]
+        name, outputs = _free_name(
+            name_of[id(path)],
+            lambda n: item_outputs(spec.output_dir, n, spec.formats, spec.particles, spec.preview),
+            taken,
+            used,
+        )
+        used.add(name.lower())
+        taken |= {str(q.resolve()).lower() for q in outputs.all_files()}
         cands = _candidates(path, name, spec.folder)
         matched = tuple(
             o.index for o in spec.overrides if any(_matches(pat, cands) for pat in o.patterns)
@@ -305,7 +353,6 @@ def plan_batch(
         limit = min(limits) if limits else None
         if limit is not None and limit != cfg.dynamics.time_limit:
             cfg = apply_overrides(cfg, {"dynamics.time_limit": limit})
-        outputs = item_outputs(spec.output_dir, name, spec.formats, spec.particles, spec.preview)
         item = BatchItem(
             name=name,
             input_path=path,
