@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import shutil
 import sys
 from pathlib import Path
@@ -165,6 +166,13 @@ class BatchProgress:
             self.bar = None
 
 
+def _not_nan(ctx: click.Context, param: click.Parameter, value: float | None) -> float | None:
+    """Refuse ``nan`` (click's FloatRange compares it with its bounds and lets it through)."""
+    if value is not None and math.isnan(value):
+        raise click.BadParameter("expected a number of seconds > 0 (inf: no limit), got nan")
+    return value
+
+
 @click.command("batch")
 @click.argument("batch_file", metavar="BATCH.yaml", type=click.Path(path_type=Path))
 @click.option(
@@ -191,9 +199,10 @@ class BatchProgress:
 @click.option(
     "--item-time-limit",
     type=click.FloatRange(min=0, min_open=True),
+    callback=_not_nan,
     metavar="SECONDS",
     help="Wall-clock limit per item; an item past it is stopped, then killed "
-    f"(default: item_time_limit in the file, else {DEFAULT_ITEM_TIME_LIMIT:g}).",
+    f"(default: item_time_limit in the file, else {DEFAULT_ITEM_TIME_LIMIT:g}; inf: none).",
 )
 @click.option(
     "--threads",

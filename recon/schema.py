@@ -140,9 +140,10 @@ def coerce(key: str, value: Any, tp: Any) -> Any:
 
 def _bounds_text(meta: Mapping[str, Any]) -> str:
     lo, hi = meta.get("min"), meta.get("max")
-    lo_s = "-inf" if lo is None else f"{lo:g}"
-    hi_s = "inf" if hi is None else f"{hi:g}"
-    return f"{'(' if meta.get('min_open') else '['}{lo_s}, {hi_s}]"
+    # an unbounded side is open: values must be finite (``inf`` is refused)
+    lo_s = "(-inf" if lo is None else f"{'(' if meta.get('min_open') else '['}{lo:g}"
+    hi_s = "inf)" if hi is None else f"{hi:g}]"
+    return f"{lo_s}, {hi_s}"
 
 
 def check_range(key: str, value: Any, meta: Mapping[str, Any]) -> None:

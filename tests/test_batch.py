@@ -604,7 +604,27 @@ overrides:
     res = {r.name: r for r in report.results}
     assert res["a"].status == "ok"
     assert res["b"].status == "timeout"
-    assert res["b"].error == "time limit of 0.2 s reached"
+    # the batch's own advice (the fit's names dynamics.time_limit and fit's --time-limit,
+    # which batch does not have)
+    assert res["b"].error.startswith("time limit of 0.2 s reached (raise --item-time-limit")
+    assert "item_time_limit in the batch file" in res["b"].error
+
+
+@pytest.mark.parametrize("where", ["file", "cli"])
+def test_an_infinite_item_time_limit_is_no_limit(tmp_path, where):
+    """Regression: ``item_time_limit: .inf`` (documented as allowed) and
+    ``--item-time-limit inf`` stopped the batch with "dynamics.time_limit: expected a finite
+    number, got inf", a key the user never wrote."""
+    make_inputs(tmp_path, **{"a.xyz": "ok"})
+    extra = "item_time_limit: .inf\n" if where == "file" else ""
+    path = write_batch(tmp_path, f"inputs: ['*.xyz']\noutput_dir: out\n{extra}")
+    spec = load_batch(path)
+    limit = spec.item_time_limit if where == "file" else float("inf")
+    (item,) = plan_batch(spec, item_time_limit=limit).items
+    assert item.action == "run" and item.time_limit is None
+    assert item.config.dynamics.time_limit is None
+    report = run(path, item_time_limit=limit)
+    assert [r.status for r in report.results] == ["ok"]
 
 
 def test_interrupt_keeps_finished_items_and_leaves_no_partial_files(tmp_path):

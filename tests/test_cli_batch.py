@@ -166,6 +166,15 @@ def test_a_scheduler_address_without_a_port_is_refused_by_name(shapes, address):
     assert "missing port" in result.stderr
 
 
+def test_an_item_time_limit_of_nan_is_refused_by_name(shapes):
+    path = shapes / "batch.yaml"
+    path.write_text("inputs: ['*/shape.xyz']\noutput_dir: out\n")
+    result = invoke(str(path), "--item-time-limit", "nan", "--dry-run")
+    assert result.exit_code == 2, result.output
+    assert "--item-time-limit" in result.stderr and "got nan" in result.stderr
+    assert "dynamics.time_limit" not in result.stderr
+
+
 def hang_job(spec: dict, on_progress) -> dict:
     """A fake job that writes a partial output and never finishes (runs in the child)."""
     from recon.io import atomic_output

@@ -63,7 +63,7 @@ def test_every_key_is_documented():
         ({"normals": {"k": "many"}}, "normals.k: expected an integer, got 'many'"),
         ({"io": {"ascii": "yes"}}, "io.ascii: expected true or false"),
         ({"normals": {"k": 1}}, "normals.k: 1 is out of range, allowed [3, 500]"),
-        ({"normals": {"radius": 0}}, "normals.radius: 0.0 is out of range, allowed (0, inf]"),
+        ({"normals": {"radius": 0}}, "normals.radius: 0.0 is out of range, allowed (0, inf)"),
         ({"normals": {"orientation": "outwards"}}, "did you mean 'outward'?"),
         ({"normals": {"viewpoint": [1, 2]}}, "normals.viewpoint: expected 3 numbers"),
         ({"normals": {"viewpoint": [1, 2, "z"]}}, "normals.viewpoint[2]: expected a number"),

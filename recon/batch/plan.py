@@ -19,6 +19,7 @@ import contextlib
 import fnmatch
 import glob
 import logging
+import math
 import os
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
@@ -289,7 +290,8 @@ def plan_batch(
     force : bool
         Run items even when their outputs are up to date.
     item_time_limit : float or None [s]
-        Per-item limit; None means no limit unless an item's ``dynamics.time_limit`` sets one.
+        Per-item limit; None or infinity means no limit unless an item's
+        ``dynamics.time_limit`` sets one.
 
     Returns
     -------
@@ -349,7 +351,10 @@ def plan_batch(
             raise ConfigError(
                 f"{spec.path}: item '{name}' ({path}) with {lines or 'no overrides'}: {exc}"
             ) from None
-        limits = [x for x in (item_time_limit, cfg.dynamics.time_limit) if x is not None]
+        # an infinite limit (``item_time_limit: .inf``, ``--item-time-limit inf``) is none
+        limits = [
+            x for x in (item_time_limit, cfg.dynamics.time_limit) if x is not None and x < math.inf
+        ]
         limit = min(limits) if limits else None
         if limit is not None and limit != cfg.dynamics.time_limit:
             cfg = apply_overrides(cfg, {"dynamics.time_limit": limit})

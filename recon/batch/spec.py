@@ -256,7 +256,7 @@ def read_formats(at: Located, data: Any, key: KeyPath) -> tuple[str, ...]:
 
 
 def read_seconds(at: Located, data: Any, key: KeyPath) -> float | None:
-    """A positive number of seconds (infinity included), or null."""
+    """A positive number of seconds (infinity: no limit), or null."""
     if data is None:
         return None
     if isinstance(data, bool) or not isinstance(data, (int, float)) or not data > 0:

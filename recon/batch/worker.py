@@ -37,6 +37,12 @@ _ORPHAN_EXIT = 15.0
 #: signal that lands after the interpreter's last check and before a blocking call (a sleep, a
 #: wait) starts is handled only when the call returns.
 _RESEND_S = 0.25
+#: What a timed-out item's message advises (the item's limit is the smaller of the batch's
+#: and its configuration's ``dynamics.time_limit``).
+TIMEOUT_ADVICE = (
+    "raise --item-time-limit or item_time_limit in the batch file, and dynamics.time_limit "
+    "where the configuration sets it lower"
+)
 
 
 def run_item(
@@ -183,7 +189,9 @@ def child_main() -> None:
         elapsed = time.perf_counter() - t0
         limit = spec.get("time_limit")
         is_timeout = isinstance(exc, LimitExceeded) and limit is not None and elapsed >= limit
-        if isinstance(exc, OpreconError):
+        if is_timeout:  # the batch's own advice: it has no --time-limit
+            message, detail = f"time limit of {limit:g} s reached ({TIMEOUT_ADVICE})", ""
+        elif isinstance(exc, OpreconError):
             message, detail = str(exc), ""
         else:
             message = f"{type(exc).__name__}: {exc}"
