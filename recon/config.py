@@ -617,7 +617,8 @@ def config_to_dict(cfg: Any) -> dict[str, Any]:
 
 
 def load_yaml_file(path: str | Path) -> Any:
-    """Read a YAML file safely; syntax errors name the file, line and column."""
+    """Read a YAML file safely; syntax errors name the file, line and column, and a key
+    repeated within one mapping is refused with its line (YAML would keep the last)."""
     p = Path(path)
     if not p.exists():
         raise ConfigError(f"{p}: no such configuration file")
@@ -628,7 +629,8 @@ def load_yaml_file(path: str | Path) -> Any:
     except (OSError, UnicodeDecodeError) as exc:
         raise ConfigError(f"{p}: cannot read: {exc}") from None
     try:
-        return yaml.safe_load(text)
+        data = yaml.safe_load(text)
+        repeated = duplicate_keys(yaml.compose(text, Loader=yaml.SafeLoader))
     except yaml.constructor.ConstructorError as exc:
         mark = exc.problem_mark
         where = f"line {mark.line + 1}, column {mark.column + 1}" if mark is not None else "?"
@@ -643,6 +645,33 @@ def load_yaml_file(path: str | Path) -> Any:
         raise ConfigError(f"{p}: invalid YAML at {where}: {exc.problem}") from None
     except yaml.YAMLError as exc:
         raise ConfigError(f"{p}: invalid YAML: {exc}") from None
+    if repeated:  # YAML keeps the last silently; a repeated key is a mistake in a settings file
+        dotted, line = repeated[0]
+        raise ConfigError(f"{p}, line {line}: {dotted}: duplicate key")
+    return data
+
+
+def duplicate_keys(root: yaml.Node | None) -> list[tuple[str, int]]:
+    """Keys repeated within one mapping of a composed YAML document: ``(dotted key, line)``
+    of each repetition (1-based lines; list items as ``key[i]``)."""
+    out: list[tuple[str, int]] = []
+
+    def walk(node: yaml.Node, prefix: str) -> None:
+        if isinstance(node, yaml.MappingNode):
+            seen: set[str] = set()
+            for key_node, value_node in node.value:
+                key = str(key_node.value) if isinstance(key_node, yaml.ScalarNode) else "?"
+                if key in seen:
+                    out.append((prefix + key, key_node.start_mark.line + 1))
+                seen.add(key)
+                walk(value_node, f"{prefix}{key}.")
+        elif isinstance(node, yaml.SequenceNode):
+            for i, item in enumerate(node.value):
+                walk(item, f"{prefix.rstrip('.')}[{i}].")
+
+    if root is not None:
+        walk(root, "")
+    return out
 
 
 def parse_override(text: str) -> tuple[str, Any]:

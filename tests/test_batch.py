@@ -249,6 +249,11 @@ def test_load_batch_preset_uses_the_resolver(tmp_path):
             [r"line 3: config: .*nope\.yaml: no such configuration file"],
         ),
         ("inputs: a.ply\noutput_dir: out\ninputs: b.ply\n", [r"line 3: inputs: duplicate key"]),
+        (  # regression: a nested and a dotted key for one setting, the last silently winning
+            "inputs: a.ply\noutput_dir: out\n"
+            "set:\n  seeds: {thinning: 1.2}\n  seeds.thinning: 1.3\n",
+            [r"line 5: set.seeds.thinning: seeds.thinning is set twice \(nested and dotted\)"],
+        ),
         ("inputs: [a.ply\noutput_dir: out\n", [r"invalid YAML at line \d+"]),
         ("", [r"the batch file is empty"]),
         ("- a.ply\n", [r"expected a mapping"]),

@@ -161,6 +161,11 @@ def test_compare_tolerance_file_errors(files, tmp_path):
     one_line_error(run("compare", files["sphere"], files["big"], "--tolerances", tol), "seed")
     tol.write_text("max_chamfer: [1\n")
     one_line_error(run("compare", files["sphere"], files["big"], "--tolerances", tol), "YAML")
+    tol.write_text("max_chamfer: 0.001\nmax_chamfer: 0.1\n")  # regression: the last won
+    one_line_error(
+        run("compare", files["sphere"], files["big"], "--tolerances", tol),
+        "line 2: max_chamfer: duplicate key",
+    )
     tol.write_text("- 1\n- 2\n")
     one_line_error(run("compare", files["sphere"], files["big"], "--tolerances", tol), "mapping")
     one_line_error(
@@ -312,7 +317,7 @@ def test_compare_tolerances_share_the_config_machinery(tmp_path):
 
     from recon.errors import ConfigError
 
-    with pytest.raises(ConfigError, match=r"^samples: 0 is out of range, allowed \[1, inf\]"):
+    with pytest.raises(ConfigError, match=r"^samples: 0 is out of range, allowed \[1, inf\)"):
         CompareTolerances(samples=0)
     tol = tmp_path / "tol.yaml"
     tol.write_text("max_champher: 2\n")

@@ -40,6 +40,20 @@ def test_default_yaml_is_dump_config():
     assert load_config(ROOT / "configs" / "default.yaml") == ReconConfig()
 
 
+def test_a_key_repeated_in_a_config_file_is_refused_with_its_line(tmp_path):
+    """Regression: ``dt`` set twice in one section was accepted, the last value silently
+    winning (`config validate` printed "valid")."""
+    path = tmp_path / "dup.yaml"
+    path.write_text("dynamics:\n  dt: 0.1\n  damping_linear: 1.0\n  dt: 0.2\n")
+    with pytest.raises(ConfigError, match=r"dup\.yaml, line 4: dynamics\.dt: duplicate key"):
+        load_config(path)
+    r = run("config", "validate", path)
+    assert r.exit_code == 2 and "line 4: dynamics.dt: duplicate key" in r.stderr, r.output
+    # the same key in two sections is two keys
+    path.write_text("seeds:\n  spacing_factor: 2.5\ndynamics:\n  dt: 0.1\n")
+    load_config(path)
+
+
 def test_dump_roundtrip_without_comments():
     data = yaml.safe_load(dump_config(comments=False))
     assert data == config_to_dict(ReconConfig())

@@ -112,27 +112,6 @@ class _Marks:
                 return line
         return line
 
-    def duplicates(self) -> list[tuple[str, int]]:
-        """Keys repeated within one mapping: ``(dotted key, line)`` of each repetition."""
-        out: list[tuple[str, int]] = []
-
-        def walk(node: yaml.Node, prefix: str) -> None:
-            if isinstance(node, yaml.MappingNode):
-                seen: set[str] = set()
-                for key_node, value_node in node.value:
-                    key = str(key_node.value) if isinstance(key_node, yaml.ScalarNode) else "?"
-                    if key in seen:
-                        out.append((prefix + key, key_node.start_mark.line + 1))
-                    seen.add(key)
-                    walk(value_node, f"{prefix}{key}.")
-            elif isinstance(node, yaml.SequenceNode):
-                for i, item in enumerate(node.value):
-                    walk(item, f"{prefix.rstrip('.')}[{i}].")
-
-        if self.root is not None:
-            walk(self.root, "")
-        return out
-
 
 class Located:
     """Errors that name the batch file, the line of a key and its dotted path."""
@@ -229,6 +208,9 @@ def read_settings(at: Located, data: Any, key: KeyPath) -> dict[str, Setting]:
             k_key = (*node_key, k)
             if isinstance(v, dict) and v:
                 walk(v, f"{prefix}{k}.", k_key)
+            elif prefix + k in out:  # nested and dotted (``seeds: {thinning: 1}``, then
+                # ``seeds.thinning: 2``): YAML sees two keys, the configuration one
+                raise at.error(k_key, f"{prefix + k} is set twice (nested and dotted)")
             else:
                 out[prefix + k] = Setting(v, k_key)
 
@@ -495,10 +477,6 @@ def load_batch(
     except yaml.YAMLError:  # pragma: no cover - load_yaml_file has parsed it already
         marks = _Marks(None)
     at = Located(p, marks)
-    duplicates = marks.duplicates()
-    if duplicates:
-        dotted, line = duplicates[0]
-        raise ConfigError(f"{p}, line {line}: {dotted}: duplicate key")
     if raw is None:
         raise ConfigError(
             f"{p}: the batch file is empty; it needs at least 'inputs' and 'output_dir'"
