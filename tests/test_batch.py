@@ -726,6 +726,39 @@ def test_a_child_interrupted_and_orphaned_at_once_finishes_its_clean_up(tmp_path
     assert (out / "a.cleaned").read_text() == "done\n"
 
 
+def test_a_batch_that_ignores_ctrl_c_keeps_its_items_running_through_it(tmp_path):
+    """Regression: a batch started in the background of a script (``oprecon batch ... &``)
+    inherits SIGINT ignored, as the shell means it to; its item processes put a handler back,
+    so a Ctrl-C to the process group interrupted the running item and the batch went on with
+    the next ones, exit 1. The items now run in their own process group then."""
+    import subprocess
+
+    make_inputs(tmp_path, **{"a.xyz": "slow", "b.xyz": "ok"})
+    path = write_batch(tmp_path, "inputs: ['*.xyz']\noutput_dir: out\n")
+    code = (
+        "import signal, sys, json\n"
+        "signal.signal(signal.SIGINT, signal.SIG_IGN)\n"
+        f"sys.path.insert(0, {str(Path(__file__).parent)!r})\n"
+        "import test_batch\n"
+        f"report = test_batch.run(test_batch.Path({str(path)!r}), jobs=1)\n"
+        "print(json.dumps(test_batch.statuses(report)))\n"
+    )
+    proc = subprocess.Popen(
+        [sys.executable, "-c", code], stdout=subprocess.PIPE, text=True, start_new_session=True
+    )
+    try:
+        while not (tmp_path / "out").exists() or not temp_files(tmp_path / "out"):
+            assert proc.poll() is None, "the batch ended before its first item started"
+            time.sleep(0.05)  # item a is inside its atomic output (a 3 s sleep)
+        os.killpg(proc.pid, signal.SIGINT)  # Ctrl-C to the whole process group
+        out, _ = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0
+    assert json.loads(out.strip().splitlines()[-1]) == {"a": "ok", "b": "ok"}
+
+
 def test_a_failing_progress_callback_stops_the_children(tmp_path):
     make_inputs(tmp_path, **{"a.xyz": "hang"})
     path = write_batch(tmp_path, "inputs: ['*.xyz']\noutput_dir: out\n")

@@ -170,6 +170,10 @@ def supervise_item(
             stderr=stderr_file,
             env=_child_env(spec.get("threads"), bool(spec.get("threads_given"))),
             close_fds=True,
+            # a batch that ignores Ctrl-C (started with `&` in a script) keeps its items out of
+            # its process group: a child puts its own SIGINT handler back (the stop request
+            # arrives as one), so a Ctrl-C to the group would interrupt the running item
+            **_own_group_when_deaf(),
         )
     except OSError as exc:
         stderr_file.close()
@@ -294,6 +298,15 @@ def supervise_item(
 def _since(t: float | None) -> float | None:
     """Seconds since the monotonic time ``t`` (rounded), or None."""
     return None if t is None else round(time.monotonic() - t, 3)
+
+
+def _own_group_when_deaf() -> dict[str, Any]:
+    """``Popen`` arguments that start the child in its own process group when this process
+    ignores SIGINT (nothing otherwise): it is then stopped through its stdin or killed, as
+    always, and a Ctrl-C to this process's group passes it by, as it passes this one."""
+    if os.name != "posix" or signal.getsignal(signal.SIGINT) is not signal.SIG_IGN:
+        return {}
+    return {"start_new_session": True}
 
 
 def _end_process(proc: subprocess.Popen) -> None:
