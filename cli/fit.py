@@ -433,7 +433,8 @@ def command(
         for p in (
             input_path,
             output_path,
-            report_path_for(output_path),
+            # (no report name for a path without a file name: the fit refuses that path)
+            report_path_for(output_path) if Path(output_path).name else None,
             particles_path,
             preview_path,
         )

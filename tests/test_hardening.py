@@ -619,6 +619,35 @@ def test_an_output_in_another_format_is_refused_before_the_fit(
     assert sorted(os.listdir(tmp_path)) == ["scan.ply"]
 
 
+@pytest.mark.parametrize("tiled", [False, True])
+@pytest.mark.parametrize(
+    ("output", "words"), [(".", ["empty output path"]), ("/", ["is a directory"])]
+)
+def test_an_output_without_a_file_name_is_refused_by_name(tmp_path, output, words, tiled):
+    """Regression: ``fit -o .`` (or ``/``) ended in "ValueError: PosixPath('.') has an empty
+    name", a traceback with exit 1: the report's name was made before the path was checked."""
+    src = tmp_path / "scan.ply"
+    src.write_bytes(ply_bytes(S))
+    tiles = ["--tile-size", "1"] if tiled else []
+    res = _run(["fit", str(src), "-o", output, *tiles, *FAST])
+    _assert_clean_failure(res, 2, [output], words)
+    assert sorted(os.listdir(tmp_path)) == ["scan.ply"]
+
+
+@pytest.mark.parametrize("tiled", [False, True])
+def test_particles_onto_the_mesh_output_say_so(tmp_path, tiled):
+    """Regression: ``--particles`` naming the ``-o`` file was refused as "refusing to
+    overwrite an input file", which it is not."""
+    src = tmp_path / "scan.ply"
+    src.write_bytes(ply_bytes(S))
+    out = tmp_path / "m.ply"
+    tiles = ["--tile-size", "1"] if tiled else []
+    res = _run(["fit", str(src), "-o", str(out), "--particles", str(out), *tiles, *FAST])
+    _assert_clean_failure(res, 2, ["m.ply"], ["is also the mesh output"])
+    assert "input file" not in res.stderr
+    assert sorted(os.listdir(tmp_path)) == ["scan.ply"]
+
+
 @pytest.mark.parametrize("name", ["m.jpg", "m"])
 def test_a_report_picture_in_another_format_than_png_is_refused(tmp_path, name):
     """Regression: ``oprecon report MESH --png m.jpg`` wrote PNG bytes under that name."""

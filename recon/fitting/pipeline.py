@@ -733,9 +733,9 @@ def fit_file(
     meshes = [output_path] + [
         check_output_path(Path(p), inputs=[input_path], mkdir=mkdir) for p in extra_meshes
     ]
-    for p in (particles_path, preview_path, report_path):
-        if p is not None:
-            check_output_path(Path(p), inputs=[input_path, output_path], mkdir=mkdir)
+    taken = [(m, "the mesh output") for m in meshes]
+    for p in (q for q in (particles_path, preview_path, report_path) if q is not None):
+        check_output_path(Path(p), inputs=[input_path], mkdir=mkdir, taken=taken)
     for mesh_path in meshes:
         check_attribute_output(mesh_path, cfg.output)
     cloud = read_points(

@@ -33,6 +33,7 @@ def check_output_path(
     mkdir: bool = False,
     *,
     mkdir_option: str | None = "--mkdir",
+    taken: Sequence[tuple[str | os.PathLike[str], str]] = (),
 ) -> Path:
     """Validate an output path before any work is done.
 
@@ -46,6 +47,9 @@ def check_output_path(
         Create a missing parent folder instead of failing.
     mkdir_option : str or None
         The caller's option that creates the folder, named in the error; None when it has none.
+    taken : sequence of (path-like, str)
+        Other outputs of the run and what each is (``"the mesh (-o)"``): writing onto one of
+        them is refused, naming it.
 
     Returns
     -------
@@ -72,6 +76,9 @@ def check_output_path(
             raise input_error(
                 out, "refusing to overwrite an input file; choose another output name"
             )
+    for other, what in taken:
+        if resolved == Path(other).resolve():
+            raise input_error(out, f"is also {what}; give each output its own name")
     parent = resolved.parent
     if not parent.exists():
         if not mkdir:

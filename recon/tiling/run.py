@@ -221,7 +221,9 @@ def fit_tiled(
     report_path = report_path_for(output_path) if want_report else None
     for p in (particles_path_out, preview_path, report_path):
         if p is not None:
-            check_output_path(Path(p), inputs=[input_path, output_path], mkdir=mkdir)
+            check_output_path(
+                Path(p), inputs=[input_path], mkdir=mkdir, taken=[(output_path, "the mesh output")]
+            )
     from ..attributes import check_attribute_output, check_transfer
 
     check_attribute_output(output_path, cfg.output)  # OBJ: no --transfer, --quality
