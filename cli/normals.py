@@ -144,9 +144,11 @@ def command(
             how = "kept the file's normals"
             if info.get("n_filled"):
                 how += f" ({info['n_filled']} invalid re-estimated)"
+            if "orientation" in info:
+                how += f", oriented {info['orientation']}"
         else:
             how = (
-                f"estimated (k={cfg.normals.k}), oriented {info['orientation']}: "
+                f"estimated (k={info['k']}), oriented {info['orientation']}: "
                 f"{info['n_components']} component(s), {info['n_guessed']} guessed"
             )
         click.echo(f"{output_path}: {len(cloud):,} points, {how}, {info['time_s']:.2f}s", err=True)

@@ -660,7 +660,9 @@ def compute_normals(
     cfg : NormalsConfig
         ``mode`` (auto: the file's normals when present, else estimated; estimate; input),
         ``k`` (raised on noisy data when ``auto_scale``), ``radius``, ``orient_k``,
-        ``orientation``, ``viewpoint`` (file coordinates).
+        ``orientation``, ``viewpoint`` (file coordinates). The file's normals keep their
+        signs unless ``orientation`` is ``outward`` or ``viewpoint``, or a ``viewpoint`` is
+        set: then they are oriented as estimated ones are.
     neighbors : (distances (n, m), indices (n, m)), optional
         The points' m nearest points, nearest first (a shared k-d tree query); the estimate
         and the orientation graph take their neighbours from it where m covers them.
@@ -711,6 +713,14 @@ def compute_normals(
         if n_bad:
             normals[bad] = _fill_normals(pts, normals, bad, cfg.k)
         info = {"source": "input", "n_filled": n_bad}
+        if cfg.orientation in ("outward", "viewpoint") or (
+            cfg.orientation == "auto" and cfg.viewpoint is not None
+        ):
+            # an orientation asked for is applied to the file's normals too (their axes
+            # kept, their signs made consistent and then global); by default their signs stay
+            normals, oinfo = _orient(cloud, normals, cfg, neighbors)
+            info["orientation"] = oinfo.pop("method")
+            info.update(oinfo)
     else:
         k = choose_neighborhood_size(pts, cfg.k) if cfg.auto_scale else cfg.k
         if k_max is None:
@@ -719,26 +729,37 @@ def compute_normals(
         normals = estimate_normals(
             pts, k=k, radius=cfg.radius, neighbors=shared, k_max=k_max, tree=tree
         )
-        viewpoint = None
-        if cfg.viewpoint is not None:
-            viewpoint = np.asarray(cfg.viewpoint, dtype=np.float64) - cloud.origin
-        normals, oinfo = orient_normals(
-            pts,
-            normals,
-            k=cfg.orient_k,
-            orientation=cfg.orientation,
-            viewpoint=viewpoint,
-            across_cost=cfg.thin_parts,
-            thin_gap=cfg.thin_gap,
-            thin_gap_taper=cfg.thin_gap_taper,
-            neighbors=None if neighbors is None else neighbors[1],
-        )
+        normals, oinfo = _orient(cloud, normals, cfg, neighbors)
         info = {"source": "estimated", "n_filled": 0, "k": k, "radius": cfg.radius}
-        odict = oinfo.as_dict()
-        info["orientation"] = odict.pop("method")
-        info.update(odict)
+        info["orientation"] = oinfo.pop("method")
+        info.update(oinfo)
     info["time_s"] = time.perf_counter() - t0
     return normals, info
+
+
+def _orient(
+    cloud: PointCloud,
+    normals: np.ndarray,
+    cfg: NormalsConfig,
+    neighbors: tuple[np.ndarray, np.ndarray] | None,
+) -> tuple[np.ndarray, dict[str, Any]]:
+    """:func:`orient_normals` as the configuration asks (``viewpoint`` in file coordinates);
+    the orientation fields of :class:`OrientationInfo` as a dict (``method`` among them)."""
+    viewpoint = None
+    if cfg.viewpoint is not None:
+        viewpoint = np.asarray(cfg.viewpoint, dtype=np.float64) - cloud.origin
+    normals, oinfo = orient_normals(
+        cloud.points,
+        normals,
+        k=cfg.orient_k,
+        orientation=cfg.orientation,
+        viewpoint=viewpoint,
+        across_cost=cfg.thin_parts,
+        thin_gap=cfg.thin_gap,
+        thin_gap_taper=cfg.thin_gap_taper,
+        neighbors=None if neighbors is None else neighbors[1],
+    )
+    return normals, oinfo.as_dict()
 
 
 def _fill_normals(points: np.ndarray, normals: np.ndarray, bad: np.ndarray, k: int) -> np.ndarray:

@@ -286,6 +286,24 @@ def test_compute_viewpoint_in_file_coordinates():
     assert np.all(n[:, 2] < 0) and info["component_methods"] == {"viewpoint": 1}
 
 
+def test_an_orientation_asked_for_applies_to_the_files_normals():
+    """Regression: ``--orientation outward`` and ``--viewpoint`` were ignored when the file
+    had normals (51 % outward kept; a plane seen from below kept its normals up), with no
+    warning. The file's axes are kept; their signs follow the orientation asked for."""
+    p, d = sphere(800)
+    c = cloud_from_arrays(p, scramble(d))
+    n, info = compute_normals(c, NormalsConfig(orientation="outward"))
+    assert info["source"] == "input" and info["orientation"] == "outward"
+    np.testing.assert_allclose(n, d, atol=1e-12)  # the file's axes, all outward
+    n, info = compute_normals(c, NormalsConfig())  # by default the file's signs stay
+    np.testing.assert_allclose(n, scramble(d), atol=1e-12)
+    assert "orientation" not in info
+    q = plane() + [5e6, 4e6, 100.0]
+    up = np.tile([0.0, 0.0, 1.0], (len(q), 1))
+    n, info = compute_normals(cloud_from_arrays(q, up), NormalsConfig(viewpoint=[5e6, 4e6, 90.0]))
+    assert info["source"] == "input" and np.all(n[:, 2] < 0)
+
+
 def _thin_plate(seed: int = 3, n_face: int = 6000, thickness: float = 0.1, noise: float = 0.0125):
     """Thin plate (2 x 1.2 x ``thickness``, rounded rim) with noise: points, outward GT normals."""
     rng = np.random.default_rng(seed)
