@@ -129,6 +129,20 @@ def validate_mesh(vertices: Any, faces: Any) -> tuple[np.ndarray, np.ndarray]:
     return v, f
 
 
+def _unit_scaled(vertices: np.ndarray) -> tuple[np.ndarray, float]:
+    """``vertices`` divided by the power of two nearest their bounding box's largest side,
+    and that factor. The measures here are scale-free but for lengths (multiplied back by the
+    factor); a power of two changes no bit of them, while squared areas of a mesh 1e-90 across
+    underflowed (every face "degenerate") and those of one 1e160 across overflowed."""
+    if len(vertices) == 0:
+        return vertices, 1.0
+    extent = float(np.max(vertices.max(axis=0) - vertices.min(axis=0)))
+    if not (np.isfinite(extent) and extent > 0.0):
+        return vertices, 1.0
+    factor = float(np.ldexp(1.0, int(np.round(np.log2(extent)))))
+    return (vertices / factor if factor != 1.0 else vertices), factor
+
+
 def _face_geometry(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Doubled areas ``(F,)`` and edge lengths ``(F, 3)`` (edge k runs corner k -> k+1)."""
     p = vertices[faces]
@@ -217,7 +231,18 @@ def mesh_topology(vertices: Any, faces: Any) -> dict[str, Any]:
     (True, 2, 0)
     """
     v, f = validate_mesh(vertices, faces)
-    return _mesh_topology(v, f, _degenerate_mask(v, f))
+    v, factor = _unit_scaled(v)
+    return _lengths_times(_mesh_topology(v, f, _degenerate_mask(v, f)), factor)
+
+
+def _lengths_times(measures: dict[str, Any], factor: float) -> dict[str, Any]:
+    """``measures`` with their lengths (``largest_hole_perimeter``, ``edge_length_mean``)
+    multiplied by ``factor`` (back from :func:`_unit_scaled`)."""
+    if factor != 1.0:
+        for key in ("largest_hole_perimeter", "edge_length_mean"):
+            if measures.get(key) is not None:
+                measures[key] = measures[key] * factor
+    return measures
 
 
 def _mesh_topology(
@@ -333,9 +358,13 @@ def topology_and_quality(vertices: Any, faces: Any) -> tuple[dict[str, Any], dic
     (1, 60.0)
     """
     v, f = validate_mesh(vertices, faces)
+    v, factor = _unit_scaled(v)
     geometry = _face_geometry(v, f)
     masks = _degenerate_mask(v, f, geometry)
-    return _mesh_topology(v, f, masks), _triangle_quality(v, f, geometry, masks[1])
+    return (
+        _lengths_times(_mesh_topology(v, f, masks), factor),
+        _lengths_times(_triangle_quality(v, f, geometry, masks[1]), factor),
+    )
 
 
 def triangle_quality(vertices: Any, faces: Any) -> dict[str, Any]:
@@ -371,8 +400,11 @@ def triangle_quality(vertices: Any, faces: Any) -> dict[str, Any]:
     (60.0, 1.0)
     """
     v, f = validate_mesh(vertices, faces)
+    v, factor = _unit_scaled(v)
     geometry = _face_geometry(v, f)
-    return _triangle_quality(v, f, geometry, _degenerate_mask(v, f, geometry)[1])
+    return _lengths_times(
+        _triangle_quality(v, f, geometry, _degenerate_mask(v, f, geometry)[1]), factor
+    )
 
 
 def _triangle_quality(

@@ -43,6 +43,22 @@ def test_point_to_mesh_distance_is_precise_far_from_the_origin():
     assert d[0] == pytest.approx(1e-3, rel=1e-4)
 
 
+@pytest.mark.parametrize("scale", [1e-10, 1e12, 1e20])
+def test_point_to_mesh_distance_does_not_depend_on_the_units(sphere, scale):
+    """Regression: Embree's float32 query with its own tolerances put a sphere's fit 1e-10
+    or 1e12 across 30-60x farther from its data than at unit size, and found no face at all
+    1e20 across; the mean distance over the diagonal must not depend on the units."""
+    v, f = sphere
+    rng = np.random.default_rng(0)
+    q = rng.normal(size=(2000, 3))
+    q *= (1.0 + 0.01 * rng.random((2000, 1))) / np.linalg.norm(q, axis=1, keepdims=True)
+    unit = point_to_mesh_distance(q, v, f)
+    scaled = point_to_mesh_distance(q * scale, v * scale, f) / scale
+    np.testing.assert_allclose(scaled, unit, rtol=1e-3, atol=1e-6)
+    same = compare_meshes((v * scale, f), (v * scale, f), n_samples=2000)
+    assert same["chamfer_l1_relative"] < 1e-6, same["chamfer_l1_relative"]
+
+
 def test_point_to_mesh_distance_needs_faces():
     with pytest.raises(InputError, match="no faces"):
         point_to_mesh_distance(np.zeros((2, 3)), np.zeros((3, 3)), np.zeros((0, 3), int))

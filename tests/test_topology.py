@@ -203,3 +203,24 @@ def test_topology_and_quality_is_both_measures(shape):
     assert topo == mesh_topology(v, f)
     assert quality == triangle_quality(v, f)
     assert topo["duplicate_faces"] == 1 and topo["degenerate_faces"] == 1
+
+
+@pytest.mark.parametrize("scale", [1e-90, 1e-30, 2.0**-40, 1e30, 1e160])
+def test_measures_do_not_depend_on_the_units(scale):
+    """Regression: a mesh 1e-90 across had its squared areas underflow, every face counted
+    degenerate and no angle measured (``fit`` then crashed formatting None). Angles, ratios
+    and counts are the same at any scale; lengths scale with it."""
+    v, f = icosphere(2)
+    topo, qual = topology_and_quality(v, f)
+    topo_s, qual_s = topology_and_quality(v * scale, f)
+    for key in ("min_angle_mean_deg", "min_angle_min_deg", "aspect_ratio_max", "n_measured"):
+        assert qual_s[key] == pytest.approx(qual[key], rel=1e-12), key
+    assert qual_s["edge_length_mean"] == pytest.approx(qual["edge_length_mean"] * scale, rel=1e-12)
+    assert topo_s == topo
+    assert triangle_quality(v * scale, f) == qual_s
+    assert mesh_topology(v * scale, f) == topo_s
+    # lengths of a mesh with a hole scale with it
+    g, gf = grid(4, 4)
+    assert mesh_topology(g * scale, gf)["largest_hole_perimeter"] == pytest.approx(
+        mesh_topology(g, gf)["largest_hole_perimeter"] * scale, rel=1e-12
+    )
