@@ -350,3 +350,14 @@ def test_polishing_leaves_boundary_vertices_where_they_are():
     assert np.abs(v1[inner] - v0[inner]).max() > 1e-3  # the inside was polished
     assert np.abs(v1[:, 2]).max() < 1e-6  # and stayed on the plane
     assert pol.report.topology.boundary_loops == 2
+
+
+def test_an_r0_far_below_the_data_spacing_keeps_the_default_gap_in_range():
+    """Regression: ``--spacing 3e-4`` on data 0.04 apart stopped with "growth.max_gap: 1233.9
+    is out of range", a key the user never set: the default gap (10 data spacings) is now
+    capped at the key's own limit, and the particle cap speaks for the spacing."""
+    from recon.fitting.scale import with_max_gap
+
+    cfg = with_max_gap(ReconConfig(), r0=3e-4, median_spacing=0.037)
+    assert cfg.growth.max_gap == 1000.0
+    assert with_max_gap(ReconConfig(), r0=1.0, median_spacing=0.4).growth.max_gap == 4.0

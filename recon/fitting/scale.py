@@ -164,4 +164,8 @@ def with_max_gap(cfg: ReconConfig, r0: float, median_spacing: float) -> ReconCon
     """``cfg`` with ``growth.max_gap`` [r0] resolved: ``AUTO_GAP`` data spacings when unset."""
     if cfg.growth.max_gap is not None:
         return cfg
-    return with_values(cfg, growth={"max_gap": max(AUTO_GAP * median_spacing / r0, MIN_AUTO_GAP)})
+    gap = max(AUTO_GAP * median_spacing / r0, MIN_AUTO_GAP)
+    # (an r0 far below the data spacing, --spacing 3e-4 on data 0.04 apart: the key's own
+    # limit, so that the particle count refuses that r0 by its name, not this derived key)
+    gap = min(gap, type(cfg.growth).__dataclass_fields__["max_gap"].metadata["max"])
+    return with_values(cfg, growth={"max_gap": gap})
