@@ -352,12 +352,13 @@ def test_polishing_leaves_boundary_vertices_where_they_are():
     assert pol.report.topology.boundary_loops == 2
 
 
-def test_an_r0_far_below_the_data_spacing_keeps_the_default_gap_in_range():
-    """Regression: ``--spacing 3e-4`` on data 0.04 apart stopped with "growth.max_gap: 1233.9
-    is out of range", a key the user never set: the default gap (10 data spacings) is now
-    capped at the key's own limit, and the particle cap speaks for the spacing."""
+def test_an_r0_far_below_the_data_spacing_is_refused_by_the_spacing():
+    """Regression: ``--spacing 3e-4`` on data 0.037 apart stopped with "growth.max_gap: 1233.9
+    is out of range", a key the user never set; the message now names the spacing and the
+    smallest one the default gap allows (10 data spacings within growth.max_gap's 1000 r0)."""
     from recon.fitting.scale import with_max_gap
 
-    cfg = with_max_gap(ReconConfig(), r0=3e-4, median_spacing=0.037)
-    assert cfg.growth.max_gap == 1000.0
+    with pytest.raises(InputError, match=r"r0 = 0.0003 is 123 times below .* 0\.037.*--spacing"):
+        with_max_gap(ReconConfig(), r0=3e-4, median_spacing=0.037)
+    assert with_max_gap(ReconConfig(), r0=3.7e-4, median_spacing=0.037).growth.max_gap == 1000
     assert with_max_gap(ReconConfig(), r0=1.0, median_spacing=0.4).growth.max_gap == 4.0

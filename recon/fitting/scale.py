@@ -165,7 +165,12 @@ def with_max_gap(cfg: ReconConfig, r0: float, median_spacing: float) -> ReconCon
     if cfg.growth.max_gap is not None:
         return cfg
     gap = max(AUTO_GAP * median_spacing / r0, MIN_AUTO_GAP)
-    # (an r0 far below the data spacing, --spacing 3e-4 on data 0.04 apart: the key's own
-    # limit, so that the particle count refuses that r0 by its name, not this derived key)
-    gap = min(gap, type(cfg.growth).__dataclass_fields__["max_gap"].metadata["max"])
+    limit = type(cfg.growth).__dataclass_fields__["max_gap"].metadata["max"]
+    if gap > limit:  # an r0 far below the data spacing (--spacing 3e-4 on data 0.04 apart)
+        raise InputError(
+            f"the rest spacing r0 = {r0:.4g} is {median_spacing / r0:.0f} times below the "
+            f"data's median point spacing {median_spacing:.4g}: particles that close resolve "
+            "the sampling, not the surface (the default r0 is about 2.5 point spacings); give "
+            f"--spacing {AUTO_GAP * median_spacing / limit:.4g} or more (or --spacing-relative)"
+        )
     return with_values(cfg, growth={"max_gap": gap})
