@@ -227,3 +227,12 @@ def test_bad_input_subprocess_no_traceback(tmp_path):
     assert proc.returncode == 2
     assert "Traceback" not in proc.stderr and str(path) in proc.stderr
     assert not out.exists()
+
+
+def test_the_normals_summary_gives_the_k_it_used(tmp_path):
+    """Regression: the summary printed the configured k (20) where the noise rule raised it
+    (80 on the noisy bunny sample)."""
+    out = tmp_path / "n.ply"
+    r = run("normals", SAMPLES / "bunny-noise1.ply", "-o", out)
+    assert r.exit_code == 0, r.output
+    assert "estimated (k=80)" in r.stderr, r.stderr
