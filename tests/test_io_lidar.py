@@ -88,6 +88,25 @@ def write_e57(
     return path
 
 
+def test_an_e57_whose_scans_differ_in_colour_says_its_colours_are_not_read(tmp_path, caplog):
+    """Regression: one scan with colours and one without gave a cloud without colours and no
+    word of it."""
+    rng = np.random.default_rng(0)
+    pts = rng.normal(size=(400, 3))
+    path = tmp_path / "mixed.e57"
+    with pye57.E57(str(path), mode="w") as e57:
+        for k, part in enumerate(np.array_split(np.arange(len(pts)), 2)):
+            data = {f"cartesian{c}": pts[part, j].copy() for j, c in enumerate("XYZ")}
+            if k == 0:
+                for c in ("Red", "Green", "Blue"):
+                    data[f"color{c}"] = np.full(len(part), 200, dtype=np.uint8)
+            e57.write_scan_raw(data)
+    with caplog.at_level("WARNING", logger="recon.io.e57"):
+        cloud = read_points(path)
+    assert cloud.colors is None
+    assert "1 of 2 scans have colours, the other scans none" in caplog.text
+
+
 def _sorted_rows(a: np.ndarray) -> np.ndarray:
     return a[np.lexsort(a.T[::-1])]
 

@@ -14,12 +14,15 @@ References
 
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from .common import check_count, input_error, optional_module
+
+logger = logging.getLogger(__name__)
 
 __all__ = ["read_points"]
 
@@ -70,6 +73,7 @@ def read_points(
         fields = [set(h.point_fields) for h in headers]
         has_rgb = n_scans > 0 and all({"colorRed", "colorGreen", "colorBlue"} <= f for f in fields)
         has_int = n_scans > 0 and all("intensity" in f for f in fields)
+        _warn_partial(path, fields, has_rgb, has_int)
         for i in range(n_scans):
             data = e57.read_scan(
                 i, intensity=has_int, colors=has_rgb, transform=True, ignore_missing_fields=True
@@ -105,3 +109,17 @@ def read_points(
         colors = rgb / (255.0 if rgb.size == 0 or rgb.max() <= 255 else 65535.0)
     attributes = {"intensity": np.concatenate(int_parts)} if has_int and int_parts else {}
     return "e57", xyz, None, colors, attributes
+
+
+def _warn_partial(path: Path, fields: list[set[str]], has_rgb: bool, has_int: bool) -> None:
+    """Warn when some scans have colours (intensity) and others not: the cloud then has none,
+    as a mesh cannot take colours from a part of its points."""
+    rgb = {"colorRed", "colorGreen", "colorBlue"}
+    some_rgb = sum(rgb <= f for f in fields)
+    some_int = sum("intensity" in f for f in fields)
+    for what, some, kept in (("colours", some_rgb, has_rgb), ("intensity", some_int, has_int)):
+        if some and not kept:
+            logger.warning(
+                "%s: %d of %d scans have %s, the other scans none; the file's %s are not read",
+                path, some, len(fields), what, what,
+            )  # fmt: skip
