@@ -192,8 +192,10 @@ def catch_errors(func: Callable[..., Any]) -> Callable[..., Any]:
     def wrapper(*args: Any, **kwargs: Any) -> Any:
         ctx = click.get_current_context()
         debug = bool((ctx.find_root().obj or {}).get("debug"))
+        from recon.io.files import folders_undone_on_failure  # (at run time: start-up)
+
         try:
-            with deferred_interrupts():
+            with deferred_interrupts(), folders_undone_on_failure():
                 return func(*args, **kwargs)
         except OpreconError as exc:
             if debug:

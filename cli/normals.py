@@ -138,7 +138,19 @@ def command(
     )
     with thread_count(cfg.threads):
         normals, info = compute_normals(cloud, cfg.normals)
-    write_points(output_path, cloud.points, normals, origin=cloud.origin, ascii=cfg.io.ascii)
+    import numpy as np
+
+    # the file's colours and per-point scalars go along: normals, then fit, keeps the colours
+    rgb = None if cloud.colors is None else np.round(255.0 * cloud.colors).astype(np.uint8)
+    write_points(
+        output_path,
+        cloud.points,
+        normals,
+        origin=cloud.origin,
+        ascii=cfg.io.ascii,
+        colors=rgb,
+        vertex_properties=dict(cloud.attributes) or None,
+    )
     if not quiet:
         if info["source"] == "input":
             how = "kept the file's normals"

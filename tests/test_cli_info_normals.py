@@ -236,3 +236,25 @@ def test_the_normals_summary_gives_the_k_it_used(tmp_path):
     r = run("normals", SAMPLES / "bunny-noise1.ply", "-o", out)
     assert r.exit_code == 0, r.output
     assert "estimated (k=80)" in r.stderr, r.stderr
+
+
+def test_normals_keep_the_files_colours_and_scalars(tmp_path):
+    """Regression: ``oprecon normals`` wrote points and normals only; a coloured scan lost its
+    colours on the way to ``fit``."""
+    from plyfile import PlyData
+
+    from recon.io import read_points
+
+    rng = np.random.default_rng(0)
+    p = rng.normal(size=(500, 3))
+    p /= np.linalg.norm(p, axis=1, keepdims=True)
+    rgb = rng.integers(0, 256, size=(500, 3)).astype(np.uint8)
+    src = tmp_path / "c.pts"  # x y z intensity r g b
+    np.savetxt(src, np.column_stack([p, np.arange(500.0), rgb]), fmt="%.8f")
+    out = tmp_path / "n.ply"
+    r = run("normals", src, "-o", out)
+    assert r.exit_code == 0, r.output
+    back = read_points(out)
+    assert back.normals is not None
+    np.testing.assert_array_equal(np.round(255 * back.colors).astype(np.uint8), rgb)
+    np.testing.assert_array_equal(PlyData.read(str(out))["vertex"]["intensity"], np.arange(500))

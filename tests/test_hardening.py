@@ -203,7 +203,8 @@ BAD_INPUTS: list[tuple[str, str, Callable[[], bytes], tuple[str, ...]]] = [
     (
         "ply-non-ascii-header",
         "scan.ply",
-        lambda: ply_bytes(S).replace(b"end_header", b"comment \xff\xfe\nend_header"),
+        # (a comment may hold any bytes: UTF-8 comments are common; a property may not)
+        lambda: ply_bytes(S).replace(b"end_header", b"property float \xff\xfe\nend_header"),
         ("non-ascii",),
     ),
     (
@@ -687,6 +688,20 @@ def test_mkdir_creates_the_folder_for_fit_and_normals(tmp_path):
         assert not [n for n in names if n.startswith(".")], names
 
 
+@pytest.mark.parametrize("command", ["fit", "normals"])
+def test_a_failed_run_takes_back_the_folders_mkdir_made(tmp_path, command):
+    """Regression: ``fit --mkdir`` on a bad input left the empty folders it had made; a
+    folder that existed before, or that holds a file, stays."""
+    src = tmp_path / "scan.ply"
+    src.write_bytes(b"ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nend_header\n")
+    (tmp_path / "kept").mkdir()
+    out = tmp_path / "kept" / "new" / "deep" / "o.ply"
+    extra = FAST if command == "fit" else []
+    res = _run([command, str(src), "-o", str(out), "--mkdir", *extra])
+    assert res.exit_code == 2, res.output
+    assert os.listdir(tmp_path / "kept") == []  # new/deep made and taken back; kept stays
+
+
 # --------------------------------------------------------------------------------------------
 # configuration files
 
@@ -800,7 +815,7 @@ def test_normals_failure_leaves_nothing(tmp_path, monkeypatch):
     src.write_bytes(ply_bytes(S))
     res = _run(["normals", str(src), "-o", str(tmp_path / "n" / "o.ply"), "--mkdir"])
     assert res.exit_code == 130 and "interrupted" in res.stderr
-    assert os.listdir(tmp_path / "n") == []
+    assert not (tmp_path / "n").exists()  # the folder --mkdir made is taken back
 
 
 def test_numbers_in_hostile_header_are_checked_before_allocation(tmp_path):

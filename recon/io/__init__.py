@@ -149,7 +149,8 @@ def read_points(
     -------
     PointCloud
         Non-finite rows dropped, duplicates merged, ``origin`` chosen by :func:`choose_origin`;
-        LAS/LAZ and E57 also fill ``attributes`` (intensity, classification).
+        LAS/LAZ and E57 also fill ``attributes`` (intensity, classification), text files
+        with an intensity column (PTS) the intensity.
 
     Raises
     ------
@@ -181,7 +182,7 @@ def read_points(
         elif kind == "obj":
             fmt, pts, nrm, col = obj.read_points(p, max_points, info)
         else:
-            fmt, pts, nrm, col = xyz.read_points(p, max_points, info)
+            fmt, pts, nrm, col, attributes = xyz.read_points(p, max_points, info)
     return make_cloud(p, fmt, pts, nrm, col, merge_duplicates, info, attributes)
 
 
@@ -307,6 +308,8 @@ def write_points(
     origin: np.ndarray | None = None,
     ascii: bool = False,
     outputs: AtomicOutputs | None = None,
+    colors: np.ndarray | None = None,
+    vertex_properties: dict[str, np.ndarray] | None = None,
 ) -> None:
     """Write an (oriented) point cloud as PLY, atomically.
 
@@ -326,6 +329,11 @@ def write_points(
     outputs : AtomicOutputs, optional
         Write as part of this set of outputs (moved into place together when its
         :func:`~recon.io.files.atomic_outputs` block ends) instead of on its own.
+    colors : (n, 3) uint8, optional
+        PLY ``red green blue`` (uchar).
+    vertex_properties : dict of name -> (n,) array, optional
+        More vertex properties, typed as in :func:`write_mesh` (``intensity``,
+        ``classification`` ...).
 
     Notes
     -----
@@ -334,8 +342,12 @@ def write_points(
     """
     xyz = _absolute(points, origin)
     nrm = _check_normals(normals, xyz.shape[0])
+    rgb = _check_colors(colors, xyz.shape[0])
+    extra = _vertex_properties(vertex_properties, xyz.shape[0])
+    if rgb is not None:
+        extra = [(c, rgb[:, j], "u1") for j, c in enumerate(("red", "green", "blue"))] + extra
     with atomic_output(path, outputs) as tmp, open(tmp, "wb") as fh:
-        ply.write(fh, xyz, nrm, None, ascii)
+        ply.write(fh, xyz, nrm, None, ascii, extra or None)
 
 
 def write_mesh(

@@ -9,6 +9,7 @@ from __future__ import annotations
 import contextlib
 import os
 import re
+import stat
 import warnings
 from collections.abc import Iterator, Sequence
 from pathlib import Path
@@ -27,8 +28,10 @@ __all__ = [
     "as_input_points",
     "check_count",
     "check_readable",
+    "check_regular_file",
     "colors_from",
     "input_error",
+    "integer_color_scale",
     "loadtxt",
     "loadtxt_message",
     "optional_module",
@@ -106,6 +109,7 @@ def check_readable(path: Path) -> int:
         raise input_error(path, "no such file")
     if path.is_dir():
         raise input_error(path, "is a directory, expected a point-cloud file")
+    check_regular_file(path)  # a pipe has no size: it said "file is empty"
     try:
         size = path.stat().st_size
     except OSError as exc:
@@ -117,20 +121,98 @@ def check_readable(path: Path) -> int:
     return size
 
 
+def check_regular_file(path: str | os.PathLike[str]) -> None:
+    """Refuse an input that is a pipe, a socket or a device rather than a regular file.
+
+    A pipe (``oprecon info <(cat s.xyz)``, a FIFO) has no size and can be read only once, but
+    the readers check sizes claimed by headers against the file size, recognise the format of
+    a file without a known extension from its first bytes before reading it again, and the
+    tiled commands read an input twice: a pipe was reported as "file is empty", and would
+    otherwise be read in part. Saving the stream to a file is the simple and safe answer.
+
+    A missing file or a folder passes: the readers' own checks say so.
+
+    Raises
+    ------
+    InputError
+        ``path`` is a pipe, a socket or a device (the message says to save it to a file).
+    """
+    try:
+        mode = os.stat(path).st_mode
+    except OSError:
+        return
+    if stat.S_ISREG(mode) or stat.S_ISDIR(mode):
+        return
+    if stat.S_ISFIFO(mode):
+        what = "a pipe"
+    elif stat.S_ISSOCK(mode):
+        what = "a socket"
+    else:
+        what = "a device"
+    raise input_error(
+        path,
+        f"is {what}, not a regular file: point clouds are read from files that can be measured "
+        "and read more than once, which pipes cannot; save the stream to a file first",
+    )
+
+
 def check_count(path: Path, n: int, max_points: int) -> None:
     if n > max_points:
         raise input_error(path, f"{n} points exceed the limit of {max_points} (io.max_points)")
 
 
-def colors_from(arr: np.ndarray) -> np.ndarray:
-    """Colour channels of any numeric type to float64 in [0, 1]."""
-    if np.issubdtype(arr.dtype, np.integer):
-        top = float(np.iinfo(arr.dtype).max)
-        return arr.astype(np.float64) / (255.0 if top >= 255 else top)
-    out = arr.astype(np.float64)
-    if out.size and np.nanmax(out) > 1.0:
-        out = out / 255.0
+def colors_from(channels: np.ndarray | Sequence[np.ndarray]) -> np.ndarray:
+    """Colour channels of any numeric type to float64, 1.0 being full intensity.
+
+    Integer channels are scaled by their type (:func:`integer_color_scale`), never by their
+    values. Float channels are on a 0-1 scale unless a value exceeds 1, then on 0-255; the
+    decision is one for all float channels together, so that a dark blue channel of a 0-255
+    file is not taken as a 0-1 one.
+
+    Parameters
+    ----------
+    channels : (n, k) array, or k arrays (n,)
+        The channels (red, green, blue); given separately each keeps its own type (PLY
+        properties).
+
+    Returns
+    -------
+    (n, k) float64
+        Values outside [0, 1] are kept (the reader's cleaning clips them).
+    """
+    if isinstance(channels, np.ndarray):
+        if channels.ndim != 2:
+            raise ValueError(f"colour channels must be an (n, k) array, got {channels.shape}")
+        cols = list(channels.T)
+    else:
+        cols = [np.asarray(c) for c in channels]
+    out = np.zeros((cols[0].shape[0] if cols else 0, len(cols)), dtype=np.float64)
+    floats = []
+    for j, c in enumerate(cols):
+        if np.issubdtype(c.dtype, np.integer):
+            if c.dtype.itemsize == 1 and c.dtype.kind == "i":
+                c = c.astype(np.uint8)  # a signed byte holds 0-255 colours as -128..127
+            out[:, j] = c / integer_color_scale(c.dtype)
+        else:
+            out[:, j] = c
+            floats.append(j)
+    if floats:
+        values = out[:, floats]
+        finite = values[np.isfinite(values)]
+        if finite.size and finite.max() > 1.0:
+            out[:, floats] = values / 255.0
     return out
+
+
+def integer_color_scale(dtype: np.dtype) -> float:
+    """The value of full intensity in an integer colour channel of type ``dtype``.
+
+    65535 for 16-bit unsigned channels (PLY ``ushort``, as in LAS), 255 for every other type:
+    ``uchar`` is the usual 8-bit colour, ``char`` holds the same bytes read as signed, and the
+    wider types (``short``, ``int``, ``uint``) are written by tools that use a generic integer
+    type for 0-255 values; no writer uses their whole range for colours.
+    """
+    return 65535.0 if np.dtype(dtype) == np.uint16 else 255.0
 
 
 def pick(names: set[str], candidates: Sequence[tuple[str, ...]]) -> tuple[str, ...] | None:
@@ -150,14 +232,69 @@ def loadtxt(*args: Any, **kwargs: Any) -> np.ndarray:
 _RAGGED = re.compile(r"the number of columns changed from (\d+) to (\d+) at row (\d+)")
 
 
-def loadtxt_message(exc: ValueError) -> str:
-    """The message of ``np.loadtxt``'s ``exc`` for a user: a ragged row is said in our words."""
+#: numpy's message for a value that is not a number; its row is 0-based, its column 1-based.
+_NOT_A_NUMBER = re.compile(r"could not convert string (.*) to \w+ at row (\d+), column (\d+)")
+
+
+def loadtxt_message(
+    exc: ValueError, lines: Sequence[str] | None = None, start: int = 0, first_line: int = 1
+) -> str:
+    """The message of ``np.loadtxt``'s ``exc`` for a user, in our words.
+
+    numpy counts rows without the blank lines it skips, from 0 for a value that is not a
+    number and from 1 for a ragged row, and knows nothing of the comment and header lines the
+    caller removed; a user looks for the line in an editor. Given the lines, the row is named
+    by its line in the file (1-based, every line counted).
+
+    Parameters
+    ----------
+    exc : ValueError
+        Raised by ``np.loadtxt``.
+    lines : sequence of str, optional
+        The file's lines, of which ``lines[start:]`` were given to ``np.loadtxt``; without
+        them, rows are numbered among the data rows (from 1).
+    start : int
+        Index in ``lines`` of the first line given to ``np.loadtxt``.
+    first_line : int
+        The file's line number of ``lines[0]`` (when ``lines`` are a part of the file).
+
+    Returns
+    -------
+    str
+        For example ``"line 6: could not convert 'y' to a number (column 2)"``.
+    """
     msg = str(exc).strip().rstrip(".")
     ragged = _RAGGED.search(msg)
     if ragged:
         before, got, row = ragged.groups()
-        return f"row {row} has {got} columns, the rows before it have {before}"
+        said = f"data row {row} has {got} columns, the rows before it have {before}"
+        line = _line_of_row(lines, start, int(row) - 1, first_line)
+        return f"line {line}: {said}" if line else said
+    bad = _NOT_A_NUMBER.search(msg)
+    if bad:
+        token, row, column = bad.groups()
+        line = _line_of_row(lines, start, int(row), first_line)
+        if line:
+            return f"line {line}: could not convert {token} to a number (column {column})"
+        return f"data row {int(row) + 1}, column {column}: could not convert {token} to a number"
     return msg[0].lower() + msg[1:] if msg else "malformed numeric data"
+
+
+def _line_of_row(lines: Sequence[str] | None, start: int, row: int, first_line: int) -> int | None:
+    """The file's line number of numpy's 0-based data ``row`` of ``lines[start:]``.
+
+    numpy skips the lines that are empty or whitespace only, which ``str.strip`` empties too.
+    Only called for an error, so a loop over the lines is fine.
+    """
+    if lines is None:
+        return None
+    seen = -1
+    for i in range(start, len(lines)):
+        if lines[i].strip():
+            seen += 1
+            if seen == row:
+                return first_line + i
+    return None
 
 
 def read_text_file(path: Path) -> str:

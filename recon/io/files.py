@@ -9,6 +9,10 @@ succeeds; on any exception, ``KeyboardInterrupt`` included, every temporary is r
 destination is touched. :func:`atomic_output` is the same for a single file, or joins a file to
 an enclosing set, so writers never wrap a file twice.
 
+:func:`check_regular_file` (from :mod:`.common`, where the readers' checks are) refuses an
+input that is a pipe or a device (``<(cat s.xyz)``, a FIFO): the readers need a file they can
+measure and read more than once.
+
 Temporaries are named ``.<name>.<pid>-<8 hex digits>.tmp<suffix>``: hidden, unique per
 process, and with the destination's suffix, so writers that choose the format from the
 extension work (:mod:`recon.batch` removes those of killed workers by this pattern).
@@ -17,14 +21,22 @@ extension work (:mod:`recon.batch` removes those of killed workers by this patte
 from __future__ import annotations
 
 import contextlib
+import contextvars
 import os
 import secrets
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 
-from .common import input_error
+from .common import check_regular_file, input_error
 
-__all__ = ["AtomicOutputs", "atomic_output", "atomic_outputs", "check_output_path"]
+__all__ = [
+    "AtomicOutputs",
+    "atomic_output",
+    "atomic_outputs",
+    "check_output_path",
+    "check_regular_file",
+    "folders_undone_on_failure",
+]
 
 
 def check_output_path(
@@ -84,8 +96,12 @@ def check_output_path(
         if not mkdir:
             hint = f"create it or use {mkdir_option}" if mkdir_option else "create it first"
             raise input_error(out, f"folder '{out.parent}' does not exist ({hint})")
+        missing = [parent, *(a for a in parent.parents if not a.exists())]
         try:
             parent.mkdir(parents=True, exist_ok=True)
+            made = _MADE.get()
+            if made is not None:  # undone if the command fails (folders_undone_on_failure)
+                made.extend(reversed([a for a in missing if a.is_dir()]))
         except OSError as exc:
             raise input_error(
                 out, f"cannot create folder '{out.parent}': {exc.strerror or exc}"
@@ -93,6 +109,30 @@ def check_output_path(
     elif not parent.is_dir():
         raise input_error(out, f"'{out.parent}' is not a folder")
     return out
+
+
+#: The folders ``check_output_path(mkdir=True)`` made inside :func:`folders_undone_on_failure`.
+_MADE: contextvars.ContextVar[list[Path] | None] = contextvars.ContextVar(
+    "oprecon_folders_made", default=None
+)
+
+
+@contextlib.contextmanager
+def folders_undone_on_failure() -> Iterator[None]:
+    """Remove again, when the block fails (an error or Ctrl-C), the output folders that
+    :func:`check_output_path` made for it with ``mkdir`` and that are still empty: a failed
+    ``fit --mkdir`` left its empty folders behind."""
+    made: list[Path] = []
+    token = _MADE.set(made)
+    try:
+        yield
+    except BaseException:
+        for folder in reversed(made):  # the deepest first
+            with contextlib.suppress(OSError):
+                folder.rmdir()  # only when empty
+        raise
+    finally:
+        _MADE.reset(token)
 
 
 class AtomicOutputs:
