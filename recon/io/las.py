@@ -20,6 +20,7 @@ References
 
 from __future__ import annotations
 
+import struct
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -28,10 +29,16 @@ import numpy as np
 
 from .common import LIDAR_EXTRA, check_count, input_error, optional_module
 
-__all__ = ["CHUNK_POINTS", "read_points"]
+__all__ = ["CHUNK_POINTS", "check_header", "read_points"]
 
 #: Points per chunk read from a LAS/LAZ file.
 CHUNK_POINTS = 1_000_000
+
+#: Sizes [bytes] of the smallest LAS header (versions 1.0 to 1.2), of the fixed part of a
+#: variable length record (VLR) and of an extended one (EVLR, LAS 1.4) ([LAS] tables 3, 4, 5).
+_MIN_HEADER_BYTES = 227
+_VLR_HEADER_BYTES = 54
+_EVLR_HEADER_BYTES = 60
 
 #: GeoTIFF keys of the GeoKeyDirectory VLR that hold an EPSG code: projected, geographic,
 #: vertical.
@@ -56,6 +63,61 @@ def _crs(header: Any) -> str | None:
             if codes:
                 return ", ".join(codes)
     return None
+
+
+def check_header(path: Path) -> None:
+    """Check the sizes and counts of a LAS/LAZ header against each other and the file size.
+
+    laspy trusts them: a corrupt number of VLRs (say 0xEB000000) makes it create empty VLRs
+    past the end of the header for hours while its memory grows, and so does a corrupt number
+    of EVLRs. So the records must fit where the header puts them before laspy sees the file:
+    the VLRs between the header and the point data, the EVLRs between their start and the end
+    of the file. Smaller damage (a bad point format, record length or point count) is left to
+    laspy and to the chunked reading, which stop with an error.
+
+    Raises
+    ------
+    InputError
+        Naming the file and the header field (with its byte offsets) that is wrong.
+    """
+    size = path.stat().st_size
+    with open(path, "rb") as fh:
+        head = fh.read(_MIN_HEADER_BYTES + 148)  # up to the LAS 1.4 header's EVLR fields
+    if len(head) < _MIN_HEADER_BYTES or head[:4] != b"LASF":
+        return  # laspy says what is wrong (signature, too short)
+    bad = "not a valid LAS/LAZ file: corrupt header:"
+    header_size, data_offset, n_vlrs = struct.unpack_from("<HII", head, 94)
+    if data_offset > size:
+        raise input_error(
+            path,
+            f"{bad} the offset to point data (bytes 96-99) is {data_offset}, beyond the end "
+            f"of the file ({size} bytes)",
+        )
+    if header_size > data_offset:
+        raise input_error(
+            path,
+            f"{bad} the header size (bytes 94-95) is {header_size}, more than the offset to "
+            f"point data (bytes 96-99, {data_offset})",
+        )
+    room = data_offset - header_size
+    if n_vlrs * _VLR_HEADER_BYTES > room:
+        raise input_error(
+            path,
+            f"{bad} the number of VLRs (bytes 100-103) is {n_vlrs}, but only {room} bytes lie "
+            f"between the header and the point data (each VLR needs at least "
+            f"{_VLR_HEADER_BYTES})",
+        )
+    if head[24] == 1 and head[25] >= 4 and len(head) >= 247 and header_size >= 247:
+        evlr_start, n_evlrs = struct.unpack_from("<QI", head, 235)
+        if n_evlrs and (
+            evlr_start < data_offset or evlr_start + n_evlrs * _EVLR_HEADER_BYTES > size
+        ):
+            raise input_error(
+                path,
+                f"{bad} {n_evlrs} EVLRs (number at bytes 243-246) starting at byte {evlr_start} "
+                f"(bytes 235-242) do not fit between the point data and the end of the file "
+                f"({size} bytes; each EVLR needs at least {_EVLR_HEADER_BYTES})",
+            )
 
 
 def _open(laspy: Any, path: Path) -> Any:
@@ -99,6 +161,7 @@ def read_points(
         magic = fh.read(4)
     if magic != b"LASF":
         raise input_error(path, f"not a LAS/LAZ file: wrong signature {magic!r} (expected 'LASF')")
+    check_header(path)
     reader = _open(laspy, path)
     with reader:
         header = reader.header

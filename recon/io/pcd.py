@@ -2,7 +2,9 @@
 
 ``binary_compressed`` data is refused with a hint to convert it. Fields x, y, z are required;
 normal_x, normal_y, normal_z (or nx, ny, nz) and a packed ``rgb``/``rgba`` are used when present;
-other fields, including descriptor arrays with COUNT > 1, are skipped.
+other fields, including descriptor arrays with COUNT > 1, are skipped. In ascii data an ``rgb``
+of TYPE F is written either as the packed integer (PCL) or as the float with those bits; a file
+whose values are all integers is read as the former.
 
 References
 ----------
@@ -13,6 +15,7 @@ References
 from __future__ import annotations
 
 import io as _io
+import logging
 from pathlib import Path
 from typing import Any
 
@@ -22,6 +25,8 @@ from .common import MAX_HEADER_BYTES, check_count, input_error, loadtxt, loadtxt
 
 __all__ = ["read_points"]
 
+logger = logging.getLogger("recon.io")
+
 
 #: Largest element COUNT of a PCD field (descriptor arrays such as FPFH have 33 or 308).
 _MAX_PCD_COUNT = 1 << 16
@@ -29,9 +34,28 @@ _MAX_PCD_COUNT = 1 << 16
 _PCD_KINDS = {"F": "f", "I": "i", "U": "u"}
 
 
+def _ascii_packed_color(vals: np.ndarray) -> np.ndarray:
+    """The float32 values of an ascii ``rgb`` field of TYPE F, whose bits are 0xAARRGGBB.
+
+    Two encodings exist. PCL writes the packed colour as an integer (``13107250``), since the
+    float of an opaque colour can be NaN; older writers print the float itself, a tiny
+    (``1.8367e-38``) or huge (``-1.7014e+38``) value, or NaN. The decision is one for the whole
+    file: values that are all integers of 32 bits (signed or not) are packed integers, any
+    other value means printed floats. Such a float is an integer of 32 bits only for alpha
+    values 0x4B to 0x4F (or 0xCB to 0xCF), which no writer uses; black is 0 in both.
+    """
+    with np.errstate(invalid="ignore"):
+        ints = np.isfinite(vals) & (vals == np.round(vals)) & (vals >= -(2**31)) & (vals < 2**32)
+    if not np.all(ints):
+        return vals.astype(np.float32)  # the printed float (NaN keeps no colour)
+    # negative values are signed 32-bit writes of the same bits
+    return (vals.astype(np.int64) & 0xFFFFFFFF).astype(np.uint32).view(np.float32)
+
+
 def read_points(
     path: Path, size: int, max_points: int, info: dict[str, Any]
 ) -> tuple[str, np.ndarray, np.ndarray | None, np.ndarray | None]:
+    colors_lost = None  # an ascii float rgb field with 'nan' values: no colour to read
     with open(path, "rb") as fh:
         meta: dict[str, list[str]] = {}
         while True:
@@ -138,14 +162,12 @@ def read_points(
             col = 0
             for name, c in zip(dtype.names or (), counts_i, strict=True):
                 vals = arr[:, col : col + c] if c != 1 else arr[:, col]
-                if name.startswith(("rgb", "rgba")) and dtype[name].kind == "f":
-                    # packed colour written as the decimal value of the float or as an integer
-                    as_int = np.all(np.isfinite(vals)) and np.all(vals == np.round(vals))
-                    if as_int and np.nanmax(np.abs(vals), initial=0) > 1e6:
-                        rows[name] = vals.astype(np.uint32).view(np.float32)
-                        col += c
-                        continue
-                rows[name] = vals
+                if name in ("rgb", "rgba") and dtype[name].kind == "f":
+                    rows[name] = _ascii_packed_color(vals)
+                    if not np.all(np.isfinite(vals)):
+                        colors_lost = name
+                else:
+                    rows[name] = vals
                 col += c
             fmt = "pcd-ascii"
         else:
@@ -155,7 +177,14 @@ def read_points(
     normals = np.stack([rows[c].astype(np.float64) for c in nn], axis=1) if nn else None
     colors = None
     cname = "rgb" if "rgb" in names else ("rgba" if "rgba" in names else None)
-    if cname is not None:
+    if cname is not None and cname == colors_lost:
+        logger.warning(
+            "%s: some '%s' values are written as nan or inf, which keeps no colour; the file's "
+            "colours are not used",
+            path,
+            cname,
+        )
+    elif cname is not None:
         packed = np.ascontiguousarray(rows[cname])
         packed = packed.view(np.uint32) if packed.dtype.itemsize == 4 else packed.astype(np.uint32)
         colors = np.stack([(packed >> s) & 255 for s in (16, 8, 0)], axis=1) / 255.0

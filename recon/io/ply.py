@@ -3,7 +3,10 @@
 Reading accepts any numeric type for x, y, z; optional nx, ny, nz and red, green, blue; other
 elements (``face``, ``camera`` ...) are skipped. Faces are read from a ``vertex_indices`` (or
 ``vertex_index``) list and triangulated as fans. The header is validated (version 1.0, the only
-PLY version; known types; sizes against the file size) before anything is allocated.
+PLY version; known types; sizes against the file size) before anything is allocated; comment and
+obj_info lines may hold any bytes (UTF-8 text). Blank lines in ascii data are skipped. Integer
+colours are scaled by their type (``ushort``: 0-65535, the others 0-255), float colours are on
+0-1 unless a value exceeds 1 (then 0-255), one decision for the three channels.
 
 Writing stores binary little-endian (or ascii) PLY 1.0: ``float`` coordinates, or ``double``
 when float32 would lose more than 1e-7 of the extent; ``float`` normals; faces as
@@ -25,7 +28,9 @@ References
 from __future__ import annotations
 
 import itertools
+import logging
 import os
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, BinaryIO
@@ -39,6 +44,7 @@ from .common import (
     check_count,
     colors_from,
     input_error,
+    integer_color_scale,
     loadtxt,
     loadtxt_message,
     pick,
@@ -46,6 +52,8 @@ from .common import (
 )
 
 __all__ = ["read_mesh", "read_points", "write"]
+
+logger = logging.getLogger("recon.io")
 
 
 _PLY_TYPES = {
@@ -131,13 +139,16 @@ def _parse_ply_header(path: Path, fh: BinaryIO, size: int) -> _PlyHeader:
             raise input_error(path, "PLY header has no end_header within 1 MB")
         if not raw or not raw.endswith(b"\n"):
             raise input_error(path, "truncated PLY header (no end_header line)")
+        first = raw.split(None, 1)[:1]
+        if not first or first[0] in (b"comment", b"obj_info"):
+            continue  # free text, in any encoding (UTF-8 names, as Open3D reads them)
         try:
             line = raw.decode("ascii").strip()
         except UnicodeDecodeError:
-            raise input_error(path, "PLY header contains non-ASCII bytes") from None
+            raise input_error(
+                path, "PLY header contains non-ASCII bytes outside comment lines"
+            ) from None
         words = line.split()
-        if not words or words[0] in ("comment", "obj_info"):
-            continue
         key = words[0]
         if key == "end_header":
             break
@@ -208,10 +219,17 @@ def _parse_ply_header(path: Path, fh: BinaryIO, size: int) -> _PlyHeader:
     return header
 
 
+def _ascii_rows(fh: BinaryIO) -> Iterator[bytes]:
+    """The lines of ascii PLY data from the file's position on, blank lines skipped (they hold
+    no row; some writers leave one between elements)."""
+    return filter(bytes.strip, fh)  # lazy: the file stays just after the last row taken
+
+
 def _skip_ply_element(path: Path, fh: BinaryIO, header: _PlyHeader, el: _PlyElement) -> None:
     if not header.binary:
+        rows = _ascii_rows(fh)
         for i in range(el.count):
-            if not fh.readline():
+            if next(rows, None) is None:
                 raise input_error(path, f"truncated PLY: element '{el.name}' ends at row {i}")
         return
     if not el.has_lists:
@@ -232,7 +250,9 @@ def _read_ply_fixed(path: Path, fh: BinaryIO, header: _PlyHeader, el: _PlyElemen
                 f"truncated PLY: element '{el.name}' needs {nbytes} bytes, {len(buf)} present",
             )
         return np.frombuffer(buf, dtype=dtype, count=el.count)
-    lines = (ln.decode("ascii") for ln in itertools.islice(fh, el.count))
+    if el.count == 0:  # np.loadtxt would read the next element's rows, or say "1 values"
+        return np.zeros(0, dtype=el.row_dtype("="))
+    lines = (ln.decode("ascii") for ln in itertools.islice(_ascii_rows(fh), el.count))
     try:
         arr = loadtxt(lines, dtype=np.float64, ndmin=2, comments=None)
     except UnicodeDecodeError:
@@ -348,9 +368,10 @@ def _read_ply_list_element(
 def _read_ply_ascii_list_element(path: Path, fh: BinaryIO, el: _PlyElement) -> list[Any]:
     """Rows of an ascii element with list properties: one list per property (see above)."""
     cols: list[list[Any]] = [[] for _ in el.properties]
+    rows = _ascii_rows(fh)
     for i in range(el.count):
-        raw = fh.readline()
-        if not raw:
+        raw = next(rows, None)
+        if raw is None:
             raise input_error(
                 path, f"truncated PLY: element '{el.name}' has {i} of {el.count} rows"
             )
@@ -427,8 +448,32 @@ def read_points(
     nn = pick(names, NORMAL_NAMES)
     normals = np.stack([rows[c].astype(np.float64) for c in nn], axis=1) if nn else None
     cn = pick(names, COLOR_NAMES)
-    colors = np.stack([colors_from(np.asarray(rows[c])) for c in cn], axis=1) if cn else None
+    colors = _ply_colors(path, [np.asarray(rows[c]) for c in cn]) if cn else None
     return f"ply-{header.format}", xyz, normals, colors
+
+
+def _ply_colors(path: Path, channels: list[np.ndarray]) -> np.ndarray:
+    """Colours in [0, 1] from the channels, each scaled by its type (``ushort``: 16-bit).
+
+    An integer channel with values past full intensity for its type (an ``int`` channel
+    holding 16-bit values) is clipped later: say so rather than return white in silence.
+    """
+    for name, c in zip(("red", "green", "blue"), channels, strict=False):
+        if np.issubdtype(c.dtype, np.integer) and c.size and c.dtype.itemsize > 1:
+            lo, hi, scale = int(c.min()), int(c.max()), int(integer_color_scale(c.dtype))
+            if lo < 0 or hi > scale:
+                logger.warning(
+                    "%s: the %s (%s) channel holds colour values from %d to %d, outside 0 to "
+                    "%d (full intensity for that type); they are clipped",
+                    path,
+                    name,
+                    c.dtype.name,
+                    lo,
+                    hi,
+                    scale,
+                )
+                break
+    return colors_from(channels)
 
 
 def read_mesh(path: Path, size: int) -> tuple[np.ndarray, np.ndarray]:

@@ -105,6 +105,9 @@ def scan_header(path: Path, cfg: Any) -> ScanHeader:
     if _is_las(path):
         import laspy
 
+        from ..io.las import check_header
+
+        check_header(path)  # counts that do not fit the file (laspy then reads without end)
         try:
             with laspy.open(str(path)) as reader:
                 h = reader.header
