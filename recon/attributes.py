@@ -141,7 +141,8 @@ def check_transfer(cloud: PointCloud, transfer: Sequence[str]) -> None:
             have = ", ".join(sorted(cloud.attributes)) or "none"
             raise InputError(
                 f"{where}: --transfer {name}: the input has no {name} per point (it has: "
-                f"{have}; LAS/LAZ files have intensity and classification, E57 intensity)"
+                f"{have}; LAS/LAZ files have intensity and classification, E57 and PTS "
+                "intensity, PLY the vertex properties of those names)"
             )
 
 

@@ -456,3 +456,25 @@ def test_ply_non_ascii_outside_comments_is_still_refused(tmp_path):
     path.write_bytes(path.read_bytes().replace(b"element vertex", "element vértex".encode(), 1))
     with pytest.raises(InputError, match=r"utf8name\.ply: PLY header contains non-ASCII bytes"):
         read_points(path)
+
+
+def test_ply_intensity_and_classification_are_read_for_the_transfer(tmp_path):
+    """Regression: ``info`` listed a PLY's ``intensity``, but ``fit --transfer intensity``
+    said the input had none (the PLY reader kept no per-point scalar)."""
+    from recon.io import write_points
+
+    p = sphere(200)
+    path = tmp_path / "s.ply"
+    classes = np.arange(200) % 7
+    write_points(
+        path,
+        p,
+        vertex_properties={
+            "intensity": np.arange(200.0),
+            "classification": classes.astype(np.uint8),
+        },
+    )
+    cloud = read_points(path)
+    np.testing.assert_array_equal(cloud.attributes["intensity"], np.arange(200.0))
+    np.testing.assert_array_equal(cloud.attributes["classification"], classes)
+    assert cloud.attributes["classification"].dtype == np.uint8

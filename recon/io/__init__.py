@@ -150,7 +150,8 @@ def read_points(
     PointCloud
         Non-finite rows dropped, duplicates merged, ``origin`` chosen by :func:`choose_origin`;
         LAS/LAZ and E57 also fill ``attributes`` (intensity, classification), text files
-        with an intensity column (PTS) the intensity.
+        with an intensity column (PTS) the intensity, PLY files their ``intensity`` and
+        ``classification`` vertex properties.
 
     Raises
     ------
@@ -176,7 +177,7 @@ def read_points(
         elif kind == "e57":
             fmt, pts, nrm, col, attributes = e57.read_points(p, max_points, info)
         elif kind == "ply":
-            fmt, pts, nrm, col = ply.read_points(p, size, max_points, info)
+            fmt, pts, nrm, col, attributes = ply.read_points(p, size, max_points, info)
         elif kind == "pcd":
             fmt, pts, nrm, col = pcd.read_points(p, size, max_points, info)
         elif kind == "obj":

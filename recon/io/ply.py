@@ -434,9 +434,19 @@ def _open_ply_vertices(
     return header, rows, fh
 
 
+#: Vertex properties read as per-point scalars (``PointCloud.attributes``) for
+#: ``--transfer``: attribute -> the property names tools write it under.
+SCALAR_PROPERTIES = {
+    "intensity": ("intensity", "scalar_intensity"),
+    "classification": ("classification", "scalar_classification"),
+}
+
+
 def read_points(
     path: Path, size: int, max_points: int, info: dict[str, Any]
-) -> tuple[str, np.ndarray, np.ndarray | None, np.ndarray | None]:
+) -> tuple[str, np.ndarray, np.ndarray | None, np.ndarray | None, dict[str, np.ndarray]]:
+    """(format, xyz, normals or None, colours in [0, 1] or None, attributes: ``intensity``
+    and ``classification`` where a vertex property holds them)."""
     header, rows, fh = _open_ply_vertices(path, size, max_points)
     fh.close()
     vertex = _ply_vertex_element(path, header)
@@ -449,7 +459,17 @@ def read_points(
     normals = np.stack([rows[c].astype(np.float64) for c in nn], axis=1) if nn else None
     cn = pick(names, COLOR_NAMES)
     colors = _ply_colors(path, [np.asarray(rows[c]) for c in cn]) if cn else None
-    return f"ply-{header.format}", xyz, normals, colors
+    attributes = {}
+    for key, candidates in SCALAR_PROPERTIES.items():
+        name = next((c for c in candidates if c in names), None)
+        if name is not None:
+            values = np.asarray(rows[name])
+            attributes[key] = (
+                np.clip(values, 0, 255).astype(np.uint8)  # LAS classes are 0-255
+                if key == "classification"
+                else values.astype(np.float64)
+            )
+    return f"ply-{header.format}", xyz, normals, colors, attributes
 
 
 def _ply_colors(path: Path, channels: list[np.ndarray]) -> np.ndarray:
