@@ -133,9 +133,10 @@ def _closest_on_mesh(
 
 def check_closest_found(face_idx: np.ndarray, n_faces: int, *coordinates: np.ndarray) -> None:
     """Raise :class:`~recon.errors.InputError` when Embree's closest-point query (float32)
-    returned no face for some points (its invalid id): coordinates or distances past what
-    it resolves (surfaces 1e12 apart, or spans near 1e19). ``coordinates``: the query
-    points and the mesh's vertices, for the span the message gives."""
+    returned no face for some points (its invalid id): distances past what it resolves even
+    at the mesh's own scale (:func:`_closest_on_mesh`; before that scale, surfaces 1e12
+    apart or spans near 1e19 failed). ``coordinates``: the query points and the mesh's
+    vertices, for the span the message gives."""
     missed = int(np.count_nonzero((face_idx < 0) | (face_idx >= n_faces)))
     if missed:
         lo = np.min([c.min(axis=0) for c in coordinates if len(c)], axis=0)
