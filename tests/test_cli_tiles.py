@@ -82,6 +82,22 @@ def test_fit_in_tiles_writes_one_seamless_mesh_and_a_tiles_report(
     assert _leftovers(tmp_path) == []
 
 
+def test_a_tiled_fit_takes_its_r0_as_a_share_of_the_diagonal(sheet_file, tmp_path):
+    """Regression: ``--spacing-relative`` with tiles always stopped with "seeds.spacing and
+    seeds.spacing_relative are exclusive; set one" (the scan's r0 was set beside it)."""
+    from recon.io import read_points
+
+    out = tmp_path / "mesh.ply"
+    res = _run(["fit", str(sheet_file), "-o", str(out), "--tile-size", "4",
+                "--spacing-relative", "0.02", "--json", "-q"])  # fmt: skip
+    assert res.exit_code == 0, res.output
+    report = json.loads(res.stdout)
+    p = read_points(sheet_file).points
+    diag = float(np.linalg.norm(p.max(axis=0) - p.min(axis=0)))
+    assert report["tiles"]["count"] == 4
+    assert report["spacing"] == pytest.approx(0.02 * diag, rel=1e-6)
+
+
 def test_a_tile_failing_twice_exits_1_with_its_bounds_and_writes_nothing(sheet_file, tmp_path):
     out = tmp_path / "mesh.ply"
     res = _run(

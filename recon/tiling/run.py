@@ -254,16 +254,16 @@ def fit_tiled(
             diag = float(np.linalg.norm(header.hi - header.lo))
             r0 = spacing_from_median(d_nn, n_points, diag, cfg)
             cfg = with_max_gap(cfg, r0, d_nn)
+            # the scan's r0 for every tile, in place of either form it came from (with
+            # spacing_relative still set, the two were refused as exclusive)
             tile_cfg = with_values(
-                cfg,
+                replace(cfg, seeds=replace(cfg.seeds, spacing_relative=None)),
                 seeds={"spacing": r0},
                 normals={"k": k, "auto_scale": False},
                 io={"max_memory": None},
             )
             tile_cfg = replace(
-                tile_cfg,
-                seeds=replace(tile_cfg.seeds, spacing_relative=None),
-                threads=_default_threads(cfg, runner.jobs, executor, scheduler),
+                tile_cfg, threads=_default_threads(cfg, runner.jobs, executor, scheduler)
             )
             grid = TileGrid.cover(header.lo, header.hi, size, cfg.tiling.halo * r0)
             store = replace(store, grid=grid)
