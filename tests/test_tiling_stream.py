@@ -170,6 +170,10 @@ def test_the_repair_orients_against_the_frame_next_to_the_zone_only(tmp_path):
     out = stitch_streamed(tmp_path, grid, counts, {}, results, 1.0, 3.0, particles_path)
     assert out["repair"]["faces_dropped"] == 0
     assert 0 < out["repair"]["cut_orientation_conflicts"] <= n_faces / grid.count
+    # Regression: the report then said "orientable": false, which the streamed count cannot
+    # tell (this sheet is orientable, only wound inconsistently): unknown, not false
+    assert out["topology"]["consistently_oriented"] is False
+    assert out["topology"]["orientable"] is None
 
 
 def test_the_coordinator_holds_a_tile_not_the_scan(tmp_path):

@@ -253,6 +253,9 @@ class Topology(_Section):
     vertex's faces forming one fan. ``largest_hole_perimeter`` is in input units (0 when the
     mesh is closed); ``largest_hole_r0`` is that loop's diameter ``perimeter / pi`` in r0, the
     unit of ``triangulation.max_hole`` (filled holes have ``perimeter <= pi * max_hole``).
+    ``orientable`` is None when not measured: a tiled fit's streamed count checks the
+    winding edge by edge, which tells a consistently oriented mesh (orientable) but not
+    whether an inconsistently wound one could be made consistent.
     """
 
     n_vertices: int
@@ -264,7 +267,7 @@ class Topology(_Section):
     non_manifold_edges: int
     non_manifold_vertices: int
     watertight: bool
-    orientable: bool
+    orientable: bool | None
     consistently_oriented: bool
     euler_characteristic: int
     genus: int | None

@@ -350,8 +350,9 @@ class TopologyAccumulator:
             "non_manifold_vertices": int(self.nm_vertices),
             "watertight": bool(watertight),
             # tiled fits check the winding edge by edge; orientability beyond that is not
-            # measured (a consistently oriented mesh is orientable)
-            "orientable": bool(consistent),
+            # measured: a consistently oriented mesh is orientable, else unknown (None; it
+            # said false for an orientable mesh wound inconsistently at small tiles' seams)
+            "orientable": True if consistent else None,
             "consistently_oriented": bool(consistent),
             "euler_characteristic": int(chi),
             "genus": genus,
