@@ -208,3 +208,20 @@ def test_a_first_runs_summary_says_its_times_include_the_compile(tmp_path, monke
         lines = res.stderr.rstrip().splitlines()
         assert ("include compiling the numba kernels" in lines[-1]) is said
         assert "min angle" in res.stderr  # the summary itself
+
+
+def test_the_summary_says_what_the_fit_did_with_the_creases():
+    """Regression: the summary said "(detected; mesh unchanged)" whatever ``creases.fit``
+    was; by default the mesh keeps the creases sharp."""
+    from types import SimpleNamespace
+
+    from recon.cli.fit import _crease_use
+
+    from recon.fitting.report import CreaseStats
+
+    found = CreaseStats(50.0, 7.9, 5.7, 10, 812, 40)
+    none = CreaseStats(50.0, 0.0, 0.0, 0, 0, 0)
+    on, off = {"creases": {"fit": True}}, {"creases": {"fit": False}}
+    assert _crease_use(SimpleNamespace(creases=found, config=on)) == "kept sharp in the mesh"
+    assert "creases.fit is off" in _crease_use(SimpleNamespace(creases=found, config=off))
+    assert _crease_use(SimpleNamespace(creases=none, config=on)) == "none found"
