@@ -179,6 +179,16 @@ def format_summary(report: FitReport) -> str:
                 f"{cr.corners} corner(s) at {cr.angle_deg:g} deg ({_crease_use(report)})",
             )
         )
+    split = report.output.crease_vertices_split if report.output is not None else None
+    if split:
+        rows.append(
+            (
+                "crease split (PLY)",
+                f"{split:,} vertices duplicated for their sides' normals (creases.split_ply): "
+                "the file's topology opens along the creases; the topology above is the "
+                "welded surface's",
+            )
+        )
     if report.stop_reason:
         rows.append(("growth stopped", report.stop_reason))
     lines = format_rows(rows)

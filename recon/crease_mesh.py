@@ -38,6 +38,7 @@ __all__ = [
     "crease_line_edges",
     "flip_straddling_edges",
     "insert_crease_edges",
+    "mesh_as_written",
     "split_crease_vertices",
     "straddling",
 ]
@@ -47,6 +48,9 @@ __all__ = [
 SIDE_ANGLE_DEG = 30.0
 #: Passes of :func:`flip_straddling_edges` (a face flips at most once per pass).
 FLIP_PASSES = 3
+#: Vertex normals are split at a crease vertex between faces turning by more than this
+#: fraction of ``creases.angle_deg``.
+SPLIT_ANGLE_FRACTION = 0.75
 
 
 #: Two crease vertices are a line edge when no crease vertex is nearer to both of them (the
@@ -526,3 +530,31 @@ def pivot_positions(
         if np.mean(h) > 0.1 * spacing:
             out[i] = positions[i] + CONCAVE_LIFT * spacing * normals[i]
     return out
+
+
+def mesh_as_written(
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    normals: np.ndarray | None,
+    crease: np.ndarray | None,
+    obj: bool,
+    angle_deg: float,
+    split_ply: bool,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None, int]:
+    """A mesh as a file holds it, its normals split at crease vertices (issue 12): vertices,
+    faces, vertex normals, corner normals (OBJ) and how many vertices were added.
+
+    OBJ (``obj``): one normal per face corner, vertices welded. PLY: with ``split_ply`` each
+    crease vertex duplicated, one copy per side with its side's normal (the file's topology
+    then opens along the creases); else unchanged (one welded vertex, the averaged normal).
+    Normals split between faces turning by more than ``SPLIT_ANGLE_FRACTION x angle_deg``.
+    """
+    if normals is None or crease is None or not crease.any():
+        return vertices, faces, normals, None, 0
+    angle = SPLIT_ANGLE_FRACTION * angle_deg
+    if obj:
+        return vertices, faces, normals, corner_normals(vertices, faces, normals, crease, angle), 0
+    if split_ply:
+        f, nrm, source = split_crease_vertices(vertices, faces, normals, crease, angle)
+        return vertices[source], f, nrm, None, len(source) - len(vertices)
+    return vertices, faces, normals, None, 0

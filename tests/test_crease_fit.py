@@ -670,9 +670,13 @@ def test_obj_and_ply_outputs_split_normals_at_creases(tmp_path):
     welded_v, welded_f = read_mesh(tmp_path / "m.ply")
     assert len(welded_v) == n_v and mesh_topology(welded_v, welded_f)["watertight"]
     split = apply_overrides(cfg, {"creases.split_ply": True})
-    fit_file(SAMPLE, tmp_path / "s.ply", split, write_report=False)
+    res = fit_file(SAMPLE, tmp_path / "s.ply", split, write_report=False)
     sv, sf = read_mesh(tmp_path / "s.ply")
     assert len(sv) > len(welded_v) and len(sf) == len(welded_f)
+    # regression: the report described the welded surface (watertight, fewer vertices)
+    # without a word of the split the file holds
+    assert res.report.output.crease_vertices_split == len(sv) - res.report.topology.n_vertices
+    assert res.report.topology.n_vertices == len(welded_v)
 
 
 def test_settling_leaves_no_crease_particle_off_its_line():

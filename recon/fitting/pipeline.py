@@ -37,7 +37,7 @@ from scipy.spatial import cKDTree
 from ..attributes import check_attribute_output, check_transfer, transfer_for_output
 from ..cloud import PointCloud, spatial_order
 from ..config import ReconConfig, config_to_dict, with_values
-from ..crease_mesh import corner_normals, split_crease_vertices
+from ..crease_mesh import mesh_as_written
 from ..crease_orient import orient_across_creases
 from ..crease_surface import CreaseField
 from ..creases import Creases, detect_creases
@@ -334,30 +334,6 @@ def _triangulate(
         v, n, f, crease, stats["two_sided_closed"] = closed
         result = replace(result, vertices=v, normals=n, faces=f, crease=crease)
     return replace(result, stats=stats)
-
-
-#: Vertex normals are split at a crease vertex between faces turning by more than this
-#: fraction of ``creases.angle_deg``.
-SPLIT_ANGLE_FRACTION = 0.75
-
-
-def _crease_normals(
-    mesh: Mesh, normals: np.ndarray | None, path: Path, cfg: ReconConfig
-) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
-    """The mesh as written: normals split at crease vertices (issue 12). OBJ: one normal per
-    face corner, vertices welded. PLY: with ``creases.split_ply`` crease vertices duplicated,
-    one per side; else unchanged (one welded vertex, the averaged normal)."""
-    v, f = mesh.vertices, mesh.faces
-    crease = mesh.crease
-    if normals is None or crease is None or not crease.any():
-        return v, f, normals, None
-    angle = SPLIT_ANGLE_FRACTION * cfg.creases.angle_deg
-    if path.suffix.lower() == ".obj":
-        return v, f, normals, corner_normals(v, f, normals, crease, angle)
-    if cfg.creases.split_ply:
-        f, nrm, source = split_crease_vertices(v, f, normals, crease, angle)
-        return v[source], f, nrm, None
-    return v, f, normals, None
 
 
 #: The stages before the dynamics (normal estimate and orientation graph, crease detection,
@@ -759,9 +735,16 @@ def fit_file(
         ),
     )
     normals = result.mesh.normals if cfg.output.vertex_normals else None
+    m, cr = result.mesh, cfg.creases
     with atomic_outputs() as outputs:  # all files appear together, or none
         for mesh_path in meshes:
-            v, f, nrm, corners = _crease_normals(result.mesh, normals, Path(mesh_path), cfg)
+            obj = Path(mesh_path).suffix.lower() == ".obj"
+            v, f, nrm, corners, split = mesh_as_written(
+                m.vertices, m.faces, normals, m.crease, obj, cr.angle_deg, cr.split_ply
+            )
+            if split:  # the report says the PLY's topology opens along the creases
+                out = replace(result.report.output, crease_vertices_split=split)
+                result.report = replace(result.report, output=out)
             attributes = transfer_for_output(cloud, v, report.spacing, mesh_path, cfg)
             write_mesh(
                 mesh_path,

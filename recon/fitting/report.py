@@ -364,6 +364,9 @@ class OutputPaths(_Section):
     particles: str | None = field(default=None, metadata=_OPTIONAL)
     preview: str | None = field(default=None, metadata=_OPTIONAL)
     report: str | None = field(default=None, metadata=_OPTIONAL)
+    #: crease vertices duplicated in the PLY (``creases.split_ply``): the file's topology
+    #: opens along the creases, the report's ``topology`` is the welded surface's
+    crease_vertices_split: int | None = field(default=None, metadata=_OPTIONAL)
 
 
 # --------------------------------------------------------------------------------------------
