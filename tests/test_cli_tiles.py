@@ -204,6 +204,34 @@ def test_a_las_scan_is_split_in_chunks_and_fitted_in_tiles(tmp_path):
     assert _leftovers(tmp_path) == []
 
 
+def test_a_tiled_fit_of_some_classes_measures_the_points_it_keeps(tmp_path):
+    """Regression: with ``--classes`` a tiled fit took the file header's box for the scan's
+    diagonal (85.1 against 67.3 kept), and a class no point has stopped it with "fewer than 4
+    points to fit" where the untiled fit lists the classes the file has."""
+    laspy = pytest.importorskip("laspy")
+    pts = _sheet(3000)
+    header = laspy.LasHeader(point_format=3, version="1.2")
+    header.scales = np.array([0.0001] * 3)
+    header.offsets = np.zeros(3)
+    las = laspy.LasData(header)
+    las.x, las.y, las.z = pts[:, 0], pts[:, 1], pts[:, 2]
+    las.classification = np.where(pts[:, 0] < 4.0, 2, 6).astype(np.uint8)
+    src = tmp_path / "two.las"
+    las.write(str(src))
+    kept = pts[pts[:, 0] >= 4.0]
+    diag = float(np.linalg.norm(kept.max(axis=0) - kept.min(axis=0)))
+    res = _run(["fit", str(src), "-o", str(tmp_path / "m.ply"), "--tile-size", "2.5",
+                "--classes", "6", "--json", "-q"])  # fmt: skip
+    assert res.exit_code == 0, res.output
+    report = json.loads(res.stdout)
+    assert report["tiles"]["count"] > 1
+    assert report["input"]["bbox_diagonal"] == pytest.approx(diag, rel=1e-3)
+    res = _run(["fit", str(src), "-o", str(tmp_path / "n.ply"), "--tile-size", "2.5",
+                "--classes", "9"])  # fmt: skip
+    assert res.exit_code == 2
+    assert "no point of class 9 (the file has classes: 2 (" in res.stderr, res.stderr
+
+
 @pytest.mark.skipif(os.name != "posix", reason="SIGINT to a process group needs POSIX")
 @pytest.mark.skipif(not OPRECON.exists(), reason="the oprecon entry point is not installed")
 def test_ctrl_c_during_the_tile_fits_exits_130_and_leaves_nothing(tmp_path):

@@ -27,9 +27,10 @@ from typing import Any
 
 import numpy as np
 
+from ..errors import InputError
 from .common import LIDAR_EXTRA, check_count, input_error, optional_module
 
-__all__ = ["CHUNK_POINTS", "check_header", "read_points"]
+__all__ = ["CHUNK_POINTS", "check_header", "no_point_of_classes", "read_points"]
 
 #: Points per chunk read from a LAS/LAZ file.
 CHUNK_POINTS = 1_000_000
@@ -118,6 +119,17 @@ def check_header(path: Path) -> None:
                 f"(bytes 235-242) do not fit between the point data and the end of the file "
                 f"({size} bytes; each EVLR needs at least {_EVLR_HEADER_BYTES})",
             )
+
+
+def no_point_of_classes(path: Path, classes: Any, counts: np.ndarray) -> InputError:
+    """The error for ``--classes`` that keep no point: the classes asked for, and those the
+    file has with their point counts (``counts``: points per class value, 0-255)."""
+    present = ", ".join(f"{c} ({int(counts[c]):,} points)" for c in np.flatnonzero(counts))
+    return input_error(
+        path,
+        f"no point of class {', '.join(str(int(c)) for c in classes)} "
+        f"(the file has classes: {present or 'none'})",
+    )
 
 
 def _open(laspy: Any, path: Path) -> Any:
@@ -229,12 +241,7 @@ def read_points(
     info["classes"] = {int(c): int(counts[c]) for c in np.flatnonzero(counts)}
     info["classes_kept"] = None if keep_classes is None else [int(c) for c in keep_classes]
     if keep_classes is not None and n_kept == 0:
-        present = ", ".join(f"{c} ({k:,} points)" for c, k in info["classes"].items()) or "none"
-        raise input_error(
-            path,
-            f"no point of class {', '.join(map(str, keep_classes.tolist()))} "
-            f"(the file has classes: {present})",
-        )
+        raise no_point_of_classes(path, keep_classes, counts)
 
     def cat(name: str, shape: tuple[int, ...], dtype: Any) -> np.ndarray:
         return np.concatenate(parts[name]) if parts[name] else np.zeros(shape, dtype=dtype)

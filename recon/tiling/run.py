@@ -251,7 +251,8 @@ def fit_tiled(
             t0 = time.perf_counter()
             n_points, d_nn, d6, k = _scan_scales(header, store, cfg, runner, on_event)
             header.cloud = cloud = None
-            diag = float(np.linalg.norm(header.hi - header.lo))
+            # the points kept: --classes drops some of the header's box (as the untiled fit)
+            diag = float(np.linalg.norm(store.hi - store.lo))
             r0 = spacing_from_median(d_nn, n_points, diag, cfg)
             cfg = with_max_gap(cfg, r0, d_nn)
             # the scan's r0 for every tile, in place of either form it came from (with

@@ -62,6 +62,9 @@ class TileStore:
     has_colors: bool = False
     color_scale: float = 1.0  # stored colour values times this are in [0, 1]
     attributes: tuple[str, ...] = ()  # per-point scalars (--transfer), one column each
+    #: the bounding box of the points kept (``--classes`` drops some of the header's box)
+    lo: np.ndarray | None = None
+    hi: np.ndarray | None = None
 
     def path(self, tile: int) -> Path:
         return self.directory / f"points-{tile}.f64"
@@ -149,6 +152,7 @@ def _las_chunks(
     keep = None if not classes else np.asarray(sorted(set(classes)), dtype=np.int64)
     n_seen = 0
     n_kept = 0
+    per_class = np.zeros(256, dtype=np.int64)  # for the message when no point is kept
     with laspy.open(str(path)) as reader:
         n_total = int(reader.header.point_count)
         dims = set(reader.header.point_format.dimension_names)
@@ -173,7 +177,9 @@ def _las_chunks(
                         + [np.asarray(chunk[a], dtype=np.float64)[:, None] for a in attributes]
                     )
                 if keep is not None:
-                    xyz = xyz[np.isin(np.asarray(chunk.classification), keep)]
+                    cls = np.asarray(chunk.classification)
+                    per_class += np.bincount(cls.astype(np.int64), minlength=256)[:256]
+                    xyz = xyz[np.isin(cls, keep)]
                 xyz = xyz[np.all(np.isfinite(xyz[:, :3]), axis=1)]
                 n_kept += len(xyz)
                 if n_kept > max_points:
@@ -190,6 +196,10 @@ def _las_chunks(
         raise InputError(
             f"{path}: truncated LAS/LAZ file: {n_seen} of the {n_total} declared points present"
         )
+    if keep is not None and n_kept == 0:  # as the untiled fit says it (it said "fewer than 4")
+        from ..io.las import no_point_of_classes
+
+        raise no_point_of_classes(path, keep, per_class)
 
 
 def spacing_sample(header: ScanHeader, cfg: Any, seed: int = 0) -> float:
@@ -248,11 +258,14 @@ def split_input(header: ScanHeader, grid: TileGrid, directory: Path, cfg: Any) -
     store = TileStore(directory, grid, counts, columns, use_normals, has_colors, 1.0, attributes)
     top = 0.0
     c_rgb = 3 + 3 * use_normals
+    lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
     for rows in chunks:
         if has_colors and len(rows):
             top = max(top, float(rows[:, c_rgb : c_rgb + 3].max()))
         if len(rows) == 0:
             continue
+        lo = np.minimum(lo, rows[:, :3].min(axis=0))
+        hi = np.maximum(hi, rows[:, :3].max(axis=0))
         cell = grid.cell_of(rows[:, :3])
         order = np.argsort(cell, kind="stable")
         cell = cell[order]
@@ -270,6 +283,7 @@ def split_input(header: ScanHeader, grid: TileGrid, directory: Path, cfg: Any) -
     header.cloud = None  # the coordinator keeps no points
     if sum(counts.values()) < 4:
         raise InputError(f"{header.path}: fewer than 4 points to fit")
+    store.lo, store.hi = lo, hi
     return store
 
 
