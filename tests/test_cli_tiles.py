@@ -98,6 +98,17 @@ def test_a_tiled_fit_takes_its_r0_as_a_share_of_the_diagonal(sheet_file, tmp_pat
     assert report["spacing"] == pytest.approx(0.02 * diag, rel=1e-6)
 
 
+def test_the_time_limit_holds_for_the_whole_tiled_fit(sheet_file, tmp_path):
+    """Regression: ``--time-limit`` stopped each tile's fit, and a tile past it was retried:
+    a tiled fit with a limit of 1 s ran 8.6 s and exited 0. The limit is the whole run's."""
+    out = tmp_path / "mesh.ply"
+    res = _run(["fit", str(sheet_file), "-o", str(out), "--tile-size", "4",
+                "--time-limit", "0.001"])  # fmt: skip
+    assert res.exit_code == 2, res.output
+    assert "time limit of 0.001 s reached in the fit phase of the tiled fit" in res.stderr
+    assert not out.exists() and _leftovers(tmp_path) == []
+
+
 def test_a_tile_failing_twice_exits_1_with_its_bounds_and_writes_nothing(sheet_file, tmp_path):
     out = tmp_path / "mesh.ply"
     res = _run(

@@ -14,6 +14,7 @@ import logging
 import multiprocessing
 import signal
 import threading
+import time
 import traceback
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor
@@ -23,7 +24,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from ..batch.executors import dask_client, default_jobs
-from ..errors import OpreconError
+from ..errors import LimitExceeded, OpreconError
 
 log = logging.getLogger(__name__)
 
@@ -161,8 +162,14 @@ def run_tasks(
     describe: Callable[[int], str],
     on_event: Callable[[TileEvent], None] | None = None,
     on_result: Callable[[int, Any], None] | None = None,
+    deadline: tuple[float, float] | None = None,
 ) -> dict[int, Any]:
     """Run ``tasks`` (tile -> (function, args)); a task that fails is run once more.
+
+    ``deadline``: (start, limit) in ``time.perf_counter`` seconds: past ``start + limit`` the
+    tasks in flight are cancelled and :class:`~recon.errors.LimitExceeded` is raised (the
+    whole tiled fit's ``dynamics.time_limit``; each tile's own fit has it too, and a tile
+    past it was retried, so the run went on well past the limit).
 
     At most :data:`IN_FLIGHT_PER_JOB` tasks per job are submitted at a time, the next as one
     finishes, and a finished task's future is dropped once its result is handled, so what
@@ -201,6 +208,11 @@ def run_tasks(
         fill()
         emit(TileEvent(phase, 0, min(runner.jobs, total), total))
         while futures:
+            if deadline is not None and time.perf_counter() - deadline[0] > deadline[1]:
+                raise LimitExceeded(
+                    f"time limit of {deadline[1]:g} s reached in the {phase} phase of the tiled "
+                    "fit (raise dynamics.time_limit or --time-limit)"
+                )
             done = [f for f in futures if f.done()]
             if not done:
                 runner.wait(list(futures), POLL)

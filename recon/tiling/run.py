@@ -215,6 +215,8 @@ def fit_tiled(
 
     cfg = config if config is not None else ReconConfig()
     t_start = time.perf_counter()
+    limit = cfg.dynamics.time_limit  # the whole tiled fit's, checked between its tasks
+    deadline = None if limit is None else (t_start, float(limit))
     input_path = Path(input_path)
     output_path = check_output_path(Path(output_path), inputs=[input_path], mkdir=mkdir)
     want_report = cfg.output.write_report if write_report is None else write_report
@@ -289,6 +291,7 @@ def fit_tiled(
                 grid.describe,
                 on_event,
                 records.add_fit,
+                deadline,
             )
             timings["fit"] = time.perf_counter() - t0
             peaks["fit"] = peak_rss_mib(reset=True)
@@ -326,6 +329,7 @@ def fit_tiled(
                 grid.describe,
                 on_event,
                 records.add_mesh,
+                deadline,
             )
             timings["mesh"] = time.perf_counter() - t0
             peaks["mesh"] = peak_rss_mib(reset=True)
