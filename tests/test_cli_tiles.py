@@ -98,6 +98,19 @@ def test_a_tiled_fit_takes_its_r0_as_a_share_of_the_diagonal(sheet_file, tmp_pat
     assert report["spacing"] == pytest.approx(0.02 * diag, rel=1e-6)
 
 
+def test_tiles_too_small_for_clean_seams_are_warned_of(sheet_file, tmp_path):
+    """Regression: tiles of 5.5-6.5 r0 left dozens of loops and faces wound inside out at
+    their seams without a word (exit 0, no warning); from 12 r0 on they are clean."""
+    res = _run(["fit", str(sheet_file), "-o", str(tmp_path / "m.ply"), "--tile-size", "4",
+                "--spacing", "0.4", "--json", "-q"])  # fmt: skip
+    assert res.exit_code == 0, res.output
+    (warning,) = [w for w in json.loads(res.stdout)["warnings"] if "r0 across" in w]
+    assert "tiles of 4 are only 10.0 r0 across" in warning and "--tile-size 4.8" in warning
+    res = _run(["fit", str(sheet_file), "-o", str(tmp_path / "n.ply"), "--tile-size", "4",
+                "--spacing", "0.3", "--json", "-q"])  # fmt: skip
+    assert not [w for w in json.loads(res.stdout)["warnings"] if "r0 across" in w]
+
+
 def test_the_time_limit_holds_for_the_whole_tiled_fit(sheet_file, tmp_path):
     """Regression: ``--time-limit`` stopped each tile's fit, and a tile past it was retried:
     a tiled fit with a limit of 1 s ran 8.6 s and exited 0. The limit is the whole run's."""
