@@ -44,6 +44,17 @@ def _leftovers(folder: Path) -> list[str]:
     return sorted(p.name for p in folder.iterdir() if p.name.startswith(".oprecon"))
 
 
+def _las_sheet(pts: np.ndarray, offset=None):
+    """A LAS (point format 3) of ``pts`` at 0.1 mm, to fill in and write."""
+    laspy = pytest.importorskip("laspy")
+    header = laspy.LasHeader(point_format=3, version="1.2")
+    header.scales = np.array([0.0001] * 3)
+    header.offsets = np.zeros(3) if offset is None else np.asarray(offset)
+    las = laspy.LasData(header)
+    las.x, las.y, las.z = pts[:, 0], pts[:, 1], pts[:, 2]
+    return las
+
+
 def test_fit_in_tiles_writes_one_seamless_mesh_and_a_tiles_report(
     sheet_file, tmp_path, monkeypatch
 ):
@@ -204,14 +215,9 @@ def test_tiles_auto_tiles_a_scan_past_the_budget(sheet_file, tmp_path):
 
 
 def test_a_las_scan_is_split_in_chunks_and_fitted_in_tiles(tmp_path):
-    laspy = pytest.importorskip("laspy")
     offset = np.array([5_200_000.0, 4_800_000.0, 250.0])
     pts = _sheet(2500, offset)
-    header = laspy.LasHeader(point_format=3, version="1.2")
-    header.scales = np.array([0.0001] * 3)
-    header.offsets = offset
-    las = laspy.LasData(header)
-    las.x, las.y, las.z = pts[:, 0], pts[:, 1], pts[:, 2]
+    las = _las_sheet(pts, offset)
     las.classification = np.full(len(pts), 2, dtype=np.uint8)
     src = tmp_path / "sheet.las"
     las.write(str(src))
@@ -232,13 +238,8 @@ def test_a_tiled_fit_of_some_classes_measures_the_points_it_keeps(tmp_path):
     """Regression: with ``--classes`` a tiled fit took the file header's box for the scan's
     diagonal (85.1 against 67.3 kept), and a class no point has stopped it with "fewer than 4
     points to fit" where the untiled fit lists the classes the file has."""
-    laspy = pytest.importorskip("laspy")
     pts = _sheet(3000)
-    header = laspy.LasHeader(point_format=3, version="1.2")
-    header.scales = np.array([0.0001] * 3)
-    header.offsets = np.zeros(3)
-    las = laspy.LasData(header)
-    las.x, las.y, las.z = pts[:, 0], pts[:, 1], pts[:, 2]
+    las = _las_sheet(pts)
     las.classification = np.where(pts[:, 0] < 4.0, 2, 6).astype(np.uint8)
     src = tmp_path / "two.las"
     las.write(str(src))
@@ -325,15 +326,10 @@ def test_ctrl_c_during_the_tile_fits_exits_130_and_leaves_nothing(tmp_path):
 def test_las_colours_end_up_on_the_tiled_mesh(tmp_path):
     """A two-coloured LAS sheet (16-bit colours: red for x < 4, blue beyond) in 2 x 2 tiles:
     each tile colours its own vertices from its points, so the halves keep their colours."""
-    laspy = pytest.importorskip("laspy")
     from recon.io import read_points
 
     pts = _sheet(2500)
-    header = laspy.LasHeader(point_format=3, version="1.2")
-    header.scales = np.array([0.0001] * 3)
-    header.offsets = np.zeros(3)
-    las = laspy.LasData(header)
-    las.x, las.y, las.z = pts[:, 0], pts[:, 1], pts[:, 2]
+    las = _las_sheet(pts)
     red = pts[:, 0] < 4.0
     las.red = np.where(red, 65535, 0).astype(np.uint16)
     las.green = np.zeros(len(pts), dtype=np.uint16)
@@ -355,13 +351,8 @@ def test_las_colours_end_up_on_the_tiled_mesh(tmp_path):
 def _las_two_halves(tmp_path, offset=(0.0, 0.0, 0.0)) -> Path:
     """A LAS sheet whose halves differ: x < 4 red, intensity 100, class 2; beyond blue,
     intensity 1000, class 6."""
-    laspy = pytest.importorskip("laspy")
     pts = _sheet(2500, offset)
-    header = laspy.LasHeader(point_format=3, version="1.2")
-    header.scales = np.array([0.0001] * 3)
-    header.offsets = np.asarray(offset, dtype=np.float64)
-    las = laspy.LasData(header)
-    las.x, las.y, las.z = pts[:, 0], pts[:, 1], pts[:, 2]
+    las = _las_sheet(pts, np.asarray(offset, dtype=np.float64))
     left = pts[:, 0] - offset[0] < 4.0
     las.red = np.where(left, 65535, 0).astype(np.uint16)
     las.green = np.zeros(len(pts), dtype=np.uint16)
