@@ -193,3 +193,22 @@ def test_an_explicit_spacing_too_coarse_for_the_mesh_is_still_refused(tmp_path):
     assert res.exit_code == 2
     assert "the remeshed surface has no faces" in res.stderr and "Traceback" not in res.output
     assert not out.exists()
+
+
+@pytest.mark.parametrize("option", [["--spacing", "0.05"], ["--faces", "5000"]])
+def test_an_open_box_keeps_its_open_side(tmp_path, option):
+    """Regression: the gap closing zipped every loop not made of the input's boundary
+    particles alone; where the triangulation cut inside the rim, the rim's loop held a few
+    other particles and was zipped into a lid (an open box came out closed, a fitted face
+    scan grew a back sheet 0.11 of its diagonal away). A loop mostly on the rim is the rim."""
+    v = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0],
+                  [0, 0, 1], [1, 0, 1], [1, 1, 1], [0, 1, 1]], dtype=float)  # fmt: skip
+    f = np.array([[0, 3, 2], [0, 2, 1], [0, 1, 5], [0, 5, 4], [1, 2, 6],
+                  [1, 6, 5], [2, 3, 7], [2, 7, 6], [3, 0, 4], [3, 4, 7]])  # fmt: skip
+    src = tmp_path / "openbox.ply"
+    write_mesh(src, v, f)
+    out = tmp_path / "r.ply"
+    res = _run(["remesh", str(src), "-o", str(out), *option])
+    assert res.exit_code == 0, res.output
+    topo = mesh_topology(*read_mesh(out)[:2])
+    assert topo["boundary_loops"] == 1 and topo["components"] == 1, topo

@@ -105,6 +105,10 @@ OFF_SURFACE = 0.15
 LINE_GAP = 0.5
 #: Passes of gap closing (a zip can open a new small loop that the next pass closes).
 GAP_PASSES = 3
+#: ... and a loop is a gap only when fewer than this share of its vertices are the input's
+#: boundary particles: a loop that runs mostly along the input's rim is that rim, left open
+#: where the triangulation cut inside it (zipped, a fitted face scan's rim became a lid).
+GAP_BOUNDARY_SHARE = 0.5
 #: The default spacing, the input's mean edge length, is at most this fraction of the
 #: bounding-box diagonal: a coarse mesh whose edges are long for its shape (a CAD cube of 12
 #: triangles: mean edge 0.66 x diagonal, about 5 particles) gets ten spacings across its
@@ -687,7 +691,11 @@ def close_gaps(
     """
     n_closed = 0
     for _ in range(GAP_PASSES):
-        loops = [lp for lp in boundary_loops(faces) if len(lp) >= 3 and not on_boundary[lp].all()]
+        loops = [
+            lp
+            for lp in boundary_loops(faces)
+            if len(lp) >= 3 and on_boundary[lp].mean() < GAP_BOUNDARY_SHARE
+        ]
         if not loops:
             break
         # the diagonals a zip must avoid: existing edges between vertices of the loops
