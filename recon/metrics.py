@@ -60,7 +60,13 @@ import numpy as np
 from .errors import InputError
 from .geometry import as_points
 from .mesh import face_area_vectors, face_normals
-from .topology import mesh_topology, topology_and_quality, triangle_quality, validate_mesh
+from .topology import (
+    mesh_topology,
+    power_of_two_near,
+    topology_and_quality,
+    triangle_quality,
+    validate_mesh,
+)
 
 __all__ = [
     "SurfaceError",
@@ -116,8 +122,7 @@ def _closest_on_mesh(
     # Embree works in float32 with tolerances of its own: a sphere 1e-10 or 1e12 across had
     # its mean distance off 30-60x. At the power of two nearest the mesh's size the query
     # sees a unit-sized mesh (a power of two changes no bit of the coordinates).
-    extent = float(np.max(hi - lo))
-    unit = float(np.ldexp(1.0, int(np.round(np.log2(extent))))) if extent > 0 else 1.0
+    unit = power_of_two_near(float(np.max(hi - lo)))
     scene = o3d.t.geometry.RaycastingScene()
     scene.add_triangles(
         o3d.core.Tensor(np.ascontiguousarray((vertices - centre) / unit, dtype=np.float32)),

@@ -65,6 +65,7 @@ from .mesh import (
 __all__ = [
     "count_edge_faces",
     "mesh_topology",
+    "power_of_two_near",
     "topology_and_quality",
     "triangle_quality",
     "validate_mesh",
@@ -136,11 +137,22 @@ def _unit_scaled(vertices: np.ndarray) -> tuple[np.ndarray, float]:
     underflowed (every face "degenerate") and those of one 1e160 across overflowed."""
     if len(vertices) == 0:
         return vertices, 1.0
-    extent = float(np.max(vertices.max(axis=0) - vertices.min(axis=0)))
-    if not (np.isfinite(extent) and extent > 0.0):
-        return vertices, 1.0
-    factor = float(np.ldexp(1.0, int(np.round(np.log2(extent)))))
+    factor = power_of_two_near(float(np.max(vertices.max(axis=0) - vertices.min(axis=0))))
     return (vertices / factor if factor != 1.0 else vertices), factor
+
+
+def power_of_two_near(extent: float) -> float:
+    """The power of two nearest ``extent`` (1 for 0 or a non-finite extent): dividing by it
+    brings a mesh to unit size without changing a bit of its coordinates' mantissas.
+
+    Examples
+    --------
+    >>> power_of_two_near(1e-10), power_of_two_near(3.0), power_of_two_near(0.0)
+    (1.1641532182693481e-10, 4.0, 1.0)
+    """
+    if not (np.isfinite(extent) and extent > 0.0):
+        return 1.0
+    return float(np.ldexp(1.0, int(np.round(np.log2(extent)))))
 
 
 def _face_geometry(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -344,9 +344,7 @@ def write_points(
     xyz = _absolute(points, origin)
     nrm = _check_normals(normals, xyz.shape[0])
     rgb = _check_colors(colors, xyz.shape[0])
-    extra = _vertex_properties(vertex_properties, xyz.shape[0])
-    if rgb is not None:
-        extra = [(c, rgb[:, j], "u1") for j, c in enumerate(("red", "green", "blue"))] + extra
+    extra = _with_rgb(rgb, _vertex_properties(vertex_properties, xyz.shape[0]))
     with atomic_output(path, outputs) as tmp, open(tmp, "wb") as fh:
         ply.write(fh, xyz, nrm, None, ascii, extra or None)
 
@@ -419,8 +417,7 @@ def write_mesh(
     if extra and ext != ".ply":
         names = ", ".join(name for name, _, _ in extra)
         raise input_error(p, f"OBJ has no vertex properties ({names}); write a .ply mesh")
-    if rgb is not None:
-        extra = [(c, rgb[:, j], "u1") for j, c in enumerate(("red", "green", "blue"))] + extra
+    extra = _with_rgb(rgb, extra)
     with atomic_output(p, outputs) as tmp, open(tmp, "wb") as fh:
         if ext == ".ply":
             ply.write(fh, xyz, nrm, f.astype(np.int64), ascii, extra)
@@ -433,6 +430,15 @@ def write_mesh(
                         f"corner_normals: expected shape ({len(f)}, 3, 3), got {cn.shape}"
                     )
             obj.write(fh, xyz, nrm, f.astype(np.int64), rgb, cn)
+
+
+def _with_rgb(
+    rgb: np.ndarray | None, extra: list[tuple[str, np.ndarray, str]]
+) -> list[tuple[str, np.ndarray, str]]:
+    """PLY vertex columns: ``red green blue`` (uchar) from ``rgb`` first, then ``extra``."""
+    if rgb is None:
+        return extra
+    return [(c, rgb[:, j], "u1") for j, c in enumerate(("red", "green", "blue"))] + extra
 
 
 def _absolute(points: Any, origin: Any) -> np.ndarray:

@@ -35,6 +35,7 @@ __all__ = [
     "loadtxt",
     "loadtxt_message",
     "optional_module",
+    "SCALAR_PROPERTIES",
     "pick",
     "read_text_file",
     "triangulate_fans",
@@ -213,6 +214,14 @@ def integer_color_scale(dtype: np.dtype) -> float:
     type for 0-255 values; no writer uses their whole range for colours.
     """
     return 65535.0 if np.dtype(dtype) == np.uint16 else 255.0
+
+
+#: Per-point scalars a file's columns or properties hold (``PointCloud.attributes``, for
+#: ``--transfer``): attribute -> the names tools write it under.
+SCALAR_PROPERTIES = {
+    "intensity": ("intensity", "scalar_intensity"),
+    "classification": ("classification", "scalar_classification"),
+}
 
 
 def pick(names: set[str], candidates: Sequence[tuple[str, ...]]) -> tuple[str, ...] | None:

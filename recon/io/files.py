@@ -96,12 +96,12 @@ def check_output_path(
         if not mkdir:
             hint = f"create it or use {mkdir_option}" if mkdir_option else "create it first"
             raise input_error(out, f"folder '{out.parent}' does not exist ({hint})")
-        missing = [parent, *(a for a in parent.parents if not a.exists())]
+        missing = [parent, *(a for a in parent.parents if not a.exists())]  # deepest first
         try:
             parent.mkdir(parents=True, exist_ok=True)
             made = _MADE.get()
             if made is not None:  # undone if the command fails (folders_undone_on_failure)
-                made.extend(reversed([a for a in missing if a.is_dir()]))
+                made.extend(reversed(missing))
         except OSError as exc:
             raise input_error(
                 out, f"cannot create folder '{out.parent}': {exc.strerror or exc}"

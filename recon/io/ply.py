@@ -41,6 +41,7 @@ from .common import (
     COLOR_NAMES,
     MAX_HEADER_BYTES,
     NORMAL_NAMES,
+    SCALAR_PROPERTIES,
     check_count,
     colors_from,
     input_error,
@@ -432,14 +433,6 @@ def _open_ply_vertices(
         fh.close()
         raise
     return header, rows, fh
-
-
-#: Vertex properties read as per-point scalars (``PointCloud.attributes``) for
-#: ``--transfer``: attribute -> the property names tools write it under.
-SCALAR_PROPERTIES = {
-    "intensity": ("intensity", "scalar_intensity"),
-    "classification": ("classification", "scalar_classification"),
-}
 
 
 def read_points(

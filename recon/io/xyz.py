@@ -27,6 +27,7 @@ import numpy as np
 from .common import (
     COLOR_NAMES,
     NORMAL_NAMES,
+    SCALAR_PROPERTIES,
     check_count,
     colors_from,
     input_error,
@@ -137,7 +138,7 @@ def _intensity(arr: np.ndarray, names: list[str]) -> dict[str, np.ndarray]:
     """``{"intensity": column}`` when one of the columns ``names`` is the intensity (the
     names are the columns' in order), else empty: ``info`` lists it, so ``--transfer
     intensity`` finds it."""
-    for name in ("intensity", "scalar_intensity"):
+    for name in SCALAR_PROPERTIES["intensity"]:
         if name in names:
             return {"intensity": np.ascontiguousarray(arr[:, names.index(name)])}
     return {}
@@ -226,7 +227,8 @@ def _said_columns(
 
 
 def _pts_columns(arr: np.ndarray, names: list[str]) -> tuple[None, np.ndarray | None]:
-    """PTS: x y z [intensity [r g b]] (intensity is read past, colours 0-255)."""
+    """PTS: x y z [intensity [r g b]] (the intensity is taken by :func:`_intensity`, colours
+    0-255)."""
     ncol = arr.shape[1]
     extra = arr[:, 3:]
     colors = None
