@@ -3,18 +3,36 @@
 from __future__ import annotations
 
 import sys
-import warnings
 
-import click
+try:  # Ctrl-C while the command line loads: the message and exit code of any interrupt
+    import warnings
 
-from recon import __version__
+    import click
 
-from .common import EXIT_INTERRUPTED
+    from recon import __version__
+
+    from .common import EXIT_INTERRUPTED
+except KeyboardInterrupt:
+    sys.stderr.write("oprecon: interrupted\n")
+    sys.exit(130)
 
 CONTEXT_SETTINGS = {"help_option_names": ["-h", "--help"], "max_content_width": 100}
 
 
-@click.group(context_settings=CONTEXT_SETTINGS)
+class _Group(click.Group):
+    """The command group, with the interrupt's message and exit code also where click would
+    answer Ctrl-C itself: after the arguments are parsed and before a command's own guard
+    (:func:`recon.cli.common.catch_errors`) is set up, click printed "Aborted!" and exited 1."""
+
+    def invoke(self, ctx: click.Context) -> object:
+        try:
+            return super().invoke(ctx)
+        except KeyboardInterrupt:
+            click.echo("oprecon: interrupted", err=True)
+            sys.exit(EXIT_INTERRUPTED)
+
+
+@click.group(cls=_Group, context_settings=CONTEXT_SETTINGS)
 @click.version_option(__version__, "--version", prog_name="oprecon")
 @click.option("--debug", is_flag=True, help="Show Python tracebacks for errors.")
 @click.pass_context
