@@ -14,7 +14,11 @@ import click
 
 from recon.config import ReconConfig, load_config
 from recon.errors import OpreconError
-from recon.interrupts import deferred_interrupts, wait_for_query_threads
+from recon.interrupts import (
+    deferred_interrupts,
+    ignore_interrupts_at_exit,
+    wait_for_query_threads,
+)
 from recon.presets import preset_path
 
 EXIT_OK = 0
@@ -186,12 +190,18 @@ def _caused_by_interrupt(exc: BaseException) -> bool:
 
 
 def catch_errors(func: Callable[..., Any]) -> Callable[..., Any]:
-    """Turn library errors into one-line messages with the documented exit codes."""
+    """Turn library errors into one-line messages with the documented exit codes.
+
+    Ctrl-C (or SIGTERM) in the command exits 130 with ``oprecon: interrupted``; one during the
+    interpreter's exit after the command is ignored
+    (:func:`recon.interrupts.ignore_interrupts_at_exit`): the command's outcome stands.
+    """
 
     @functools.wraps(func)
     def wrapper(*args: Any, **kwargs: Any) -> Any:
         ctx = click.get_current_context()
         debug = bool((ctx.find_root().obj or {}).get("debug"))
+        ignore_interrupts_at_exit()  # (a Ctrl-C in the teardown killed it without a word)
         from recon.io.files import folders_undone_on_failure  # (at run time: start-up)
 
         try:

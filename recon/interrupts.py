@@ -6,10 +6,15 @@ numba's or llvmlite's compile callbacks, or in the middle of an import, is swall
 into a ``SystemError``. :class:`deferred_interrupts` holds such an interrupt back and raises it
 as soon as the main thread has left the fragile code. Used by the CLI around every command and
 by batch worker processes around every item.
+
+:func:`ignore_interrupts_at_exit` covers the interpreter's teardown after a command: Python
+puts SIGINT's default action back before it tears the modules down (0.6-0.8 s after a fit's
+summary), and a Ctrl-C then killed the process by the signal without a word.
 """
 
 from __future__ import annotations
 
+import atexit
 import os
 import signal
 import threading
@@ -139,3 +144,31 @@ def wait_for_query_threads(timeout: float = 10.0) -> None:
                 thread.join(max(0.0, deadline - time.monotonic()))
             except RuntimeError:  # started, not yet running
                 time.sleep(0.005)
+
+
+_exit_hook_registered = False
+
+
+def _ignore_late_interrupts() -> None:
+    """The ``atexit`` hook of :func:`ignore_interrupts_at_exit`."""
+    if threading.current_thread() is not threading.main_thread():
+        return
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    if signal.getsignal(signal.SIGTERM) == signal.SIG_DFL:
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)
+
+
+def ignore_interrupts_at_exit() -> None:
+    """Ignore Ctrl-C (and SIGTERM with its default action) once the interpreter exits.
+
+    The ``atexit`` hooks run before Python tears the modules down, and that teardown puts the
+    default action of SIGINT back (SIG_IGN it leaves alone): an interrupt then ended the
+    process by the signal, without a message, after the command had finished and said how (its
+    outputs written and its summary printed, or its error or interrupt reported and its
+    temporaries removed). From the hook on, the exit code is the command's. Registered once
+    per process; a process that goes on running (a test runner) is not affected until it exits.
+    """
+    global _exit_hook_registered
+    if not _exit_hook_registered:
+        atexit.register(_ignore_late_interrupts)
+        _exit_hook_registered = True

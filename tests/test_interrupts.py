@@ -62,3 +62,25 @@ def test_term_takes_sigterm_over_a_handler_of_its_own_and_puts_it_back(default_s
             assert signal.getsignal(signal.SIGTERM) is own
     finally:
         signal.signal(signal.SIGTERM, old)
+
+
+def test_the_exit_hook_ignores_interrupts_and_is_registered_once(default_sigint, monkeypatch):
+    """:func:`ignore_interrupts_at_exit` (every command calls it) registers one ``atexit``
+    hook, which ignores SIGINT, and SIGTERM where it has its default action, for the
+    interpreter's teardown (tests/test_interrupt.py checks it in a real exit)."""
+    from recon import interrupts
+
+    hooks = []
+    monkeypatch.setattr(interrupts.atexit, "register", hooks.append)
+    monkeypatch.setattr(interrupts, "_exit_hook_registered", False)
+    interrupts.ignore_interrupts_at_exit()
+    interrupts.ignore_interrupts_at_exit()
+    assert len(hooks) == 1
+    old_term = signal.getsignal(signal.SIGTERM)
+    try:
+        hooks[0]()
+        assert signal.getsignal(signal.SIGINT) is signal.SIG_IGN
+        term = signal.SIG_IGN if old_term == signal.SIG_DFL else old_term
+        assert signal.getsignal(signal.SIGTERM) == term
+    finally:
+        signal.signal(signal.SIGTERM, old_term)
