@@ -3,7 +3,7 @@
 
 A result dict of a tile is a few hundred bytes of Python objects (more with the
 triangulation's statistics); at 10^9 points (~20,000 tiles of 50 m) the coordinator would hold
-tens of MB of them to the end. A row is :data:`ROW` (82 bytes); warnings, rare, are kept as
+tens of MB of them to the end. A row is :data:`ROW` (98 bytes); warnings, rare, are kept as
 text with their tile's description.
 """
 
@@ -28,6 +28,7 @@ ROW = np.dtype(
         ("fit_s", "<f8"),
         ("mesh_s", "<f8"),
         ("crease_particles", "<i8"),
+        ("own_crease_particles", "<i8"),
         ("cover_reach", "<f8"),
         ("new_vertices", "<i8"),
         ("self_intersections_found", "<i8"),
@@ -53,6 +54,7 @@ class TileRecords:
         r["points_with_halo"] = result.get("points_with_halo", result["points"])
         r["particles"] = result["particles"]
         r["fit_s"] = result["seconds"]
+        r["own_crease_particles"] = result.get("own_crease_particles", 0)
         self._warnings += [(tile, w) for w in result.get("warnings", [])]
 
     def add_mesh(self, tile: int, result: dict[str, Any]) -> None:

@@ -50,8 +50,9 @@ from .executors import LazyTasks, TileEvent, run_tasks, tile_runner
 from .grid import TileGrid, choose_auto_tile_size
 from .records import TileRecords
 from .source import ScanHeader, scan_header, split_input
-from .stitch import agree_signs
+from .stitch import SIGN_PAIR_DISTANCE, agree_signs, unmatched_crease_particles
 from .tasks import (
+    SIGN_BAND,
     BorderFiles,
     FitJob,
     MeshJob,
@@ -241,6 +242,7 @@ def fit_tiled(
     size = plan_tile_size(header, cfg)
     if size is None:
         return None
+    _check_crease_outputs(output_path, cfg)
     grid = TileGrid.cover(header.lo, header.hi, size, 0.0)
     timings: dict[str, float] = {}
     peaks: dict[str, float | None] = {}  # the coordinator's peak RSS in each phase [MiB]
@@ -308,9 +310,20 @@ def fit_tiled(
             timings["fit"] = time.perf_counter() - t0
             peaks["fit"] = peak_rss_mib(reset=True)
             fitted = records.fitted()
-            flips, disagreeing = agree_signs(
-                grid, BorderFiles(work, fitted, "in"), BorderFiles(work, fitted, "out"), r0
+            border_in, border_out = (
+                BorderFiles(work, fitted, "in"),
+                BorderFiles(work, fitted, "out"),
             )
+            flips, disagreeing = agree_signs(grid, border_in, border_out, r0)
+            unmatched = None
+            if cfg.creases.enabled and cfg.creases.fit:
+                unmatched = unmatched_crease_particles(
+                    grid,
+                    border_in.creases(),
+                    border_out.creases(),
+                    r0,
+                    SIGN_BAND + SIGN_PAIR_DISTANCE,
+                )
             offsets = records.offsets()
             meshed = records.with_particles().tolist()
             total = records.total("particles")
@@ -376,6 +389,9 @@ def fit_tiled(
         topology, quality = stitched["topology"], stitched["quality"]
         timings["total"] = time.perf_counter() - t_start
         warnings += records.warnings()
+        is_obj = output_path.suffix.lower() == ".obj"
+        creases, crease_warnings = _crease_section(cfg, records, unmatched, d6, r0, is_obj)
+        warnings += crease_warnings
         tile_times = records.tile_times()
         report: dict[str, Any] = {
             "oprecon_version": __version__,
@@ -416,6 +432,7 @@ def fit_tiled(
                 "per_tile": records.per_tile(flips),
             },
             "warnings": warnings,
+            **({} if creases is None else {"creases": creases}),
             "config": config_to_dict(cfg),
             "output": {
                 "mesh": str(output_path),
@@ -424,7 +441,6 @@ def fit_tiled(
                 "report": None if report_path is None else str(report_path),
             },
         }
-        is_obj = output_path.suffix.lower() == ".obj"
         with atomic_outputs() as outputs:
             with atomic_output(output_path, outputs) as tmp:
                 write_streamed(
@@ -454,6 +470,76 @@ def fit_tiled(
             shutil.rmtree(keep, ignore_errors=True)
             shutil.move(work, keep)
         shutil.rmtree(work, ignore_errors=True)
+
+
+def _check_crease_outputs(output_path: Path, cfg: ReconConfig) -> None:
+    """Refuse (exit 2), before any work, the crease output a tiled fit cannot write:
+    ``creases.split_ply`` (the tiled mesh is streamed into its file with one vertex and one
+    normal per particle; an untiled fit duplicates each crease vertex per side)."""
+    c = cfg.creases
+    split = c.enabled and c.fit and c.split_ply and cfg.output.vertex_normals
+    if split and output_path.suffix.lower() != ".obj":
+        raise InputError(
+            "creases.split_ply is not available in tiled fits (--tile-size, --tiles auto): "
+            "they write each crease vertex once, with one normal; fit without tiles, or drop "
+            "creases.split_ply"
+        )
+
+
+#: The crease section's statistics that a tiled fit does not measure (null in its report).
+UNMEASURED_CREASE_KEYS = ("length", "length_relative", "corners", "crease_points", "corner_points")
+#: The halo suggested when tiles disagree on a crease: this many times the crease detection's
+#: neighbourhood radius (the L-block sample, 4,000 points, 0.5 tiles: two lines missed at 0.67
+#: and 2 radii, none at 3).
+CREASE_HALO_RADII = 3.0
+
+
+def _crease_section(
+    cfg: ReconConfig,
+    records: TileRecords,
+    unmatched: int | None,
+    d6: float,
+    r0: float,
+    is_obj: bool,
+) -> tuple[dict[str, Any] | None, list[str]]:
+    """The report's ``creases`` section of a tiled fit (None without crease detection, as an
+    untiled fit's report) and its warnings.
+
+    Each tile detects and fits the creases of its core and halo, so the scan's statistics
+    (:class:`recon.fitting.report.CreaseStats`) are not measured: they are null, not summed
+    over overlapping tiles. Counted: the crease particles of the mesh, and those that one tile
+    placed near a seam and its neighbour has no match for (``unmatched_at_seams``)."""
+    c = cfg.creases
+    if not c.enabled:
+        return None, []
+    particles = records.total("own_crease_particles")
+    section: dict[str, Any] = {
+        "angle_deg": float(c.angle_deg),
+        **dict.fromkeys(UNMEASURED_CREASE_KEYS),
+        "crease_particles": particles,
+        "unmatched_at_seams": unmatched,
+        "note": "length, corners and crease points not measured in tiled fits (each tile "
+        "detects the creases of its core and halo); crease_particles: the particles the tiles "
+        "fitted on creases, each counted by the tile whose core holds it",
+    }
+    warnings = []
+    if unmatched:
+        radius = d6 * math.sqrt(c.k / 6.0)  # k-th neighbour distance on a surface
+        halo = min(50, max(math.ceil(CREASE_HALO_RADII * radius / r0), int(cfg.tiling.halo) + 1))
+        warnings.append(
+            f"{unmatched} crease particles near tile seams have no match in the neighbouring "
+            "tile's fit: a crease one tile detected was missed by its neighbour, which rounds "
+            f"it; the crease detection looks {radius:.3g} around a point, the halo "
+            f"{cfg.tiling.halo:g} r0 = {cfg.tiling.halo * r0:.3g}: --set tiling.halo={halo} "
+            "or an untiled fit keeps them"
+        )
+    if is_obj and c.fit and particles and cfg.output.vertex_normals:
+        warnings.append(
+            f"the OBJ's normals are not split at the creases: a tiled fit writes one normal "
+            f"per vertex, averaged across the crease at its {particles} crease particles (an "
+            "untiled fit writes one per face corner); shading rounds the sharp edges"
+        )
+    return section, warnings
 
 
 def _check_tile_memory(store: Any, cfg: ReconConfig, r0: float, d_nn: float) -> None:

@@ -25,7 +25,14 @@ from ..triangulate import remove_non_manifold_faces
 from ..winding import MIN_COMPONENT_FACES, orient_consistently, twisted_faces
 from .grid import TileGrid
 
-__all__ = ["SEAM_BAND", "agree_signs", "face_keys", "repair_cell", "same_winding"]
+__all__ = [
+    "SEAM_BAND",
+    "agree_signs",
+    "face_keys",
+    "repair_cell",
+    "same_winding",
+    "unmatched_crease_particles",
+]
 
 #: Edges and loops within this many r0 of an inner tile face count as "on a seam".
 SEAM_BAND = 2.0
@@ -35,6 +42,9 @@ SEAM_LOOP_FRACTION = 0.5
 CRACK_WIDTH = 2.5
 #: ... and pairs closer than this many r0 compare their normal signs.
 SIGN_PAIR_DISTANCE = 0.75
+#: A crease particle a tile placed in its neighbour's core is matched by one of the
+#: neighbour's own within this many r0 (crease particles lie about r0 apart along a line).
+CREASE_PAIR_DISTANCE = 1.0
 
 
 def agree_signs(
@@ -97,6 +107,48 @@ def agree_signs(
         _, s = find(t)
         flips[t] = s
     return flips, disagreeing
+
+
+def unmatched_crease_particles(
+    grid: TileGrid,
+    border_in: Mapping[int, tuple[np.ndarray, np.ndarray]],
+    border_out: Mapping[int, tuple[np.ndarray, np.ndarray]],
+    r0: float,
+    depth: float,
+) -> int:
+    """Crease particles a tile's fit placed in a neighbour's core that the neighbour's own fit
+    has no crease particle near: a crease one tile detected and its neighbour did not (each
+    tile detects the creases of its core and halo; near a seam, where one tile's halo is
+    narrower than the detection's neighbourhood, they can differ; the tile that missed one
+    rounds it).
+
+    ``border_in[t]``, ``border_out[t]``: (positions, crease flags) of tile t's own particles
+    near its core's faces and of those its fit placed in the neighbours' cores (the sides of
+    :class:`recon.tiling.tasks.BorderFiles`, :meth:`~recon.tiling.tasks.BorderFiles.creases`);
+    ``depth`` [r0]: how far into its core a tile's ``border_in`` particles reach. Only the
+    crease particles are compared whose whole search ball lies within that depth."""
+    reach = CREASE_PAIR_DISTANCE * r0
+    known = depth * r0 - reach
+    unmatched = 0
+    for b in sorted(border_in):
+        pb, cb = border_in[b]
+        tree = cKDTree(pb[cb]) if np.any(cb) else None
+        for a in grid.neighbours(b):
+            if a not in border_out:
+                continue
+            p, c = border_out[a]
+            if not np.any(c):
+                continue
+            p = p[c]
+            p = p[(grid.cell_of(p) == b) & ~grid.in_halo_box(b, p, -known)]
+            if not len(p):
+                continue
+            if tree is None:
+                unmatched += len(p)
+                continue
+            d, _ = tree.query(p, distance_upper_bound=reach)
+            unmatched += int(np.count_nonzero(~np.isfinite(d)))
+    return unmatched
 
 
 def _edges_among(faces: np.ndarray, ids: np.ndarray, n_vertices: int) -> set[tuple[int, int]]:

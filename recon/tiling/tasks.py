@@ -30,6 +30,7 @@ from .stitch import SEAM_BAND, SIGN_PAIR_DISTANCE
 __all__ = [
     "SIGN_BAND",
     "BorderFiles",
+    "CreaseBorders",
     "border_path",
     "fit_task",
     "mesh_task",
@@ -92,6 +93,20 @@ class BorderFiles(Mapping):
 
     def __len__(self) -> int:
         return len(self.tiles)
+
+    def creases(self) -> CreaseBorders:
+        """The same particles' positions with their crease flags instead of their normals."""
+        return CreaseBorders(self.work, self.tiles, self.side)
+
+
+class CreaseBorders(BorderFiles):
+    """tile -> (positions, crease flags) of the particles of :class:`BorderFiles`."""
+
+    def __getitem__(self, tile: int) -> tuple[np.ndarray, np.ndarray]:
+        if tile not in self._known:
+            raise KeyError(tile)
+        with np.load(border_path(self.work, tile)) as z:
+            return z[f"{self.side}_positions"], z[f"{self.side}_crease"]
 
 
 def spacing_task(store: TileStore, tile: int, sample: int, k: int, auto_scale: bool) -> dict:
@@ -202,12 +217,19 @@ def fit_task(job: FitJob) -> dict:
         else owned
     )
     result["particles"] = int(owned.sum())
+    flags = crease if crease is not None else np.zeros(len(pos), dtype=bool)
+    # the crease particles of the mesh, each counted by the tile whose core holds it
+    result["own_crease_particles"] = int(np.count_nonzero(flags[owned]))
     np.savez(
         border_path(job.work, job.tile),
         in_positions=pos[owned & ~deep],
         in_normals=nrm[owned & ~deep],
         out_positions=pos[near & ~owned],
         out_normals=nrm[near & ~owned],
+        # which of them are crease particles: a crease one tile found and its neighbour
+        # missed (:func:`recon.tiling.stitch.unmatched_crease_particles`)
+        in_crease=flags[owned & ~deep],
+        out_crease=flags[near & ~owned],
     )
     result["seconds"] = time.perf_counter() - t0
     return result
