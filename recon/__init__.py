@@ -9,6 +9,8 @@ References
        Reconstruction, and Animation". PhD thesis, University of Toronto, 1998/2000, chapter 4.
 """
 
+from typing import Any
+
 from .errors import ConfigError, InputError, OpreconError
 from .lazy_imports import defer_open3d_plotly
 from .version import __version__
@@ -18,7 +20,7 @@ defer_open3d_plotly()  # 0.7 s of dash/plotly imports that no command uses
 __all__ = ["ConfigError", "InputError", "OpreconError", "__version__", "fit", "load_config"]
 
 
-def __getattr__(name: str):  # lazy: keep `import recon` (and `oprecon --help`) light
+def __getattr__(name: str) -> Any:  # lazy: keep `import recon` (and `oprecon --help`) light
     if name == "fit":
         from .fitting import fit
 
@@ -28,3 +30,8 @@ def __getattr__(name: str):  # lazy: keep `import recon` (and `oprecon --help`) 
 
         return load_config
     raise AttributeError(f"module 'recon' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    """The module's names and the lazy ones (``fit``, ``load_config``), for tab completion."""
+    return sorted(set(globals()) | set(__all__))

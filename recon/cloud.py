@@ -1,18 +1,23 @@
 """The point-cloud type every stage receives: :class:`PointCloud` (coordinates, normals, colours).
 
-A module of its own, with no dependency beyond numpy, so that stages can name the type without
-importing the readers; :mod:`recon.io` builds the instances (from files or arrays).
+A module of its own, with no dependency beyond numpy (and the library's error types), so that
+stages can name the type without importing the readers; :mod:`recon.io` builds the instances
+(from files or arrays). :func:`numeric_array` and :func:`unit_colors` check the arrays a
+library user hands in (points, normals, colours) before they become a cloud.
 """
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Set
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-__all__ = ["PointCloud", "spatial_order"]
+from .errors import InputError
+
+__all__ = ["PointCloud", "numeric_array", "spatial_order", "unit_colors"]
 
 #: Bits per axis of the Morton code: a grid of 1024^3 cells over the bounding cube (a few
 #: points per occupied cell at 10^6-10^7 points on a surface). Finer grids order no better and
@@ -131,3 +136,136 @@ def spatial_order(points: np.ndarray) -> np.ndarray:
     code |= _spread_bits(cell[:, 1]) << np.uint32(1)
     code |= _spread_bits(cell[:, 2]) << np.uint32(2)
     return np.argsort(code, kind="stable")
+
+
+#: numpy dtype kinds of real numbers: bool, signed and unsigned integers, floats.
+_REAL_KINDS = "biuf"
+
+
+def _refuse(name: str, message: str) -> InputError:
+    return InputError(f"input array: {name}: {message}")
+
+
+def numeric_array(values: Any, name: str) -> np.ndarray:
+    """``values`` as a numpy array of real numbers, or a clear :class:`~recon.errors.InputError`.
+
+    numpy alone would turn ``None`` into a 0-d object array, drop the imaginary part of complex
+    values with only a ``ComplexWarning``, and fail on text with a bare ``ValueError``. The
+    shape is not checked here (:func:`recon.geometry.as_points` does).
+
+    Parameters
+    ----------
+    values : array_like
+        Points, normals or colours as given by the caller.
+    name : str
+        What the array is (``'points'``), named in the message.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``values`` itself when it is an array of bool, integers or floats; a new array
+        otherwise (float64 for an object array of numbers).
+
+    Raises
+    ------
+    InputError
+        ``"input array: <name>: ..."``: None, text, a mapping, complex numbers, rows of
+        different lengths, or objects that are not numbers.
+
+    Examples
+    --------
+    >>> numeric_array([[0, 0, 1]], "points").dtype.kind
+    'i'
+    """
+    if values is None:
+        raise _refuse(name, "expected an (n, 3) array of numbers, got None")
+    if isinstance(values, (str, bytes, Mapping, Set)):
+        raise _refuse(name, f"expected an (n, 3) array of numbers, got {type(values).__name__}")
+    try:
+        arr = np.asarray(values)
+    except ValueError as exc:  # a ragged nesting of lists ("inhomogeneous shape")
+        message = f"expected an (n, 3) array, got rows of different lengths ({exc})"
+        raise _refuse(name, message) from None
+    if arr.dtype.kind == "c":
+        raise _refuse(
+            name,
+            f"complex numbers ({arr.dtype}) are not accepted: pass a real array (its .real "
+            "part, if the imaginary part is meant to be zero)",
+        )
+    if arr.dtype.kind == "O":  # lists mixing numbers and other objects
+        try:
+            return arr.astype(np.float64)
+        except (TypeError, ValueError):
+            kinds = sorted({type(v).__name__ for v in arr.ravel()[:1000]})
+            got = type(values).__name__ if arr.ndim == 0 else f"values of type {', '.join(kinds)}"
+            raise _refuse(name, f"expected an (n, 3) array of numbers, got {got}") from None
+    if arr.dtype.kind not in _REAL_KINDS:
+        kind = {"U": "str", "S": "bytes"}.get(arr.dtype.kind, str(arr.dtype))
+        got = kind if arr.ndim == 0 else f"an array of {kind}"
+        raise _refuse(name, f"expected an (n, 3) array of numbers, got {got}")
+    return arr
+
+
+def _first_bad_row(bad: np.ndarray) -> int:
+    return int(np.flatnonzero(bad.reshape(bad.shape[0], -1).any(axis=1))[0])
+
+
+def unit_colors(colors: Any, name: str = "colors") -> np.ndarray:
+    """Colours given as an array, on the 0-1 scale of :attr:`PointCloud.colors`.
+
+    Integer channels are scaled by their type (:func:`recon.io.common.integer_color_scale`:
+    0-65535 for uint16, 0-255 for every other integer type), as the readers scale a file's
+    channels; float channels must already lie in [0, 1]. Nothing is clipped: a value outside
+    the range of its type, or a non-finite one, is refused (clipping made uint8 200 white and
+    NaN black).
+
+    Parameters
+    ----------
+    colors : (n, 3) array_like
+    name : str
+        Named in the messages.
+
+    Returns
+    -------
+    (n, 3) float64 in [0, 1]
+        The same shape as given (the caller checks it against the points).
+
+    Raises
+    ------
+    InputError
+        Not an array of real numbers (:func:`numeric_array`), a 0-d array, or a row with a
+        channel outside its range (the message names the first such row).
+
+    Examples
+    --------
+    >>> unit_colors(np.array([[255, 51, 0]], dtype=np.uint8)).tolist()
+    [[1.0, 0.2, 0.0]]
+    """
+    arr = numeric_array(colors, name)
+    if arr.ndim == 0:
+        raise _refuse(name, f"expected an (n, 3) array, got shape {arr.shape}")
+    if arr.dtype.kind in "iu":
+        from .io.common import integer_color_scale
+
+        top = integer_color_scale(arr.dtype)
+        bad = (arr < 0) | (arr > top)
+        if bad.any():
+            r = _first_bad_row(bad)
+            raise _refuse(
+                name,
+                f"row {r} ({arr[r]}) is outside 0-{top:g}, the range of {arr.dtype} colour "
+                "channels",
+            )
+        return arr / top
+    out = np.asarray(arr, dtype=np.float64)
+    finite = np.isfinite(out)
+    if not finite.all():
+        r = _first_bad_row(~finite)
+        raise _refuse(name, f"row {r} ({out[r]}) is not finite")
+    bad = (out < 0.0) | (out > 1.0)
+    if bad.any():
+        r = _first_bad_row(bad)
+        scale = out.min() >= 0.0 and out.max() <= 255.0
+        hint = " (on a 0-255 scale? divide by 255, or pass uint8 values)" if scale else ""
+        raise _refuse(name, f"row {r} ({out[r]}) is outside [0, 1]{hint}")
+    return out

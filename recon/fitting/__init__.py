@@ -6,6 +6,10 @@ Modules
 - :mod:`recon.fitting.schedule`: seeds, growth rounds and release, with the divergence retry;
 - :mod:`recon.fitting.report`: the typed report and the measurements of the mesh;
 - :mod:`recon.fitting.pipeline`: :func:`fit`, :func:`reconstruct` and :func:`fit_file`;
+- :mod:`recon.fitting.library`: the checks before a fit that :func:`fit` and :func:`fit_file`
+  share (the config's kinds, the progress callback, ``io.max_points``, ``io.max_memory``);
+- :mod:`recon.fitting.results`: what a fit returns (:class:`FitResult`, :class:`Mesh`,
+  :class:`Particles`, :class:`ParticleFit`);
 - :mod:`recon.fitting.collector`: the garbage collector kept off the objects alive before a fit.
 
 ``recon.fit(points, config)`` (the library's main function) is :func:`fit` from here.

@@ -27,11 +27,12 @@ References
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy.spatial import cKDTree
 
 from ..attributes import check_attribute_output, check_transfer, transfer_for_output
@@ -58,7 +59,8 @@ from ..triangulate import TriangulationResult, triangulate_particles
 from ..two_sided import closed_two_sided
 from ..version import __version__
 from .collector import survivors_frozen
-from .memory import estimate_fit_memory
+from .library import ConfigLike, check_progress, checked_memory, cloud_from_input, resolve_config
+from .memory import MemoryEstimate
 from .report import (
     SAMPLING_REACH,
     CreaseStats,
@@ -72,6 +74,7 @@ from .report import (
     measure_mesh,
     report_path_for,
 )
+from .results import FitResult, Mesh, ParticleFit, Particles
 from .scale import check_grid_size, choose_spacing, with_max_gap, with_neighborhood_size
 from .schedule import Clock, ProgressFn, run_schedule
 
@@ -107,44 +110,6 @@ DENSITY_NEIGHBOURS = 6
 #: ... and only a spacing more than this many times the median counts as sparse: the ball
 #: radii (0.7-2 r0) and the hole tests at r0 already absorb a twofold density variation.
 DENSITY_TOLERANCE = 1.5
-
-
-@dataclass
-class Mesh:
-    """A triangle mesh in absolute (file) coordinates."""
-
-    vertices: np.ndarray  # (V, 3) float64 [length]
-    faces: np.ndarray  # (F, 3) int64
-    normals: np.ndarray  # (V, 3) float64 unit vertex normals
-    crease: np.ndarray | None = None  # (V,) bool: on a crease line or corner (creases.fit)
-
-
-@dataclass
-class Particles:
-    """The final oriented particles in absolute (file) coordinates."""
-
-    positions: np.ndarray  # (n, 3) float64 [length]
-    normals: np.ndarray  # (n, 3) float64
-
-
-@dataclass
-class FitResult:
-    """What a fit returns: the mesh, the particles and the report.
-
-    Attributes
-    ----------
-    mesh : Mesh
-    particles : Particles
-    report : FitReport
-        ``report.to_dict()`` is the JSON of ``<mesh>.report.json``.
-    origin : (3,) float64 [length]
-        The cloud's origin (mesh and particles are already absolute).
-    """
-
-    mesh: Mesh
-    particles: Particles
-    report: FitReport
-    origin: np.ndarray = field(default_factory=lambda: np.zeros(3))
 
 
 def _trim(state: ParticleState, surface: DataSurface, cfg: ReconConfig) -> int:
@@ -403,7 +368,7 @@ def _detect_creases(
 
 
 def reconstruct(
-    cloud: PointCloud, config: ReconConfig | None = None, on_progress: ProgressFn | None = None
+    cloud: PointCloud, config: ConfigLike = None, on_progress: ProgressFn | None = None
 ) -> FitResult:
     """Reconstruct a mesh from a point cloud.
 
@@ -412,8 +377,8 @@ def reconstruct(
     cloud : PointCloud
         Points relative to ``cloud.origin``; normals are used when present and
         ``normals.mode`` allows it.
-    config : ReconConfig, optional
-        Defaults when omitted.
+    config : ReconConfig, mapping, str or path-like, optional
+        Defaults when omitted; as :func:`fit` takes it.
     on_progress : callable(phase, info), optional
         Called after every growth round and release chunk with the step count, particle
         count, kinetic energy and coverage.
@@ -423,46 +388,11 @@ def reconstruct(
     FitResult
         Mesh and particles in absolute coordinates, and the report.
     """
-    cfg = config if config is not None else ReconConfig()
+    cfg = resolve_config(config)
+    check_progress(on_progress)
     # the mesh depends on neither
     with thread_count(cfg.threads), survivors_frozen():
         return _reconstruct(cloud, cfg, on_progress)
-
-
-@dataclass
-class ParticleFit:
-    """The particle sheet of one fit, before triangulation (:func:`fit_particles`).
-
-    Attributes
-    ----------
-    positions : (n, 3) float64 [length]
-        Absolute (file) coordinates.
-    normals : (n, 3) float64
-    rest : (n,) float64 [r0] or None
-        Each particle's rest spacing with ``seeds.adaptive``; None otherwise.
-    r0 : float [length]
-    config : ReconConfig
-        The configuration as resolved by the fit (``normals.k``, ``growth.max_gap``, ``dt``).
-    n_trimmed : int
-    steps : dict
-    warnings : list of str
-    stop_reason : str or None
-    crease : (n,) bool or None
-        The crease particles (unoriented, on a crease line or corner) when creases were
-        fitted, else None: the triangulation pivots and flips around them
-        (:func:`recon.triangulate.triangulate_particles`), as the untiled fit's does.
-    """
-
-    positions: np.ndarray
-    normals: np.ndarray
-    rest: np.ndarray | None
-    r0: float
-    config: ReconConfig
-    n_trimmed: int
-    steps: dict
-    warnings: list
-    stop_reason: str | None
-    crease: np.ndarray | None = None
 
 
 @dataclass
@@ -655,26 +585,86 @@ def _reconstruct(cloud: PointCloud, cfg: ReconConfig, on_progress: ProgressFn | 
 
 
 def fit(
-    points: np.ndarray,
-    config: ReconConfig | None = None,
+    points: ArrayLike,
+    config: ConfigLike = None,
     *,
-    normals: np.ndarray | None = None,
+    normals: ArrayLike | None = None,
     on_progress: ProgressFn | None = None,
 ) -> FitResult:
-    """Python API: reconstruct from an (n, 3) array (and optional (n, 3) normals).
+    """Reconstruct a mesh from an (n, 3) array of points: ``recon.fit``, the library's main
+    function.
 
-    Mirrors ``oprecon fit``: ``recon.fit(points, config) -> FitResult(mesh, particles, report)``.
+    Mirrors ``oprecon fit``: the same cleaning (non-finite rows dropped, repeated points
+    merged unless ``io.merge_duplicates`` is off), the same limits (``io.max_points``,
+    ``io.max_memory``) and the same fit, without writing files.
+
+    Parameters
+    ----------
+    points : (n, 3) array_like of real numbers [length]
+        Absolute coordinates.
+    config : ReconConfig, mapping, str or path-like, optional
+        A :class:`~recon.config.ReconConfig` (``recon.load_config(path, overrides)``); a
+        mapping of dotted overrides of the defaults, ``{"seeds.spacing": 0.02}``, as
+        ``recon.load_config(overrides=...)`` takes it; or the path of a YAML configuration
+        file, as ``recon.load_config(path)``. The defaults when omitted.
+    normals : (n, 3) array_like of real numbers, optional
+        Normals of the points (any length; used as ``normals.mode`` says); estimated when
+        omitted.
+    on_progress : callable(phase, info), optional
+        Called after every growth round and release chunk (:func:`reconstruct`).
+
+    Returns
+    -------
+    FitResult
+        ``mesh`` and ``particles`` in absolute coordinates, ``report`` (its ``input``
+        carries the memory estimate when ``io.max_memory`` is set).
+
+    Raises
+    ------
+    InputError
+        ``points`` or ``normals`` is not an (n, 3) array of real numbers (None, text,
+        complex values, rows of different lengths, mismatched shapes); more rows than
+        ``io.max_points``; an estimated peak memory over ``io.max_memory``; fewer than 4
+        distinct finite points or all on one line; or a fit that produced no triangles.
+    ConfigError
+        An unknown key or an invalid value in a mapping or file given as ``config``.
+    TypeError
+        ``config`` of another kind (use ``recon.load_config``), or an ``on_progress`` that
+        cannot be called (both before any work).
+    OpreconError
+        The other failures of a fit (``DivergenceError``, ``LimitExceeded``).
+
+    Examples
+    --------
+    >>> import numpy as np, recon
+    >>> p = np.random.default_rng(0).normal(size=(800, 3))
+    >>> res = recon.fit(p / np.linalg.norm(p, axis=1, keepdims=True), {"seed": 1})  # doctest: +SKIP
+    >>> res.report.topology.watertight  # doctest: +SKIP
+    True
     """
-    from ..io import cloud_from_arrays
+    cfg = resolve_config(config)
+    check_progress(on_progress)
+    cloud = cloud_from_input(points, normals, cfg)
+    memory = checked_memory(cloud, cfg)  # refuses early past io.max_memory
+    return _with_input(reconstruct(cloud, cfg, on_progress), memory=memory)
 
-    cloud = cloud_from_arrays(points, normals)
-    return reconstruct(cloud, config, on_progress)
+
+def _with_input(
+    result: FitResult, path: str | None = None, memory: MemoryEstimate | None = None
+) -> FitResult:
+    """``result`` with the input file and the memory estimate in its report's ``input``."""
+    if path is None and memory is None:
+        return result
+    report = result.report
+    mem = None if memory is None else memory.to_dict()
+    result.report = replace(report, input=replace(report.input, path=path, memory_estimate=mem))
+    return result
 
 
 def fit_file(
     input_path: str | Path,
     output_path: str | Path,
-    config: ReconConfig | None = None,
+    config: ConfigLike = None,
     *,
     particles_path: str | Path | None = None,
     preview_path: str | Path | None = None,
@@ -691,6 +681,7 @@ def fit_file(
     or an interrupt leaves no partial file.
     Writing onto the input is refused. The report (``report_path_for(output_path)``) is written
     when ``write_report`` is true, or when it is None and ``output.write_report`` is.
+    ``config`` as :func:`fit` takes it.
     """
     from ..io import (
         atomic_output,
@@ -701,7 +692,8 @@ def fit_file(
         write_points,
     )
 
-    cfg = config if config is not None else ReconConfig()
+    cfg = resolve_config(config)
+    check_progress(on_progress)
     input_path = Path(input_path)
     output_path = check_output_path(Path(output_path), inputs=[input_path], mkdir=mkdir)
     want_report = cfg.output.write_report if write_report is None else write_report
@@ -721,12 +713,11 @@ def fit_file(
         classes=cfg.io.classes,
     )
     check_transfer(cloud, cfg.output.transfer)
-    memory = estimate_fit_memory(cloud.points, cfg)  # refuses early past io.max_memory
-    result = reconstruct(cloud, cfg, on_progress)
+    memory = checked_memory(cloud, cfg, always=True)  # refuses early past io.max_memory
+    result = _with_input(reconstruct(cloud, cfg, on_progress), str(input_path), memory)
     report = result.report
     result.report = replace(
         report,
-        input=replace(report.input, path=str(input_path), memory_estimate=memory.to_dict()),
         output=OutputPaths(
             mesh=str(output_path),
             particles=None if particles_path is None else str(particles_path),
