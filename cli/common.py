@@ -56,12 +56,14 @@ def fail(message: str, code: int = EXIT_BAD_INPUT) -> None:
 COMPILE_TIMES_NOTE = "  note: the times above include compiling the numba kernels (first run)"
 
 
-def note_first_compile(quiet: bool, kernels: tuple[str, ...] | None = None) -> bool:
+def note_first_compile(
+    quiet: bool, kernels: tuple[str, ...] | None = None, how_long: str = "a few minutes of CPU"
+) -> bool:
     """Say on stderr, before a run starts, when it will first compile numba's kernels (no
     cache for this version on this machine yet): minutes in which nothing else is shown.
     ``kernels``: those of :data:`recon.kernels.warm.SLOW_TO_COMPILE` the command calls (all
-    of them for a fit). Returns whether it said so (then the summary ends with
-    :data:`COMPILE_TIMES_NOTE`)."""
+    of them for a fit); ``how_long``: what the compile of those takes. Returns whether it
+    said so (then the summary ends with :data:`COMPILE_TIMES_NOTE`)."""
     if quiet:
         return False
     from recon.kernels.warm import SLOW_TO_COMPILE, uncached
@@ -70,7 +72,7 @@ def note_first_compile(quiet: bool, kernels: tuple[str, ...] | None = None) -> b
         return False
     click.echo(
         "oprecon: compiling the numba kernels first (this version's first run on this "
-        "machine: a few minutes of CPU, once; later runs load them from the cache)",
+        f"machine: {how_long}, once; later runs load them from the cache)",
         err=True,
     )
     return True

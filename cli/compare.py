@@ -85,7 +85,7 @@ def read_reference(path: Path, as_points: bool) -> Any:
     from recon.io import read_mesh, read_points
 
     if not as_points and path.suffix.lower() in (".ply", ".obj"):
-        vertices, faces = read_mesh(path)
+        vertices, faces = read_mesh(path, all_finite=True)  # every vertex is measured
         if len(faces):
             return vertices, faces
     return read_points(path, merge_duplicates=False)

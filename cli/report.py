@@ -11,7 +11,7 @@ import click
 from recon.errors import InputError
 from recon.serialize import dumps
 
-from .common import catch_errors
+from .common import catch_errors, note_first_compile
 
 # --------------------------------------------------------------------------------------------
 # helpers shared with ``oprecon compare``
@@ -61,11 +61,28 @@ TOPOLOGY_ROWS = (
 )
 
 
+#: The numba kernels every report calls (``module.function`` under :mod:`recon.kernels`):
+#: topology (half-edge order, fans, components) and the self-intersection search (the
+#: triangle tests of :mod:`recon.kernels.tri_intersect` are compiled into ``sphere_pairs``).
+#: Compiling them takes about 30 s on a machine without their cache.
+REPORT_KERNELS: tuple[str, ...] = (
+    "mesh_tables.half_edge_order",
+    "mesh_tables.fan_labels",
+    "mesh_tables.vertex_component_labels",
+    "mesh_tables.bounding_spheres",
+    "grid_query.coordinate_extent",
+    "sphere_pairs.sphere_pairs",
+)
+#: Those the picture (``--png``) adds.
+PNG_KERNELS: tuple[str, ...] = ("mesh_tables.area_vectors", "mesh_tables.edge_table")
+
+
 def read_mesh_checked(path: Path, role: str = "MESH") -> tuple[Any, Any]:
-    """``recon.io.read_mesh`` that refuses files without faces (names the file)."""
+    """``recon.io.read_mesh`` that refuses files without faces and non-finite coordinates in
+    any vertex, used or not (names the file)."""
     from recon.io import read_mesh
 
-    vertices, faces = read_mesh(path)
+    vertices, faces = read_mesh(path, all_finite=True)
     if len(faces) == 0:
         raise InputError(f"{path}: has no faces (a point cloud?); {role} must be a triangle mesh")
     return vertices, faces
@@ -89,6 +106,22 @@ def load_fit_history(mesh_path: Path) -> tuple[Path | None, dict[str, Any] | Non
     return path, history
 
 
+#: (label, key) of the rows of ``report``'s closed-component check (not in ``compare``).
+ORIENTATION_ROWS = (
+    ("closed components", "closed_components"),
+    ("  facing inward", "closed_components_inward"),
+)
+
+
+def no_proper_face(topology: dict[str, Any]) -> str:
+    """The line that says a mesh has faces but no non-degenerate one."""
+    n = topology["n_faces"]
+    return (
+        f"no non-degenerate face: {'the' if n == 1 else 'all'} {n:,} "
+        f"{'face is' if n == 1 else 'faces are'} degenerate (a repeated vertex index or zero area)"
+    )
+
+
 def format_quality(report: dict[str, Any], mesh_name: str, input_name: str | None) -> str:
     """The human table of a ``quality_report`` dict."""
     topo = report["topology"]
@@ -99,10 +132,13 @@ def format_quality(report: dict[str, Any], mesh_name: str, input_name: str | Non
         "topology",
         table(
             [(label, fmt(topo[key])) for label, key in TOPOLOGY_ROWS[2:]]
+            + [(label, fmt(topo[key])) for label, key in ORIENTATION_ROWS if key in topo]
             + [("self-intersections", fmt(report.get("self_intersections")))]
         ),
         f"triangles ({tq['n_measured']:,} non-degenerate)",
     ]
+    if not tq["n_measured"] and topo["n_faces"]:
+        out.append(f"  {no_proper_face(topo)}")
     if tq["n_measured"]:
         out.append(
             table(
@@ -182,7 +218,8 @@ def command(mesh_path: Path, input_path: Path | None, as_json: bool, png_path: P
     Reads PLY or OBJ. Reports components, boundary edges and loops, non-manifold edges and
     vertices, orientation, Euler characteristic and genus, degenerate faces; the minimum-angle
     and aspect-ratio statistics of the triangles; and, with --input, how far the input points
-    lie from the surface.
+    lie from the surface. Closed components (every edge in two faces, wound consistently)
+    whose signed volume is negative are counted as facing inward (inside out).
 
     \b
     Examples:
@@ -201,23 +238,27 @@ def command(mesh_path: Path, input_path: Path | None, as_json: bool, png_path: P
             png_path, [p for p in (mesh_path, input_path) if p is not None], mkdir_option=None
         )
         check_png_output(png_path, "the picture")
+    kernels = REPORT_KERNELS + (PNG_KERNELS if png_path is not None else ())
+    note_first_compile(False, kernels, how_long="about a minute of CPU")
     vertices, faces = read_mesh_checked(mesh_path)
     points = None
     if input_path is not None:
         points = read_points(input_path).absolute_points()
-    report = quality_report(points, vertices, faces, intersections=True)
+    report = quality_report(points, vertices, faces, intersections=True, orientation=True)
     fit_path, history = load_fit_history(mesh_path)
+    if not report["triangle_quality"]["n_measured"] and as_json:
+        click.echo(f"oprecon: warning: {mesh_path}: {no_proper_face(report['topology'])}", err=True)
 
     if png_path is not None:
-        from recon.render import render_mesh_png
+        from recon.render import check_history, render_mesh_png
 
-        try:
-            render_mesh_png(png_path, vertices, faces, history=history, title=mesh_path.name)
-        except InputError as exc:
-            if history is None:
-                raise
-            click.echo(f"oprecon: warning: {fit_path}: history not drawn: {exc}", err=True)
-            render_mesh_png(png_path, vertices, faces, title=mesh_path.name)
+        if history is not None:
+            try:  # only a bad history falls back to the mesh alone
+                check_history(history)
+            except InputError as exc:
+                click.echo(f"oprecon: warning: {fit_path}: history not drawn: {exc}", err=True)
+                history = None
+        render_mesh_png(png_path, vertices, faces, history=history, title=mesh_path.name)
 
     if as_json:
         payload = {

@@ -593,6 +593,7 @@ def quality_report(
     *,
     diag: float | None = None,
     intersections: bool = False,
+    orientation: bool = False,
 ) -> dict[str, Any]:
     """Topology, triangle quality and (with points) fidelity of a mesh, in one JSON-ready dict.
 
@@ -611,6 +612,10 @@ def quality_report(
     intersections : bool
         Also count the crossing face pairs (``self_intersections``,
         :func:`recon.intersections.self_intersections`).
+    orientation : bool
+        Also count the closed components and those facing inward (``topology``'s
+        ``closed_components`` and ``closed_components_inward``,
+        :func:`recon.topology.closed_orientation`).
 
     Returns
     -------
@@ -621,7 +626,7 @@ def quality_report(
         ``intersections``, ``self_intersections``.
     """
     v, f = validate_mesh(vertices, faces)
-    topology, quality = topology_and_quality(v, f)
+    topology, quality = topology_and_quality(v, f, orientation=orientation)
     report: dict[str, Any] = {
         "topology": topology,
         "triangle_quality": quality,

@@ -28,9 +28,9 @@ import numpy as np
 from .errors import InputError
 from .io.files import AtomicOutputs, atomic_output
 from .mesh import count_edge_faces, face_normals, vertex_fans
-from .topology import validate_mesh
+from .topology import degenerate_face_mask, validate_mesh
 
-__all__ = ["render_mesh_png"]
+__all__ = ["check_history", "render_mesh_png"]
 
 #: (name, direction toward the viewer, screen-up hint) of the three views.
 VIEWS = (
@@ -105,10 +105,12 @@ def _draw_view(
     all_vertices: np.ndarray,
     extent: np.ndarray,
     markers: np.ndarray | None = None,
+    nothing_drawn: str | None = None,
 ) -> None:
     """One view: ``vertices``/``faces`` (the drawing's, maybe simplified) shaded, the
     ``edge_sets`` (vertex pairs into ``all_vertices``, the mesh's own) on top, and the view
-    framed on the points ``extent`` (the vertices the faces use)."""
+    framed on the points ``extent`` (the vertices the faces use). ``nothing_drawn``: what the
+    view says instead of drawing faces (every face degenerate)."""
     from matplotlib.collections import LineCollection, PolyCollection
 
     ax.set_axis_off()
@@ -119,8 +121,9 @@ def _draw_view(
     ax.set_xlim(lo[0] - pad, hi[0] + pad)
     ax.set_ylim(lo[1] - pad, hi[1] + pad)
     ax.set_aspect("equal", adjustable="box")
-    if len(faces) == 0:
-        ax.text(0.5, 0.5, "no faces", ha="center", va="center", transform=ax.transAxes)
+    if len(faces) == 0 or nothing_drawn:
+        text = nothing_drawn or "no faces"
+        ax.text(0.5, 0.5, text, ha="center", va="center", transform=ax.transAxes, wrap=True)
     else:
         s = vertices @ basis.T
         tri = s[faces]
@@ -162,7 +165,16 @@ def non_manifold_vertex_ids(faces: np.ndarray) -> np.ndarray:
     return ids[n_fans > 1]
 
 
-def _check_history(history: Mapping[str, Any]) -> dict[str, list[Any]]:
+def check_history(history: Mapping[str, Any]) -> dict[str, list[Any]]:
+    """The lists of a fit history as :func:`render_mesh_png` draws them (numbers as floats).
+
+    Raises
+    ------
+    InputError
+        Not a mapping, no ``step`` list, lists of unequal lengths or non-numbers where numbers
+        belong: a caller that read the history from a file can check it first and draw the
+        mesh without it (``oprecon report --png``).
+    """
     if not isinstance(history, Mapping):
         raise InputError(f"history must be a mapping of lists, got {type(history).__name__}")
     h = {k: list(v) for k, v in history.items() if isinstance(v, (list, tuple, np.ndarray))}
@@ -284,7 +296,7 @@ def render_mesh_png(
     width, height = (int(s) for s in size)
     if width < 100 or height < 100:
         raise InputError(f"image size must be at least 100 x 100 pixels, got {width} x {height}")
-    hist = None if history is None else _check_history(history)
+    hist = None if history is None else check_history(history)
 
     if marks is None:
         edges, counts = count_edge_faces(f)
@@ -302,6 +314,9 @@ def render_mesh_png(
     if marks is not None and len(v):
         used = v  # the marked edges index every vertex (the drawing's and the marked ones)
     draw_v, draw_f = _simplify_for_drawing(v, f, max_faces)
+    nothing_drawn = None
+    if len(draw_f) and degenerate_face_mask(draw_v, draw_f).all():
+        nothing_drawn = "no non-degenerate face to draw"
 
     fig = Figure(figsize=(width / _DPI, height / _DPI), dpi=_DPI, facecolor="white")
     FigureCanvasAgg(fig)
@@ -319,7 +334,7 @@ def render_mesh_png(
     for col, (name, direction, up) in enumerate(VIEWS):
         ax = fig.add_subplot(views[0, col])
         basis = _view_basis(direction, up)
-        _draw_view(ax, name, basis, draw_v, draw_f, edge_sets, v, used, bow_ties)
+        _draw_view(ax, name, basis, draw_v, draw_f, edge_sets, v, used, bow_ties, nothing_drawn)
     if hist is not None:
         panel = outer[1].subgridspec(2, 1, hspace=0.08)
         _draw_history(fig, (panel[0, 0], panel[1, 0]), hist)

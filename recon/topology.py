@@ -13,13 +13,16 @@ Definitions (the ones used by every number this module reports):
 
 - A *degenerate* face has a repeated vertex index or (near-)zero area: twice its area is at most
   ``1e-12`` times its longest edge squared (its smallest angle is below ~1e-12 rad). Faces with
-  a repeated index are left out of every topological count (they have no proper edges); faces
-  that are merely flat are kept.
+  a repeated index are left out of the edge, boundary, manifold, orientation and Euler counts
+  (they have no proper edges), but they reference their vertices and join them into a
+  component, and a mesh with one is not watertight; faces that are merely flat are kept.
 - An *edge* is an unordered vertex pair used by at least one face. It is a *boundary* edge if one
   face uses it, manifold if two do and *non-manifold* if three or more do.
+- A vertex is *referenced* when a face (degenerate or not) uses it.
 - *Components* are connected components of the referenced vertices, two vertices being connected
   when a face uses both (so a bow-tie is one component; :func:`recon.mesh.vertex_components`).
-  The Euler characteristic ``chi = V - E + F`` is additive over these components.
+  The Euler characteristic ``chi = V - E + F`` (over the vertices, edges and faces of the faces
+  without a repeated index) is additive over these components.
 - *Boundary loops* are connected components of the graph of boundary edges
   (:func:`recon.mesh.boundary_components`). On a manifold mesh each is one closed polygon;
   loops that touch at a (non-manifold) vertex count as one. Hole repair walks the *simple*
@@ -33,7 +36,13 @@ Definitions (the ones used by every number this module reports):
   Non-manifold edges are ignored for both.
 - *Watertight* (the standard definition, as Open3D's ``is_watertight`` and MeshLab use it,
   without their self-intersection test): every edge in exactly two faces (no boundary edge, no
-  non-manifold edge) and every vertex's faces forming one fan (no non-manifold vertex).
+  non-manifold edge) and every vertex's faces forming one fan (no non-manifold vertex). A face
+  with a repeated index (``[0, 0, 1]``) uses an edge once more (Open3D: not edge-manifold), so
+  a mesh with one is not watertight.
+- A *closed component* (:func:`closed_orientation`) is a component whose faces all lie on edges
+  in exactly two faces, wound consistently, with no repeated-index face: it bounds a volume.
+  It *faces inward* (is inside out) when its signed volume (divergence theorem, the sum of
+  ``p0 . (p1 x p2) / 6`` over its faces) is negative.
 - *Genus* (sum over components of ``(2 - chi_c) / 2``) is reported only for closed orientable
   manifolds: watertight and orientable; otherwise it is ``None``.
 - ``largest_hole_perimeter``: the perimeter of the largest boundary loop (0 when closed), in
@@ -63,7 +72,9 @@ from .mesh import (
 )
 
 __all__ = [
+    "closed_orientation",
     "count_edge_faces",
+    "degenerate_face_mask",
     "mesh_topology",
     "power_of_two_near",
     "topology_and_quality",
@@ -73,6 +84,11 @@ __all__ = [
 
 #: A face is degenerate when ``2 * area <= DEGENERATE_AREA_RATIO * longest_edge**2``.
 DEGENERATE_AREA_RATIO = 1e-12
+#: A closed component faces inward when its signed volume is below ``-VOLUME_SIGN_RATIO`` times
+#: the sum of its faces' absolute contributions (a flat, doubly covered one has none).
+VOLUME_SIGN_RATIO = 1e-9
+#: The keys :func:`closed_orientation` (and ``orientation=True``) adds.
+ORIENTATION_KEYS = ("closed_components", "closed_components_inward")
 #: The fields of :func:`triangle_quality` (also measured tile by tile by ``recon.tiling``).
 TRIANGLE_QUALITY_KEYS = (
     "min_angle_mean_deg",
@@ -180,12 +196,29 @@ def _degenerate_mask(
     return repeated, repeated | flat
 
 
-def _empty_topology(n_vertices: int, n_faces: int, degenerate: int) -> dict[str, Any]:
+def degenerate_face_mask(vertices: Any, faces: Any) -> np.ndarray:
+    """``(F,)`` bool: the degenerate faces (a repeated vertex index or zero area; the module
+    docstring), judged at any scale.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [2, 0, 0]], float)
+    >>> degenerate_face_mask(v, [[0, 1, 2], [0, 1, 3], [0, 0, 2]]).tolist()
+    [False, True, True]
+    """
+    v, f = validate_mesh(vertices, faces)
+    return _degenerate_mask(_unit_scaled(v)[0], f)[1]
+
+
+def _empty_topology(
+    n_vertices: int, n_faces: int, degenerate: int, components: int, referenced: int
+) -> dict[str, Any]:
     return {
         "n_vertices": n_vertices,
         "n_faces": n_faces,
         "n_edges": 0,
-        "components": 0,
+        "components": components,
         "boundary_edges": 0,
         "boundary_loops": 0,
         "non_manifold_edges": 0,
@@ -197,7 +230,7 @@ def _empty_topology(n_vertices: int, n_faces: int, degenerate: int) -> dict[str,
         "genus": None,
         "degenerate_faces": degenerate,
         "duplicate_faces": 0,
-        "unreferenced_vertices": n_vertices,
+        "unreferenced_vertices": n_vertices - referenced,
         "largest_hole_perimeter": 0.0,
     }
 
@@ -220,9 +253,10 @@ def mesh_topology(vertices: Any, faces: Any) -> dict[str, Any]:
         ``n_vertices``, ``n_faces``, ``n_edges`` (int): sizes of the input and the number of
         distinct edges. ``components``, ``boundary_edges``, ``boundary_loops``,
         ``non_manifold_edges``, ``non_manifold_vertices`` (int). ``watertight`` (bool): no
-        boundary edge, no non-manifold edge and no non-manifold vertex. ``orientable``,
-        ``consistently_oriented`` (bool).
-        ``euler_characteristic`` (int): ``V - E + F`` over referenced vertices and proper faces.
+        boundary edge, no non-manifold edge, no non-manifold vertex and no face with a repeated
+        index. ``orientable``, ``consistently_oriented`` (bool).
+        ``euler_characteristic`` (int): ``V - E + F`` over the faces without a repeated index
+        and their vertices.
         ``genus`` (int or None): total genus of a closed orientable manifold, ``None`` when the
         mesh is not one. ``degenerate_faces``, ``duplicate_faces`` (same three vertices in any
         order), ``unreferenced_vertices`` (int). ``largest_hole_perimeter`` (float): the
@@ -257,16 +291,56 @@ def _lengths_times(measures: dict[str, Any], factor: float) -> dict[str, Any]:
     return measures
 
 
+def closed_orientation(vertices: Any, faces: Any) -> dict[str, int]:
+    """How many closed components a mesh has, and how many of them face inward (inside out).
+
+    Parameters
+    ----------
+    vertices : (V, 3) array_like of float [length]
+    faces : (F, 3) array_like of int
+
+    Returns
+    -------
+    dict
+        ``closed_components`` (int): components that bound a volume (every edge in exactly two
+        faces, wound consistently; the module docstring). ``closed_components_inward`` (int):
+        those of them whose signed volume is negative (their faces' winding points inward).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], float)
+    >>> f = np.array([[0, 2, 1], [0, 1, 3], [1, 2, 3], [0, 3, 2]])
+    >>> closed_orientation(v, f[:, ::-1])
+    {'closed_components': 1, 'closed_components_inward': 1}
+    """
+    v, f = validate_mesh(vertices, faces)
+    v, _ = _unit_scaled(v)
+    measures = _mesh_topology(v, f, _degenerate_mask(v, f), orientation=True)
+    return {key: measures[key] for key in ORIENTATION_KEYS}
+
+
 def _mesh_topology(
-    v: np.ndarray, f: np.ndarray, masks: tuple[np.ndarray, np.ndarray]
+    v: np.ndarray,
+    f: np.ndarray,
+    masks: tuple[np.ndarray, np.ndarray],
+    orientation: bool = False,
 ) -> dict[str, Any]:
-    """:func:`mesh_topology` of a validated mesh, given its :func:`_degenerate_mask`."""
+    """:func:`mesh_topology` of a validated mesh, given its :func:`_degenerate_mask`; with
+    ``orientation``, also the counts of :func:`closed_orientation`."""
     n_vertices, n_faces = len(v), len(f)
     repeated, degenerate = masks
     n_degenerate = int(degenerate.sum())
-    f = f[~repeated]
+    has_repeated = bool(repeated.any())
+    f_all = f  # every face references its vertices and joins them (repeated index or not)
+    if has_repeated:
+        f = f[~repeated]
     if len(f) == 0:
-        return _empty_topology(n_vertices, n_faces, n_degenerate)
+        n_components, comp_of_vertex = vertex_components(f_all, n_vertices)
+        empty = _empty_topology(
+            n_vertices, n_faces, n_degenerate, n_components, int(np.sum(comp_of_vertex >= 0))
+        )
+        return {**empty, **dict.fromkeys(ORIENTATION_KEYS, 0)} if orientation else empty
 
     nf = len(f)
     referenced = np.zeros(n_vertices, dtype=bool)
@@ -302,6 +376,11 @@ def _mesh_topology(
     manifold_pair = edge_count[pair_edge] == 2
     flip_parity = (forward[a] == forward[b])[manifold_pair]  # True: the pair disagrees
     consistent = not bool(flip_parity.any())
+    open_face = None
+    if orientation:  # faces that keep their component from bounding a volume
+        open_face = np.zeros(nf, dtype=bool)
+        open_face[order[edge_count[edge_id_sorted] != 2] // 3] = True  # half-edge h: face h//3
+        open_face[a[manifold_pair][flip_parity] // 3] = True
     orientable = consistent or not orientation_flips(f, order=order, consistent=False)[1].any()
     # the half-edge arrays are done with: free them before the component and fan passes
     # (at a million faces each is 24 MB and they held ~0.4 GB at the report's peak)
@@ -309,8 +388,8 @@ def _mesh_topology(
     del same, a, b, pair_edge, manifold_pair, flip_parity
 
     # Components over vertices (faces link their three vertices).
-    n_components, comp_of_vertex = vertex_components(f, n_vertices)
-    ref_idx = np.flatnonzero(referenced)
+    n_components, comp_of_vertex = vertex_components(f_all, n_vertices)
+    ref_idx = np.flatnonzero(referenced)  # the vertices of the faces without a repeated index
     comp_compact = comp_of_vertex[ref_idx]
 
     # Boundary loops: connected components of the boundary-edge graph (recon.mesh).
@@ -325,7 +404,12 @@ def _mesh_topology(
     n_non_manifold_vertices = int((fans_per_vertex > 1).sum())
 
     chi = int(len(ref_idx) - n_edges + nf)
-    watertight = n_boundary == 0 and n_non_manifold_edges == 0 and n_non_manifold_vertices == 0
+    watertight = (
+        n_boundary == 0
+        and n_non_manifold_edges == 0
+        and n_non_manifold_vertices == 0
+        and not has_repeated
+    )
     genus: int | None = None
     if watertight and orientable:
         v_c = np.bincount(comp_compact, minlength=n_components)
@@ -335,8 +419,9 @@ def _mesh_topology(
 
     perimeters = boundary_loop_perimeters(v, f) if n_boundary else np.zeros(0)
     duplicates = len(f) - len(first_faces(f, n_vertices))
+    n_referenced = len(ref_idx) if not has_repeated else int(np.sum(comp_of_vertex >= 0))
 
-    return {
+    measures = {
         "n_vertices": n_vertices,
         "n_faces": n_faces,
         "n_edges": n_edges,
@@ -352,14 +437,61 @@ def _mesh_topology(
         "genus": genus,
         "degenerate_faces": n_degenerate,
         "duplicate_faces": int(duplicates),
-        "unreferenced_vertices": int(n_vertices - len(ref_idx)),
+        "unreferenced_vertices": int(n_vertices - n_referenced),
         "largest_hole_perimeter": float(perimeters[0]) if len(perimeters) else 0.0,
+    }
+    if open_face is not None:
+        not_closed = comp_of_vertex[f[open_face, 0]]
+        if has_repeated:
+            not_closed = np.concatenate([not_closed, comp_of_vertex[f_all[repeated, 0]]])
+        measures.update(_closed_orientation(v, f, comp_of_vertex, n_components, not_closed))
+    return measures
+
+
+def _closed_orientation(
+    v: np.ndarray,
+    f: np.ndarray,
+    comp_of_vertex: np.ndarray,
+    n_components: int,
+    not_closed: np.ndarray,
+) -> dict[str, int]:
+    """The counts of :func:`closed_orientation`: ``f`` the faces without a repeated index,
+    ``comp_of_vertex`` the vertices' components (-1: unreferenced), ``not_closed`` the
+    components (with repeats) that do not bound a volume."""
+    closed = np.ones(n_components, dtype=bool)
+    closed[not_closed] = False
+    comp_of_face = comp_of_vertex[f[:, 0]]
+    closed &= np.bincount(comp_of_face, minlength=n_components) > 0
+    keep = closed[comp_of_face]
+    f, comp_of_face = f[keep], comp_of_face[keep]
+    # about each component's centroid: the volume does not depend on the origin, its rounding does
+    used = comp_of_vertex >= 0
+    label = comp_of_vertex[used]
+    count = np.bincount(label, minlength=n_components).astype(np.float64)
+    centre = (
+        np.stack(
+            [np.bincount(label, weights=v[used, k], minlength=n_components) for k in range(3)], 1
+        )
+        / np.maximum(count, 1.0)[:, None]
+    )
+    c = centre[comp_of_face]
+    p0, p1, p2 = (v[f[:, k]] - c for k in range(3))
+    six_volume = np.einsum("ij,ij->i", p0, np.cross(p1, p2))
+    signed = np.bincount(comp_of_face, weights=six_volume, minlength=n_components)
+    size = np.bincount(comp_of_face, weights=np.abs(six_volume), minlength=n_components)
+    inward = closed & (signed < -VOLUME_SIGN_RATIO * size)
+    return {
+        "closed_components": int(closed.sum()),
+        "closed_components_inward": int(inward.sum()),
     }
 
 
-def topology_and_quality(vertices: Any, faces: Any) -> tuple[dict[str, Any], dict[str, Any]]:
+def topology_and_quality(
+    vertices: Any, faces: Any, *, orientation: bool = False
+) -> tuple[dict[str, Any], dict[str, Any]]:
     """``(mesh_topology(vertices, faces), triangle_quality(vertices, faces))``, validating the
-    mesh and measuring its faces' areas and edge lengths once for both.
+    mesh and measuring its faces' areas and edge lengths once for both; with ``orientation``,
+    the topology also holds the counts of :func:`closed_orientation`.
 
     Examples
     --------
@@ -374,7 +506,7 @@ def topology_and_quality(vertices: Any, faces: Any) -> tuple[dict[str, Any], dic
     geometry = _face_geometry(v, f)
     masks = _degenerate_mask(v, f, geometry)
     return (
-        _lengths_times(_mesh_topology(v, f, masks), factor),
+        _lengths_times(_mesh_topology(v, f, masks, orientation), factor),
         _lengths_times(_triangle_quality(v, f, geometry, masks[1]), factor),
     )
 

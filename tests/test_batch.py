@@ -543,6 +543,29 @@ overrides:
     assert set(statuses(run(path, force=True)).values()) == {"ok"}
 
 
+def test_an_output_folder_nobody_can_write_in_is_refused_before_any_item_runs(
+    tmp_path, monkeypatch
+):
+    """Regression: every item ran (and failed to write), and the batch ended on
+    ``batch_summary.json: cannot write``; the folder is now refused first."""
+    make_inputs(tmp_path, **{"a.xyz": "ok"})
+    out = tmp_path / "out"
+    out.mkdir()
+    real_access = os.access
+
+    def access(path, mode, *args, **kwargs):  # as on a read-only mount (root ignores modes)
+        if mode & os.W_OK and Path(path).resolve() == out.resolve():
+            return False
+        return real_access(path, mode, *args, **kwargs)
+
+    monkeypatch.setattr(os, "access", access)
+    ran: list[str] = []
+    path = write_batch(tmp_path, "inputs: ['*.xyz']\noutput_dir: out\n")
+    with pytest.raises(InputError, match="cannot write in folder"):
+        run(path, on_event=lambda event: ran.append(event.name))
+    assert ran == [] and os.listdir(out) == []
+
+
 def test_one_failure_never_stops_the_others(tmp_path):
     make_inputs(
         tmp_path,

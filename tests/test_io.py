@@ -704,3 +704,19 @@ def test_check_output_path(tmp_path, monkeypatch):
     with pytest.raises(InputError, match="is a directory"):
         check_output_path(tmp_path / "a")
     assert check_output_path("o.ply", inputs=[inp]) == Path("o.ply")
+
+
+def test_cloud_from_arrays_scales_integer_colours_and_refuses_bad_ones():
+    """uint8 200 was clipped to white and NaN made black: integers are scaled by their
+    type, out-of-range or non-finite colours and complex arrays are refused."""
+    rng = np.random.default_rng(0)
+    p = rng.normal(size=(50, 3))
+    c = cloud_from_arrays(p, colors=np.full((50, 3), 200, dtype=np.uint8))
+    np.testing.assert_array_equal(c.colors, np.full((50, 3), 200 / 255))
+    for bad in (np.full((50, 3), np.nan), np.full((50, 3), 1.5), np.full((50, 3), -0.1)):
+        with pytest.raises(InputError, match="colors: row 0"):
+            cloud_from_arrays(p, colors=bad)
+    with pytest.raises(InputError, match="points: complex"):
+        cloud_from_arrays(p + 0j)
+    with pytest.raises(InputError, match="normals: complex"):
+        cloud_from_arrays(p, p + 1j)

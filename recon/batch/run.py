@@ -13,6 +13,7 @@ from collections.abc import Callable
 from typing import Any
 
 from ..config import config_to_dict
+from ..io.files import check_output_path
 from .executors import default_jobs, import_dask, run_dask, run_local
 from .outputs import read_json, remove_temp_files
 from .plan import BatchItem, BatchPlan
@@ -22,6 +23,7 @@ from .summary import (
     STATUS_INTERRUPTED,
     STATUS_OK,
     STATUS_SKIPPED,
+    SUMMARY_JSON,
     BatchReport,
     EventFn,
     ItemResult,
@@ -151,8 +153,11 @@ def run_batch(
             )
     to_run = plan.with_action("run")
     interrupted = False
-    if to_run:
+    if to_run or write_summary_files:
+        # a folder nobody can write in is refused now, not after every item has run
         plan.spec.output_dir.mkdir(parents=True, exist_ok=True)
+        check_output_path(plan.spec.output_dir / SUMMARY_JSON)
+    if to_run:
         local = executor == "local" or not scheduler
         per_item = threads or (
             max(1, default_jobs() // min(n_jobs, len(to_run))) if local else None

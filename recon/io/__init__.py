@@ -36,7 +36,7 @@ from typing import Any
 
 import numpy as np
 
-from ..cloud import PointCloud
+from ..cloud import PointCloud, numeric_array, unit_colors
 from ..errors import InputError
 from . import e57, las, obj, pcd, ply, xyz
 from .clean import check_coordinate_range, choose_origin, make_cloud
@@ -129,6 +129,7 @@ def read_points(
     max_points: int = 50_000_000,
     merge_duplicates: bool = True,
     classes: list[int] | tuple[int, ...] | None = None,
+    all_properties: bool = False,
 ) -> PointCloud:
     """Read a point cloud (PLY, XYZ text, PCD, OBJ, LAS/LAZ, E57) into relative coordinates.
 
@@ -144,6 +145,13 @@ def read_points(
     classes : sequence of int, optional
         Keep only the points of these LAS classes (e.g. ``[2, 6]``, ground and buildings);
         None or empty keeps every point. Only LAS/LAZ files have classes.
+    all_properties : bool
+        PLY: also keep every other scalar vertex property (``quality``, ``alpha``, a scalar
+        field ...) in ``attributes``, under its own name and in the file's type, and a
+        ``classification`` beyond the LAS classes 0-255 in its own type, so that
+        :func:`write_points` writes them back (``oprecon normals``); the fit has no use for
+        them. Properties named like the normals or colours but not a complete set of them (a
+        lone ``red``) are not kept, and a warning names them. Other formats: no effect.
 
     Returns
     -------
@@ -151,7 +159,9 @@ def read_points(
         Non-finite rows dropped, duplicates merged, ``origin`` chosen by :func:`choose_origin`;
         LAS/LAZ and E57 also fill ``attributes`` (intensity, classification), text files
         with an intensity column (PTS) the intensity, PLY files their ``intensity`` and
-        ``classification`` vertex properties.
+        ``classification`` vertex properties. ``intensity`` is float64, ``classification``
+        uint8 (a PLY's values outside 0-255 are clipped, with a warning, unless
+        ``all_properties``).
 
     Raises
     ------
@@ -177,7 +187,9 @@ def read_points(
         elif kind == "e57":
             fmt, pts, nrm, col, attributes = e57.read_points(p, max_points, info)
         elif kind == "ply":
-            fmt, pts, nrm, col, attributes = ply.read_points(p, size, max_points, info)
+            fmt, pts, nrm, col, attributes = ply.read_points(
+                p, size, max_points, info, all_properties
+            )
         elif kind == "pcd":
             fmt, pts, nrm, col = pcd.read_points(p, size, max_points, info)
         elif kind == "obj":
@@ -202,7 +214,8 @@ def cloud_from_arrays(
     points : (n, 3) array_like [length]
         Absolute coordinates.
     normals : (n, 3) array_like, optional
-    colors : (n, 3) array_like in [0, 1], optional
+    colors : (n, 3) array_like, optional
+        Floats in [0, 1], or integers scaled by their type (0-255; uint16: 0-65535).
     attributes : dict of str -> (n,) array_like, optional
         Per-point scalars (``intensity``, ``classification`` ...).
     merge_duplicates : bool
@@ -215,11 +228,13 @@ def cloud_from_arrays(
     Raises
     ------
     InputError
-        Wrong shapes, fewer than 4 distinct finite points, collinear points.
+        Wrong shapes, arrays that are not real numbers (None, text, complex), colours
+        outside their range or not finite, fewer than 4 distinct finite points, collinear
+        points.
     """
-    xyz = as_input_points(points, "points", where="input array")
-    nrm = None if normals is None else np.asarray(normals, dtype=np.float64)
-    col = None if colors is None else np.asarray(colors, dtype=np.float64)
+    xyz = as_input_points(numeric_array(points, "points"), "points", where="input array")
+    nrm = None if normals is None else np.asarray(numeric_array(normals, "normals"), np.float64)
+    col = None if colors is None else unit_colors(colors)
     for name, arr in (("normals", nrm), ("colors", col)):
         if arr is not None and arr.shape != xyz.shape:
             raise input_error(None, f"{name}: expected shape {xyz.shape}, got {arr.shape}")
@@ -235,13 +250,19 @@ def cloud_from_arrays(
     return make_cloud(None, "array", xyz, nrm, col, merge_duplicates, info, attrs)
 
 
-def read_mesh(path: str | os.PathLike[str]) -> tuple[np.ndarray, np.ndarray]:
+def read_mesh(
+    path: str | os.PathLike[str], *, all_finite: bool = False
+) -> tuple[np.ndarray, np.ndarray]:
     """Read a triangle mesh from PLY or OBJ; polygons are triangulated as fans.
 
     Parameters
     ----------
     path : path-like
         ``.ply`` (any encoding; face list ``vertex_indices`` or ``vertex_index``) or ``.obj``.
+    all_finite : bool
+        Also refuse non-finite coordinates in vertices that no face uses. By default those
+        are kept (``oprecon remesh`` removes unreferenced vertices); the measures of every
+        vertex (``oprecon report``, ``compare``) need them finite.
 
     Returns
     -------
@@ -253,7 +274,8 @@ def read_mesh(path: str | os.PathLike[str]) -> tuple[np.ndarray, np.ndarray]:
     Raises
     ------
     InputError
-        Unreadable or malformed file, non-finite vertices, face indices out of range.
+        Unreadable or malformed file, non-finite vertices (used by a face, or any with
+        ``all_finite``), face indices out of range.
     """
     p = Path(path)
     size = check_readable(p)
@@ -272,8 +294,23 @@ def read_mesh(path: str | os.PathLike[str]) -> tuple[np.ndarray, np.ndarray]:
     used = vertices[np.unique(faces)] if faces.size else vertices
     if not np.isfinite(used).all():
         raise input_error(p, "non-finite vertex coordinates")
+    if all_finite:
+        bad = np.flatnonzero(~np.isfinite(vertices).all(axis=1))
+        if len(bad):  # (not used by a face: those were refused above)
+            raise input_error(
+                p,
+                f"non-finite coordinates in {_vertices_named(bad)}, used by no face; "
+                "remove the vertex (every vertex is measured)",
+            )
     check_coordinate_range(p, used)
     return vertices, faces
+
+
+def _vertices_named(indices: np.ndarray) -> str:
+    """``vertex 4`` or ``3 vertices (the first: vertex 4)`` (0-based indices)."""
+    if len(indices) == 1:
+        return f"vertex {int(indices[0])}"
+    return f"{len(indices):,} vertices (the first: vertex {int(indices[0])})"
 
 
 # --------------------------------------------------------------------------------------------
@@ -333,8 +370,11 @@ def write_points(
     colors : (n, 3) uint8, optional
         PLY ``red green blue`` (uchar).
     vertex_properties : dict of name -> (n,) array, optional
-        More vertex properties, typed as in :func:`write_mesh` (``intensity``,
-        ``classification`` ...).
+        More vertex properties (``intensity``, ``classification`` ...), each in the PLY type
+        of its array's: ``char``, ``uchar``, ``short``, ``ushort``, ``int``, ``uint``,
+        ``float``, ``double`` (bool as ``uchar``); float64 as ``float`` when float32 holds
+        every value exactly, else ``double``; 64-bit integers as ``int`` or ``uint`` when
+        they fit, else ``double``. No value is rounded or clipped.
 
     Notes
     -----
@@ -344,7 +384,7 @@ def write_points(
     xyz = _absolute(points, origin)
     nrm = _check_normals(normals, xyz.shape[0])
     rgb = _check_colors(colors, xyz.shape[0])
-    extra = _with_rgb(rgb, _vertex_properties(vertex_properties, xyz.shape[0]))
+    extra = _with_rgb(rgb, _vertex_properties(vertex_properties, xyz.shape[0], exact=True))
     with atomic_output(path, outputs) as tmp, open(tmp, "wb") as fh:
         ply.write(fh, xyz, nrm, None, ascii, extra or None)
 
@@ -394,11 +434,18 @@ def write_mesh(
     Raises
     ------
     InputError
-        Unsupported extension, bad shapes, face indices out of range, vertex properties for
-        an OBJ file.
+        Unsupported extension, bad shapes, non-finite vertex coordinates, face indices out of
+        range, vertex properties for an OBJ file.
     """
     p = Path(path)
     xyz = _absolute(vertices, origin)
+    bad = np.flatnonzero(~np.isfinite(xyz).all(axis=1))
+    if len(bad):  # read_mesh refuses them: a file no reader takes back
+        raise input_error(
+            p,
+            f"cannot write non-finite coordinates (in {_vertices_named(bad)}): a mesh file "
+            "holds finite coordinates only",
+        )
     f = np.asarray(faces)
     if f.size == 0:
         f = np.zeros((0, 3), dtype=np.int64)
@@ -463,7 +510,11 @@ def _check_colors(colors: Any, n: int) -> np.ndarray | None:
 _PROPERTY_TYPES = {np.dtype(np.uint8): "u1", np.dtype(np.uint16): "u2"}
 
 
-def _vertex_properties(props: Any, n: int) -> list[tuple[str, np.ndarray, str]]:
+def _vertex_properties(
+    props: Any, n: int, exact: bool = False
+) -> list[tuple[str, np.ndarray, str]]:
+    """(name, values, PLY type) of each property; ``exact``: in the types of
+    :func:`_exact_type` (``write_points``), else as :func:`write_mesh` says."""
     out = []
     for name, values in (props or {}).items():
         a = np.asarray(values)
@@ -471,7 +522,9 @@ def _vertex_properties(props: Any, n: int) -> list[tuple[str, np.ndarray, str]]:
             raise InputError(f"vertex property '{name}': expected shape ({n},), got {a.shape}")
         if name in ("x", "y", "z", "nx", "ny", "nz", "red", "green", "blue"):
             raise InputError(f"vertex property '{name}': the name is taken")
-        if a.dtype in _PROPERTY_TYPES:
+        if exact and (a.dtype.kind in "biuf"):
+            t = _exact_type(a)
+        elif a.dtype in _PROPERTY_TYPES:
             t = _PROPERTY_TYPES[a.dtype]
         elif np.issubdtype(a.dtype, np.integer):
             t = "i4"
@@ -481,6 +534,28 @@ def _vertex_properties(props: Any, n: int) -> list[tuple[str, np.ndarray, str]]:
             raise InputError(f"vertex property '{name}': unsupported type {a.dtype}")
         out.append((str(name), a, t))
     return out
+
+
+def _exact_type(a: np.ndarray) -> str:
+    """The PLY type that holds every value of the numeric array ``a`` exactly: its own type
+    where PLY has it, the narrower ``float`` for float64 values that float32 holds exactly,
+    ``int`` or ``uint`` for 64-bit integers that fit, ``double`` for the others."""
+    if a.dtype.kind == "b":
+        return "u1"
+    if a.dtype.kind == "f":
+        if a.dtype.itemsize <= 4:
+            return "f4"
+        with np.errstate(over="ignore", invalid="ignore"):
+            narrow = a.astype(np.float32).astype(a.dtype)
+        return "f4" if np.array_equal(narrow, a, equal_nan=True) else "f8"
+    if a.dtype.itemsize <= 4:
+        return a.dtype.kind + str(a.dtype.itemsize)
+    lo, hi = (int(a.min()), int(a.max())) if a.size else (0, 0)
+    if -(2**31) <= lo and hi < 2**31:
+        return "i4"
+    if 0 <= lo and hi < 2**32:
+        return "u4"
+    return "f8"
 
 
 def _check_normals(normals: Any, n: int) -> np.ndarray | None:

@@ -1,7 +1,8 @@
 """Output files: path checks before any work, and the one layer of atomic writes.
 
 :func:`check_output_path` refuses, before anything is computed, an output that is an input
-(under any spelling, symlink or hard link), a folder, or lies in a missing folder.
+(under any spelling, symlink or hard link), a folder, or lies in a missing folder or in one
+where no file can be created (a read-only mount, no write permission).
 
 :func:`atomic_outputs` is the only place that writes output files: each file is written to a
 temporary beside its destination and all of them are moved into place together when the block
@@ -70,7 +71,8 @@ def check_output_path(
     Raises
     ------
     InputError
-        ``path`` is an input, a directory, or its folder is missing (without ``mkdir``).
+        ``path`` is an input, a directory, or its folder is missing (without ``mkdir``) or
+        not writable (a read-only file system; permissions, for a user other than root).
     """
     out = Path(path)
     if str(out) in ("", "."):
@@ -108,7 +110,23 @@ def check_output_path(
             ) from None
     elif not parent.is_dir():
         raise input_error(out, f"'{out.parent}' is not a folder")
+    _check_writable(out, parent)
     return out
+
+
+def _check_writable(out: Path, parent: Path) -> None:
+    """Refuse ``out`` when no file can be created in its folder ``parent``: a read-only mount
+    (``os.access`` says so even to root) or, for other users, the folder's permissions. The
+    writers create a temporary beside the destination (:class:`AtomicOutputs`), which takes
+    write and search permission on the folder, whether or not ``out`` exists. A full disk
+    cannot be told in advance: the write reports it."""
+    if os.access(parent, os.W_OK | os.X_OK):
+        return
+    read_only = False
+    with contextlib.suppress(OSError, AttributeError):
+        read_only = bool(os.statvfs(parent).f_flag & os.ST_RDONLY)
+    why = "it is on a read-only file system" if read_only else "permission denied"
+    raise input_error(out, f"cannot write in folder '{out.parent}': {why}")
 
 
 #: The folders ``check_output_path(mkdir=True)`` made inside :func:`folders_undone_on_failure`.
