@@ -36,13 +36,20 @@ ORIENTATIONS = NormalsConfig.__dataclass_fields__["orientation"].metadata["choic
     "--k",
     type=click.IntRange(3, 500),
     default=None,
-    help="Neighbours for the PCA estimate [normals.k].",
+    help="Neighbours for the PCA estimate, used as given: an explicit --k turns off "
+    "normals.auto_scale, which raises a configured k on noisy data (up to 4x, at most 500). "
+    "normals.per_point_scale may still take a point's 2k or 4k nearest where its k are not "
+    "thin [normals.k].",
 )
 @click.option(
     "--radius",
     type=click.FloatRange(0, min_open=True),
     default=None,
-    help="PCA neighbourhood radius in input units [normals.radius].",
+    help="Of each point's k nearest, only those within this distance (input units, the "
+    "point itself included) go into its PCA; a point with fewer than 3 within it takes its "
+    "k nearest. Refused when more than half the points would (the message gives a radius "
+    "that works); the summary counts the points it trimmed and those that fell back. Turns "
+    "off normals.per_point_scale [normals.radius].",
 )
 @click.option(
     "--orient-k",
@@ -119,6 +126,7 @@ def command(
         cfg,
         normals={
             "k": k,
+            "auto_scale": False if k is not None else None,  # an explicit k is used as given
             "radius": radius,
             "orient_k": orient_k,
             "viewpoint": viewpoint,
@@ -134,7 +142,10 @@ def command(
     output_path = check_output_path(output_path, inputs=[input_path], mkdir=mkdir)
     keep_freed_memory()  # one command in this process: reuse freed memory (recon/heap.py)
     cloud = read_points(
-        input_path, max_points=cfg.io.max_points, merge_duplicates=cfg.io.merge_duplicates
+        input_path,
+        max_points=cfg.io.max_points,
+        merge_duplicates=cfg.io.merge_duplicates,
+        all_properties=True,  # a PLY's every per-point scalar goes along, in its own type
     )
     with thread_count(cfg.threads):
         normals, info = compute_normals(cloud, cfg.normals)
@@ -160,7 +171,31 @@ def command(
                 how += f", oriented {info['orientation']}"
         else:
             how = (
-                f"estimated (k={info['k']}), oriented {info['orientation']}: "
+                f"{_estimated(info)}, oriented {info['orientation']}: "
                 f"{info['n_components']} component(s), {info['n_guessed']} guessed"
             )
         click.echo(f"{output_path}: {len(cloud):,} points, {how}, {info['time_s']:.2f}s", err=True)
+
+
+def _estimated(info: dict) -> str:
+    """``estimated (k=20)`` and what changed k or the neighbourhoods: the noise rule
+    (``normals.auto_scale``), a radius (points trimmed, points that fell back)."""
+    k = info["k"]
+    radius = info.get("radius")
+    if radius is None:
+        text = f"estimated (k={k})"
+    elif info["n_radius_trimmed"] == 0 and info["n_radius_fallback"] == 0:
+        text = (
+            f"estimated (k={k}; radius {radius:g} holds every point's {k} nearest: it trims none)"
+        )
+    else:
+        text = (
+            f"estimated (k={k} within radius {radius:g}: {info['n_radius_trimmed']:,} points "
+            f"took fewer of their {k} nearest, {info['n_radius_fallback']:,} had fewer than 3 "
+            f"within it and took all {k})"
+        )
+    if "k_configured" in info:
+        text += (
+            f", k raised from normals.k={info['k_configured']} on noisy data (normals.auto_scale)"
+        )
+    return text

@@ -108,8 +108,9 @@ class NormalsConfig(Schema):
     )
     auto_scale: bool = option(
         True,
-        "Raise k (up to 4x) on noisy data until the local surfaces are "
-        "thin (median surface variation below 0.05).",
+        "Raise k (up to 4x, at most 500) on noisy data until the local surfaces are "
+        "thin (median surface variation below 0.05); an explicit `oprecon normals --k` "
+        "turns it off.",
     )
     per_point_scale: bool = option(
         True,
@@ -119,7 +120,14 @@ class NormalsConfig(Schema):
         "(a knife edge at 1e-4 noise); false: one k for every point.",
     )
     radius: float | None = option(
-        None, "Optional PCA radius [input length units]; null = k-NN only.", 0.0, None, lo_open=True
+        None,
+        "Of each point's k nearest, only those within this distance go into its PCA [input "
+        "length units]; a point with fewer than 3 within it takes its k nearest, and a radius "
+        "with which more than half the points would is refused. Turns off per_point_scale. "
+        "null = the k nearest.",
+        0.0,
+        None,
+        lo_open=True,
     )
     orient_k: int = option(
         10, "Neighbours in the orientation graph (Hoppe et al. 1992 MST).", 3, 100

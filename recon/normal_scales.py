@@ -32,23 +32,30 @@ from collections.abc import Callable
 import numpy as np
 from scipy.spatial import cKDTree
 
+from .errors import ConfigError
 from .geometry import median_variation
 from .kernels.pca import scatter_matrices
 from .kernels.thin_sides import split_sides_kernel
 
 __all__ = [
+    "MAX_K",
     "MAX_SCALE",
     "THIN_VARIATION",
     "best_scale_normals",
     "choose_neighborhood_size",
     "neighbourhood_scales",
     "per_point_k_max",
+    "radius_counts",
+    "radius_weights",
     "wider_query",
 ]
 
 #: The widest neighbourhood the normals take, in multiples of ``normals.k``: the noise rule
 #: (:func:`choose_neighborhood_size`) and the per-point scale (:func:`best_scale_normals`).
 MAX_SCALE = 4
+#: The most neighbours the noise rule raises ``normals.k`` to: the top of that key's range
+#: (recon/config.py), so that a raised k is one a user could have set.
+MAX_K = 500
 #: Median PCA surface variation lambda_0 / (lambda_0 + lambda_1 + lambda_2) below which a
 #: neighbourhood counts as thin (clean data: <= 0.016; 1 % noise at k = 20: ~0.18).
 THIN_VARIATION = 0.05
@@ -66,6 +73,7 @@ def choose_neighborhood_size(
     sample: int = 4000,
     tree: cKDTree | None = None,
     variations: dict[int, float] | None = None,
+    limit: int = MAX_K,
 ) -> int:
     """Neighbourhood size for normals and local surfaces: k, doubled while the data is noisy.
 
@@ -73,7 +81,9 @@ def choose_neighborhood_size(
     grows with noise; wider neighbourhoods average the noise. Returns the smallest of
     k, 2k, 4k whose median variation is below ``THIN_VARIATION`` (4k at most: wider
     neighbourhoods mix the two sides of thin parts; measured on the 1 %-noise bunny, sign
-    consistency 99.3 % at k = 80 but 94.6 % at k = 160). ``tree``: one of ``points`` if built.
+    consistency 99.3 % at k = 80 but 94.6 % at k = 160), each capped at ``limit`` (the top
+    of ``normals.k``'s range) and at the number of points; k itself when it is already at
+    a cap. ``tree``: one of ``points`` if built.
     ``variations``: a dict that receives each median variation measured, by k (the chosen k's
     among them, which :func:`recon.normal_signs.resign_thin_parts` need not measure again).
     """
@@ -81,11 +91,12 @@ def choose_neighborhood_size(
     tree = cKDTree(points) if tree is None else tree
     variations = {} if variations is None else variations
     chosen = k
+    cap = min(n, max(k, limit))
     for factor in (1, 2, MAX_SCALE):
-        kk = min(k * factor, n)
+        kk = min(k * factor, cap)
         chosen = kk
         variations[kk] = variation = median_variation(points, kk, sample, tree)
-        if variation < THIN_VARIATION or kk >= n:
+        if variation < THIN_VARIATION or kk >= cap:
             break
     return int(chosen)
 
@@ -165,3 +176,45 @@ def best_scale_normals(
             sub[sel] = normal_w[sel]
         out[rows] = sub
     return out / np.linalg.norm(out, axis=1, keepdims=True)
+
+
+def radius_weights(
+    dist: np.ndarray, radius: float, stats: dict[str, np.ndarray] | None, rows: slice
+) -> np.ndarray:
+    """0/1 PCA weights of each row's nearest (``dist`` (m, k), nearest first, itself the
+    first): those within ``radius``, or all of them where fewer than 3 are (a plane needs 3
+    points). ``stats`` (with ``inside``, ``third_distance``, ``kth_distance`` arrays over all
+    points, of which these are ``rows``): the count within the radius and the radii that hold
+    the 3 and k nearest."""
+    inside = dist <= radius
+    count = inside.sum(axis=1)
+    if stats is not None:
+        stats["inside"][rows] = count
+        stats["third_distance"][rows] = dist[:, min(2, dist.shape[1] - 1)]
+        stats["kth_distance"][rows] = dist[:, -1]
+    return np.where((count >= 3)[:, None], inside, True).astype(np.float64)
+
+
+def radius_counts(where: str, radius: float, k: int, stats: dict[str, np.ndarray]) -> dict:
+    """What ``normals.radius`` did, from :func:`recon.normals.estimate_normals`'s ``stats``
+    (``k``: the neighbours it took): ``n_radius_trimmed``, the points that took fewer than
+    their k nearest, and ``n_radius_fallback``, those with fewer than 3 within it, which
+    took their k nearest. Refused (a :class:`~recon.errors.ConfigError` naming ``where``)
+    when more than half the points fall back: the radius would then change little while
+    seeming to work; the message gives radii that would."""
+    inside = stats["inside"]
+    n = len(inside)
+    fallback = int(np.count_nonzero(inside < 3))
+    if fallback > n / 2:
+        raise ConfigError(
+            f"{where}: normals.radius = {radius:g} holds fewer than 3 points (each point "
+            f"itself included) for {fallback:,} of {n:,} points, which would take their {k} "
+            f"nearest instead. Use a radius of at least "
+            f"{float(np.quantile(stats['third_distance'], 0.9)):.3g} (3 points for 90 % of "
+            f"them; {float(np.median(stats['kth_distance'])):.3g} holds the {k} nearest of "
+            "half of them), or none (the k nearest alone)"
+        )
+    return {
+        "n_radius_trimmed": int(np.count_nonzero((inside >= 3) & (inside < k))),
+        "n_radius_fallback": fallback,
+    }

@@ -72,6 +72,8 @@ from .normal_scales import (  # noqa: F401 (choose_neighborhood_size: the public
     choose_neighborhood_size,
     neighbourhood_scales,
     per_point_k_max,
+    radius_counts,
+    radius_weights,
     wider_query,
 )
 from .orientation_graph import edge_costs
@@ -174,6 +176,7 @@ def estimate_normals(
     neighbors: tuple[np.ndarray, np.ndarray] | None = None,
     k_max: int | None = None,
     tree: cKDTree | None = None,
+    stats: dict[str, np.ndarray] | None = None,
 ) -> np.ndarray:
     """Unoriented normals by principal component analysis of each point's neighbourhood.
 
@@ -183,7 +186,10 @@ def estimate_normals(
     With ``k_max`` (at least ``2 k``, no ``radius``), a point whose neighbourhood is not thin
     takes the best determined of its ``k``, ``2 k`` ... nearest up to ``k_max``: across a part
     about as thick as a k-neighbourhood is wide (:mod:`recon.normal_scales`). ``tree``: a
-    k-d tree of ``points`` if one is built (for queries wider than ``neighbors``).
+    k-d tree of ``points`` if one is built (for queries wider than ``neighbors``). ``stats``:
+    with a ``radius``, a dict that receives per point ``inside`` (how many of its ``k``
+    nearest lie within it, itself included), ``third_distance`` and ``kth_distance`` (the
+    radii that would hold its 3 and ``k`` nearest).
 
     Parameters
     ----------
@@ -192,8 +198,9 @@ def estimate_normals(
     k : int
         Neighbours per point (capped at n).
     radius : float or None [length]
-        Only neighbours closer than this (at most ``k``), as Open3D's hybrid search; points
-        with fewer than 3 neighbours inside the radius use the plain k nearest.
+        Of the ``k`` nearest, only those within this distance (itself included), as Open3D's
+        hybrid search; a point with fewer than 3 within it takes its plain ``k`` nearest.
+        No per-point scale (``k_max`` is ignored).
     neighbors : (distances (n, m), indices (n, m)), optional
         Each point's m nearest points, nearest first (a k-d tree query of ``points``
         itself, shared with other stages); queried here when None or m < k.
@@ -225,6 +232,10 @@ def estimate_normals(
         tree = cKDTree(pts)
     normals, workers = np.zeros((n, 3)), query_workers()
     wider = wider_query(pts, neighbors if wide_from_shared else None, tree, scales[-1], workers)
+    if radius is not None and stats is not None:
+        stats.update(
+            inside=np.zeros(n, np.int64), third_distance=np.zeros(n), kth_distance=np.zeros(n)
+        )
 
     def rows(b: slice) -> None:
         query = pts[b]
@@ -238,13 +249,9 @@ def estimate_normals(
                 pts, query, idx, scales, SIDES_MIN, SIDES_SEPARATION, lambda r: wider(r + b.start)
             )
             return
+        weights = None
         if radius is not None:
-            dist = dist.reshape(len(query), k_eff)
-            inside = dist <= radius
-            enough = inside.sum(axis=1) >= 3
-            weights = np.where(enough[:, None], inside, True).astype(np.float64)
-        else:
-            weights = None
+            weights = radius_weights(dist.reshape(len(query), k_eff), radius, stats, b)
         normals[b] = _pca_normals(pts, query, idx, weights)
 
     if shared:  # shared neighbours: numpy without the GIL, blocks in threads
@@ -679,15 +686,18 @@ def compute_normals(
         Unit normals for ``cloud.points``.
     info : dict
         ``source`` ('input' or 'estimated'), ``n_filled`` (invalid input normals replaced),
-        ``time_s`` and, when estimated, ``k``, ``radius`` and the orientation fields of
-        :class:`OrientationInfo` (``orientation``, ``n_components``, ``n_guessed`` ...).
+        ``time_s`` and, when estimated, ``k`` (used), ``radius``, the orientation fields of
+        :class:`OrientationInfo` (``orientation``, ``n_components`` ...); ``k_configured``
+        (``cfg.k``) when ``auto_scale`` raised k; with a radius, ``n_radius_trimmed`` and
+        ``n_radius_fallback`` (:func:`recon.normal_scales.radius_counts`).
 
     Raises
     ------
     InputError
         ``mode`` is ``input`` and the file has no (usable) normals.
     ConfigError
-        ``orientation`` is ``viewpoint`` but no viewpoint is set.
+        ``orientation`` is ``viewpoint`` but no viewpoint is set; ``radius`` leaves more than
+        half the points fewer than 3 neighbours (the message gives radii that would work).
     """
     t0 = time.perf_counter()
     where = str(cloud.path) if cloud.path is not None else "input"
@@ -726,11 +736,16 @@ def compute_normals(
         if k_max is None:
             k_max = per_point_k_max(cfg.k, cfg.per_point_scale)
         shared = neighbors if neighbors is not None and neighbors[1].shape[1] >= k else None
+        stats: dict[str, np.ndarray] = {}
         normals = estimate_normals(
-            pts, k=k, radius=cfg.radius, neighbors=shared, k_max=k_max, tree=tree
+            pts, k=k, radius=cfg.radius, neighbors=shared, k_max=k_max, tree=tree, stats=stats
         )
-        normals, oinfo = _orient(cloud, normals, cfg, neighbors)
         info = {"source": "estimated", "n_filled": 0, "k": k, "radius": cfg.radius}
+        if k != cfg.k:
+            info["k_configured"] = cfg.k  # raised by the noise rule (normals.auto_scale)
+        if cfg.radius is not None:
+            info.update(radius_counts(where, cfg.radius, min(k, len(pts)), stats))
+        normals, oinfo = _orient(cloud, normals, cfg, neighbors)
         info["orientation"] = oinfo.pop("method")
         info.update(oinfo)
     info["time_s"] = time.perf_counter() - t0

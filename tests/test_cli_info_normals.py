@@ -258,3 +258,81 @@ def test_normals_keep_the_files_colours_and_scalars(tmp_path):
     assert back.normals is not None
     np.testing.assert_array_equal(np.round(255 * back.colors).astype(np.uint8), rgb)
     np.testing.assert_array_equal(PlyData.read(str(out))["vertex"]["intensity"], np.arange(500))
+
+
+def test_normals_keep_every_ply_vertex_property_and_classes_past_255(tmp_path):
+    """Regression: ``normals`` dropped PLY vertex properties other than intensity and
+    classification (``quality`` was gone) and wrote every class above 255 as 255."""
+    from plyfile import PlyData, PlyElement
+
+    p = sphere(400).astype(np.float32)
+    quality = np.random.default_rng(1).uniform(size=400).astype(np.float32)
+    classes = (300 + np.arange(400) % 3).astype(np.int32)
+    rows = np.zeros(
+        400,
+        dtype=[("x", "f4"), ("y", "f4"), ("z", "f4"), ("quality", "f4"), ("classification", "i4")],
+    )
+    for j, c in enumerate("xyz"):
+        rows[c] = p[:, j]
+    rows["quality"], rows["classification"] = quality, classes
+    src = tmp_path / "cls.ply"
+    PlyData([PlyElement.describe(rows, "vertex")]).write(str(src))
+    for extra in ((), ("--ascii",)):
+        out = tmp_path / "out.ply"
+        r = run("normals", src, "-o", out, *extra)
+        assert r.exit_code == 0, r.output
+        v = PlyData.read(str(out))["vertex"]
+        names = [q.name for q in v.properties]
+        assert names == ["x", "y", "z", "nx", "ny", "nz", "quality", "classification"]
+        np.testing.assert_array_equal(v["quality"], quality)
+        assert v["quality"].dtype == np.float32
+        np.testing.assert_array_equal(v["classification"], classes)
+
+
+def test_normals_an_explicit_k_is_used_as_given(tmp_path):
+    """Regression: ``--k 500`` on a 1000-point sphere printed ``k=1000`` and ``--k 200`` on a
+    noisy cloud ``k=400``: the noise rule raised an explicit k past its range. An explicit
+    ``--k`` turns the rule off; a configured k is raised at most to 500, and the summary
+    says from what."""
+    src = tmp_path / "s.ply"
+    write_points(src, sphere(1000))
+    out = tmp_path / "o.ply"
+    r = run("normals", src, "-o", out, "--k", "500", "--set", "normals.per_point_scale=false")
+    assert r.exit_code == 0, r.output
+    assert "estimated (k=500)" in r.stderr, r.stderr
+    noisy = tmp_path / "noisy.ply"
+    rng = np.random.default_rng(0)
+    write_points(noisy, sphere(1000) + rng.normal(scale=0.15, size=(1000, 3)))
+    r = run("normals", noisy, "-o", out, "--k", "60")
+    assert r.exit_code == 0, r.output
+    assert "estimated (k=60)" in r.stderr, r.stderr
+    r = run("normals", noisy, "-o", out, "--set", "normals.k=60")
+    assert r.exit_code == 0, r.output
+    assert "raised from normals.k=60" in r.stderr, r.stderr
+
+
+def test_normals_radius_is_refused_or_reported(tmp_path):
+    """Regression: ``--radius 1e-9`` and ``--radius 1e9`` gave the default normals and the
+    summary said nothing of the radius. A radius that leaves most points fewer than 3
+    neighbours is refused (exit 2, with a radius that works); one that trims nothing is
+    said to."""
+    src = tmp_path / "s.ply"
+    write_points(src, sphere(1000))
+    out = tmp_path / "o.ply"
+    r = run("normals", src, "-o", out, "--radius", "1e-9")
+    assert r.exit_code == 2, r.output
+    assert str(src) in r.stderr and "normals.radius = 1e-09" in r.stderr
+    assert "at least" in r.stderr and not out.exists()
+    r = run("normals", src, "-o", out, "--radius", "1e9")
+    assert r.exit_code == 0, r.output
+    assert "radius 1e+09" in r.stderr and "trims none" in r.stderr, r.stderr
+    r = run("normals", src, "-o", out, "--radius", "0.1")
+    assert r.exit_code == 0, r.output
+    assert "within radius 0.1" in r.stderr and "fewer of their 20 nearest" in r.stderr, r.stderr
+
+
+def test_normals_help_says_what_k_and_radius_do():
+    r = run("normals", "--help")
+    text = " ".join(r.output.split())
+    assert "auto_scale" in text and "per_point_scale" in text
+    assert "fewer than 3" in text

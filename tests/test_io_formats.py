@@ -478,3 +478,93 @@ def test_ply_intensity_and_classification_are_read_for_the_transfer(tmp_path):
     np.testing.assert_array_equal(cloud.attributes["intensity"], np.arange(200.0))
     np.testing.assert_array_equal(cloud.attributes["classification"], classes)
     assert cloud.attributes["classification"].dtype == np.uint8
+
+
+def test_ply_classes_above_255_are_kept_for_normals_and_said_when_clipped(tmp_path, caplog):
+    """Regression: an ``int classification`` of 300-302 was read as 255 for every point with
+    no word, and ``oprecon normals`` wrote 255. ``all_properties`` (``normals``) keeps the
+    values; the fit's read, for ``--transfer classification`` (LAS classes, uchar), clips
+    them as before but says so."""
+    p = sphere(60)
+    classes = (300 + np.arange(60) % 3).astype(np.int32)
+    for text in (False, True):
+        path = write_ply(
+            tmp_path / f"c{int(text)}.ply", {**xyz_fields(p), "classification": classes}, text=text
+        )
+        with caplog.at_level(logging.WARNING, logger="recon.io"):
+            caplog.clear()
+            got = read_points(path, all_properties=True).attributes["classification"]
+            assert caplog.text == ""
+            np.testing.assert_array_equal(got, classes)
+            assert got.dtype == np.int32
+            clipped = read_points(path).attributes["classification"]
+        assert clipped.dtype == np.uint8 and np.all(clipped == 255)
+        assert "from 300 to 302" in caplog.text and "clipped" in caplog.text
+
+
+def test_ply_classes_in_0_255_stay_uint8_whatever_the_declared_type(tmp_path):
+    """LAS classes (0-255) are uint8 in every reader, as ``--transfer classification`` writes
+    them; a PLY declaring them ``int`` or ``float`` gives the same."""
+    p = sphere(40)
+    classes = np.arange(40) % 7
+    for dtype in (np.int32, np.uint16, np.float32):
+        path = write_ply(
+            tmp_path / "c.ply", {**xyz_fields(p), "classification": classes.astype(dtype)}
+        )
+        got = read_points(path).attributes["classification"]
+        assert got.dtype == np.uint8
+        np.testing.assert_array_equal(got, classes)
+
+
+def test_ply_other_vertex_properties_are_kept_on_request(tmp_path, caplog):
+    """``all_properties=True`` (``oprecon normals``) keeps every other scalar vertex property
+    under its own name and type, in the file's order; a lone ``red`` (no colours) cannot be
+    written back beside the colours and is named in a warning. Without it, they are not read
+    (the fit has no use for them)."""
+    p = sphere(50)
+    rng = np.random.default_rng(1)
+    fields = {
+        **xyz_fields(p),
+        "quality": rng.uniform(size=50).astype(np.float32),
+        "gps_time": 3e8 + rng.uniform(size=50),  # double, not float32-exact
+        "alpha": np.full(50, 200, dtype=np.uint8),
+        "intensity": np.arange(50, dtype=np.uint16),
+        "segment": -np.arange(50, dtype=np.int16),
+        "red": np.full(50, 7, dtype=np.uint8),
+    }
+    for text in (False, True):
+        path = write_ply(tmp_path / f"q{int(text)}.ply", fields, text=text)
+        assert set(read_points(path).attributes) == {"intensity"}
+        with caplog.at_level(logging.WARNING, logger="recon.io"):
+            caplog.clear()
+            attrs = read_points(path, all_properties=True).attributes
+        assert list(attrs) == ["quality", "gps_time", "alpha", "intensity", "segment"]
+        for name in ("quality", "gps_time", "alpha", "segment"):
+            assert attrs[name].dtype == fields[name].dtype, name
+            np.testing.assert_array_equal(attrs[name], fields[name])
+        np.testing.assert_array_equal(attrs["intensity"], np.arange(50.0))
+        assert "red" in caplog.text and "not kept" in caplog.text
+
+
+def test_write_points_keeps_the_types_of_vertex_properties(tmp_path):
+    """Every PLY type round-trips through ``write_points``; float64 is written as ``float``
+    when float32 holds each value exactly, else as ``double`` (no value is rounded)."""
+    from recon.io import write_points
+
+    p = sphere(4)
+    props = {
+        "a": np.array([-1, 2, 3, 4], dtype=np.int8),
+        "b": np.array([-300, 2, 3, 4], dtype=np.int16),
+        "c": np.array([4_000_000_000, 2, 3, 4], dtype=np.uint32),
+        "d": np.array([0.5, 1.0, 2.0, 3.0]),
+        "e": np.array([3e8 + 0.123456, 1.0, 2.0, 3.0]),
+        "f": np.array([1, 2, 3, 2**40], dtype=np.int64),
+    }
+    want = {"a": "i1", "b": "i2", "c": "u4", "d": "f4", "e": "f8", "f": "f8"}
+    for ascii in (False, True):
+        path = tmp_path / f"w{int(ascii)}.ply"
+        write_points(path, p, vertex_properties=props, ascii=ascii)
+        v = PlyData.read(str(path))["vertex"]
+        for name, values in props.items():
+            assert v[name].dtype.str[1:] == want[name], name
+            np.testing.assert_array_equal(v[name], values)

@@ -504,3 +504,58 @@ def test_per_point_scale_is_the_default_and_can_be_turned_off(monkeypatch):
     fixed, _ = compute_normals(cloud, NormalsConfig(mode="estimate", auto_scale=False))
     assert calls
     np.testing.assert_array_equal(fixed, on)  # clean data: the noise rule keeps k = 20
+
+
+# ------------------------------------------------------------------------------ radius and k
+
+
+def test_estimate_counts_what_the_radius_did():
+    """``stats`` receives, per point, how many of its k nearest lie within the radius."""
+    p, _ = sphere(1000)
+    stats: dict = {}
+    estimate_normals(p, k=20, radius=1e9, stats=stats)
+    assert np.all(stats["inside"] == 20)
+    estimate_normals(p, k=20, radius=1e-9, stats=stats)
+    assert np.all(stats["inside"] == 1)  # the point itself
+    assert stats["third_distance"].shape == stats["kth_distance"].shape == (1000,)
+
+
+def test_a_radius_that_leaves_most_points_without_neighbours_is_refused():
+    """Regression: ``normals.radius = 1e-9`` gave the plain k-NN normals with no word (every
+    point fell back); now the configuration is refused with the radius that would work."""
+    p, _ = sphere(1000)
+    cloud = cloud_from_arrays(p)
+    with pytest.raises(ConfigError, match=r"normals\.radius = 1e-09 .*1,000 of 1,000 points"):
+        compute_normals(cloud, NormalsConfig(radius=1e-9))
+
+
+def test_compute_normals_reports_the_radius_at_work():
+    p, d = sphere(1000)
+    cloud = cloud_from_arrays(p)
+    _, info = compute_normals(cloud, NormalsConfig(radius=1e9))
+    assert info["radius"] == 1e9
+    assert info["n_radius_trimmed"] == 0 and info["n_radius_fallback"] == 0
+    d10 = float(np.median(np.sort(np.linalg.norm(p[:200, None] - p[None], axis=2))[:, 10]))
+    n, info = compute_normals(cloud, NormalsConfig(radius=d10))
+    assert info["n_radius_trimmed"] > 500 and info["n_radius_fallback"] < 100
+    assert np.median(np.abs(np.einsum("ij,ij->i", n, d))) > 0.99
+    _, info = compute_normals(cloud, NormalsConfig())
+    assert "n_radius_trimmed" not in info  # the fit's report is as before without a radius
+
+
+def test_the_noise_rule_raises_k_up_to_the_top_of_its_range():
+    """Regression: ``normals.k = 200`` on noisy data was raised to 400 and 800, past the
+    range of ``normals.k`` (3-500); the raise stops at 500 and says so."""
+    from recon.config import NormalsConfig as Cfg
+    from recon.normal_scales import MAX_K, choose_neighborhood_size
+
+    assert Cfg.__dataclass_fields__["k"].metadata["max"] == MAX_K
+    rng = np.random.default_rng(0)
+    p, _ = sphere(1200)
+    p += rng.normal(scale=0.2, size=p.shape)  # no neighbourhood is thin
+    assert choose_neighborhood_size(p, 200) == MAX_K
+    assert choose_neighborhood_size(p, 20) == 80
+    _, info = compute_normals(cloud_from_arrays(p), NormalsConfig(k=200, per_point_scale=False))
+    assert info["k"] == MAX_K and info["k_configured"] == 200
+    _, info = compute_normals(cloud_from_arrays(p), NormalsConfig(k=20, auto_scale=False))
+    assert info["k"] == 20 and "k_configured" not in info

@@ -42,7 +42,7 @@ from ..errors import DivergenceError, LimitExceeded
 from ..growth import accept_candidates, grow_candidates, stretch_candidates
 from ..neighbors import PointGrid
 from ..params import PhysicsParams
-from ..seeds import select_seeds
+from ..seeds import seed_particles
 from ..state import ParticleState
 from ..surface import DataSurface, feature_spacing
 
@@ -500,8 +500,7 @@ class _Schedule:
     # -- phases --------------------------------------------------------------------------
     def make_seeds(self) -> tuple[ParticleState, np.ndarray]:
         s = self.surface
-        idx = select_seeds(s.points, self.cfg.seeds.thinning, self.rng)
-        pos, pn, _ = s.project(s.points[idx], s.normals[idx])
+        idx, pos, pn = seed_particles(s, self.cfg.seeds.thinning, self.rng)
         cap = self.cfg.dynamics.max_particles
         if len(idx) > cap:
             raise LimitExceeded(

@@ -436,10 +436,16 @@ def _open_ply_vertices(
 
 
 def read_points(
-    path: Path, size: int, max_points: int, info: dict[str, Any]
+    path: Path, size: int, max_points: int, info: dict[str, Any], all_properties: bool = False
 ) -> tuple[str, np.ndarray, np.ndarray | None, np.ndarray | None, dict[str, np.ndarray]]:
-    """(format, xyz, normals or None, colours in [0, 1] or None, attributes: ``intensity``
-    and ``classification`` where a vertex property holds them)."""
+    """(format, xyz, normals or None, colours in [0, 1] or None, attributes).
+
+    The attributes are the per-point scalars, in the order of the file's properties:
+    ``intensity`` (float64) and ``classification`` (:func:`_classes`: uint8, other values
+    kept with ``all_properties``) where a vertex property holds them, and with
+    ``all_properties`` every other scalar vertex property under its own name, in the file's
+    type (:func:`_other_properties`).
+    """
     header, rows, fh = _open_ply_vertices(path, size, max_points)
     fh.close()
     vertex = _ply_vertex_element(path, header)
@@ -452,17 +458,72 @@ def read_points(
     normals = np.stack([rows[c].astype(np.float64) for c in nn], axis=1) if nn else None
     cn = pick(names, COLOR_NAMES)
     colors = _ply_colors(path, [np.asarray(rows[c]) for c in cn]) if cn else None
-    attributes = {}
+    scalars = {}  # property name -> attribute
     for key, candidates in SCALAR_PROPERTIES.items():
         name = next((c for c in candidates if c in names), None)
         if name is not None:
-            values = np.asarray(rows[name])
+            scalars[name] = key
+    used = {"x", "y", "z", *(nn or ()), *(cn or ()), *scalars}
+    others = _other_properties(path, vertex, used) if all_properties else []
+    attributes = {}
+    for p in vertex.properties:
+        if p.name in scalars:
+            values = np.asarray(rows[p.name])
+            key = scalars[p.name]
             attributes[key] = (
-                np.clip(values, 0, 255).astype(np.uint8)  # LAS classes are 0-255
+                _classes(path, values, all_properties)
                 if key == "classification"
                 else values.astype(np.float64)
             )
+        elif p.name in others:
+            attributes[p.name] = rows[p.name].astype(rows[p.name].dtype.newbyteorder("="))
     return f"ply-{header.format}", xyz, normals, colors, attributes
+
+
+def _classes(path: Path, values: np.ndarray, exact: bool) -> np.ndarray:
+    """A classification property as uint8 when every value is a class 0-255 (LAS classes, as
+    every reader gives them and ``--transfer classification`` writes them). Other values are
+    kept in the file's type with ``exact`` (``oprecon normals`` writes them back), else
+    clipped to 0-255 for the transfer, and a warning says so."""
+    if values.size == 0:
+        return values.astype(np.uint8)
+    with np.errstate(invalid="ignore"):
+        fits = bool(np.all((values >= 0) & (values <= 255) & (values == np.round(values))))
+    if fits or exact:
+        return values.astype(np.uint8 if fits else values.dtype.newbyteorder("="))
+    logger.warning(
+        "%s: the classification holds values from %s to %s, not all classes 0-255: they are "
+        "read clipped to 0-255 (--transfer classification writes LAS classes, uchar); "
+        "oprecon normals keeps them",
+        path,
+        np.nanmin(values) if np.isfinite(values).any() else "nan",
+        np.nanmax(values) if np.isfinite(values).any() else "nan",
+    )
+    with np.errstate(invalid="ignore"):
+        return np.clip(np.nan_to_num(values), 0, 255).astype(np.uint8)
+
+
+#: Vertex properties that the point writer takes from the normals and colours, whatever the
+#: file held under those names.
+_WRITTEN_NAMES = ("x", "y", "z", "nx", "ny", "nz", "red", "green", "blue")
+
+
+def _other_properties(path: Path, vertex: _PlyElement, used: set[str]) -> list[str]:
+    """The vertex properties not read as coordinates, normals, colours or known scalars, which
+    ``all_properties`` keeps; those with a name the writer gives the normals or colours (a
+    lone ``red`` without green and blue) cannot be kept beside them, and a warning names them.
+    """
+    rest = [p.name for p in vertex.properties if p.name not in used]
+    dropped = [n for n in rest if n in _WRITTEN_NAMES]
+    if dropped:
+        logger.warning(
+            "%s: vertex properties %s are not kept: they are not a complete set of normals "
+            "(nx, ny, nz) or colours (red, green, blue), and the output's own normals and "
+            "colours take those names",
+            path,
+            ", ".join(dropped),
+        )
+    return [n for n in rest if n not in dropped]
 
 
 def _ply_colors(path: Path, channels: list[np.ndarray]) -> np.ndarray:
@@ -543,7 +604,20 @@ def _coordinate_type(xyz: np.ndarray) -> str:
     return "f4" if err <= _FLOAT32_TOLERANCE * extent else "f8"
 
 
-_PLY_NAMES = {"f4": "float", "f8": "double", "i4": "int", "u1": "uchar", "u2": "ushort"}
+_PLY_NAMES = {
+    "f4": "float",
+    "f8": "double",
+    "i1": "char",
+    "i2": "short",
+    "i4": "int",
+    "u1": "uchar",
+    "u2": "ushort",
+    "u4": "uint",
+}
+
+
+#: ascii formats of float vertex properties (enough digits to read the value back exactly).
+_ASCII_FORMATS = {"f4": "%.9g", "f8": "%.17g"}
 
 
 def _ply_header(
@@ -584,9 +658,10 @@ def write(
     ascii : bool
         ASCII instead of binary little-endian.
     extra : list of (name, (n,) array, type), optional
-        More vertex properties after the normals, in this order; ``type`` is ``'u1'``
-        (uchar), ``'u2'`` (ushort), ``'i4'`` (int) or ``'f4'`` (float), e.g.
-        ``("red", r, "u1")``. None or empty: the file is byte for byte as without them.
+        More vertex properties after the normals, in this order; ``type`` is ``'i1'``
+        (char), ``'u1'`` (uchar), ``'i2'`` (short), ``'u2'`` (ushort), ``'i4'`` (int),
+        ``'u4'`` (uint), ``'f4'`` (float) or ``'f8'`` (double), e.g. ``("red", r, "u1")``.
+        None or empty: the file is byte for byte as without them.
     """
     ct = _coordinate_type(xyz)
     props = [("x", ct), ("y", ct), ("z", ct)]
@@ -602,7 +677,7 @@ def write(
         fmt = ["%.17g" if ct == "f8" else "%.9g"] * 3
         if normals is not None:
             fmt += ["%.9g"] * 3
-        fmt += ["%.9g" if t[0] == "f" else "%d" for _, _, t in extra]
+        fmt += [_ASCII_FORMATS.get(t, "%d") for _, _, t in extra]
         np.savetxt(fh, data, fmt=fmt, delimiter=" ")
         if faces is not None and faces.shape[0]:
             np.savetxt(fh, np.hstack([np.full((faces.shape[0], 1), 3), faces]), fmt="%d")
