@@ -212,3 +212,27 @@ def test_an_open_box_keeps_its_open_side(tmp_path, option):
     assert res.exit_code == 0, res.output
     topo = mesh_topology(*read_mesh(out)[:2])
     assert topo["boundary_loops"] == 1 and topo["components"] == 1, topo
+
+
+@pytest.mark.parametrize("spacing", ["0.1", "0.2"])
+def test_two_disjoint_tetrahedra_stay_two(tmp_path, spacing):
+    """Regression: two disjoint tetrahedra at --spacing 0.1 came out as 4 closed components
+    (0.2: 5 and 2 loops), exit 1. Each component is a patch of its own; triangles over the
+    sharp edges (no crease angle given) lie off the surface and were dropped as if they
+    bridged a patch's reflex corner, and gap closing capped the torn pieces one by one."""
+    from tests.mesh_shapes import tetrahedron
+
+    v, f = tetrahedron()
+    src = tmp_path / "two.ply"
+    write_mesh(src, np.vstack([v, v + [3.0, 0.0, 0.0]]), np.vstack([f, f + 4]))
+    out = tmp_path / "r.ply"
+    res = _run(["remesh", str(src), "-o", str(out), "--spacing", spacing])
+    assert res.exit_code == 0, res.output
+    v2, f2 = read_mesh(out)[:2]
+    topo = mesh_topology(v2, f2)
+    assert topo["components"] == 2 and topo["watertight"] and topo["genus"] == 0, topo
+    assert topo["euler_characteristic"] == 4
+    # each tetrahedron is remeshed over its own surface
+    left = v2[:, 0] < 1.5
+    assert np.abs(v2[left].min(axis=0)).max() < 1e-9
+    assert np.abs(v2[~left].min(axis=0) - [3.0, 0.0, 0.0]).max() < 1e-9

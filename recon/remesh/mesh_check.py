@@ -18,6 +18,7 @@ import numpy as np
 from ..errors import InputError
 from ..kernels.tri_intersect import pairs_intersect
 from ..mesh import face_area_vectors, orientation_flips, vertex_fans
+from ..topology import power_of_two_near
 from .surface import edge_faces
 
 __all__ = ["CheckedMesh", "check_mesh", "crossing_pairs"]
@@ -173,7 +174,8 @@ def crossing_pairs(
     Where two triangles cross (not in one plane), each end of the segment they share lies on
     an edge of one of them, so some edge of one pierces the other. Every edge ``(a, b)`` (with
     its faces ``face0``, ``face1``, -1 for none: :func:`~recon.remesh.surface.edge_faces`) is
-    cast as a segment against the mesh (Embree, float32; trimmed by :data:`RAY_TRIM` at both
+    cast as a segment against the mesh (Embree, float32, the mesh centred at the power of two
+    nearest its size; trimmed by :data:`RAY_TRIM` at both
     ends); the few edges that hit a face are listed with all their hits, and each hit face
     that has neither a nor b is tested against the edge's faces exactly, in float64
     (:func:`recon.kernels.tri_intersect.pairs_intersect`). Faces that overlap in one plane are
@@ -185,16 +187,20 @@ def crossing_pairs(
     f = np.ascontiguousarray(faces, dtype=np.int64)
     if len(f) < 2 or len(edges) == 0:
         return np.zeros((0, 2), dtype=np.int64)
-    centre = 0.5 * (v.min(axis=0) + v.max(axis=0))
+    lo, hi = v.min(axis=0), v.max(axis=0)
+    centre = 0.5 * (lo + hi)
+    # centred, at the power of two nearest the mesh's size (as every Embree query here: a mesh
+    # 1e-16 or 1e16 across had none of its crossings found)
+    unit = power_of_two_near(float(np.max(hi - lo)))
     scene = o3d.t.geometry.RaycastingScene()
     scene.add_triangles(
-        o3d.core.Tensor(np.ascontiguousarray(v - centre, dtype=np.float32)),
+        o3d.core.Tensor(np.ascontiguousarray((v - centre) / unit, dtype=np.float32)),
         o3d.core.Tensor(np.ascontiguousarray(f, dtype=np.uint32)),
     )
     a, b = edges[:, 0], edges[:, 1]
-    d = v[b] - v[a]
+    d = (v[b] - v[a]) / unit
     # direction (1 - 2 trim) d: the segment is t in [0, 1] (Embree's t is in units of |dir|)
-    rays = np.hstack([v[a] - centre + RAY_TRIM * d, (1.0 - 2.0 * RAY_TRIM) * d])
+    rays = np.hstack([(v[a] - centre) / unit + RAY_TRIM * d, (1.0 - 2.0 * RAY_TRIM) * d])
     rays = o3d.core.Tensor(np.ascontiguousarray(rays, dtype=np.float32))
     # an edge lies in its own faces' planes, so float32 may report those: listed, then dropped
     hit = np.flatnonzero(scene.test_occlusions(rays, tnear=0.0, tfar=1.0).numpy())

@@ -10,9 +10,13 @@ steps, with every length normalised by the target spacing s:
 3. spacing: uniform s, or with ``adaptive`` a field from curvature and local thickness
    (:func:`spacing_field`);
 4. seed and relax the particles on the mesh (:mod:`recon.remesh.relax`), no growth;
-5. triangulate with the fit's :func:`recon.triangulate.triangulate_particles` (manifold,
-   oriented, gaps closed; the input's holes have no surface, so they stay open);
-6. polish with flips and tangential smoothing (:mod:`recon.remesh.improve`);
+5. triangulate patch by patch with the fit's :func:`recon.triangulate.triangulate_particles`
+   (:mod:`recon.remesh.patches`: manifold, oriented; triangles reaching out across a patch's
+   outline dropped, gaps closed, one loop kept per boundary loop of the input, pieces of one
+   input component joined, stray closed pieces dropped; the input's holes have no surface,
+   so they stay open);
+6. polish with flips and tangential smoothing (:mod:`recon.remesh.improve`; the mesh's rim
+   stays where it is);
 7. measure: triangle quality and topology before and after, distances to the input, the
    largest deviation of the input's feature lines from the output.
 
@@ -40,17 +44,20 @@ from typing import Any
 import numpy as np
 from scipy.spatial import cKDTree
 
-from ..config import TriangulationConfig
 from ..errors import InputError
-from ..holes import zip_loop
 from ..kernels.options import query_workers, thread_count
-from ..mesh import boundary_loops
 from ..metrics import compare_meshes, point_to_mesh_distance
 from ..topology import mesh_topology, triangle_quality
-from ..triangulate import repair_non_manifold, triangulate_particles
-from ..winding import orient_consistently
 from .improve import improve
 from .mesh_check import check_mesh
+from .patches import (
+    close_gaps,
+    on_boundary,
+    particle_of,
+    rim_labels,
+    stray_pieces,
+    triangulate_patches,
+)
 from .relax import (
     CELL_AREA,
     Particles,
@@ -60,7 +67,7 @@ from .relax import (
     relax,
     seed,
 )
-from .surface import FeatureLines, MeshSurface, corner_sum, feature_lines
+from .surface import FeatureLines, MeshSurface, corner_sum, edge_faces, feature_lines
 
 __all__ = [
     "RemeshOptions",
@@ -75,10 +82,6 @@ __all__ = [
 RELAX_STEPS = 40
 #: Rounds of flips and smoothing after the triangulation.
 SMOOTH_ROUNDS = 5
-#: Holes of the triangulation up to this diameter [s] are closed without asking the input.
-MAX_HOLE = 1.5
-#: A point counts as over the input surface within this distance [s].
-COVER_DISTANCE = 0.3
 #: A boundary line turning by more than this [deg] at a vertex has a corner there (without a
 #: crease angle; with one, the crease angle is used).
 CORNER_ANGLE = 50.0
@@ -98,17 +101,8 @@ GRADATION = 0.25
 #: Adaptive defaults for min/max spacing, as factors of the spacing.
 ADAPTIVE_MIN = 0.5
 ADAPTIVE_MAX = 3.0
-#: With feature lines, a patch's triangle whose centroid lies farther than this from the
-#: input [s] bridges a reflex corner of the patch and is dropped.
-OFF_SURFACE = 0.15
 #: Interior particles closer than this to a feature line [local spacing] are dropped.
 LINE_GAP = 0.5
-#: Passes of gap closing (a zip can open a new small loop that the next pass closes).
-GAP_PASSES = 3
-#: ... and a loop is a gap only when fewer than this share of its vertices are the input's
-#: boundary particles: a loop that runs mostly along the input's rim is that rim, left open
-#: where the triangulation cut inside it (zipped, a fitted face scan's rim became a lid).
-GAP_BOUNDARY_SHARE = 0.5
 #: The default spacing, the input's mean edge length, is at most this fraction of the
 #: bounding-box diagonal: a coarse mesh whose edges are long for its shape (a CAD cube of 12
 #: triangles: mean edge 0.66 x diagonal, about 5 particles) gets ten spacings across its
@@ -278,8 +272,6 @@ def absolute_curvature(vertices: np.ndarray, normals: np.ndarray, radius: float)
     as a cylinder of the same largest curvature. The sum of absolute values keeps saddles
     (κ1 = −κ2, no deviation at the centroid but elsewhere) from counting as flat.
     """
-    from scipy.spatial import cKDTree
-
     v = np.asarray(vertices, dtype=np.float64)
     n = len(v)
     near = cKDTree(v).query_ball_point(v, radius, workers=query_workers())
@@ -439,14 +431,30 @@ def _remesh(vertices, faces, opts: RemeshOptions, name: str) -> RemeshResult:
     particles = relax(surface, lines, particles, opts.steps, rest_at)
     particles = drop_near_lines(particles, lines, LINE_GAP)
     lap("relax")
-    tv, tn, tf, tri_stats = _triangulate(surface, lines, particles, rest_at is not None)
-    match = _particle_of(tv, particles)
-    boundary_particle = (match >= 0) & _on_boundary(lines, particles)[np.maximum(match, 0)]
-    tv, tn, tf, n_closed = close_gaps(tv, tn, tf, boundary_particle)
+    rim = rim_labels(surface, lines, particles)
+    tv, tn, tf, tri_stats = triangulate_patches(surface, lines, particles, rest_at is not None, rim)
+    match = particle_of(tv, particles)
+    at = np.where(match >= 0, rim[np.maximum(match, 0)], -1)
+    # one patch is one connected input: pieces of its triangulation are joined
+    one = tri_stats["patches"] == 1
+    tv, tn, tf, n_closed = close_gaps(tv, tn, tf, at, "rim", join=one)
     tri_stats["gaps_closed"] = n_closed
     match = np.concatenate([match, np.full(len(tv) - len(match), -1)])
+    stray = stray_pieces(surface, tv, tf)
+    tri_stats["stray_faces_dropped"] = int(stray.sum())
+    tf = tf[~stray]
+    # the vertices of what was dropped (here or as debris by close_gaps) go too
+    used = np.zeros(len(tv), dtype=bool)
+    used[tf.ravel()] = True
+    tv, tn, match, tf = tv[used], tn[used], match[used], (np.cumsum(used) - 1)[tf]
     lap("triangulate")
     fixed = (match >= 0) & (particles.kind[np.maximum(match, 0)] != 0)
+    # the rim of the mesh stays too: a vertex on it that is no feature particle (a particle
+    # where the triangulation cut inside the rim, a copy a repair split off a pinch) has
+    # neighbours on one side only, and smoothing pulled it onto the chord of its two rim
+    # neighbours (triangles of zero area on fitted face scans)
+    e, counts, _, _ = edge_faces(tf, len(tv))
+    fixed[e[counts == 1].ravel()] = True
     vertex_of = np.full(particles.n, -1)
     vertex_of[match[match >= 0]] = np.flatnonzero(match >= 0)
     pairs = vertex_of[line_edges(particles, lines)]
@@ -536,8 +544,7 @@ def _topo_text(t: dict[str, Any]) -> str:
 
 
 def _interior_count(surface, lines, feats: Particles, opts, topo_in, field_v) -> int:
-    on_boundary = _on_boundary(lines, feats)
-    n_b = int(on_boundary.sum())
+    n_b = int(on_boundary(lines, feats).sum())
     n_feat = feats.n
     if opts.faces is not None:
         # F = 2 V - B - 2 chi
@@ -551,167 +558,6 @@ def _interior_count(surface, lines, feats: Particles, opts, topo_in, field_v) ->
         cells = float(np.sum(surface.face_area / (CELL_AREA * rest_f**2)))
     # a boundary particle owns half a cell, a crease particle a whole one
     return max(0, int(round(cells - (n_feat - n_b) - 0.5 * n_b)))
-
-
-def _on_boundary(lines: FeatureLines, feats: Particles) -> np.ndarray:
-    out = np.zeros(feats.n, dtype=bool)
-    sliding = feats.kind == 1
-    out[sliding] = lines.chain_is_boundary[feats.chain[sliding]]
-    corners = feats.kind == 2
-    if corners.any() and lines.chain_is_boundary.any():
-        bverts = np.unique(
-            np.concatenate(
-                [c for c, b in zip(lines.chains, lines.chain_is_boundary, strict=True) if b]
-            )
-        )
-        out[corners] = np.isin(lines.corners, bverts)
-    return out
-
-
-def _triangulate(surface: MeshSurface, lines: FeatureLines, particles: Particles, adaptive: bool):
-    """Triangulate each patch (the input split along its feature lines) on its own with the
-    fit's :func:`~recon.triangulate.triangulate_particles`, then join the patches on their
-    shared line particles: a triangle never spans a crease, so every crease stays an edge
-    chain. Line particles take the normal of the patch being meshed."""
-
-    def is_covered(
-        points: np.ndarray, scale: np.ndarray | None = None, across: bool = False
-    ) -> np.ndarray:
-        # the distance to the input surface: a seam's points (``across``) are judged alike
-        limit = COVER_DISTANCE if scale is None else COVER_DISTANCE * np.asarray(scale)
-        return surface.distance(points) <= limit
-
-    # the fit's hole filling guesses which loops are gaps; here close_gaps knows (a loop not
-    # made of the input's own boundary particles), so it runs instead
-    cfg = TriangulationConfig(fill_holes=False)
-    n_patches = int(lines.face_patch.max()) + 1
-    if n_patches == 1:
-        patch_of = np.zeros(particles.n, dtype=np.int64)
-    else:
-        _, face, _ = surface.closest(particles.position)
-        patch_of = lines.face_patch[face]
-    member = [[] for _ in range(n_patches)]
-    for p, idx in zip(*_group(patch_of, particles.kind == 0), strict=True):
-        member[p].append(idx)
-    sliding = np.flatnonzero(particles.kind == 1)
-    for c, pats in enumerate(lines.chain_patches):
-        on = sliding[particles.chain[sliding] == c]
-        for p in pats:
-            member[p].append(on)
-    corners = np.flatnonzero(particles.kind == 2)
-    for i, pats in enumerate(lines.corner_patches):
-        for p in pats:
-            member[p].append(corners[i : i + 1])
-    vertices = [particles.position]
-    normals = [particles.normal]
-    faces = []
-    n_total = particles.n
-    stats: dict[str, int | str] = {"patches": n_patches}
-    for p in range(n_patches):
-        idx = np.unique(np.concatenate(member[p])) if member[p] else np.zeros(0, np.int64)
-        if len(idx) < 3:
-            continue
-        nrm = particles.normal[idx].copy()
-        feat = particles.kind[idx] != 0
-        if feat.any() and n_patches > 1:
-            pf = np.flatnonzero(lines.face_patch == p)
-            centroid = surface.vertices[surface.faces[pf]].mean(axis=1)
-            _, near = cKDTree(centroid).query(particles.position[idx[feat]])
-            nrm[feat] = surface.face_normal[pf[near]]
-        tri = triangulate_particles(
-            particles.position[idx],
-            nrm,
-            cfg,
-            MAX_HOLE,
-            is_covered,
-            local_spacing=particles.rest[idx] if adaptive else None,
-            resign=False,  # the signs come from the input's oriented faces
-            join_sheets=False,  # the input's components are its own
-        )
-        for k, v in tri.stats.items():
-            if isinstance(v, int):
-                stats[k] = int(stats.get(k, 0)) + v
-        tv, tn, tf = tri.vertices, tri.normals, tri.faces
-        d, j = cKDTree(particles.position[idx]).query(tv)
-        same = d <= 1e-12
-        if n_patches > 1:
-            # ball pivoting sees points, not the patch's outline: it bridges reflex corners;
-            # such triangles lie off the surface (their centroid does)
-            centroid = tv[tf].mean(axis=1)
-            tf = tf[surface.distance(centroid) <= OFF_SURFACE]
-            # the patch's outline is its line particles: any other loop is a gap of its own
-            on_line = same & (particles.kind[idx[j]] != 0)
-            tv, tn, tf, n_closed = close_gaps(tv, tn, tf, on_line)
-            stats["patch_gaps_closed"] = int(stats.get("patch_gaps_closed", 0)) + n_closed
-            d, j = cKDTree(particles.position[idx]).query(tv)
-            same = d <= 1e-12
-        glob = np.where(same, idx[j], -1)
-        extra = np.flatnonzero(~same)
-        glob[extra] = n_total + np.arange(len(extra))
-        n_total += len(extra)
-        vertices.append(tv[extra])
-        normals.append(tn[extra])
-        faces.append(glob[tf])
-    v = np.vstack(vertices)
-    n = np.vstack(normals)
-    f = np.vstack(faces) if faces else np.zeros((0, 3), dtype=np.int64)
-    if n_patches > 1 and len(f):
-        v, n, f = repair_non_manifold(v, n, f)
-        f = orient_consistently(v, n, f)
-    used = np.zeros(len(v), dtype=bool)
-    used[f.ravel()] = True
-    remap = np.cumsum(used) - 1
-    return v[used], n[used], remap[f].astype(np.int64), stats
-
-
-def _group(labels: np.ndarray, mask: np.ndarray) -> tuple[list[int], list[np.ndarray]]:
-    """(label, indices) of the masked entries, grouped by label."""
-    idx = np.flatnonzero(mask)
-    order = np.argsort(labels[idx], kind="stable")
-    idx = idx[order]
-    lab = labels[idx]
-    cuts = np.flatnonzero(np.diff(lab)) + 1
-    groups = np.split(idx, cuts)
-    return [int(g[0]) for g in np.split(lab, cuts) if len(g)], [g for g in groups if len(g)]
-
-
-def _particle_of(vertices: np.ndarray, particles: Particles) -> np.ndarray:
-    """The particle at each vertex, -1 for a vertex that is none (a copy made by a repair)."""
-    d, i = cKDTree(particles.position).query(vertices, workers=query_workers())
-    return np.where(d <= 1e-9, i, -1)
-
-
-def close_gaps(
-    vertices: np.ndarray, normals: np.ndarray, faces: np.ndarray, on_boundary: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
-    """Zip every boundary loop of the triangulation that is not made of the input's boundary
-    particles alone: the input has surface there, so the loop is a gap of the triangulation.
-
-    Returns vertices, normals, faces (manifold, consistently oriented) and the loops closed.
-    """
-    n_closed = 0
-    for _ in range(GAP_PASSES):
-        loops = [
-            lp
-            for lp in boundary_loops(faces)
-            if len(lp) >= 3 and on_boundary[lp].mean() < GAP_BOUNDARY_SHARE
-        ]
-        if not loops:
-            break
-        # the diagonals a zip must avoid: existing edges between vertices of the loops
-        on_loop = np.zeros(len(vertices), dtype=bool)
-        on_loop[np.concatenate(loops)] = True
-        he = faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
-        he = np.sort(he[on_loop[he].all(axis=1)], axis=1)
-        edges = {(int(a), int(b)) for a, b in he}
-        new = [zip_loop(vertices, lp[::-1], edges) for lp in loops]
-        faces = np.vstack([faces, *new])
-        n_closed += len(loops)
-        n_before = len(vertices)
-        vertices, normals, faces = repair_non_manifold(vertices, normals, faces)
-        on_boundary = np.concatenate([on_boundary, np.zeros(len(vertices) - n_before, bool)])
-        faces = orient_consistently(vertices, normals, faces)
-    return vertices, normals, faces, n_closed
 
 
 def _vertex_normals(v: np.ndarray, f: np.ndarray) -> np.ndarray:

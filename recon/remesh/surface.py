@@ -1,9 +1,11 @@
 """The input mesh as the data surface of a remesh: exact closest points and feature lines.
 
-:class:`MeshSurface` answers closest-point queries on the triangles (Open3D's
-``RaycastingScene``, Embree, after centring; float32 inside, so exact to ~1e-7 of the extent)
-and gives the face normal at the foot. :class:`FeatureLines` holds the polylines particles must
-stay on (boundary loops and creases, split at corners) and projects points onto their own line.
+:class:`MeshSurface` answers closest-point queries on the triangles (a cell grid in float64;
+Open3D's ``RaycastingScene``, Embree, for far points and rays, on the mesh centred and divided
+by the power of two nearest its size, as the fit's query; float32 inside, so exact to ~1e-7 of
+the extent) and gives the face normal at the foot. :class:`FeatureLines` holds the polylines
+particles must stay on (boundary loops and creases, split at corners) and projects points onto
+their own line.
 
 Feature lines (:func:`feature_lines`): the input edges used by one face (boundary) or whose two
 face normals differ by more than the crease angle; a vertex of the feature graph whose degree is
@@ -18,6 +20,7 @@ import numpy as np
 
 from ..mesh import face_area_vectors, runs_of_equal
 from ..metrics import check_closest_found
+from ..topology import power_of_two_near
 
 __all__ = [
     "FeatureLines",
@@ -65,9 +68,13 @@ class MeshSurface:
         self.vertex_normal = vn / np.maximum(np.linalg.norm(vn, axis=1), 1e-300)[:, None]
         lo, hi = self.vertices.min(axis=0), self.vertices.max(axis=0)
         self.centre = 0.5 * (lo + hi)
+        # Embree's scene sees the mesh centred, at the power of two nearest its size (the fit's
+        # closest-point query does the same: Embree's float32 tolerances are its own, and a
+        # mesh 1e-16 or 1e16 across had its rays miss it; a power of two changes no bit)
+        self._unit = power_of_two_near(float(np.max(hi - lo)))
         self._scene = o3d.t.geometry.RaycastingScene()
         self._scene.add_triangles(
-            o3d.core.Tensor(np.ascontiguousarray(self.vertices - self.centre, dtype=np.float32)),
+            o3d.core.Tensor(np.ascontiguousarray(self._to_scene(self.vertices), dtype=np.float32)),
             o3d.core.Tensor(np.ascontiguousarray(self.faces, dtype=np.uint32)),
         )
         self._grid: tuple | None = None
@@ -121,9 +128,9 @@ class MeshSurface:
         """Closest points by Embree (float32), refined in float64 on the face it found."""
         import open3d as o3d
 
-        query = o3d.core.Tensor(np.ascontiguousarray(pts - self.centre, dtype=np.float32))
+        query = o3d.core.Tensor(np.ascontiguousarray(self._to_scene(pts), dtype=np.float32))
         ans = self._scene.compute_closest_points(query)
-        foot = ans["points"].numpy().astype(np.float64) + self.centre
+        foot = ans["points"].numpy().astype(np.float64) * self._unit + self.centre
         face = ans["primitive_ids"].numpy().astype(np.int64)
         check_closest_found(face, len(self.faces), pts, self.vertices)
         return closest_on_triangles(pts, self.vertices[self.faces[face]], foot), face
@@ -150,9 +157,13 @@ class MeshSurface:
         import open3d as o3d
 
         r = np.array(rays, dtype=np.float64)
-        r[:, :3] -= self.centre
+        r[:, :3] = self._to_scene(r[:, :3])
         ans = self._scene.cast_rays(o3d.core.Tensor(r.astype(np.float32)))
-        return ans["t_hit"].numpy().astype(np.float64)
+        return ans["t_hit"].numpy().astype(np.float64) * self._unit
+
+    def _to_scene(self, points: np.ndarray) -> np.ndarray:
+        """Points in the coordinates of the Embree scene (centred, divided by its unit)."""
+        return (points - self.centre) / self._unit
 
 
 def corner_sum(faces: np.ndarray, values: np.ndarray, n_vertices: int) -> np.ndarray:
@@ -287,6 +298,41 @@ class FeatureLines:
             for s in range(0, len(idx), block):
                 sub = idx[s : s + block]
                 out[sub] = _closest_on_segments(out[sub], seg)
+        return out
+
+    def distance(self, points: np.ndarray, boundary: bool | None = None) -> np.ndarray:
+        """Distance of each point to the nearest line (inf: none); with ``boundary`` True or
+        False, to the nearest boundary or crease line only."""
+        pts = np.asarray(points, dtype=np.float64)
+        seg = self.segments
+        if boundary is not None:
+            seg = seg[self.chain_is_boundary[self.segment_chain] == boundary]
+        out = np.full(len(pts), np.inf)
+        if len(pts) == 0 or len(seg) == 0:
+            return out
+        # the nearest segment's midpoint lies within (the distance to the nearest midpoint)
+        # + (the longest half segment): only the segments with a midpoint that near are measured
+        from scipy.spatial import cKDTree
+
+        mid = 0.5 * (seg[:, 0] + seg[:, 1])
+        half = 0.5 * float(np.linalg.norm(seg[:, 1] - seg[:, 0], axis=1).max())
+        tree = cKDTree(mid)
+        d0, _ = tree.query(pts)
+        near = tree.query_ball_point(pts, d0 * (1.0 + 1e-12) + half + 1e-300)
+        counts = np.fromiter((len(x) for x in near), dtype=np.int64, count=len(pts))
+        which = np.concatenate([np.asarray(x, dtype=np.int64) for x in near])
+        point = np.repeat(np.arange(len(pts)), counts)
+        for s in range(0, len(which), PROJECT_BLOCK):
+            w, q = which[s : s + PROJECT_BLOCK], point[s : s + PROJECT_BLOCK]
+            a, b = seg[w, 0], seg[w, 1]
+            d = b - a
+            t = np.clip(
+                np.einsum("ij,ij->i", pts[q] - a, d)
+                / np.maximum(np.einsum("ij,ij->i", d, d), 1e-300),
+                0.0,
+                1.0,
+            )
+            np.minimum.at(out, q, np.linalg.norm(a + t[:, None] * d - pts[q], axis=1))
         return out
 
 
