@@ -6,7 +6,9 @@ query for all vertices) and takes
 - colour and intensity: the inverse-distance-weighted mean of those points' values,
   ``w_j = 1 / (d_j + eps)`` with ``eps = 1e-3 r0`` (a vertex on an input point takes its value);
 - classification: the most frequent class among them (ties go to the class of the nearest
-  point; classes are labels, an average would be meaningless);
+  point; classes are labels, an average would be meaningless), with the input's values:
+  uint8 (PLY ``uchar``) when they are LAS classes 0-255, else int32 or float32
+  (:func:`class_values`);
 - quality: the distance to the nearest input point in units of r0 (0 = on the data; large =
   the mesh bridges a gap there), so that users can trim or colour by the data support.
 
@@ -31,6 +33,8 @@ __all__ = [
     "VertexAttributes",
     "check_attribute_output",
     "check_transfer",
+    "class_type",
+    "class_values",
     "majority",
     "transfer_attributes",
     "transfer_for_output",
@@ -42,6 +46,10 @@ TRANSFERABLE = ("intensity", "classification")
 #: Inverse-distance weights use d + EPS_R0 * r0, so that a vertex on a point stays finite.
 EPS_R0 = 1e-3
 
+#: PLY types of a transferred classification, narrowest first (:func:`class_type`), and the
+#: arrays that hold them (:func:`recon.io.write_mesh` writes each in its type).
+CLASS_TYPES = {"u1": np.uint8, "i4": np.int32, "f4": np.float32}
+
 
 @dataclass
 class VertexAttributes:
@@ -51,8 +59,9 @@ class VertexAttributes:
     ----------
     colors : (V, 3) uint8 or None
     properties : dict of str -> (V,) array
-        ``intensity`` (float32), ``classification`` (uint8), ``quality`` (float32 [r0]), in
-        the order they are written.
+        ``intensity`` (float32), ``classification`` (uint8 for classes 0-255, else int32 or
+        float32: :func:`class_values`), ``quality`` (float32 [r0]), in the order they are
+        written.
     """
 
     colors: np.ndarray | None = None
@@ -118,7 +127,7 @@ def transfer_attributes(
     for name in transfer:
         values = np.asarray(cloud.attributes[name])[idx]
         if name == "classification":
-            out.properties[name] = majority(values).astype(np.uint8)
+            out.properties[name] = class_values(majority(values))
         else:
             out.properties[name] = np.sum(w * values, axis=1).astype(np.float32)
     if quality:
@@ -175,6 +184,50 @@ def transfer_for_output(
         quality=out.quality,
         k=out.attribute_neighbors,
     )
+
+
+def class_type(classes: np.ndarray) -> str:
+    """The narrowest type of :data:`CLASS_TYPES` that holds every class: ``'u1'`` (uchar)
+    when they are integers 0-255 (LAS classes; also when there are none), ``'i4'`` (int)
+    when they are integers of int32 (classes above 255, negative ones), else ``'f4'``
+    (float: fractional or larger labels, NaN).
+
+    The types of parts of a classification combine as the widest of them (the order of
+    :data:`CLASS_TYPES`): the tiled writer takes it over the blocks of vertices it writes.
+
+    Examples
+    --------
+    >>> [class_type(np.array(c)) for c in ([2, 6], [300, -7], [2.5])]
+    ['u1', 'i4', 'f4']
+    """
+    a = np.asarray(classes)
+    if a.dtype == np.uint8 or a.dtype.kind == "b" or a.size == 0:
+        return "u1"
+    if a.dtype.kind in "iu":
+        lo, hi = int(a.min()), int(a.max())
+    else:
+        with np.errstate(invalid="ignore"):
+            if not (np.all(np.isfinite(a)) and np.all(a == np.round(a))):
+                return "f4"
+        lo, hi = float(a.min()), float(a.max())
+    if 0 <= lo and hi <= 255:
+        return "u1"
+    return "i4" if -(2**31) <= lo and hi < 2**31 else "f4"
+
+
+def class_values(classes: np.ndarray) -> np.ndarray:
+    """Transferred classes in the type that :func:`class_type` gives them: uint8 for the LAS
+    classes 0-255 (as every reader gives those), int32 for other integers of int32, float32
+    for the rest (a ``uint`` class past int32 or a ``double`` one is rounded to float32, the
+    widest type a mesh property takes; the PLY reader warns of such classes).
+
+    Examples
+    --------
+    >>> class_values(np.array([300.0, -7.0])).tolist(), class_values(np.array([2.0])).dtype
+    ([300, -7], dtype('uint8'))
+    """
+    a = np.asarray(classes)
+    return a.astype(CLASS_TYPES[class_type(a)], copy=False)
 
 
 def majority(labels: np.ndarray) -> np.ndarray:

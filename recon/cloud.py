@@ -54,8 +54,9 @@ class PointCloud:
         ``classes_kept``.
     attributes : dict of str -> (n,) array
         Per-point scalars beside the colours, row-aligned with ``points``: ``intensity``
-        (float64, the file's scale, e.g. 0-65535 for LAS) and ``classification`` (uint8, LAS
-        classes) when the file has them.
+        (float64, the file's scale, e.g. 0-65535 for LAS) and ``classification`` (uint8 for
+        classes 0-255, as LAS has them; a PLY's other values in their own type) when the file
+        has them.
     """
 
     points: np.ndarray

@@ -480,26 +480,24 @@ def test_ply_intensity_and_classification_are_read_for_the_transfer(tmp_path):
     assert cloud.attributes["classification"].dtype == np.uint8
 
 
-def test_ply_classes_above_255_are_kept_for_normals_and_said_when_clipped(tmp_path, caplog):
+def test_ply_classes_above_255_are_kept_with_their_values(tmp_path, caplog):
     """Regression: an ``int classification`` of 300-302 was read as 255 for every point with
-    no word, and ``oprecon normals`` wrote 255. ``all_properties`` (``normals``) keeps the
-    values; the fit's read, for ``--transfer classification`` (LAS classes, uchar), clips
-    them as before but says so."""
+    no word, and ``oprecon normals`` wrote 255; then the fit's read clipped them to 255 with a
+    warning. Every read keeps the values now (``--transfer classification`` writes them as
+    ``int``: tests/test_wide_classes.py), with no warning."""
     p = sphere(60)
     classes = (300 + np.arange(60) % 3).astype(np.int32)
     for text in (False, True):
         path = write_ply(
             tmp_path / f"c{int(text)}.ply", {**xyz_fields(p), "classification": classes}, text=text
         )
-        with caplog.at_level(logging.WARNING, logger="recon.io"):
-            caplog.clear()
-            got = read_points(path, all_properties=True).attributes["classification"]
+        for all_properties in (True, False):
+            with caplog.at_level(logging.WARNING, logger="recon.io"):
+                caplog.clear()
+                got = read_points(path, all_properties=all_properties)
             assert caplog.text == ""
-            np.testing.assert_array_equal(got, classes)
-            assert got.dtype == np.int32
-            clipped = read_points(path).attributes["classification"]
-        assert clipped.dtype == np.uint8 and np.all(clipped == 255)
-        assert "from 300 to 302" in caplog.text and "clipped" in caplog.text
+            np.testing.assert_array_equal(got.attributes["classification"], classes)
+            assert got.attributes["classification"].dtype == np.int32
 
 
 def test_ply_classes_in_0_255_stay_uint8_whatever_the_declared_type(tmp_path):

@@ -160,8 +160,7 @@ def read_points(
         LAS/LAZ and E57 also fill ``attributes`` (intensity, classification), text files
         with an intensity column (PTS) the intensity, PLY files their ``intensity`` and
         ``classification`` vertex properties. ``intensity`` is float64, ``classification``
-        uint8 (a PLY's values outside 0-255 are clipped, with a warning, unless
-        ``all_properties``).
+        uint8 when every class is 0-255 (LAS), else the file's values in the file's type.
 
     Raises
     ------

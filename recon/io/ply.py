@@ -441,8 +441,8 @@ def read_points(
     """(format, xyz, normals or None, colours in [0, 1] or None, attributes).
 
     The attributes are the per-point scalars, in the order of the file's properties:
-    ``intensity`` (float64) and ``classification`` (:func:`_classes`: uint8, other values
-    kept with ``all_properties``) where a vertex property holds them, and with
+    ``intensity`` (float64) and ``classification`` (:func:`_classes`: uint8 for classes
+    0-255, else the file's values in its type) where a vertex property holds them, and with
     ``all_properties`` every other scalar vertex property under its own name, in the file's
     type (:func:`_other_properties`).
     """
@@ -482,25 +482,35 @@ def read_points(
 
 def _classes(path: Path, values: np.ndarray, exact: bool) -> np.ndarray:
     """A classification property as uint8 when every value is a class 0-255 (LAS classes, as
-    every reader gives them and ``--transfer classification`` writes them). Other values are
-    kept in the file's type with ``exact`` (``oprecon normals`` writes them back), else
-    clipped to 0-255 for the transfer, and a warning says so."""
+    every reader gives them), else in the file's type: classes above 255, negative or
+    fractional ones keep their values (``--transfer classification`` writes them as ``int``,
+    or ``float`` when they are not integers of int32: :func:`recon.attributes.class_values`).
+    Only the classes neither type holds (a ``uint`` past int32, a ``double`` beyond float32)
+    are rounded there, and a warning says so, unless ``exact`` (``oprecon normals`` writes
+    them back as they are)."""
     if values.size == 0:
         return values.astype(np.uint8)
     with np.errstate(invalid="ignore"):
-        fits = bool(np.all((values >= 0) & (values <= 255) & (values == np.round(values))))
-    if fits or exact:
-        return values.astype(np.uint8 if fits else values.dtype.newbyteorder("="))
-    logger.warning(
-        "%s: the classification holds values from %s to %s, not all classes 0-255: they are "
-        "read clipped to 0-255 (--transfer classification writes LAS classes, uchar); "
-        "oprecon normals keeps them",
-        path,
-        np.nanmin(values) if np.isfinite(values).any() else "nan",
-        np.nanmax(values) if np.isfinite(values).any() else "nan",
-    )
-    with np.errstate(invalid="ignore"):
-        return np.clip(np.nan_to_num(values), 0, 255).astype(np.uint8)
+        integral = bool(np.all(values == np.round(values)))
+        lo, hi = values.min().item(), values.max().item()  # (NaN when one is: not integral)
+    if integral and lo >= 0 and hi <= 255:
+        return values.astype(np.uint8)
+    values = values.astype(values.dtype.newbyteorder("="))
+    if exact or (integral and -(2**31) <= lo and hi < 2**31):
+        return values
+    with np.errstate(over="ignore", invalid="ignore"):
+        narrow = values.astype(np.float32).astype(values.dtype)
+    held = np.array_equal(narrow, values, equal_nan=values.dtype.kind == "f")
+    if not held:
+        finite = values[np.isfinite(values)]
+        logger.warning(
+            "%s: the classification holds values from %s to %s, not all integers of int32 nor "
+            "values of float32: --transfer classification writes them as float, rounded",
+            path,
+            finite.min() if finite.size else "nan",
+            finite.max() if finite.size else "nan",
+        )
+    return values
 
 
 #: Vertex properties that the point writer takes from the normals and colours, whatever the

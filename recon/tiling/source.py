@@ -61,7 +61,9 @@ class TileStore:
     has_normals: bool = False
     has_colors: bool = False
     color_scale: float = 1.0  # stored colour values times this are in [0, 1]
-    attributes: tuple[str, ...] = ()  # per-point scalars (--transfer), one column each
+    #: per-point scalars (--transfer), one column each: float64 holds every value of every
+    #: PLY and LAS type as it is (classes beyond 0-255 too: :func:`recon.attributes.class_values`)
+    attributes: tuple[str, ...] = ()
     #: the bounding box of the points kept (``--classes`` drops some of the header's box)
     lo: np.ndarray | None = None
     hi: np.ndarray | None = None
