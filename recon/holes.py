@@ -354,10 +354,11 @@ def rezip_crossing_loops(
         if np.min(rim @ rim.sum(axis=0)) >= 0:
             continue  # one sheet: the loop does not wrap round a thin part
         ring = set(int(x) for x in loops[k])
+        where = {int(v): i for i, v in enumerate(loops[k])}
         own = {
             (min(a, b), max(a, b))
             for a, b in patches[k][:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
-            if not ({int(a), int(b)} <= ring and abs(_ring_step(loops[k], a, b)) == 1)
+            if not ({int(a), int(b)} <= ring and abs(_ring_step(loops[k], a, b, where)) == 1)
         }
         alt = zip_loop(vertices, loops[k], edges - own, normals)
         # the mesh faces and the other patches within the untangling reach, in their order
@@ -393,9 +394,11 @@ def _left_after_untangle(vertices: np.ndarray, faces: np.ndarray, patch: np.ndar
     return untangle(vertices[used], sub, fixed=fixed)[2]
 
 
-def _ring_step(loop: np.ndarray, a: int, b: int) -> int:
-    """Steps along the loop from vertex ``a`` to ``b`` (+-1 for a rim edge)."""
-    where = {int(v): i for i, v in enumerate(loop)}
+def _ring_step(loop: np.ndarray, a: int, b: int, where: dict[int, int] | None = None) -> int:
+    """Steps along the loop from vertex ``a`` to ``b`` (+-1 for a rim edge). ``where``: each
+    vertex's position on the loop, when the caller has it (built here when None)."""
+    if where is None:
+        where = {int(v): i for i, v in enumerate(loop)}
     d = (where[int(b)] - where[int(a)]) % len(loop)
     return 1 if d == 1 else -1 if d == len(loop) - 1 else d
 

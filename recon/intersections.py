@@ -23,7 +23,14 @@ is the direction that parts them, whichever of the two had crossed over.
 Candidate pairs come from a cell grid over face centroids (bounding spheres that overlap,
 :func:`recon.kernels.sphere_pairs.sphere_pairs`; a k-d tree when no grid fits); the exact test
 is :func:`recon.kernels.tri_intersect.pairs_intersect`. Pairs sharing a vertex are not tested,
-as in Open3D's ``get_self_intersecting_triangles``."""
+as in Open3D's ``get_self_intersecting_triangles``.
+
+Whether two faces cross depends on their six corners alone, so over the passes of
+:func:`untangle` and :func:`separate_opposed` every crossing pair is kept (:class:`_Crossings`)
+and only the pairs of the faces a pass moved are searched again, not those of every face moved
+so far: the same pairs as a search of the faces each pass asks about, where the test answers
+every pair the same whichever of its faces it is tested from (:func:`_order_free`; else they
+search as before)."""
 
 from __future__ import annotations
 
@@ -35,7 +42,7 @@ from .kernels.grid_query import coordinate_extent
 from .kernels.mesh_tables import bounding_spheres
 from .kernels.options import query_workers, thread_limit
 from .kernels.sphere_pairs import sphere_pairs
-from .kernels.tri_intersect import pairs_intersect
+from .kernels.tri_intersect import order_free, pairs_intersect
 from .mesh import face_normals
 from .neighbors import PARALLEL_MIN_PARTICLES
 
@@ -293,6 +300,60 @@ def _umbrella(faces: np.ndarray, n_vertices: int) -> sparse.csr_matrix:
     return sparse.diags(1.0 / np.maximum(deg, 1.0)) @ a
 
 
+#: Two faces' squared cross products closer than this (relative) may be equal as the crossing
+#: test computes them (:func:`_order_free`): far above the rounding of any sum of three squares.
+TIE_MARGIN = 1e-12
+#: More faces than this in one run of possible ties: not worth sorting out (a flat grid).
+TIE_RUN = 16
+
+
+def _order_free(vertices: np.ndarray, faces: np.ndarray) -> bool:
+    """Whether the crossing test gives every pair of ``faces`` the same answer either way round
+    (:func:`recon.kernels.tri_intersect.order_free`): then which face of a pair the grid search
+    tests it from (which depends on the subset searched) does not matter."""
+    return bool(order_free(vertices, faces, TIE_MARGIN, TIE_RUN))
+
+
+class _Crossings:
+    """Every crossing pair of a mesh whose vertices move, kept by searching again only around
+    the faces that moved (:meth:`moved`): whether two faces cross depends on their six corners
+    alone, so a pair of faces neither of which moved crosses as it did.
+
+    That holds when the test gives each pair the same answer whichever face it is tested from
+    (:func:`_order_free`, checked at every state searched); where it might not, ``exact``
+    turns False and the caller searches as before. ``pairs`` must hold every crossing pair of
+    the start, or at least those that the caller will ask for before their faces move."""
+
+    def __init__(self, vertices: np.ndarray, faces: np.ndarray, pairs: np.ndarray) -> None:
+        self.faces = faces
+        self.n = len(faces)
+        self.exact = _order_free(vertices, faces)
+        keys = pairs[:, 0] * self.n + pairs[:, 1] if len(pairs) else np.zeros(0, np.int64)
+        self.keys = np.unique(keys.astype(np.int64))
+
+    def moved(self, vertices: np.ndarray, faces_moved: np.ndarray) -> bool:
+        """Account for the new ``vertices``, of which only ``faces_moved`` have moved corners.
+        False (and from then on) when the pairs can no longer be kept exactly."""
+        if self.exact and len(faces_moved) == 0:
+            return True  # no face has moved: every pair crosses as it did
+        if not self.exact or not _order_free(vertices, self.faces):
+            self.exact = False
+            return False
+        mask = np.zeros(self.n, dtype=bool)
+        mask[faces_moved] = True
+        keep = self.keys[~(mask[self.keys // self.n] | mask[self.keys % self.n])]
+        new = self_intersections(vertices, self.faces, faces_moved)
+        self.keys = np.sort(np.concatenate([keep, new[:, 0] * self.n + new[:, 1]]))
+        return True
+
+    def touching(self, mask: np.ndarray) -> np.ndarray:
+        """The crossing pairs ``(m, 2)`` with a face in ``mask`` (F,), sorted: what
+        :func:`self_intersections` returns for that subset."""
+        i, j = self.keys // self.n, self.keys % self.n
+        hit = mask[i] | mask[j]
+        return np.stack([i[hit], j[hit]], axis=1)
+
+
 def untangle(
     vertices: np.ndarray,
     faces: np.ndarray,
@@ -330,10 +391,12 @@ def untangle(
         return vertices, 0, 0
     mean_of_neighbours = _umbrella(faces, len(vertices))
     vertex_faces = _vertex_faces(faces, len(vertices))
-    moved = np.zeros(len(vertices), dtype=bool)
+    touched = np.zeros(len(faces), dtype=bool)  # the faces with a vertex moved so far
     first = pairs
     best, best_left = vertices.copy(), found
     start = best
+    every = _Crossings(vertices, faces, pairs)
+    best_every = every.keys if every.exact else None
     for _ in range(passes):
         crossing = np.unique(faces[pairs].ravel())
         ring = np.unique(faces[vertex_faces[crossing].indices].ravel())
@@ -342,17 +405,23 @@ def untangle(
         target = mean_of_neighbours[ring] @ vertices
         vertices[ring] += step * (target - vertices[ring])
         # only faces with a vertex that has moved can have started or stopped crossing
-        moved[ring] = True
-        touched = np.unique(vertex_faces[np.flatnonzero(moved)].indices)
-        pairs = self_intersections(vertices, faces, touched)
+        now = np.unique(vertex_faces[ring].indices)
+        touched[now] = True
+        # the pairs with a face touched so far: from every crossing pair, which only the faces
+        # moved in this pass change (or, where that is not exact, a search of those faces)
+        if every.moved(vertices, now):
+            pairs = every.touching(touched)
+        else:
+            pairs = self_intersections(vertices, faces, np.flatnonzero(touched))
         if len(pairs) < best_left:
             best, best_left = vertices.copy(), len(pairs)
+            best_every = every.keys if every.exact else None
         if len(pairs) == 0:
             break
     # the passes re-test only pairs with a face that moved: count what is left over all faces
     # (a crossing between fixed vertices, for one, never moves). A pair of faces that ``best``
     # did not move crosses as it did at the start; the others are searched again.
-    left_pairs = _pairs_after_moving(start, best, faces, vertex_faces, first)
+    left_pairs = _pairs_after_moving(start, best, faces, vertex_faces, first, best_every)
     if len(left_pairs):
         # smooth sheets crossing at a shallow angle: part the opposed ones
         parted, parted_left = separate_opposed(
@@ -377,16 +446,23 @@ def _pairs_after_moving(
     faces: np.ndarray,
     vertex_faces: sparse.csr_matrix,
     first: np.ndarray,
+    every: np.ndarray | None = None,
 ) -> np.ndarray:
     """Crossing pairs of ``vertices`` over all faces, given the pairs ``first`` of ``start``:
-    a pair of faces that did not move crosses as it did; around the moved ones, a search."""
+    a pair of faces that did not move crosses as it did; around the moved ones, a search (or,
+    given ``every``, the sorted keys ``i F + j`` of every crossing pair of ``vertices``
+    (:class:`_Crossings`), those pairs)."""
     shifted = np.flatnonzero(np.any(vertices != start, axis=1))
     touched = np.unique(vertex_faces[shifted].indices)
     was_moved = np.zeros(len(faces), dtype=bool)
     was_moved[touched] = True
-    return np.vstack(
-        [first[~was_moved[first].any(axis=1)], self_intersections(vertices, faces, touched)]
-    )
+    if every is None:
+        around = self_intersections(vertices, faces, touched)
+    else:
+        i, j = every // len(faces), every % len(faces)
+        hit = was_moved[i] | was_moved[j]
+        around = np.stack([i[hit], j[hit]], axis=1)
+    return np.vstack([first[~was_moved[first].any(axis=1)], around])
 
 
 def separate_opposed(
@@ -442,6 +518,7 @@ def separate_opposed(
     if best_left == 0:
         return best, best_left
     vertex_faces = _vertex_faces(faces, len(vertices))
+    every = _Crossings(vertices, faces, first)  # only the pairs of moved faces are asked for
     edges = vertices[faces[:, [1, 2, 0]]] - vertices[faces]
     push = step * float(np.median(np.linalg.norm(edges, axis=2)))
     for _ in range(passes):
@@ -460,7 +537,10 @@ def separate_opposed(
         if not move.any():
             break
         vertices[move] += push * direction[move] / count[move, None]
-        pairs = _pairs_after_moving(start, vertices, faces, vertex_faces, first)
+        followed = every.moved(vertices, np.unique(vertex_faces[np.flatnonzero(move)].indices))
+        pairs = _pairs_after_moving(
+            start, vertices, faces, vertex_faces, first, every.keys if followed else None
+        )
         if len(pairs) < best_left:
             best, best_left = vertices.copy(), len(pairs)
         if best_left == 0:

@@ -7,6 +7,7 @@ import open3d as o3d
 import pytest
 from mesh_shapes import icosphere
 
+import recon.intersections as inter
 from recon.intersections import (
     candidate_pairs,
     self_intersections,
@@ -324,3 +325,88 @@ def test_separate_opposed_leaves_sheets_facing_the_same_way_alone():
     assert before > 0
     out, left = separate_opposed(v, f)
     assert left == before and np.array_equal(out, v)
+
+
+def _jittered_thin_part() -> tuple[np.ndarray, np.ndarray]:
+    """:func:`thin_part_with_a_wide_dent` with its grid jittered: no two faces the same size
+    (on the exact grid the order-free check sends untangle to its search of every pass)."""
+    v, f, _ = thin_part_with_a_wide_dent()
+    v[:, :2] += np.random.default_rng(8).normal(scale=1e-3, size=(len(v), 2))
+    return v, f
+
+
+def test_crossings_kept_over_moves_equal_a_search_of_the_whole_mesh():
+    """Every crossing pair, kept by searching again only around the faces that moved, equals
+    a search of the whole mesh after each of many random moves (pairs appearing and going),
+    and its pairs touching a subset equal the subset's search."""
+    v, f = pinched_lens(depth=0.05)
+    rng = np.random.default_rng(21)
+    first = self_intersections(v, f)
+    every = inter._Crossings(v, f, first)
+    assert every.exact and len(first) > 10
+    vertex_faces = inter._vertex_faces(f, len(v))
+    dent = np.flatnonzero(np.linalg.norm(v[:, :2], axis=1) < 0.5)
+    before = seen = {tuple(p) for p in first.tolist()}
+    gone = 0
+    for _ in range(15):
+        pick = rng.choice(dent, size=int(rng.integers(1, 60)), replace=False)
+        v = v.copy()
+        v[pick] += rng.normal(scale=0.03, size=(len(pick), 3))
+        assert every.moved(v, np.unique(vertex_faces[pick].indices))
+        want = self_intersections(v, f)
+        np.testing.assert_array_equal(every.touching(np.ones(len(f), dtype=bool)), want)
+        mask = np.zeros(len(f), dtype=bool)
+        mask[rng.choice(len(f), size=300, replace=False)] = True
+        np.testing.assert_array_equal(
+            every.touching(mask), self_intersections(v, f, np.flatnonzero(mask))
+        )
+        now = {tuple(p) for p in want.tolist()}
+        gone += len(before - now)
+        before, seen = now, seen | now
+    assert len(seen) > len(first) + 20 and gone > 20  # pairs came and went
+
+
+@pytest.mark.parametrize("case", ["lens", "fixed lens", "thin part", "umbrella only"])
+def test_untangle_gives_what_searching_every_pass_gives(monkeypatch, case):
+    """untangle keeps every crossing pair over its passes (and separate_opposed over its
+    pushes) by searching around the faces each moves; forced to search all it asks for
+    every pass instead (as when two faces' sizes may tie), it returns the same mesh and
+    counts, bit for bit."""
+    kwargs: dict = {}
+    if case == "thin part":
+        v, f = _jittered_thin_part()
+    else:
+        v, f = pinched_lens(depth=0.1)
+    if case == "fixed lens":
+        kwargs["fixed"] = np.zeros(len(v), dtype=bool)
+        kwargs["fixed"][np.argsort(np.linalg.norm(v[:, :2], axis=1))[:3]] = True
+    if case == "umbrella only":
+        kwargs["separate_passes"] = 0
+    kept = []
+    moved = inter._Crossings.moved
+
+    def spy(self, vertices, faces_moved):
+        kept.append(moved(self, vertices, faces_moved))
+        return kept[-1]
+
+    monkeypatch.setattr(inter._Crossings, "moved", spy)
+    got = untangle(v, f, **kwargs)
+    assert len(kept) > 5 and all(kept)  # kept pairs, not searched every pass
+    monkeypatch.setattr(inter, "_order_free", lambda vertices, faces: False)
+    kept.clear()
+    want = untangle(v, f, **kwargs)
+    assert not any(kept)
+    assert got[1:] == want[1:] and got[1] > got[2]
+    np.testing.assert_array_equal(got[0], want[0])
+    if case != "umbrella only":
+        parted = separate_opposed(want[0], f, fixed=kwargs.get("fixed"))
+        monkeypatch.undo()
+        np.testing.assert_array_equal(
+            separate_opposed(want[0], f, fixed=kwargs.get("fixed"))[0], parted[0]
+        )
+
+
+def test_order_free_refuses_a_flat_grid_and_accepts_a_jittered_one():
+    v, f, _ = thin_part_with_a_wide_dent()
+    assert not inter._order_free(v, f)  # congruent faces apart: the order could matter
+    assert inter._order_free(*_jittered_thin_part())

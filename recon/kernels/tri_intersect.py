@@ -11,6 +11,11 @@ Open3D's ``get_self_intersecting_triangles`` also reports coplanar triangles tha
 overlap (Open3D issues #5117 and #6462), which happens on exactly planar scans: there the two
 finders differ, and this one is right.
 
+The grid search runs the test on tens of pairs per face: :func:`faces_cross` does it on a
+scratch array, reading corners in place (the same arithmetic as the allocating
+:func:`triangles_intersect`), and decides its comparisons of dot products on the products
+summed in order unless that is too close to call (then by ``np.dot``, as ever).
+
 References
 ----------
 .. [MT97] T. Möller, B. Trumbore. "Fast, minimum storage ray-triangle intersection". Journal
@@ -31,6 +36,11 @@ EPS = 1e-12
 #: Faces are coplanar when the smaller one's corners lie within this fraction of the larger
 #: one's size (the square root of twice its area) off its plane.
 COPLANAR = 1e-9
+#: Relative margin (of the sum of the products' magnitudes) within which a dot product's
+#: comparison is left to ``np.dot`` itself (:func:`_dot_exceeds`).
+DOT_MARGIN = 1e-12
+#: ... and always when the products' magnitudes sum to this or more (a sum might overflow).
+SUM_LIMIT = 1e290
 
 
 @njit(**EXACT_JIT_OPTIONS)
@@ -41,9 +51,20 @@ def segment_crosses_triangle(p, q, a, b, c):  # pragma: no cover - numba
     ``u, v >= 0``, ``u + v <= 1`` (within ``EPS``): a segment through the triangle's border
     counts. A segment parallel to the triangle's plane never crosses it.
     """
-    d0, d1, d2 = q[0] - p[0], q[1] - p[1], q[2] - p[2]
-    e10, e11, e12 = b[0] - a[0], b[1] - a[1], b[2] - a[2]
-    e20, e21, e22 = c[0] - a[0], c[1] - a[1], c[2] - a[2]
+    points = np.empty((5, 3))
+    for k in range(3):
+        points[0, k], points[1, k], points[2, k] = p[k], q[k], a[k]
+        points[3, k], points[4, k] = b[k], c[k]
+    return _segment_crosses(points, 0, 1, 2, 3, 4)
+
+
+@njit(**EXACT_JIT_OPTIONS)
+def _segment_crosses(x, ip, iq, ia, ib, ic):  # pragma: no cover - numba
+    """:func:`segment_crosses_triangle` of the points ``x[ip]``, ... (rows of ``x``), read in
+    place: the triangle tests run it six times per pair of faces."""
+    d0, d1, d2 = x[iq, 0] - x[ip, 0], x[iq, 1] - x[ip, 1], x[iq, 2] - x[ip, 2]
+    e10, e11, e12 = x[ib, 0] - x[ia, 0], x[ib, 1] - x[ia, 1], x[ib, 2] - x[ia, 2]
+    e20, e21, e22 = x[ic, 0] - x[ia, 0], x[ic, 1] - x[ia, 1], x[ic, 2] - x[ia, 2]
     # h = d x e2, det = e1 . h
     h0 = d1 * e22 - d2 * e21
     h1 = d2 * e20 - d0 * e22
@@ -53,7 +74,7 @@ def segment_crosses_triangle(p, q, a, b, c):  # pragma: no cover - numba
     if det * det <= 1e-24 * scale * (e20 * e20 + e21 * e21 + e22 * e22) + 1e-300:
         return False
     inv = 1.0 / det
-    s0, s1, s2 = p[0] - a[0], p[1] - a[1], p[2] - a[2]
+    s0, s1, s2 = x[ip, 0] - x[ia, 0], x[ip, 1] - x[ia, 1], x[ip, 2] - x[ia, 2]
     u = (s0 * h0 + s1 * h1 + s2 * h2) * inv
     if u < -EPS or u > 1.0 + EPS:
         return False
@@ -118,39 +139,101 @@ def triangles_intersect(vertices, f, g):  # pragma: no cover - numba
     or, for coplanar faces (every corner of the smaller face within ``COPLANAR`` times the
     larger face's size off the larger face's plane), when they overlap in that plane
     (:func:`coplanar_overlap`). The larger face gives the plane, so the answer does not depend
-    on the order of ``f`` and ``g``.
+    on the order of ``f`` and ``g`` (but on a tie of their sizes, ``f`` gives it).
     """
-    a = np.empty((3, 3))
-    b = np.empty((3, 3))
-    for k in range(3):
-        for c in range(3):
-            a[k, c] = vertices[f[k], c]
-            b[k, c] = vertices[g[k], c]
-    n = np.cross(a[1] - a[0], a[2] - a[0])
-    m = np.cross(b[1] - b[0], b[2] - b[0])
-    if np.dot(m, m) > np.dot(n, n):  # the plane of the larger face
-        a, b, n = b, a, m
-    nn = np.sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2])
+    return faces_cross(vertices, f, g, np.empty((3, 3)))
+
+
+@njit(**EXACT_JIT_OPTIONS)
+def _dot_exceeds(x, y, bound, work):  # pragma: no cover - numba
+    """``abs(np.dot(x, y)) > bound`` for 3-vectors, as NumPy's (BLAS) dot decides it, without
+    calling it unless the sum in order decides it too narrowly: any order of summing three
+    products (fused or not) lies within 3.4e-16 times the sum of their magnitudes of the exact
+    sum, so the two differ by far less than ``DOT_MARGIN`` times it. ``x`` and ``y`` are rows
+    of ``work``."""
+    p0, p1, p2 = work[x, 0] * work[y, 0], work[x, 1] * work[y, 1], work[x, 2] * work[y, 2]
+    t = abs(p0 + p1 + p2)
+    size = abs(p0) + abs(p1) + abs(p2)
+    if size < SUM_LIMIT:  # (and not NaN) no sum can overflow; 1e-290 covers underflow
+        slack = DOT_MARGIN * size + 1e-290
+        if t > bound + slack:
+            return True
+        if t < bound - slack:
+            return False
+    return abs(np.dot(work[x], work[y])) > bound  # too close to call (or out of range)
+
+
+@njit(**EXACT_JIT_OPTIONS)
+def faces_cross(vertices, f, g, work):  # pragma: no cover - numba
+    """:func:`triangles_intersect` with ``work`` (3, 3) float64 as scratch: the same
+    arithmetic, without allocating (the grid search tests tens of pairs per face).
+
+    Its comparisons of NumPy dot products (which call BLAS) are made on the products summed
+    in order where that decides them with a wide margin (:func:`_dot_exceeds`), else by
+    ``np.dot`` itself: the same answers."""
+    fa, fb, fc = f[0], f[1], f[2]
+    ga, gb, gc = g[0], g[1], g[2]
+    # n = (a1 - a0) x (a2 - a0) of f, m of g: the component order of np.cross
+    for row in range(2):
+        i0, i1, i2 = (fa, fb, fc) if row == 0 else (ga, gb, gc)
+        e10 = vertices[i1, 0] - vertices[i0, 0]
+        e11 = vertices[i1, 1] - vertices[i0, 1]
+        e12 = vertices[i1, 2] - vertices[i0, 2]
+        e20 = vertices[i2, 0] - vertices[i0, 0]
+        e21 = vertices[i2, 1] - vertices[i0, 1]
+        e22 = vertices[i2, 2] - vertices[i0, 2]
+        work[row, 0] = e11 * e22 - e12 * e21
+        work[row, 1] = e12 * e20 - e10 * e22
+        work[row, 2] = e10 * e21 - e11 * e20
+    # the plane of the larger face: np.dot(m, m) > np.dot(n, n) (f's on a tie)
+    qn = work[0, 0] * work[0, 0] + work[0, 1] * work[0, 1] + work[0, 2] * work[0, 2]
+    qm = work[1, 0] * work[1, 0] + work[1, 1] * work[1, 1] + work[1, 2] * work[1, 2]
+    larger = -1
+    if qn + qm < SUM_LIMIT:  # (and not NaN) see _dot_exceeds
+        slack = DOT_MARGIN * (qn + qm) + 1e-290
+        if qm > qn + slack:
+            larger = 1
+        elif qm < qn - slack:
+            larger = 0
+    if larger < 0:  # too close to call (or out of range)
+        larger = 1 if np.dot(work[1], work[1]) > np.dot(work[0], work[0]) else 0
+    pa, pb, pc = (fa, fb, fc) if larger == 0 else (ga, gb, gc)  # the plane's face (a)
+    qa, qb, qc = (ga, gb, gc) if larger == 0 else (fa, fb, fc)  # the other (b)
+    n0, n1, n2 = work[larger, 0], work[larger, 1], work[larger, 2]
+    nn = np.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
     if nn > 0:
         coplanar = True
+        limit = COPLANAR * nn * np.sqrt(nn)
         for k in range(3):
-            if abs(np.dot(n, b[k] - a[0])) > COPLANAR * nn * np.sqrt(nn):
+            corner = qa if k == 0 else qb if k == 1 else qc
+            for c in range(3):
+                work[2, c] = vertices[corner, c] - vertices[pa, c]
+            if _dot_exceeds(larger, 2, limit, work):
                 coplanar = False
         if coplanar:
             axis = 0
-            if abs(n[1]) > abs(n[axis]):
+            if abs(n1) > abs(n0):
                 axis = 1
-            if abs(n[2]) > abs(n[axis]):
+            if abs(n2) > abs(n0 if axis == 0 else n1):
                 axis = 2
+            a = np.empty((3, 3))
+            b = np.empty((3, 3))
+            for c in range(3):
+                a[0, c], a[1, c], a[2, c] = vertices[pa, c], vertices[pb, c], vertices[pc, c]
+                b[0, c], b[1, c], b[2, c] = vertices[qa, c], vertices[qb, c], vertices[qc, c]
             return coplanar_overlap(a, b, axis)
-    for side in range(2):
-        s = f if side == 0 else g
-        t = g if side == 0 else f
-        a, b, c = vertices[t[0]], vertices[t[1]], vertices[t[2]]
-        for k in range(3):
-            if segment_crosses_triangle(vertices[s[k]], vertices[s[(k + 1) % 3]], a, b, c):
-                return True
-    return False
+    # an edge of f through g, then an edge of g through f
+    if (
+        _segment_crosses(vertices, fa, fb, ga, gb, gc)
+        or _segment_crosses(vertices, fb, fc, ga, gb, gc)
+        or _segment_crosses(vertices, fc, fa, ga, gb, gc)
+    ):
+        return True
+    return (
+        _segment_crosses(vertices, ga, gb, fa, fb, fc)
+        or _segment_crosses(vertices, gb, gc, fa, fb, fc)
+        or _segment_crosses(vertices, gc, ga, fa, fb, fc)
+    )
 
 
 @njit(parallel=True, **EXACT_JIT_OPTIONS)
@@ -165,4 +248,62 @@ def pairs_intersect(vertices, faces, pairs, out):  # pragma: no cover - numba
             for j in range(3):
                 if f[i] == g[j]:
                     shared = True
-        out[m] = False if shared else triangles_intersect(vertices, f, g)
+        out[m] = False if shared else faces_cross(vertices, f, g, np.empty((3, 3)))
+
+
+@njit(**EXACT_JIT_OPTIONS)
+def order_free(vertices, faces, margin, run_limit):  # pragma: no cover - numba
+    """Whether :func:`triangles_intersect` answers every pair of ``faces`` that share no
+    vertex the same either way round.
+
+    The larger face (squared cross product, ``np.dot(n, n)``) gives the coplanarity plane,
+    the first argument on a tie; everything else in the test is symmetric. So the order can
+    matter only for two faces whose squared cross products tie, and this is False when those
+    of two faces sharing no vertex lie within ``margin`` (relative, far above the rounding of
+    any way to sum three squares) of each other, when one is below 1e-280 but not zero (it
+    could round to zero or not), when one is not finite, or when more than ``run_limit``
+    faces lie within the margin of one another (a flat grid: not worth sorting out). A zero
+    one gives no plane either way (all three squares round to zero, however summed).
+    """
+    nf = faces.shape[0]
+    q = np.empty(nf)
+    for i in range(nf):
+        i0, i1, i2 = faces[i, 0], faces[i, 1], faces[i, 2]
+        e10 = vertices[i1, 0] - vertices[i0, 0]
+        e11 = vertices[i1, 1] - vertices[i0, 1]
+        e12 = vertices[i1, 2] - vertices[i0, 2]
+        e20 = vertices[i2, 0] - vertices[i0, 0]
+        e21 = vertices[i2, 1] - vertices[i0, 1]
+        e22 = vertices[i2, 2] - vertices[i0, 2]
+        n0 = e11 * e22 - e12 * e21
+        n1 = e12 * e20 - e10 * e22
+        n2 = e10 * e21 - e11 * e20
+        q[i] = n0 * n0 + n1 * n1 + n2 * n2
+        if not np.isfinite(q[i]):
+            return False
+    order = np.argsort(q)
+    k = 0
+    while k < nf and q[order[k]] == 0.0:
+        k += 1
+    if k < nf and q[order[k]] < 1e-280:
+        return False
+    while k < nf - 1:
+        if q[order[k + 1]] - q[order[k]] > margin * q[order[k + 1]]:
+            k += 1
+            continue
+        end = k + 1  # a run of faces whose products may tie: k .. end
+        while end < nf - 1 and q[order[end + 1]] - q[order[end]] <= margin * q[order[end + 1]]:
+            end += 1
+        if end - k + 1 > run_limit:
+            return False
+        for a in range(k, end + 1):
+            for b in range(a + 1, end + 1):
+                shared = False
+                for s in range(3):
+                    for t in range(3):
+                        if faces[order[a], s] == faces[order[b], t]:
+                            shared = True
+                if not shared:
+                    return False
+        k = end + 1
+    return True
