@@ -20,6 +20,11 @@ each side along its own outward normal, a small step per pass, until they no lon
 (:func:`separate_opposed`). Two sides of a part keep their order along their normals, so this
 is the direction that parts them, whichever of the two had crossed over.
 
+Neither moves a vertex farther than :data:`UNTANGLE_REACH` median edge lengths from where it
+was before :func:`untangle` began: beside a long sliver (a face hanging off a stray particle)
+the umbrella passes would otherwise walk a vertex toward the far corner without bound. A
+crossing that cannot be cleared within that reach is left, and counted.
+
 Candidate pairs come from a cell grid over face centroids (bounding spheres that overlap,
 :func:`recon.kernels.sphere_pairs.sphere_pairs`; a k-d tree when no grid fits); the exact test
 is :func:`recon.kernels.tri_intersect.pairs_intersect`. Pairs sharing a vertex are not tested,
@@ -51,7 +56,10 @@ __all__ = [
     "UNTANGLE_STEP",
     "SEPARATE_PASSES",
     "SEPARATE_STEP",
+    "UNTANGLE_REACH",
     "ROUNDING_PAD",
+    "median_edge",
+    "within_reach",
     "face_spheres",
     "faces_near_balls",
     "self_intersections",
@@ -68,6 +76,16 @@ SEPARATE_PASSES = 20
 #: How far one :func:`separate_opposed` pass moves a vertex along its crossing faces' normal,
 #: in median edge lengths of the mesh (20 passes: at most one edge length in all).
 SEPARATE_STEP = 0.05
+#: How far :func:`untangle` (its umbrella passes and :func:`separate_opposed` together) may move
+#: a vertex from where it was, in median edge lengths. A crossing it can clear lies between
+#: sheets closer than a spacing; an umbrella step stays within a vertex's one ring and the
+#: pushes add at most one edge length (``SEPARATE_PASSES * SEPARATE_STEP``): over the 27 dev
+#: cases no vertex moved more than 2.0 edge lengths (bunny-noise1; the median edge is shorter
+#: than the spacing where the density varies), so 4 leaves room. Without a bound, a vertex
+#: beside a long sliver (a face hanging off a stray particle) walks toward its far corner pass
+#: after pass (a sphere with 5 % outliers: 295 edge lengths); what the bound leaves crossing is
+#: counted as left.
+UNTANGLE_REACH = 4.0
 #: Faces larger than this many times the median bounding radius are paired one by one rather
 #: than through the common search radius (which would then hold too many pairs).
 LARGE_FACE = 3.0
@@ -288,6 +306,37 @@ def self_intersections(
     return _face_pairs(vertices, faces, subset, crossing=True)
 
 
+def median_edge(vertices: np.ndarray, faces: np.ndarray) -> float:
+    """The median edge length of a mesh (0 with no faces)."""
+    if len(faces) == 0:
+        return 0.0
+    edges = vertices[faces[:, [1, 2, 0]]] - vertices[faces]
+    return float(np.median(np.linalg.norm(edges, axis=2)))
+
+
+def within_reach(
+    points: np.ndarray, origin: np.ndarray, reach: float, rows: np.ndarray | None = None
+) -> np.ndarray:
+    """Pull each of ``points[rows]`` (all rows when None) that lies farther than ``reach``
+    from its ``origin`` back onto the sphere of radius ``reach`` round it, in place; the rows
+    within reach are not touched (not a bit). Returns ``points``.
+
+    >>> within_reach(np.array([[3.0, 4.0, 0.0], [0.5, 0.0, 0.0]]), np.zeros((2, 3)), 1.0)
+    array([[0.6, 0.8, 0. ],
+           [0.5, 0. , 0. ]])
+    """
+    rows = np.arange(len(points)) if rows is None else np.asarray(rows)
+    if len(rows) == 0:
+        return points
+    offset = points[rows] - origin[rows]
+    length = np.linalg.norm(offset, axis=1)
+    far = length > reach
+    if far.any():
+        r = rows[far]
+        points[r] = origin[r] + offset[far] * (reach / length[far])[:, None]
+    return points
+
+
 def _umbrella(faces: np.ndarray, n_vertices: int) -> sparse.csr_matrix:
     """Row-normalised vertex adjacency: ``A @ x`` is the mean of each vertex's neighbours."""
     e = faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
@@ -361,6 +410,7 @@ def untangle(
     step: float = UNTANGLE_STEP,
     fixed: np.ndarray | None = None,
     separate_passes: int = SEPARATE_PASSES,
+    reach: float = UNTANGLE_REACH,
 ) -> tuple[np.ndarray, int, int]:
     """Smooth around crossing faces until the mesh no longer crosses itself; then part the
     opposed sheets that still cross (:func:`separate_opposed`).
@@ -375,6 +425,9 @@ def untangle(
         Vertices that never move (e.g. on a crease line: smoothing would round it).
     separate_passes : int
         Pass budget of :func:`separate_opposed` (0: smoothing only).
+    reach : float
+        How far a vertex may move in all [median edge lengths]; a vertex the passes would
+        take farther stops at that distance from where it was (:data:`UNTANGLE_REACH`).
 
     Returns
     -------
@@ -391,6 +444,8 @@ def untangle(
         return vertices, 0, 0
     mean_of_neighbours = _umbrella(faces, len(vertices))
     vertex_faces = _vertex_faces(faces, len(vertices))
+    origin = vertices.copy()
+    limit = reach * median_edge(vertices, faces)
     touched = np.zeros(len(faces), dtype=bool)  # the faces with a vertex moved so far
     first = pairs
     best, best_left = vertices.copy(), found
@@ -404,6 +459,7 @@ def untangle(
             ring = ring[~fixed[ring]]
         target = mean_of_neighbours[ring] @ vertices
         vertices[ring] += step * (target - vertices[ring])
+        within_reach(vertices, origin, limit, ring)
         # only faces with a vertex that has moved can have started or stopped crossing
         now = np.unique(vertex_faces[ring].indices)
         touched[now] = True
@@ -425,7 +481,7 @@ def untangle(
     if len(left_pairs):
         # smooth sheets crossing at a shallow angle: part the opposed ones
         parted, parted_left = separate_opposed(
-            best, faces, separate_passes, fixed=fixed, pairs=left_pairs
+            best, faces, separate_passes, fixed=fixed, pairs=left_pairs, origin=origin, reach=limit
         )
         if parted_left < len(left_pairs):
             return parted, found, parted_left
@@ -472,6 +528,8 @@ def separate_opposed(
     step: float = SEPARATE_STEP,
     fixed: np.ndarray | None = None,
     pairs: np.ndarray | None = None,
+    origin: np.ndarray | None = None,
+    reach: float | None = None,
 ) -> tuple[np.ndarray, int]:
     """Push crossing faces with opposed normals apart, each along its own normal.
 
@@ -492,6 +550,9 @@ def separate_opposed(
     pairs : (m, 2) int, optional
         The crossing pairs of ``vertices`` over all faces, when the caller has them
         (:func:`self_intersections`; searched here when None).
+    origin, reach
+        No vertex moves farther than ``reach`` (a length) from its ``origin`` (V, 3) (default:
+        ``vertices``, and :data:`UNTANGLE_REACH` median edge lengths).
 
     Returns
     -------
@@ -519,8 +580,10 @@ def separate_opposed(
         return best, best_left
     vertex_faces = _vertex_faces(faces, len(vertices))
     every = _Crossings(vertices, faces, first)  # only the pairs of moved faces are asked for
-    edges = vertices[faces[:, [1, 2, 0]]] - vertices[faces]
-    push = step * float(np.median(np.linalg.norm(edges, axis=2)))
+    edge = median_edge(vertices, faces)
+    push = step * edge
+    origin = start if origin is None else np.asarray(origin, dtype=np.float64)
+    reach = UNTANGLE_REACH * edge if reach is None else reach
     for _ in range(passes):
         normals = face_normals(vertices, faces)
         opposed = np.einsum("ij,ij->i", normals[pairs[:, 0]], normals[pairs[:, 1]]) < 0.0
@@ -537,6 +600,7 @@ def separate_opposed(
         if not move.any():
             break
         vertices[move] += push * direction[move] / count[move, None]
+        within_reach(vertices, origin, reach, np.flatnonzero(move))
         followed = every.moved(vertices, np.unique(vertex_faces[np.flatnonzero(move)].indices))
         pairs = _pairs_after_moving(
             start, vertices, faces, vertex_faces, first, every.keys if followed else None

@@ -410,3 +410,62 @@ def test_order_free_refuses_a_flat_grid_and_accepts_a_jittered_one():
     v, f, _ = thin_part_with_a_wide_dent()
     assert not inter._order_free(v, f)  # congruent faces apart: the order could matter
     assert inter._order_free(*_jittered_thin_part())
+
+
+def _sliver_through_a_wall():
+    """A small grid (which sets the median edge length, 1/8) and, apart from it, a long
+    sliver whose one free corner sits at the origin with its far corners 100 away, crossing a
+    held wall at x = 5: each umbrella pass moves the free corner halfway toward the far
+    corners, which clears the crossing by carrying it some 50 away."""
+    from mesh_shapes import grid
+
+    v, f = grid(8, 8)
+    n = len(v)
+    extra = np.array(
+        [[0, 0, 0], [100, 0.05, 0], [100, -0.05, 0], [5, 0, -1], [5, 1, 1], [5, -1, 1]], float
+    )
+    v = np.vstack([v + [0, 0, 10], extra])
+    f = np.vstack([f, [[n, n + 1, n + 2], [n + 3, n + 4, n + 5]]])
+    fixed = np.zeros(len(v), bool)
+    fixed[n + 1 :] = True
+    return v, f, fixed, n
+
+
+def test_untangling_moves_no_vertex_farther_than_its_reach():
+    """Regression (a sphere with 5 % outliers): the umbrella passes walked a vertex beside a
+    sliver hanging off a stray particle some 295 edge lengths toward the sliver's far corner
+    (a spike across the scene); now each vertex stops UNTANGLE_REACH median edge lengths from
+    where it was, and the crossing it could not clear within that is counted as left."""
+    v, f, fixed, n = _sliver_through_a_wall()
+    assert len(self_intersections(v, f)) == 1
+    out, found, left = untangle(v, f, fixed=fixed)
+    reach = inter.UNTANGLE_REACH * inter.median_edge(v, f)
+    assert reach == pytest.approx(inter.UNTANGLE_REACH / 8)
+    assert np.linalg.norm(out - v, axis=1).max() <= reach * (1 + 1e-12)
+    assert (found, left) == (1, 1)
+    assert left == len(self_intersections(out, f))
+    # with room enough, the same passes clear it
+    assert untangle(v, f, fixed=fixed, reach=1000.0)[2] == 0
+
+
+def test_separation_moves_no_vertex_farther_than_its_reach():
+    v = np.array([[0, 0, 0], [2, 0, 0], [0, 2, 0], [0.5, 0.5, 0.1], [0.5, 1.5, 0.1]], float)
+    v = np.vstack([v, [[1.5, 0.5, -0.3]]])
+    f = np.array([[0, 1, 2], [3, 4, 5]])
+    parted, left = separate_opposed(v, f)
+    assert left == 0  # the docstring's example: parted within its reach
+    held, left = separate_opposed(v, f, origin=v, reach=0.01)
+    assert np.linalg.norm(held - v, axis=1).max() <= 0.01 * (1 + 1e-12)
+    assert left == 1
+
+
+def test_within_reach_leaves_the_rows_within_reach_bit_for_bit():
+    rng = np.random.default_rng(0)
+    origin = rng.normal(size=(50, 3))
+    points = origin + rng.normal(size=(50, 3)) * 0.3
+    before = points.copy()
+    inter.within_reach(points, origin, 0.5)
+    far = np.linalg.norm(before - origin, axis=1) > 0.5
+    assert far.any() and (~far).any()
+    np.testing.assert_array_equal(points[~far], before[~far])
+    np.testing.assert_allclose(np.linalg.norm(points[far] - origin[far], axis=1), 0.5)

@@ -92,3 +92,23 @@ def test_polish_and_untangle_cuts_small_handles_only_when_asked():
     assert cut.stats["small_handles_cut"] == 1
     assert len(kept.vertices) == len(v) and np.array_equal(kept.faces, f)
     assert handle_count(kept.faces, len(kept.vertices))[2] == 1
+
+
+def test_the_polish_moves_no_vertex_farther_than_its_reach():
+    """Regression (a sphere with 5 % outliers; many copies of one point): the polish carried
+    vertices beside a face hanging off a stray particle, or onto a degenerate local quadric,
+    hundreds to billions of edge lengths away; now no vertex goes farther than POLISH_REACH
+    median edge lengths from its particle."""
+    from recon.intersections import median_edge
+    from recon.polish import POLISH_REACH
+
+    v, f = grid(8, 8)
+    far = 4 * 9 + 4  # an interior vertex, held far off in the plane
+    v[far] = [50.0, 50.0, 0.0]
+    normals = np.tile([0.0, 0.0, 1.0], (len(v), 1))
+    held = np.zeros(len(v), bool)
+    held[far] = True
+    res = polish(TriangulationResult(v, f, normals), None, 2, flips=False, fixed=held)
+    moved = np.linalg.norm(res.vertices - v, axis=1)
+    assert moved.max() <= POLISH_REACH * median_edge(v, f) * (1 + 1e-12)
+    assert moved.max() > 0.1  # the neighbours of the far vertex did move, up to the reach
