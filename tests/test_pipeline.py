@@ -1,6 +1,7 @@
 """End-to-end tests of the fit stage on small generated and bundled inputs."""
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -362,3 +363,28 @@ def test_an_r0_far_below_the_data_spacing_is_refused_by_the_spacing():
         with_max_gap(ReconConfig(), r0=3e-4, median_spacing=0.037)
     assert with_max_gap(ReconConfig(), r0=3.7e-4, median_spacing=0.037).growth.max_gap == 1000
     assert with_max_gap(ReconConfig(), r0=1.0, median_spacing=0.4).growth.max_gap == 4.0
+
+
+def test_a_closed_mesh_the_polish_leaves_inside_out_is_turned_outward(monkeypatch):
+    """Regression: a sphere scanned twice, the copies 2 spacings apart, came out closed and
+    inside out (the winding turned it by its inward normals while it was open; the polish
+    closed it). The polish here turns its mesh and normals over, as that fit's were."""
+    import recon.fitting.pipeline as pipeline
+    from recon.topology import closed_orientation
+
+    polish = pipeline.polish_and_untangle
+
+    def inside_out(result, *args, **kwargs):
+        polished, found, left = polish(result, *args, **kwargs)
+        turned = replace(polished, faces=polished.faces[:, ::-1].copy())
+        return replace(turned, normals=-polished.normals), found, left
+
+    monkeypatch.setattr(pipeline, "polish_and_untangle", inside_out)
+    res = fit(_sphere(800), {"seeds.min_particles": 0})
+    assert closed_orientation(res.mesh.vertices, res.mesh.faces) == {
+        "closed_components": 1,
+        "closed_components_inward": 0,
+    }
+    assert res.report.triangulation.closed_turned_outward == len(res.mesh.vertices)
+    # the vertex normals turned with the faces: outward on a unit sphere
+    assert np.all(np.einsum("ij,ij->i", res.mesh.normals, res.mesh.vertices) > 0)

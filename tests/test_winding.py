@@ -4,7 +4,13 @@ cut where the surface turns over."""
 import numpy as np
 
 from recon.mesh import face_area_vectors
-from recon.winding import consistently_wound, orient_consistently, orient_faces, twisted_faces
+from recon.winding import (
+    consistently_wound,
+    orient_consistently,
+    orient_faces,
+    turn_closed_outward,
+    twisted_faces,
+)
 
 
 def test_orient_faces_follows_normals():
@@ -125,3 +131,35 @@ def test_consistently_wound_tells_edges_apart_past_the_vertex_count_it_is_given(
     """Vertex 4 of the second face is past ``n_vertices`` = 4: its edge (1, 4) must not take
     the key of the first face's edge (2, 0) (1 x 4 + 4 = 2 x 4 + 0)."""
     assert consistently_wound(np.array([[0, 1, 2], [3, 1, 4]]), 4)
+
+
+def _tetrahedron(shift=(0.0, 0.0, 0.0)):
+    v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], float) + np.asarray(shift)
+    f = np.array([[0, 2, 1], [0, 1, 3], [1, 2, 3], [0, 3, 2]])  # outward
+    return v, f
+
+
+def _signed_volume(v, f):
+    p = v[f]
+    return float(np.einsum("ij,ij->", p[:, 0], np.cross(p[:, 1], p[:, 2])))
+
+
+def test_turn_closed_outward_turns_only_closed_consistent_components_facing_inward():
+    """Regression (two misaligned scans of a sphere): a component wound by its normals' vote
+    while open, then closed by the polish, came out inside out."""
+    a, fa = _tetrahedron()
+    b, fb = _tetrahedron((5.0, 0.0, 0.0))
+    c, fc = _tetrahedron((10.0, 0.0, 0.0))
+    v = np.vstack([a, b, c])
+    inward = fb[:, ::-1] + 4  # closed, inside out
+    open_inward = fc[:3, ::-1] + 8  # three faces of a tetrahedron: open, left alone
+    f = np.vstack([fa, inward, open_inward])
+    out, turned = turn_closed_outward(v, f)
+    assert _signed_volume(v, out[4:8]) > 0 and _signed_volume(v, out[:4]) > 0
+    assert out[:4].tolist() == fa.tolist() and out[8:].tolist() == open_inward.tolist()
+    assert turned.tolist() == [False] * 4 + [True] * 4 + [False] * 4
+    # an inconsistently wound closed component (one face turned) is not the rule's to judge
+    bad = fb.copy() + 4
+    bad[0] = bad[0, ::-1]
+    assert turn_closed_outward(v, np.vstack([fa, bad]))[0].tolist() == np.vstack([fa, bad]).tolist()
+    assert not turn_closed_outward(v, np.vstack([fa, fb + 4]))[1].any()

@@ -58,6 +58,7 @@ from ..surface import DataSurface
 from ..triangulate import TriangulationResult, triangulate_particles
 from ..two_sided import closed_two_sided
 from ..version import __version__
+from ..winding import turn_closed_outward, turned_with_faces
 from .collector import survivors_frozen
 from .library import ConfigLike, check_progress, checked_memory, cloud_from_input, resolve_config
 from .memory import MemoryEstimate
@@ -298,6 +299,12 @@ def _triangulate(
     if closed is not None:
         v, n, f, crease, stats["two_sided_closed"] = closed
         result = replace(result, vertices=v, normals=n, faces=f, crease=crease)
+    # a component the polish closed was wound by its normals' vote while open: outward now
+    faces, turned = turn_closed_outward(result.vertices, result.faces)
+    if turned.any():  # (their vertex normals follow their faces)
+        normals = turned_with_faces(result.vertices, faces, result.normals, turned)
+        result = replace(result, faces=faces, normals=normals)
+        stats["closed_turned_outward"] = int(turned.sum())
     return replace(result, stats=stats)
 
 
@@ -416,18 +423,21 @@ def _fit_sheet(
     cfg: ReconConfig,
     on_progress: ProgressFn | None,
     normals_k_max: int | None = None,
+    detected: Creases | None = None,
 ) -> _Sheet:
     """Normals, r0, the schedule and the trim: everything before the triangulation.
 
     ``normals_k_max``: the widest neighbourhood a point's normal may take
     (:func:`recon.normals.estimate_normals`); None: ``MAX_SCALE`` x ``normals.k`` when
-    ``normals.per_point_scale``, else k only (a tile's resolved k comes with its scan's)."""
+    ``normals.per_point_scale``, else k only (a tile's resolved k comes with its scan's).
+    ``detected``: :func:`fit_particles`' ``creases`` (no crease statistics then)."""
     clock = Clock(cfg.dynamics.time_limit)
     warm_fit_kernels()  # the kernels' cached code loads beside the first stages
     rng = np.random.default_rng(cfg.seed)
     # Morton order: every neighbour query and per-point pass below touches nearby memory,
     # and the fit no longer depends on the order of the input's rows
-    cloud = cloud.take(spatial_order(cloud.points))
+    order = spatial_order(cloud.points)
+    cloud = cloud.take(order)
     points = np.asarray(cloud.points, dtype=np.float64)
 
     tree = cKDTree(points)  # one k-d tree of the data for the stages up to r0 (same queries)
@@ -443,7 +453,10 @@ def _fit_sheet(
     )
     clock.lap("normals")
     clock.check()
-    found, creases = _detect_creases(points, normals, cfg, bbox_diagonal(points), knn, tree)
+    if detected is None:
+        found, creases = _detect_creases(points, normals, cfg, bbox_diagonal(points), knn, tree)
+    else:
+        found, creases = detected.take(order), None
     if found is not None:  # a crease fixes the normals' orientation across it
         normals, found, _ = orient_across_creases(points, normals, found, k=cfg.creases.k)
     r0, d_nn = choose_spacing(points, cfg, tree, None if knn is None else knn[0][:, 1])
@@ -482,13 +495,15 @@ def fit_particles(
     config: ReconConfig | None = None,
     on_progress: ProgressFn | None = None,
     normals_k_max: int | None = None,
+    creases: Creases | None = None,
 ) -> ParticleFit:
     """The particle sheet of a fit without its mesh: one tile of a tiled fit
     (:mod:`recon.tiling`), which gives r0 (``seeds.spacing``), ``growth.max_gap`` and
-    ``normals.k`` fixed for the whole scan."""
+    ``normals.k`` fixed for the whole scan. ``creases``: those of ``cloud``'s rows detected
+    on more points (:mod:`recon.fitting.wide_creases`); None: on ``cloud``'s."""
     cfg = config if config is not None else ReconConfig()
     with thread_count(cfg.threads):
-        sheet = _fit_sheet(cloud, cfg, on_progress, normals_k_max)
+        sheet = _fit_sheet(cloud, cfg, on_progress, normals_k_max, creases)
     state = sheet.sched.state
     origin = np.asarray(cloud.origin, dtype=np.float64)
     return ParticleFit(

@@ -243,6 +243,9 @@ class TriangulationStats(_Section):
     #: open sheets whose data lie on both their sides, made thin closed bodies
     #: (recon.two_sided)
     two_sided_closed: int = 0
+    #: vertices of closed components turned outward at the end (wound inward while still
+    #: open, then closed by the polish; recon.winding.turn_closed_outward)
+    closed_turned_outward: int = 0
 
 
 @dataclass(frozen=True)
