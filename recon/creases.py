@@ -147,6 +147,20 @@ class Creases:
     def n_corner_points(self) -> int:
         return int(np.count_nonzero(self.labels == CORNER))
 
+    def take(self, rows: np.ndarray) -> Creases:
+        """The detection at the points ``rows`` (indices into the points it labels, in that
+        order); ``corners`` and ``length`` are the whole detection's."""
+        rows = np.asarray(rows)
+        return Creases(
+            labels=self.labels[rows],
+            side_normals=self.side_normals[rows],
+            direction=self.direction[rows],
+            turn_deg=self.turn_deg[rows],
+            corners=self.corners,
+            length=self.length,
+            foot=None if self.foot is None else self.foot[rows],
+        )
+
 
 def detect_creases(
     points: np.ndarray,

@@ -57,6 +57,30 @@ def test_every_point_has_one_owner_with_half_open_cores():
     assert d == pytest.approx([1.0, 4.0])
 
 
+def test_a_tiles_crease_detection_reads_beyond_its_halo_and_its_fit_the_same_rows(tmp_path):
+    """:func:`read_around` reads the rows within a margin of a tile's core, also from the
+    tiles beyond its neighbours when the margin is wider than a tile; the rows within the
+    halo among them are :func:`read_box`'s, in its order (the tile's fit is unchanged)."""
+    from recon.tiling.source import TileStore, read_box
+    from recon.tiling.tasks import read_around
+
+    grid = TileGrid.cover(np.zeros(3), np.array([5.0, 5.0, 1.0]), 1.0, 0.4)
+    pts = np.random.default_rng(2).uniform([0, 0, 0], [5, 5, 1], (3000, 3))
+    owner = grid.cell_of(pts)
+    store = TileStore(tmp_path, grid, {}, 3)
+    for t in np.unique(owner):
+        pts[owner == t].astype("<f8").tofile(store.path(int(t)))
+    centre = int(grid.cell_of(np.array([[2.5, 2.5, 0.5]]))[0])
+    for tile, margin in ((centre, 0.4), (centre, 1.0), (centre, 1.7), (0, 2.5)):
+        rows = read_around(store, tile, margin)
+        inside = pts[grid.in_halo_box(tile, pts, margin)]
+        assert sorted(map(tuple, rows)) == sorted(map(tuple, inside)), (tile, margin)
+        halo = rows[grid.in_halo_box(tile, rows)]
+        assert np.array_equal(halo, read_box(store, tile, grid.halo))
+        if margin <= grid.size:
+            assert np.array_equal(rows, read_box(store, tile, margin))
+
+
 @pytest.mark.parametrize(
     ("size", "halo", "match"),
     [
@@ -708,8 +732,10 @@ def test_the_tiles_take_the_scans_per_point_normal_scale(tmp_path, monkeypatch):
 
     given: list = []
 
-    def spy_fit(cloud, cfg, normals_k_max=None):
+    def spy_fit(cloud, cfg, normals_k_max=None, creases=None):
         given.append(normals_k_max)
+        # the creases detected on the points within the crease reach, one per point fitted
+        assert creases is not None and len(creases.labels) == len(cloud.points)
         raise Seen
 
     jobs: list = []
@@ -740,3 +766,4 @@ def test_the_tiles_take_the_scans_per_point_normal_scale(tmp_path, monkeypatch):
         assert len(jobs) > 1
         assert {job.normals_k_max for job in jobs} == {expected}
         assert given == [expected]
+        assert all(job.crease_reach > job.store.grid.halo for job in jobs)

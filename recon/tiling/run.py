@@ -9,7 +9,9 @@
    points for formats read whole (exactly as an untiled fit decides them), from per-tile
    samples for LAS/LAZ (:func:`recon.tiling.tasks.spacing_task`).
 4. Every tile fits its core plus a halo of ``tiling.halo`` r0 and keeps the particles in its
-   half-open core (:func:`recon.tiling.tasks.fit_task`).
+   half-open core (:func:`recon.tiling.tasks.fit_task`); its crease detection reads the
+   points farther around (:func:`crease_reach`), so that it labels the core and halo as the
+   untiled detection does.
 5. Normal signs are agreed across seams (:func:`recon.tiling.stitch.agree_signs`).
 6. Every tile triangulates its particles plus its neighbours' within the halo and keeps the
    faces whose centroid lies in its core (:func:`recon.tiling.tasks.mesh_task`): near a seam
@@ -293,6 +295,7 @@ def fit_tiled(
             from ..normal_scales import per_point_k_max
 
             k_max = per_point_k_max(cfg.normals.k, cfg.normals.per_point_scale)
+            reach = crease_reach(cfg, d6, r0)
             records = TileRecords(grid)
             task_store = store.for_tasks()  # without the per-tile counts: one per task
             run_tasks(
@@ -300,7 +303,10 @@ def fit_tiled(
                 "fit",
                 LazyTasks(
                     store.tiles(),
-                    lambda t: (fit_task, (FitJob(t, task_store, cfg_dict, r0, work, k_max),)),
+                    lambda t: (
+                        fit_task,
+                        (FitJob(t, task_store, cfg_dict, r0, work, k_max, reach),),
+                    ),
                 ),
                 grid.describe,
                 on_event,
@@ -489,9 +495,33 @@ def _check_crease_outputs(output_path: Path, cfg: ReconConfig) -> None:
 #: The crease section's statistics that a tiled fit does not measure (null in its report).
 UNMEASURED_CREASE_KEYS = ("length", "length_relative", "corners", "crease_points", "corner_points")
 #: The halo suggested when tiles disagree on a crease: this many times the crease detection's
-#: neighbourhood radius (the L-block sample, 4,000 points, 0.5 tiles: two lines missed at 0.67
-#: and 2 radii, none at 3).
+#: neighbourhood radius (the L-block sample, 4,000 points, 0.5 tiles, before the detection
+#: read beyond the halo: two lines missed at 0.67 and 2 radii, none at 3).
 CREASE_HALO_RADII = 3.0
+#: A tile's crease detection reads the points within its halo plus this many of the
+#: detection's neighbourhood radii (:func:`crease_radius`) of its core: the neighbourhoods of
+#: the halo's points are complete, and so are their neighbours', whose labels the detection's
+#: line filters compare. Labels of the core and halo points against the untiled detection's
+#: (summed over the tiles), at 0 / 1 / 2 / 2.5 / 3 radii: sample_data/lblock-sparse.ply in
+#: 0.5 tiles (radius 6.1 r0) 179 / 76 / 37 / 1 / 1 differ of 942 (the last one at the halo's
+#: outer edge, none from 5 radii on); lblock-clean (20,000 points, radius 3.2 r0) in 0.3
+#: tiles 271 / 8 / 0 / 0 / 0 of 2,887, in 0.2 tiles 913 / - / 0 / 0 / 0 of 4,928.
+CREASE_REACH_RADII = 3.0
+
+
+def crease_radius(d6: float, k: int) -> float:
+    """The crease detection's neighbourhood radius [length]: the distance to the ``k``-th
+    nearest point on a surface whose median 6th-neighbour distance is ``d6``."""
+    return d6 * math.sqrt(k / 6.0)
+
+
+def crease_reach(cfg: ReconConfig, d6: float, r0: float) -> float:
+    """How far [length] around its core a tile's crease detection reads the points: the halo
+    plus ``CREASE_REACH_RADII`` neighbourhood radii (0 without crease detection: the fit's
+    halo only). The particle fit keeps to the halo."""
+    if not cfg.creases.enabled:
+        return 0.0
+    return cfg.tiling.halo * r0 + CREASE_REACH_RADII * crease_radius(d6, cfg.creases.k)
 
 
 def _crease_section(
@@ -519,19 +549,22 @@ def _crease_section(
         "crease_particles": particles,
         "unmatched_at_seams": unmatched,
         "note": "length, corners and crease points not measured in tiled fits (each tile "
-        "detects the creases of its core and halo); crease_particles: the particles the tiles "
-        "fitted on creases, each counted by the tile whose core holds it",
+        "detects the creases of its core and halo, reading the points within reach [length] "
+        "of its core); crease_particles: the particles the tiles fitted on creases, each "
+        "counted by the tile whose core holds it",
+        "reach": crease_reach(cfg, d6, r0),
     }
     warnings = []
     if unmatched:
-        radius = d6 * math.sqrt(c.k / 6.0)  # k-th neighbour distance on a surface
+        radius = crease_radius(d6, c.k)
         halo = min(50, max(math.ceil(CREASE_HALO_RADII * radius / r0), int(cfg.tiling.halo) + 1))
         warnings.append(
             f"{unmatched} crease particles near tile seams have no match in the neighbouring "
-            "tile's fit: a crease one tile detected was missed by its neighbour, which rounds "
-            f"it; the crease detection looks {radius:.3g} around a point, the halo "
-            f"{cfg.tiling.halo:g} r0 = {cfg.tiling.halo * r0:.3g}: --set tiling.halo={halo} "
-            "or an untiled fit keeps them"
+            "tile's fit: a crease one tile fitted was missed by its neighbour, which rounds "
+            f"it; the crease detection looks {radius:.3g} around a point and reads "
+            f"{crease_reach(cfg, d6, r0):.3g} around a tile, the halo {cfg.tiling.halo:g} r0 "
+            f"= {cfg.tiling.halo * r0:.3g}: --set tiling.halo={halo} or an untiled fit keeps "
+            "them"
         )
     if is_obj and c.fit and particles and cfg.output.vertex_normals:
         warnings.append(

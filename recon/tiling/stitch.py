@@ -117,10 +117,11 @@ def unmatched_crease_particles(
     depth: float,
 ) -> int:
     """Crease particles a tile's fit placed in a neighbour's core that the neighbour's own fit
-    has no crease particle near: a crease one tile detected and its neighbour did not (each
-    tile detects the creases of its core and halo; near a seam, where one tile's halo is
-    narrower than the detection's neighbourhood, they can differ; the tile that missed one
-    rounds it).
+    has no crease particle near: a crease one tile fitted and its neighbour did not, which
+    rounds it. Each tile detects the creases of its core and halo on the points within the
+    crease reach (:func:`recon.tiling.run.crease_reach`), so near a seam both label them as
+    the untiled detection does; a safety net for where they still differ (data much sparser
+    than the scan's median, whose neighbourhoods outgrow the reach; a corner on a seam).
 
     ``border_in[t]``, ``border_out[t]``: (positions, crease flags) of tile t's own particles
     near its core's faces and of those its fit placed in the neighbours' cores (the sides of

@@ -6,14 +6,18 @@ folder (shared storage on a cluster) and returns small results:
 * :func:`spacing_task`: the point-spacing sample of one tile (r0 is then chosen once for the
   whole scan);
 * :func:`fit_task`: the particle sheet over the tile's core and halo with the scan's r0 and
-  configuration; the particles in the tile's half-open core are written to the work folder,
-  and so are the particles near the core's faces, to compare normal signs across seams;
+  configuration, with the creases detected on the points within the crease reach (wider than
+  the halo: the detection's neighbourhoods near the seams are the untiled fit's); the
+  particles in the tile's half-open core are written to the work folder, and so are the
+  particles near the core's faces, to compare normal signs across seams;
 * :func:`mesh_task`: the triangulation over the tile's particles and its neighbours' (the halo),
   keeping the faces whose centroid lies in the core, in global particle ids.
 """
 
 from __future__ import annotations
 
+import itertools
+import math
 import time
 from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass
@@ -35,6 +39,7 @@ __all__ = [
     "fit_task",
     "mesh_task",
     "particles_path",
+    "read_around",
     "spacing_task",
 ]
 
@@ -148,6 +153,10 @@ class FitJob:
     #: scan: ``MAX_SCALE`` x its configured ``normals.k``; the tiles' own ``k`` is resolved
     #: already)
     normals_k_max: int | None = None
+    #: the crease detection reads the points within this distance [length] of the core when
+    #: it is wider than the halo (:func:`recon.tiling.run.crease_reach`), the particle fit
+    #: those within the halo (0: both the halo's)
+    crease_reach: float = 0.0
 
 
 def fit_task(job: FitJob) -> dict:
@@ -158,13 +167,21 @@ def fit_task(job: FitJob) -> dict:
     from ..config import config_from_dict
     from ..errors import InputError
     from ..fitting.pipeline import fit_particles
+    from ..fitting.wide_creases import creases_around
     from ..io import cloud_from_arrays
 
     t0 = time.perf_counter()
     _injected_failure(job, os.environ.get(_FAIL_ENV, ""))
     grid = job.store.grid
     cfg = config_from_dict(job.config)
-    rows = read_box(job.store, job.tile, grid.halo)
+    if cfg.creases.enabled and job.crease_reach > grid.halo:
+        # the crease detection's points: core + crease reach; the fit's: core + halo (the
+        # same rows in the same order as read_box's: the tiles beyond the neighbours hold
+        # none within the halo, which is at most a tile's side)
+        wide = read_around(job.store, job.tile, job.crease_reach)
+        rows = wide[grid.in_halo_box(job.tile, wide[:, :3])] if len(wide) else wide
+    else:
+        rows = wide = read_box(job.store, job.tile, grid.halo)
     n_core = int(grid.in_core(job.tile, rows[:, :3]).sum()) if len(rows) else 0
     result: dict[str, Any] = {
         "tile": job.tile,
@@ -180,7 +197,17 @@ def fit_task(job: FitJob) -> dict:
         normals = job.store.normals(rows)
         try:
             cloud = cloud_from_arrays(rows[:, :3], normals)
-            pf = fit_particles(cloud, cfg, normals_k_max=job.normals_k_max)
+            creases = None  # no point beyond the halo: the fit's own detection is the same
+            if len(wide) > len(rows):
+                lo, hi = grid.core(job.tile)
+                creases = creases_around(
+                    cloud,
+                    cloud_from_arrays(wide[:, :3], job.store.normals(wide)),
+                    cfg,
+                    (lo - grid.halo, hi + grid.halo),
+                    job.normals_k_max,
+                )
+            pf = fit_particles(cloud, cfg, normals_k_max=job.normals_k_max, creases=creases)
         except InputError as exc:
             if n_core >= SMALL_TILE_POINTS:
                 raise
@@ -233,6 +260,35 @@ def fit_task(job: FitJob) -> dict:
     )
     result["seconds"] = time.perf_counter() - t0
     return result
+
+
+def read_around(store: TileStore, tile: int, margin: float) -> np.ndarray:
+    """The rows within ``margin`` [length] of a tile's core, as :func:`read_box` reads them
+    (the tile's file, then its neighbours', in that order) and then those of the tiles
+    farther out that the margin reaches when it is wider than a tile."""
+    grid = store.grid
+    rings = max(1, math.ceil(margin / grid.size))
+    if rings == 1:
+        return read_box(store, tile, margin)
+    near = [tile, *grid.neighbours(tile)]
+    centre = np.asarray(grid.ijk(tile))
+    lo = np.maximum(centre - rings, 0)
+    hi = np.minimum(centre + rings, np.asarray(grid.shape) - 1)
+    seen = set(near)
+    far = [
+        t
+        for t in (
+            int(np.ravel_multi_index(ijk, grid.shape))
+            for ijk in itertools.product(*(range(a, b + 1) for a, b in zip(lo, hi, strict=True)))
+        )
+        if t not in seen
+    ]
+    parts = []
+    for t in near + far:
+        rows = read_tile(store, t)
+        if len(rows):
+            parts.append(rows[grid.in_halo_box(tile, rows[:, :3], margin)])
+    return np.concatenate(parts) if parts else np.zeros((0, store.columns))
 
 
 def property_names(output: Any) -> list[str]:
