@@ -1,4 +1,5 @@
-"""Ctrl-C during ``oprecon fit``: exit 130, "interrupted" on stderr, no partial or temp file."""
+"""Ctrl-C during ``oprecon fit`` (and before any command's guard): exit 130, "interrupted" on
+stderr, no partial or temp file."""
 
 from __future__ import annotations
 
@@ -156,3 +157,42 @@ def test_interrupt_after_a_failed_command_keeps_its_exit_code(tmp_path):
     assert "test: SIGINT during the teardown" in res.stderr
     assert res.returncode == 2, (res.returncode, res.stderr[-2000:])
     assert res.stderr.count("oprecon: error:") == 1 and "Traceback" not in res.stderr
+
+
+#: Ctrl-C in the group's own callback, after click parsed the arguments and before the
+#: command runs (where click answered with "Aborted!" and exit code 1).
+_INTERRUPT_IN_THE_GROUP = """
+import click
+
+def ensure_object(self, object_type, _plain=click.Context.ensure_object):
+    signal.raise_signal(signal.SIGINT)
+    return _plain(self, object_type)
+
+click.Context.ensure_object = ensure_object
+"""
+
+#: Ctrl-C while the entry point imports the command line's shared module.
+_INTERRUPT_AT_IMPORT = """
+import importlib.abc
+
+class Interrupt(importlib.abc.MetaPathFinder):
+    def find_spec(self, name, path=None, target=None):
+        if name == "recon.cli.common":
+            sys.meta_path.remove(self)
+            signal.raise_signal(signal.SIGINT)
+        return None
+
+sys.meta_path.insert(0, Interrupt())
+"""
+
+
+@pytest.mark.skipif(os.name != "posix", reason="signals to the process need POSIX")
+@pytest.mark.parametrize(
+    "prelude", [_INTERRUPT_IN_THE_GROUP, _INTERRUPT_AT_IMPORT], ids=["group", "import"]
+)
+def test_an_interrupt_before_the_commands_guard_exits_130_with_its_message(tmp_path, prelude):
+    """Regression: click printed "Aborted!" and exited 1 (in the group), or Python printed a
+    traceback (at the import), where every other interrupt exits 130 with one line."""
+    res = _run_child(prelude, ["info", str(tmp_path / "missing.ply")])
+    assert res.returncode == 130, (res.returncode, res.stderr[-2000:])
+    assert res.stderr.strip().splitlines() == ["oprecon: interrupted"], res.stderr[-2000:]
