@@ -145,7 +145,7 @@ def command(
         input_path,
         max_points=cfg.io.max_points,
         merge_duplicates=cfg.io.merge_duplicates,
-        all_properties=True,  # a PLY's every per-point scalar goes along, in its own type
+        all_properties=True,  # a PLY's every per-point scalar goes along (intensity as float)
     )
     with thread_count(cfg.threads):
         normals, info = compute_normals(cloud, cfg.normals)

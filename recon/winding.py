@@ -220,8 +220,9 @@ def turn_closed_outward(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.nda
     turned = np.zeros(len(vertices), dtype=bool)
     if len(f) == 0:
         return f, turned
-    n, labels = face_components(f, len(vertices))
     _, inverse, counts = unique_edges(f, len(vertices))
+    # components through shared edges, not vertices: two bodies touching at a vertex are two
+    n, labels = _edge_components(inverse, len(f), len(counts))
     # each edge of a consistently wound closed surface: two faces, one in each direction
     forward = np.where(f < np.roll(f, -1, axis=1), 1.0, -1.0).ravel()
     balance = np.bincount(inverse, weights=forward, minlength=len(counts))
@@ -250,6 +251,20 @@ def turn_closed_outward(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.nda
     f[flip] = f[flip][:, [0, 2, 1]]
     turned[f[flip].ravel()] = True
     return f, turned
+
+
+def _edge_components(inverse: np.ndarray, n_faces: int, n_edges: int) -> tuple[int, np.ndarray]:
+    """Components of faces joined through shared edges: (count, label per face), from the
+    edge of every face corner (``inverse`` of :func:`recon.mesh.unique_edges`)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    face = np.repeat(np.arange(n_faces), 3)
+    graph = coo_matrix(
+        (np.ones(len(face)), (face, n_faces + inverse)), shape=(n_faces + n_edges,) * 2
+    )
+    n, labels = connected_components(graph, directed=False)
+    return n, labels[:n_faces]
 
 
 def turned_with_faces(

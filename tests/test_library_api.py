@@ -94,7 +94,14 @@ def test_fit_reads_a_yaml_config_from_a_path(tmp_path):
             recon.fit(_sphere(), given)
 
 
-@pytest.mark.parametrize("config", [5, ["seed=3"], object()])
+def test_fit_takes_a_list_of_key_value_strings_as_its_config():
+    """As ``recon.load_config(overrides=...)`` and ``--set`` take them (a second read: the
+    docstring said so, the check refused them)."""
+    with pytest.raises(InputError, match="io.max_points"):
+        recon.fit(_sphere(), ["io.max_points=100"])
+
+
+@pytest.mark.parametrize("config", [5, [3], object()])
 def test_fit_refuses_a_config_of_another_kind_naming_load_config(config):
     with pytest.raises(TypeError, match=r"recon\.load_config"):
         recon.fit(_sphere(), config)

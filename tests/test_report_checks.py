@@ -72,6 +72,22 @@ def read_only_dir(tmp_path, monkeypatch):
 # ---------------------------------------------------------------------------- 1. writable
 
 
+def test_a_symlink_is_judged_by_its_own_folder(tmp_path, read_only_dir):
+    """Regression (a second read): the check looked at the folder of the link's target, but
+    the temporary is written beside the link and renamed onto it."""
+    rw = tmp_path / "rw"
+    rw.mkdir()
+    link = rw / "link.ply"
+    link.symlink_to(read_only_dir / "target.ply")
+    assert check_output_path(link) == link  # rw takes the new file
+    back = read_only_dir / "back.ply"
+    read_only_dir.chmod(0o755)
+    back.symlink_to(rw / "target.ply")
+    read_only_dir.chmod(0o555)
+    with pytest.raises(InputError, match="cannot write in folder"):
+        check_output_path(back)
+
+
 def test_check_output_path_refuses_a_folder_it_cannot_write_in(read_only_dir, tmp_path):
     with pytest.raises(InputError) as err:
         check_output_path(read_only_dir / "s.ply")

@@ -163,3 +163,19 @@ def test_turn_closed_outward_turns_only_closed_consistent_components_facing_inwa
     bad[0] = bad[0, ::-1]
     assert turn_closed_outward(v, np.vstack([fa, bad]))[0].tolist() == np.vstack([fa, bad]).tolist()
     assert not turn_closed_outward(v, np.vstack([fa, fb + 4]))[1].any()
+
+
+def test_two_closed_bodies_touching_at_a_vertex_are_judged_apart():
+    """Regression (a second read): components through shared vertices summed the volumes of
+    two bodies touching at a vertex, and an outward body was turned inside out with its
+    larger inward neighbour."""
+    a, fa = _tetrahedron()
+    b, fb = _tetrahedron()
+    b = b * -3.0  # vertex 0 at the origin, shared; the rest mirrored and larger
+    v = np.vstack([a, b[1:]])
+    fb = np.where(fb == 0, 0, fb + 3)  # b's own vertex 0 is a's
+    # mirroring turned b's winding: b is now inward
+    assert _signed_volume(v, fb) < 0 < _signed_volume(v, fa)
+    out, turned = turn_closed_outward(v, np.vstack([fa, fb]))
+    assert _signed_volume(v, out[:4]) > 0 and _signed_volume(v, out[4:]) > 0
+    assert out[:4].tolist() == fa.tolist()

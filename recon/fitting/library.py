@@ -29,7 +29,9 @@ __all__ = [
 ]
 
 #: What the fit functions take as ``config`` (:func:`resolve_config`).
-ConfigLike = ReconConfig | Mapping[str, Any] | str | os.PathLike[str] | None
+ConfigLike = (
+    ReconConfig | Mapping[str, Any] | list[str] | tuple[str, ...] | str | os.PathLike[str] | None
+)
 
 
 def resolve_config(config: ConfigLike) -> ReconConfig:
@@ -37,10 +39,11 @@ def resolve_config(config: ConfigLike) -> ReconConfig:
 
     Parameters
     ----------
-    config : ReconConfig, mapping, str, path-like or None
+    config : ReconConfig, mapping, list of str, str, path-like or None
         A ReconConfig is used as it is; a mapping holds dotted overrides of the defaults
-        (``{"seeds.spacing": 0.02}``, as ``recon.load_config(overrides=...)``); a str or
-        path-like is a YAML file (as ``recon.load_config(path)``); None: the defaults.
+        (``{"seeds.spacing": 0.02}``), a list or tuple ``"key=value"`` strings as ``--set``
+        takes them (both as ``recon.load_config(overrides=...)``); a str or path-like is a
+        YAML file (as ``recon.load_config(path)``); None: the defaults.
 
     Returns
     -------
@@ -58,6 +61,8 @@ def resolve_config(config: ConfigLike) -> ReconConfig:
     --------
     >>> resolve_config({"seed": 3}).seed
     3
+    >>> resolve_config(["seed=4"]).seed
+    4
     """
     if config is None:
         return ReconConfig()
@@ -67,6 +72,8 @@ def resolve_config(config: ConfigLike) -> ReconConfig:
         return load_config(overrides=config)
     if isinstance(config, (str, os.PathLike)):
         return load_config(config)
+    if isinstance(config, (list, tuple)) and all(isinstance(c, str) for c in config):
+        return load_config(overrides=config)  # "key=value" strings, as --set takes them
     raise TypeError(
         f"config: expected a ReconConfig (from recon.load_config(path, overrides)), a mapping "
         f"of dotted overrides such as {{'seeds.spacing': 0.02}}, or the path of a YAML file; "

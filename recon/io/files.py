@@ -110,7 +110,9 @@ def check_output_path(
             ) from None
     elif not parent.is_dir():
         raise input_error(out, f"'{out.parent}' is not a folder")
-    _check_writable(out, parent)
+    # the temporary is made beside the path as given, and renamed onto it (onto a symlink
+    # itself, not its target): that folder is the one that must take a new file
+    _check_writable(out, Path(os.path.abspath(out)).parent)
     return out
 
 
