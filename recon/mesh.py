@@ -62,6 +62,7 @@ __all__ = [
     "boundary_loop_perimeters",
     "boundary_loops",
     "capped_volume",
+    "corner_sum",
     "count_edge_faces",
     "drop_unreferenced",
     "edge_keys",
@@ -335,6 +336,15 @@ def face_area_vectors(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
         p = v[f]
         return np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
     return area_vectors(np.ascontiguousarray(v), np.ascontiguousarray(f, dtype=np.int64))
+
+
+def corner_sum(faces: np.ndarray, values: np.ndarray, n_vertices: int) -> np.ndarray:
+    """(V, 3): the sum over its faces of a per-face (F, 3) value at every vertex."""
+    idx = faces.ravel()
+    rep = np.repeat(values, 3, axis=0)
+    return np.stack(
+        [np.bincount(idx, weights=rep[:, j], minlength=n_vertices) for j in range(3)], axis=1
+    )
 
 
 def face_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:

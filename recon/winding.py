@@ -13,6 +13,7 @@ import numpy as np
 
 from .kernels.mesh_tables import half_edge_winding
 from .mesh import (
+    corner_sum,
     edge_keys,
     face_area_vectors,
     face_components,
@@ -273,9 +274,6 @@ def turned_with_faces(
     """``normals`` with those of the vertices ``which`` that point against their faces (the
     area-weighted sum of the normals of the faces round them) turned over: the vertex normals
     of components :func:`turn_closed_outward` turned. A copy."""
-    acc = np.zeros((len(vertices), 3))
-    fn = face_area_vectors(vertices, faces)
-    for k in range(3):
-        np.add.at(acc, faces[:, k], fn)
+    acc = corner_sum(faces, face_area_vectors(vertices, faces), len(vertices))
     against = which & (np.einsum("ij,ij->i", acc, normals) < 0.0)
     return np.where(against[:, None], -normals, normals)

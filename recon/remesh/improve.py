@@ -20,8 +20,8 @@ import numpy as np
 from scipy import sparse
 
 from ..kernels.edge_flip import flip_edges_kernel
-from ..mesh import face_area_vectors
-from .surface import MeshSurface, corner_sum
+from ..mesh import corner_sum, face_area_vectors
+from .surface import MeshSurface
 
 __all__ = [
     "FLIP_MIN_NORMAL_DOT",

@@ -46,6 +46,7 @@ from scipy.spatial import cKDTree
 
 from ..errors import InputError
 from ..kernels.options import query_workers, thread_count
+from ..mesh import corner_sum
 from ..metrics import compare_meshes, point_to_mesh_distance
 from ..topology import mesh_topology, triangle_quality
 from .improve import improve
@@ -67,7 +68,7 @@ from .relax import (
     relax,
     seed,
 )
-from .surface import FeatureLines, MeshSurface, corner_sum, edge_faces, feature_lines
+from .surface import FeatureLines, MeshSurface, edge_faces, feature_lines
 
 __all__ = [
     "RemeshOptions",

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..mesh import face_area_vectors, runs_of_equal
+from ..mesh import corner_sum, face_area_vectors, runs_of_equal
 from ..metrics import check_closest_found
 from ..topology import power_of_two_near
 
@@ -26,7 +26,6 @@ __all__ = [
     "FeatureLines",
     "MeshSurface",
     "chain_order",
-    "corner_sum",
     "edge_faces",
     "feature_lines",
 ]
@@ -164,15 +163,6 @@ class MeshSurface:
     def _to_scene(self, points: np.ndarray) -> np.ndarray:
         """Points in the coordinates of the Embree scene (centred, divided by its unit)."""
         return (points - self.centre) / self._unit
-
-
-def corner_sum(faces: np.ndarray, values: np.ndarray, n_vertices: int) -> np.ndarray:
-    """(V, 3): the sum over its faces of a per-face (F, 3) value at every vertex."""
-    idx = faces.ravel()
-    rep = np.repeat(values, 3, axis=0)
-    return np.stack(
-        [np.bincount(idx, weights=rep[:, j], minlength=n_vertices) for j in range(3)], axis=1
-    )
 
 
 def closest_on_triangles(p: np.ndarray, tri: np.ndarray, fallback: np.ndarray) -> np.ndarray:
