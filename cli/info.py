@@ -23,6 +23,7 @@ def describe(path: Path, classes: list[int] | None = None) -> dict[str, Any]:
     """
     import numpy as np
 
+    from recon.fitting.scale import median_surround, sampled_spacing
     from recon.geometry import (
         SPACING_SAMPLE_SEED,
         bbox_diagonal,
@@ -31,6 +32,10 @@ def describe(path: Path, classes: list[int] | None = None) -> dict[str, Any]:
     from recon.io import read_points
 
     cloud = read_points(path, classes=classes)
+    nearest = median_nearest_neighbor_distance(
+        cloud.points, rng=np.random.default_rng(SPACING_SAMPLE_SEED)
+    )
+    surround = median_surround(cloud.points) if len(cloud) > 2 else 0.0
     pts = cloud.absolute_points()
     lo = pts.min(axis=0)
     hi = pts.max(axis=0)
@@ -46,9 +51,9 @@ def describe(path: Path, classes: list[int] | None = None) -> dict[str, Any]:
         "bbox_max": hi.tolist(),
         "bbox_size": (hi - lo).tolist(),
         "bbox_diagonal": bbox_diagonal(cloud.points),
-        "spacing_median_nn": median_nearest_neighbor_distance(
-            cloud.points, rng=np.random.default_rng(SPACING_SAMPLE_SEED)
-        ),
+        "spacing_median_nn": nearest,
+        "spacing_surround": surround,
+        "spacing": sampled_spacing(nearest, surround),
         "origin": cloud.origin.tolist(),
         "has_normals": cloud.normals is not None,
         "invalid_normals": info.get("n_invalid_normals", 0),
@@ -95,6 +100,18 @@ def _vec(v: list[float]) -> str:
     return "  ".join(_num(x) for x in v)
 
 
+def _spacing(d: dict[str, Any]) -> str:
+    """The spacing row: the median nearest-neighbour distance, and the spacing across scan
+    lines when the fit takes that one instead."""
+    out = f"{_num(d['spacing_median_nn'])} (median nearest-neighbour distance)"
+    if d["spacing"] > d["spacing_median_nn"]:
+        out += (
+            f"; in lines or clumps {_num(d['spacing_surround'])} apart: a fit takes "
+            f"{_num(d['spacing'])}"
+        )
+    return out
+
+
 def format_table(d: dict[str, Any]) -> str:
     """The summary as two aligned columns."""
     normals = "no"
@@ -120,7 +137,7 @@ def format_table(d: dict[str, Any]) -> str:
         ("bbox max", _vec(d["bbox_max"])),
         ("bbox size", _vec(d["bbox_size"])),
         ("bbox diagonal", _num(d["bbox_diagonal"])),
-        ("spacing", f"{_num(d['spacing_median_nn'])} (median nearest-neighbour distance)"),
+        ("spacing", _spacing(d)),
         ("normals", normals),
         ("colours", "yes" if d["has_colors"] else "no"),
         ("faces", "yes (ignored for fitting)" if d["has_faces"] else "no"),
@@ -163,7 +180,10 @@ def command(file: Path, as_json: bool, classes: list[int] | None) -> None:
     Reads PLY (ascii/binary), XYZ/XYZN/PTS/TXT/CSV text, PCD (ascii/binary), OBJ, LAS/LAZ and
     E57 (LAS/LAZ/E57 need: pip install "oprecon[lidar]"). Counts are after cleaning:
     non-finite rows dropped, exactly repeated points merged. Coordinates are the file's
-    (absolute). The spacing is the median nearest-neighbour distance. LAS/LAZ files also show
+    (absolute). The spacing is the median nearest-neighbour distance; points in scan lines
+    (or clumps) farther apart than random samples would be also show the distance between
+    the lines, from which a fit takes its spacing (JSON: spacing_surround, spacing). LAS/LAZ
+    files also show
     the point format, the coordinate reference system (WKT or EPSG) and the classes with their
     counts.
 

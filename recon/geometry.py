@@ -31,6 +31,7 @@ __all__ = [
     "fit_plane",
     "median_nearest_neighbor_distance",
     "median_variation",
+    "surround_distances",
     "poisson_disk_thin",
     "poisson_disk_thin_graded",
     "snap_to_precision",
@@ -166,6 +167,76 @@ def median_nearest_neighbor_distance(
     tree = cKDTree(pts) if tree is None else tree
     dist, _ = tree.query(pts if rows is None else pts[rows], k=2, workers=query_workers())
     return float(np.median(dist[:, 1]))
+
+
+#: Neighbours asked for by :func:`surround_distances`.
+SURROUND_NEIGHBOURS = 32
+#: A point is surrounded once its neighbours leave no angular gap wider than this [rad]
+#: round it in its tangent plane (120 deg: three directions at least).
+SURROUND_GAP = 2.0 * np.pi / 3.0
+
+
+def surround_distances(
+    points: np.ndarray,
+    rows: np.ndarray,
+    tree: cKDTree,
+    k: int = SURROUND_NEIGHBOURS,
+) -> np.ndarray:
+    """For each of ``points[rows]``, how far its neighbours reach before they surround it:
+    the distance of the nearest neighbour after which the neighbours so far, seen in the
+    tangent plane (PCA of its ``k`` nearest [Hoppe92]), leave no angular gap wider than
+    ``SURROUND_GAP`` round it.
+
+    The nearest-neighbour distance tells how close samples are along the direction they are
+    closest in; this tells how far apart they are across the direction they are farthest in.
+    Uniformly random samples of a surface give about 3.4 median nearest-neighbour distances
+    (2.3-3.5 on the 27 dev scans), a jittered grid about 1.8; scan lines ``D`` apart give
+    ``D`` whatever the spacing along them.
+
+    Parameters
+    ----------
+    points : (n, 3) float64 [length]
+    rows : (m,) int
+        The points to measure.
+    tree : scipy.spatial.cKDTree
+        A k-d tree of ``points``.
+    k : int
+        Neighbours asked for (fewer when there are fewer points).
+
+    Returns
+    -------
+    (m,) float64 [length]
+        A point the ``k`` nearest do not surround (its neighbours all on one line, or on one
+        side: a border) gets the ``k``-th distance, a lower bound.
+
+    Examples
+    --------
+    >>> x, y = np.meshgrid(np.arange(40.0), np.arange(0.0, 40.0, 3.0))  # lines 3 apart
+    >>> pts = np.c_[x.ravel(), y.ravel(), np.zeros(x.size)]
+    >>> float(surround_distances(pts, np.array([7 * 40 + 20]), cKDTree(pts))[0])
+    3.0
+    """
+    k = min(int(k), len(points) - 1)
+    if len(rows) == 0 or k < 2:
+        return np.zeros(len(rows))
+    dist, nb = tree.query(points[rows], k + 1, workers=query_workers())
+    dist, nb = dist[:, 1:], nb[:, 1:]
+    offsets = points[nb] - points[rows][:, None, :]
+    centred = offsets - offsets.mean(axis=1, keepdims=True)
+    _, axes = np.linalg.eigh(np.matmul(centred.transpose(0, 2, 1), centred))
+    plane = np.matmul(offsets, axes[:, :, 1:])  # (m, k, 2): along the two widest axes
+    angle = np.arctan2(plane[:, :, 0], plane[:, :, 1])
+    out = dist[:, -1].copy()
+    left = np.arange(len(rows))  # not surrounded yet
+    for j in range(3, k + 1):  # the nearest j neighbours: a gap only closes as j grows
+        around = np.sort(angle[left, :j], axis=1)
+        gaps = np.diff(around, axis=1, append=around[:, :1] + 2.0 * np.pi)
+        closed = gaps.max(axis=1) < SURROUND_GAP
+        out[left[closed]] = dist[left[closed], j - 1]
+        left = left[~closed]
+        if len(left) == 0:
+            break
+    return out
 
 
 def fit_plane(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

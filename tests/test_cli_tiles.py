@@ -412,3 +412,23 @@ def test_a_tiled_obj_gets_colours_when_asked(tmp_path):
     v = np.array([[float(x) for x in r[1:]] for r in rows])
     left, right = v[:, 0] < 3.5, v[:, 0] > 4.5
     assert np.allclose(v[left, 3:], [1, 0, 0]) and np.allclose(v[right, 3:], [0, 0, 1])
+
+
+def test_a_tiled_las_fit_of_scan_lines_takes_the_spacing_across_them(tmp_path):
+    """The tiles' spacing samples measure the gaps between scan lines as the untiled fit
+    does (a LAS file is sampled tile by tile): the same r0 within a few %, and the note."""
+    from tests.test_scale import scan_lines
+
+    pts = scan_lines()
+    src = tmp_path / "lines.las"
+    _las_sheet(pts).write(str(src))
+    untiled = _run(["fit", str(src), "-o", str(tmp_path / "a.ply"), "--json"])
+    assert untiled.exit_code == 0, untiled.output
+    tiled = _run(["fit", str(src), "-o", str(tmp_path / "b.ply"), "--tile-size", "2.5", "--json"])
+    assert tiled.exit_code == 0, tiled.output
+    a, b = json.loads(untiled.stdout), json.loads(tiled.stdout)
+    assert b["tiles"]["count"] == 4
+    assert b["spacing"] == pytest.approx(a["spacing"], rel=0.05)
+    assert any("lines or clumps" in w for w in b["warnings"]), b["warnings"]
+    v, f = read_mesh(tmp_path / "b.ply")
+    assert mesh_topology(v, f)["boundary_loops"] == 1

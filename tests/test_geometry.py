@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy.spatial import cKDTree
 
 from recon.geometry import (
     as_points,
@@ -11,6 +12,7 @@ from recon.geometry import (
     fit_plane,
     median_nearest_neighbor_distance,
     snap_to_precision,
+    surround_distances,
     unit_vectors,
 )
 
@@ -122,3 +124,39 @@ def test_snap_to_precision_drops_the_digits_below_the_largest_coordinates_ulp():
     assert np.isfinite(huge).all() and huge[0, 0] == 1e308 and not huge[0, 1:].any()
     assert snap_to_precision(np.zeros((0, 3))).shape == (0, 3)
     np.testing.assert_array_equal(snap_to_precision(np.zeros((2, 3))), np.zeros((2, 3)))
+
+
+def _lines(gap: float, step: float = 1.0, n: int = 40) -> np.ndarray:
+    """Points ``step`` apart along lines ``gap`` apart (a square patch)."""
+    x, y = np.meshgrid(np.arange(0.0, n * step, step), np.arange(0.0, n * step, gap))
+    return np.c_[x.ravel(), y.ravel(), np.zeros(x.size)]
+
+
+@pytest.mark.parametrize("gap", [2.0, 3.0, 6.0])
+def test_surround_distance_of_scan_lines_is_the_gap_between_them(gap):
+    pts = _lines(gap)
+    inner = np.flatnonzero(
+        (np.abs(pts[:, 0] - 20.0) < 5.0) & (np.abs(pts[:, 1] - pts[:, 1].mean()) < 3 * gap)
+    )
+    d = surround_distances(pts, inner, cKDTree(pts))
+    np.testing.assert_allclose(d, gap)
+
+
+def test_surround_distance_of_random_samples_is_about_3_4_nearest_distances():
+    """The constant the scan-line rule (recon.fitting.scale.SURROUND_RATIO = 4) stays above."""
+    rng = np.random.default_rng(1)
+    pts = np.c_[rng.uniform(0, 10, (40_000, 2)), np.zeros(40_000)]
+    rows = rng.choice(len(pts), 2000, replace=False)
+    tree = cKDTree(pts)
+    ratio = np.median(surround_distances(pts, rows, tree)) / np.median(
+        tree.query(pts[rows], 2)[0][:, 1]
+    )
+    assert 3.2 < ratio < 3.7, ratio
+
+
+def test_surround_distance_of_points_on_one_line_is_the_last_neighbours():
+    """Never surrounded: the k-th distance, a lower bound (and no NaN from a flat PCA)."""
+    pts = np.c_[np.arange(100.0), np.zeros(100), np.zeros(100)]
+    d = surround_distances(pts, np.array([50]), cKDTree(pts), k=8)
+    assert d[0] == 4.0
+    assert surround_distances(pts, np.array([], dtype=int), cKDTree(pts)).shape == (0,)

@@ -459,7 +459,8 @@ def _fit_sheet(
         found, creases = detected.take(order), None
     if found is not None:  # a crease fixes the normals' orientation across it
         normals, found, _ = orient_across_creases(points, normals, found, k=cfg.creases.k)
-    r0, d_nn = choose_spacing(points, cfg, tree, None if knn is None else knn[0][:, 1])
+    notes: list[str] = []  # r0 across scan lines
+    r0, d_nn = choose_spacing(points, cfg, tree, None if knn is None else knn[0][:, 1], notes)
     if normals_info.get("source") == "estimated":  # signs where a thin part's faces meet
         variation = variations.get(cfg.normals.k)
         normals, _ = resign_thin_parts(points, normals, cfg.normals.k, tree, variation, knn)
@@ -484,6 +485,7 @@ def _fit_sheet(
     clock.check()
 
     sched = run_schedule(surface, cfg, rng, clock, on_progress)
+    sched.warnings[:0] = notes
     if sched.dt != cfg.dynamics.dt:
         cfg = with_values(cfg, dynamics={"dt": sched.dt})
     n_trimmed = _trim(sched.state, surface, cfg)

@@ -3,7 +3,9 @@
 - :func:`with_neighborhood_size`: resolve ``normals.auto_scale`` (a larger k on noisy data) once,
   so the normals and the local data surfaces share it.
 - :func:`choose_spacing`: the rest spacing r0 from the median point spacing, with the resolution
-  floor that puts particles between the samples of sparse inputs (S&T92 §7).
+  floor that puts particles between the samples of sparse inputs (S&T92 §7); the point
+  spacing of samples far closer along one direction than across it (scan lines) is the one
+  across (:func:`sampled_spacing`).
 - :func:`check_grid_size`: refuse inputs whose extent over r0 makes the neighbour grid absurd.
 - :func:`with_max_gap`: resolve ``growth.max_gap`` (default: ``AUTO_GAP`` data spacings).
 
@@ -19,7 +21,12 @@ from scipy.spatial import cKDTree
 
 from ..config import ReconConfig, with_values
 from ..errors import InputError
-from ..geometry import SPACING_SAMPLE_SEED, bbox_diagonal, median_nearest_neighbor_distance
+from ..geometry import (
+    SPACING_SAMPLE_SEED,
+    bbox_diagonal,
+    median_nearest_neighbor_distance,
+    surround_distances,
+)
 from ..normals import choose_neighborhood_size
 
 __all__ = [
@@ -30,8 +37,13 @@ __all__ = [
     "MIN_AUTO_GAP",
     "MIN_SPACING_FACTOR",
     "SPACING_SAMPLE_SEED",
+    "SURROUND_RATIO",
+    "SURROUND_SAMPLE",
     "check_grid_size",
     "choose_spacing",
+    "median_surround",
+    "sampled_spacing",
+    "sampling_note",
     "spacing_from_median",
     "with_max_gap",
     "with_neighborhood_size",
@@ -48,6 +60,15 @@ HEX_AREA = 0.866
 MIN_SPACING_FACTOR = 0.8
 #: Largest cell grid (cells of side r0 over the data's bounding box) the neighbour search accepts.
 MAX_GRID_CELLS = 2.0**60
+#: Median surround distance (:func:`recon.geometry.surround_distances`) over this many median
+#: nearest-neighbour distances: the samples lie in lines (or clumps) farther apart than
+#: uniformly random samples would be (3.4-3.5 for those: random points on a plane, the clean
+#: dev scans; a jittered grid 1.8), and the point spacing is the surround distance over this.
+#: Lines D apart then get r0 = 2.5 D / 4 = D / 1.6, one r0 at most 1.6 r0 from a sample, as
+#: random samples at the default r0 (3.4 / 2.5 = 1.4).
+SURROUND_RATIO = 4.0
+#: Points whose surround distance is measured (a sample; the median moves by about 1 %).
+SURROUND_SAMPLE = 2000
 #: Default max_gap, in median data spacings.
 AUTO_GAP = 10.0
 #: The default max_gap is at least this many r0 (a gap narrower than one particle spacing is
@@ -74,18 +95,67 @@ def with_neighborhood_size(
     return with_values(cfg, normals={"k": k, "auto_scale": False})
 
 
+def sampled_spacing(nearest: float, surround: float) -> float:
+    """The point spacing [length] of data whose median nearest-neighbour distance is
+    ``nearest`` and median surround distance ``surround``: ``nearest``, or
+    ``surround / SURROUND_RATIO`` when that is larger (scan lines, clumps); ``nearest``
+    when it is 0 (most points repeated: refused with that reason by
+    :func:`spacing_from_median`).
+
+    Examples
+    --------
+    >>> sampled_spacing(1.0, 3.4)  # random samples
+    1.0
+    >>> sampled_spacing(1.0, 6.0)  # lines 6 apart
+    1.5
+    """
+    if not nearest > 0.0:
+        return float(nearest)
+    return float(max(nearest, surround / SURROUND_RATIO))
+
+
+def sampling_note(nearest: float, spacing: float, r0: float, cfg: ReconConfig) -> str | None:
+    """What a fit says when the point spacing ``spacing`` is the one across scan lines
+    (larger than the median nearest-neighbour distance ``nearest``) and r0 follows it."""
+    s = cfg.seeds
+    if spacing <= nearest or s.spacing is not None or s.spacing_relative is not None:
+        return None
+    return (
+        f"the points lie in lines or clumps about {spacing * SURROUND_RATIO:.4g} apart, "
+        f"{spacing * SURROUND_RATIO / nearest:.0f} times their median spacing {nearest:.4g}: "
+        f"r0 = {r0:.4g} follows the gaps between them (--spacing sets it)"
+    )
+
+
+def median_surround(points: np.ndarray, tree: cKDTree | None = None) -> float:
+    """The median surround distance [length] (:func:`recon.geometry.surround_distances`) of
+    a fixed sample of ``SURROUND_SAMPLE`` of ``points`` (all when fewer); ``tree``: a k-d tree
+    of ``points`` when one is built already."""
+    n = len(points)
+    rows = np.arange(n)
+    if n > SURROUND_SAMPLE:
+        rng = np.random.default_rng(SPACING_SAMPLE_SEED)
+        rows = np.sort(rng.choice(n, size=SURROUND_SAMPLE, replace=False))
+    tree = cKDTree(points) if tree is None else tree
+    return float(np.median(surround_distances(points, rows, tree)))
+
+
 def choose_spacing(
     points: np.ndarray,
     cfg: ReconConfig,
     tree: cKDTree | None = None,
     nearest: np.ndarray | None = None,
+    notes: list[str] | None = None,
 ) -> tuple[float, float]:
-    """Rest spacing r0 [length] and the median nearest-neighbour distance of the data.
+    """Rest spacing r0 [length] and the point spacing of the data (:func:`sampled_spacing`:
+    the median nearest-neighbour distance unless the samples lie in lines).
 
-    By default r0 = ``spacing_factor`` x median spacing, lowered (not below
-    ``MIN_SPACING_FACTOR`` x median spacing) so that the sheet gets about ``min_particles``
+    By default r0 = ``spacing_factor`` x point spacing, lowered (not below
+    ``MIN_SPACING_FACTOR`` x point spacing) so that the sheet gets about ``min_particles``
     particles: sparse inputs get particles between their samples (S&T92 §7) instead of a mesh
-    coarser than the shape.
+    coarser than the shape. Scan lines (and clumps) farther apart than random samples would
+    be give the spacing across them: r0 from the spacing along them leaves particles lines
+    of empty space apart, and the sheet falls apart between the lines.
 
     Parameters
     ----------
@@ -99,11 +169,13 @@ def choose_spacing(
     nearest : (n,) float64 [length], optional
         Each point's distance to its nearest other point, when known (the fit's shared
         k-nearest query; see :func:`recon.geometry.median_nearest_neighbor_distance`).
+    notes : list of str, optional
+        Receives :func:`sampling_note` when r0 follows scan lines.
 
     Returns
     -------
     r0 : float [length]
-    median_spacing : float [length]
+    spacing : float [length]
 
     Raises
     ------
@@ -112,7 +184,12 @@ def choose_spacing(
     """
     rng = np.random.default_rng(SPACING_SAMPLE_SEED)
     d_nn = median_nearest_neighbor_distance(points, rng=rng, tree=tree, nearest=nearest)
-    return spacing_from_median(d_nn, len(points), bbox_diagonal(points), cfg), float(d_nn)
+    spacing = sampled_spacing(d_nn, median_surround(points, tree))
+    r0 = spacing_from_median(spacing, len(points), bbox_diagonal(points), cfg)
+    note = sampling_note(d_nn, spacing, r0, cfg)
+    if note is not None and notes is not None:
+        notes.append(note)
+    return r0, spacing
 
 
 def spacing_from_median(d_nn: float, n_points: int, diag: float, cfg: ReconConfig) -> float:

@@ -43,8 +43,14 @@ from ..config import ReconConfig, config_to_dict, parse_size, with_values
 from ..errors import InputError
 from ..fitting.memory import check_memory, estimate_peak_memory
 from ..fitting.report import report_path_for
-from ..fitting.scale import choose_spacing, spacing_from_median, with_max_gap
-from ..geometry import SPACING_SAMPLE_SEED
+from ..fitting.scale import (
+    choose_spacing,
+    sampled_spacing,
+    sampling_note,
+    spacing_from_median,
+    with_max_gap,
+)
+from ..geometry import SPACING_SAMPLE_SEED, median_nearest_neighbor_distance
 from ..serialize import dumps
 from ..version import __version__
 from .assemble import stitch_streamed
@@ -156,7 +162,9 @@ def _default_threads(
 
 
 def _scan_scales(header: ScanHeader, store: Any, cfg: ReconConfig, runner: Any, emit: Any):
-    """(n_points, median spacing, median 6th-neighbour distance, k) of the whole scan."""
+    """(n_points, median nearest-neighbour distance, point spacing
+    (:func:`recon.fitting.scale.sampled_spacing`), median 6th-neighbour distance, k) of the
+    whole scan."""
     from scipy.spatial import cKDTree
 
     from ..fitting.pipeline import DENSITY_NEIGHBOURS
@@ -165,14 +173,19 @@ def _scan_scales(header: ScanHeader, store: Any, cfg: ReconConfig, runner: Any, 
     n_total = sum(store.counts.values())
     if header.cloud is not None:  # read whole: exactly as an untiled fit
         pts = header.cloud.points
-        _, d_nn = choose_spacing(pts, cfg)
         tree = cKDTree(pts)
-        d6 = float(np.median(tree.query(pts, DENSITY_NEIGHBOURS + 1)[0][:, -1]))
+        _, spacing = choose_spacing(pts, cfg, tree)
+        near = tree.query(pts, DENSITY_NEIGHBOURS + 1)[0]
+        d6 = float(np.median(near[:, -1]))
+        d_nn = median_nearest_neighbor_distance(
+            pts, rng=np.random.default_rng(SPACING_SAMPLE_SEED), nearest=near[:, 1]
+        )
         k = with_neighborhood_size(pts, cfg).normals.k
-        return n_total, d_nn, d6, k
+        return n_total, d_nn, spacing, d6, k
     task_store = store.for_tasks()
     d1s: list[np.ndarray] = []
     d6s: list[np.ndarray] = []
+    arounds: list[np.ndarray] = []
     ks: list[int] = []
 
     def sample(t: int) -> tuple:
@@ -182,6 +195,7 @@ def _scan_scales(header: ScanHeader, store: Any, cfg: ReconConfig, runner: Any, 
     def keep(t: int, r: dict) -> None:
         d1s.append(r["d1"])
         d6s.append(r["d6"])
+        arounds.append(r["surround"])
         if "k" in r:
             ks.append(r["k"])
 
@@ -191,7 +205,9 @@ def _scan_scales(header: ScanHeader, store: Any, cfg: ReconConfig, runner: Any, 
     if len(d1) == 0:
         raise InputError(f"{header.path}: too few points per tile to measure the point spacing")
     k = int(np.median(ks)) if ks else cfg.normals.k
-    return n_total, float(np.median(d1)), float(np.median(d6)), k
+    d_nn = float(np.median(d1))
+    spacing = sampled_spacing(d_nn, float(np.median(np.concatenate(arounds))))
+    return n_total, d_nn, spacing, float(np.median(d6)), k
 
 
 def fit_tiled(
@@ -261,11 +277,13 @@ def fit_tiled(
         executor_jobs = jobs
         with tile_runner(executor, executor_jobs, scheduler) as runner:
             t0 = time.perf_counter()
-            n_points, d_nn, d6, k = _scan_scales(header, store, cfg, runner, on_event)
+            n_points, nearest, d_nn, d6, k = _scan_scales(header, store, cfg, runner, on_event)
             header.cloud = cloud = None
             # the points kept: --classes drops some of the header's box (as the untiled fit)
             diag = float(np.linalg.norm(store.hi - store.lo))
             r0 = spacing_from_median(d_nn, n_points, diag, cfg)
+            note = sampling_note(nearest, d_nn, r0, cfg)  # r0 across scan lines
+            warnings.extend([] if note is None else [note])
             cfg = with_max_gap(cfg, r0, d_nn)
             # the scan's r0 for every tile, in place of either form it came from (with
             # spacing_relative still set, the two were refused as exclusive)

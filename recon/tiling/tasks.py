@@ -115,26 +115,32 @@ class CreaseBorders(BorderFiles):
 
 
 def spacing_task(store: TileStore, tile: int, sample: int, k: int, auto_scale: bool) -> dict:
-    """Nearest-neighbour and 6th-neighbour distances of ``sample`` random points of the tile
+    """Nearest-neighbour, 6th-neighbour and surround distances
+    (:func:`recon.geometry.surround_distances`) of ``sample`` random points of the tile
     (against the points within a small margin around it), and the k that
     ``normals.auto_scale`` would choose there."""
     _quiet_worker()
     from scipy.spatial import cKDTree
 
     from ..fitting.pipeline import DENSITY_NEIGHBOURS
-    from ..geometry import SPACING_SAMPLE_SEED
+    from ..geometry import SPACING_SAMPLE_SEED, surround_distances
     from ..normals import choose_neighborhood_size
 
     rows = read_tile(store, tile)[:, :3]
-    out: dict[str, Any] = {"tile": tile, "n": len(rows), "d1": np.zeros(0), "d6": np.zeros(0)}
+    empty = np.zeros(0)
+    out: dict[str, Any] = {"tile": tile, "n": len(rows), "d1": empty, "d6": empty}
+    out["surround"] = empty
     if len(rows) < DENSITY_NEIGHBOURS + 2:
         return out
     rng = np.random.default_rng([SPACING_SAMPLE_SEED, tile])
     tree = cKDTree(rows)
-    q = rows if sample >= len(rows) else rows[rng.choice(len(rows), sample, replace=False)]
-    d, _ = tree.query(q, DENSITY_NEIGHBOURS + 1)
+    picked = np.arange(len(rows))
+    if sample < len(rows):
+        picked = rng.choice(len(rows), sample, replace=False)
+    d, _ = tree.query(rows[picked], DENSITY_NEIGHBOURS + 1)
     out["d1"] = d[:, 1]
     out["d6"] = d[:, -1]
+    out["surround"] = surround_distances(rows, picked, tree)
     if auto_scale:
         out["k"] = choose_neighborhood_size(rows, k)
     return out
