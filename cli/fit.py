@@ -102,6 +102,15 @@ def _crease_use(report: FitReport) -> str:
     return "kept sharp in the mesh"
 
 
+def _input_points(report: FitReport) -> str:
+    """The summary's input line: the points fitted, and the outliers removed before."""
+    text = f"{report.input.points:,}"
+    removed = report.input.normals.get("outliers", {}).get("removed", 0)
+    if removed:
+        text += f" ({removed:,} statistical outliers removed: io.outliers)"
+    return text
+
+
 def format_summary(report: FitReport) -> str:
     """A short human summary of a fit report (stderr)."""
     fid, m2i, topo, qual = (
@@ -112,7 +121,7 @@ def format_summary(report: FitReport) -> str:
     )
     times = report.timings
     rows = [
-        ("input points", f"{report.input.points:,}"),
+        ("input points", _input_points(report)),
         ("spacing r0", f"{report.spacing:.6g}"),
         ("seeds / particles", f"{report.seeds:,} / {report.particles:,}"),
         ("steps grow / release", f"{report.steps.grow} / {report.steps.release}"),
@@ -288,6 +297,17 @@ def format_summary(report: FitReport) -> str:
     help="Skip crease detection (on by default: creases.enabled); smooth fits round every edge.",
 )
 @click.option(
+    "--remove-outliers",
+    is_flag=True,
+    default=None,
+    help="Remove stray points before the fit (io.outliers: statistical): those whose mean "
+    "distance to their io.outlier_k (20) nearest exceeds the median of that distance by "
+    "io.outlier_std_ratio (3) robust standard deviations, as Open3D's "
+    "remove_statistical_outlier with median and MAD for mean and std. The summary's input "
+    "line counts them. Sparse parts of a nonuniformly sampled scan can go too; not with "
+    "tiled fits (clean first: oprecon normals --remove-outliers).",
+)
+@click.option(
     "--tile-size",
     type=click.FloatRange(min=0, min_open=True),
     metavar="LENGTH",
@@ -353,6 +373,7 @@ def command(
     no_colors: bool | None,
     crease_angle: float | None,
     no_creases: bool | None,
+    remove_outliers: bool | None,
     tile_size: float | None,
     tiles: str | None,
     jobs: int | None,
@@ -422,7 +443,12 @@ def command(
             "time_limit": time_limit,
         },
         normals={"mode": normals_mode, "viewpoint": viewpoint},
-        io={"ascii": ascii_, "classes": classes, "max_memory": max_memory},
+        io={
+            "ascii": ascii_,
+            "classes": classes,
+            "max_memory": max_memory,
+            "outliers": "statistical" if remove_outliers else None,
+        },
         output={
             "transfer": transfer,
             "quality": quality,

@@ -77,6 +77,15 @@ ORIENTATIONS = NormalsConfig.__dataclass_fields__["orientation"].metadata["choic
     help="auto: keep the file's normals if present; estimate: always estimate; input: "
     "require them [normals.mode].",
 )
+@click.option(
+    "--remove-outliers",
+    is_flag=True,
+    default=None,
+    help="Remove stray points before the normals, as oprecon fit --remove-outliers does: "
+    "those whose mean distance to their io.outlier_k nearest exceeds the median of that "
+    "distance by io.outlier_std_ratio robust standard deviations; the output keeps the rest "
+    "(a cleaned cloud for a tiled fit) [io.outliers: statistical].",
+)
 @click.option("--ascii", "ascii_", is_flag=True, default=None, help="ASCII PLY [io.ascii].")
 @click.option("--mkdir", is_flag=True, help="Create the output folder if missing.")
 @config_options
@@ -92,6 +101,7 @@ def command(
     viewpoint: list[float] | None,
     orientation: str | None,
     mode: str | None,
+    remove_outliers: bool | None,
     ascii_: bool | None,
     mkdir: bool,
     config_path: Path | None,
@@ -118,6 +128,7 @@ def command(
     from recon.config import apply_overrides, with_values
     from recon.heap import keep_freed_memory
     from recon.io import check_output_path, check_points_output, read_points, write_points
+    from recon.io.outliers import outlier_removal
     from recon.kernels.options import thread_count
     from recon.normals import compute_normals
 
@@ -133,7 +144,10 @@ def command(
             "orientation": orientation,
             "mode": mode,
         },
-        io={"ascii": True if ascii_ else None},
+        io={
+            "ascii": True if ascii_ else None,
+            "outliers": "statistical" if remove_outliers else None,
+        },
     )
     if threads is not None:
         cfg = apply_overrides(cfg, {"threads": threads})
@@ -146,6 +160,7 @@ def command(
         max_points=cfg.io.max_points,
         merge_duplicates=cfg.io.merge_duplicates,
         all_properties=True,  # a PLY's every per-point scalar goes along (intensity as float)
+        outliers=outlier_removal(cfg.io),
     )
     with thread_count(cfg.threads):
         normals, info = compute_normals(cloud, cfg.normals)
@@ -174,7 +189,11 @@ def command(
                 f"{_estimated(info)}, oriented {info['orientation']}: "
                 f"{info['n_components']} component(s), {info['n_guessed']} guessed"
             )
-        click.echo(f"{output_path}: {len(cloud):,} points, {how}, {info['time_s']:.2f}s", err=True)
+        removed = cloud.info.get("n_outliers_removed", 0)
+        kept = f"{len(cloud):,} points" + (
+            f" ({removed:,} statistical outliers removed)" if removed else ""
+        )
+        click.echo(f"{output_path}: {kept}, {how}, {info['time_s']:.2f}s", err=True)
 
 
 def _estimated(info: dict) -> str:

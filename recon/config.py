@@ -23,53 +23,9 @@ import yaml
 
 from .errors import ConfigError, did_you_mean
 from .schema import Schema, from_dict, option, range_text, to_dict
+from .sizes import parse_size
 
 CONFIG_VERSION = 1
-
-
-_SIZE_UNITS = {"": 1, "B": 1, "K": 1 << 10, "M": 1 << 20, "G": 1 << 30, "T": 1 << 40}
-
-
-def parse_size(text: str | float, key: str = "size") -> int:
-    """Bytes of a size such as ``'8G'``, ``'512M'``, ``'1.5GiB'``, ``4e9`` or ``4000000000``.
-
-    Units are powers of 1024; a plain number (a YAML integer or a string of digits) is bytes.
-
-    Raises
-    ------
-    ConfigError
-        Naming ``key`` when the text is not a positive size.
-
-    Examples
-    --------
-    >>> parse_size("8G"), parse_size("512MiB"), parse_size("1000"), parse_size(4000000000)
-    (8589934592, 536870912, 1000, 4000000000)
-    """
-    import re
-
-    if isinstance(text, bool):
-        raise ConfigError(
-            f"{key}: {text!r} is not a size; write e.g. 8G, 512M or a number of bytes"
-        )
-    if isinstance(text, int):  # exact, however large
-        if not 0 < text < 2**63:
-            raise ConfigError(f"{key}: {text!r} must be a positive size, e.g. 8G")
-        return text
-    if isinstance(text, float):
-        value, unit = text, ""
-    else:
-        m = re.fullmatch(
-            r"\s*([0-9]*\.?[0-9]+(?:[eE][+-]?[0-9]+)?)\s*([kKmMgGtT]?)(?:i?[bB])?\s*", str(text)
-        )
-        if m is None:
-            raise ConfigError(
-                f"{key}: {text!r} is not a size; write e.g. 8G, 512M or a number of bytes"
-            )
-        value, unit = float(m.group(1)), m.group(2).upper()
-    size = value * _SIZE_UNITS[unit]
-    if not (size > 0 and size < 2.0**63):
-        raise ConfigError(f"{key}: {text!r} must be a positive size, e.g. 8G")
-    return int(size)
 
 
 @dataclass(frozen=True)
@@ -87,6 +43,14 @@ class IOConfig(Schema):
         "Refuse fits whose estimated peak memory exceeds this: a size such as '8G', '512M' "
         "or 1000000000 (a number of bytes, or K/M/G/T, powers of 1024); null = no limit.",
     )
+    outliers: str = option(
+        "none",
+        "none, or statistical: drop the points whose mean distance to their io.outlier_k nearest "
+        "exceeds its median by io.outlier_std_ratio robust std (1.4826 MAD), before normals.",
+        choices=("none", "statistical"),
+    )
+    outlier_k: int = option(20, "Neighbours of the mean distance io.outliers compares.", 1, 500)
+    outlier_std_ratio: float = option(3.0, "Robust std over the median to drop.", 0.5, None)
 
     def check(self, prefix: str) -> None:
         if self.max_memory is not None:

@@ -5,7 +5,7 @@
   dotted overrides or the path of a YAML file, as :func:`recon.config.load_config` takes them;
 - :func:`check_progress`: the progress callback is callable (checked before any work);
 - :func:`cloud_from_input`: the arrays as a cloud, cleaned as a file's points are
-  (``io.merge_duplicates``) and refused past ``io.max_points``;
+  (``io.merge_duplicates``, ``io.outliers``) and refused past ``io.max_points``;
 - :func:`checked_memory`: the peak-memory estimate, refused past ``io.max_memory``.
 """
 
@@ -95,7 +95,8 @@ def check_progress(on_progress: Any) -> ProgressFn | None:
 def cloud_from_input(points: Any, normals: Any, cfg: ReconConfig) -> PointCloud:
     """The cloud of the arrays ``points`` (and ``normals``) as ``oprecon fit`` reads a file
     with ``cfg``: at most ``io.max_points`` rows, duplicates merged as ``io.merge_duplicates``
-    says, then cleaned and checked (:func:`recon.io.cloud_from_arrays`).
+    says and statistical outliers removed as ``io.outliers`` says, then cleaned and checked
+    (:func:`recon.io.cloud_from_arrays`).
 
     Parameters
     ----------
@@ -115,13 +116,16 @@ def cloud_from_input(points: Any, normals: Any, cfg: ReconConfig) -> PointCloud:
     """
     from ..io import cloud_from_arrays
     from ..io.common import as_input_points, check_count
+    from ..io.outliers import outlier_removal
 
     xyz = as_input_points(numeric_array(points, "points"), "points", where="input array")
     nrm = None
     if normals is not None:
         nrm = as_input_points(numeric_array(normals, "normals"), "normals", where="input array")
     check_count(None, len(xyz), cfg.io.max_points)  # (no path: "input array: ...")
-    return cloud_from_arrays(xyz, nrm, merge_duplicates=cfg.io.merge_duplicates)
+    return cloud_from_arrays(
+        xyz, nrm, merge_duplicates=cfg.io.merge_duplicates, outliers=outlier_removal(cfg.io)
+    )
 
 
 def checked_memory(

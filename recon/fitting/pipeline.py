@@ -45,6 +45,7 @@ from ..creases import Creases, detect_creases
 from ..errors import InputError
 from ..exterior_signs import resign_by_exterior
 from ..geometry import bbox_diagonal, snap_to_precision
+from ..io.outliers import outlier_removal, outlier_summary, outlier_warnings
 from ..kernels.options import query_workers, thread_count
 from ..kernels.warm import warm_fit_kernels
 from ..neighbors import PointGrid
@@ -451,6 +452,7 @@ def _fit_sheet(
     normals, normals_info = compute_normals(
         cloud, cfg.normals, neighbors=knn, k_max=k_max, tree=tree
     )
+    normals_info["outliers"] = outlier_summary(cloud.info, points, cfg.io.outlier_k, knn, tree)
     clock.lap("normals")
     clock.check()
     if detected is None:
@@ -535,6 +537,7 @@ def _reconstruct(cloud: PointCloud, cfg: ReconConfig, on_progress: ProgressFn | 
     )
     r0, d_nn, n_trimmed = sheet.r0, sheet.d_nn, sheet.n_trimmed
     normals_info, creases = sheet.normals_info, sheet.creases
+    sched.warnings[:0] = outlier_warnings(normals_info)  # a scan that looks outlier-ridden
     state = sched.state
     diag = bbox_diagonal(points)
     tri = _triangulate(state, surface, cfg, d_nn / r0)
@@ -728,6 +731,7 @@ def fit_file(
         max_points=cfg.io.max_points,
         merge_duplicates=cfg.io.merge_duplicates,
         classes=cfg.io.classes,
+        outliers=outlier_removal(cfg.io),
     )
     check_transfer(cloud, cfg.output.transfer)
     memory = checked_memory(cloud, cfg, always=True)  # refuses early past io.max_memory

@@ -130,6 +130,7 @@ def read_points(
     merge_duplicates: bool = True,
     classes: list[int] | tuple[int, ...] | None = None,
     all_properties: bool = False,
+    outliers: tuple[int, float] | None = None,
 ) -> PointCloud:
     """Read a point cloud (PLY, XYZ text, PCD, OBJ, LAS/LAZ, E57) into relative coordinates.
 
@@ -152,6 +153,11 @@ def read_points(
         :func:`write_points` writes them back (``oprecon normals``); the fit has no use for
         them. Properties named like the normals or colours but not a complete set of them (a
         lone ``red``) are not kept, and a warning names them. Other formats: no effect.
+    outliers : (k, std_ratio), optional
+        Remove statistical outliers after merging duplicates, their rows of normals, colours
+        and attributes with them (:func:`recon.io.outliers.statistical_outliers`;
+        ``recon.io.outliers.outlier_removal(cfg.io)``); ``info["n_outliers_removed"]`` counts them.
+        None keeps every point.
 
     Returns
     -------
@@ -195,7 +201,7 @@ def read_points(
             fmt, pts, nrm, col = obj.read_points(p, max_points, info)
         else:
             fmt, pts, nrm, col, attributes = xyz.read_points(p, max_points, info)
-    return make_cloud(p, fmt, pts, nrm, col, merge_duplicates, info, attributes)
+    return make_cloud(p, fmt, pts, nrm, col, merge_duplicates, info, attributes, outliers)
 
 
 def cloud_from_arrays(
@@ -205,6 +211,7 @@ def cloud_from_arrays(
     colors: np.ndarray | None = None,
     attributes: dict[str, np.ndarray] | None = None,
     merge_duplicates: bool = True,
+    outliers: tuple[int, float] | None = None,
 ) -> PointCloud:
     """A :class:`PointCloud` from arrays, cleaned and checked exactly like a file.
 
@@ -218,6 +225,8 @@ def cloud_from_arrays(
     attributes : dict of str -> (n,) array_like, optional
         Per-point scalars (``intensity``, ``classification`` ...).
     merge_duplicates : bool
+    outliers : (k, std_ratio), optional
+        Remove statistical outliers, as :func:`read_points`.
 
     Returns
     -------
@@ -246,7 +255,7 @@ def cloud_from_arrays(
         "elements": {"vertex": int(xyz.shape[0])},
         "properties": ["x", "y", "z"] + (["nx", "ny", "nz"] if nrm is not None else []),
     }
-    return make_cloud(None, "array", xyz, nrm, col, merge_duplicates, info, attrs)
+    return make_cloud(None, "array", xyz, nrm, col, merge_duplicates, info, attrs, outliers)
 
 
 def read_mesh(

@@ -1,9 +1,10 @@
 """Point cleaning shared by every reader: non-finite rows, duplicates, normals, origin, degeneracy.
 
 :func:`make_cloud` turns the raw columns a format module read into a
-:class:`~recon.cloud.PointCloud`: non-finite rows dropped, exact duplicates merged, normals
-validated and normalised, colours clipped to [0, 1], and coordinates made relative to
-:func:`choose_origin`. Inputs with fewer
+:class:`~recon.cloud.PointCloud`: non-finite rows dropped, exact duplicates merged,
+statistical outliers removed when asked (:func:`recon.io.outliers.statistical_outliers`),
+normals validated and normalised, colours clipped to [0, 1], and coordinates made relative
+to :func:`choose_origin`. Inputs with fewer
 than 4 distinct points, unusable magnitudes, or all points on one line are refused.
 """
 
@@ -17,6 +18,7 @@ import numpy as np
 
 from ..cloud import PointCloud
 from .common import input_error
+from .outliers import statistical_outliers
 
 #: One logger for the io package (its messages name the file).
 logger = logging.getLogger("recon.io")
@@ -76,6 +78,7 @@ def make_cloud(
     merge_duplicates: bool,
     info: dict[str, Any],
     attributes: dict[str, np.ndarray] | None = None,
+    outliers: tuple[int, float] | None = None,
 ) -> PointCloud:
     """The cleaned :class:`~recon.cloud.PointCloud` of the columns a reader found.
 
@@ -94,6 +97,10 @@ def make_cloud(
         The reader's ``PointCloud.info``; the cleaning counts are added to it.
     attributes : dict of str -> (n,) array, optional
         Per-point scalars (``PointCloud.attributes``), filtered like the points.
+    outliers : (k, std_ratio), optional
+        Remove statistical outliers after merging duplicates
+        (:func:`~recon.io.outliers.statistical_outliers`; ``io.outliers``); the count goes
+        into ``info["n_outliers_removed"]``. None keeps every point.
 
     Returns
     -------
@@ -102,12 +109,13 @@ def make_cloud(
     Raises
     ------
     InputError
-        Fewer than 4 distinct finite points, unusable magnitudes, points on one line.
+        Fewer than 4 distinct finite points (before or after the outlier removal), unusable
+        magnitudes, points on one line.
     """
     xyz = np.ascontiguousarray(xyz, dtype=np.float64)
     attrs = dict(attributes or {})
     points, origin, normals, colors = _clean_points(
-        path, xyz, normals, colors, merge_duplicates, info, attrs
+        path, xyz, normals, colors, merge_duplicates, info, attrs, outliers
     )
     return PointCloud(points, origin, normals, colors, path, fmt, info, attrs)
 
@@ -120,8 +128,10 @@ def _clean_points(
     merge_duplicates: bool,
     info: dict[str, Any],
     attrs: dict[str, np.ndarray],
+    outliers: tuple[int, float] | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
-    """Drop non-finite rows, merge duplicates, validate normals; returns relative points.
+    """Drop non-finite rows, merge duplicates, remove outliers (``outliers``: k, std_ratio),
+    validate normals; returns relative points.
 
     ``attrs`` (per-point scalars) is filtered in place like the points.
     """
@@ -147,6 +157,9 @@ def _clean_points(
             attrs.update({k: v[keep] for k, v in attrs.items()})
             logger.info("%s: merged %d exactly repeated point(s)", path, n_dup)
     info["n_duplicates_merged"] = n_dup
+    if outliers is not None:
+        _check_spans_plane(path, xyz)  # (the removal needs a usable cloud to judge)
+        xyz, normals, colors = _remove_outliers(path, xyz, normals, colors, attrs, outliers, info)
     info["n_points"] = int(xyz.shape[0])
     _check_spans_plane(path, xyz)
 
@@ -180,6 +193,35 @@ def _clean_points(
     origin = choose_origin(xyz)
     points = xyz - origin if np.any(origin) else xyz
     return points, origin, normals, colors
+
+
+def _remove_outliers(
+    path: Path | None,
+    xyz: np.ndarray,
+    normals: np.ndarray | None,
+    colors: np.ndarray | None,
+    attrs: dict[str, np.ndarray],
+    outliers: tuple[int, float],
+    info: dict[str, Any],
+) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """The rows :func:`~recon.io.outliers.statistical_outliers` keeps (``attrs`` filtered in
+    place); the count goes into ``info["n_outliers_removed"]``."""
+    from ..kernels.options import query_workers
+
+    k, std_ratio = outliers
+    drop = statistical_outliers(xyz, k, std_ratio, workers=query_workers())
+    n_out = int(np.count_nonzero(drop))
+    info["n_outliers_removed"] = n_out
+    if n_out:
+        keep = ~drop
+        xyz = xyz[keep]
+        normals = normals[keep] if normals is not None else None
+        colors = colors[keep] if colors is not None else None
+        attrs.update({key: v[keep] for key, v in attrs.items()})
+        logger.info(
+            "%s: removed %d statistical outlier(s) (k=%d, std_ratio=%g)", path, n_out, k, std_ratio
+        )
+    return xyz, normals, colors
 
 
 def _first_occurrences(xyz: np.ndarray) -> np.ndarray:

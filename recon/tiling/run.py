@@ -254,12 +254,15 @@ def fit_tiled(
     from ..attributes import check_attribute_output, check_transfer
 
     check_attribute_output(output_path, cfg.output)  # OBJ: no --transfer, --quality
+    if cfg.tiling.size is not None:
+        _check_no_outlier_removal(input_path, cfg)  # before reading the scan
     header = scan_header(input_path, cfg)
     if header.cloud is not None:  # LAS/LAZ points always have intensity and classification
         check_transfer(header.cloud, cfg.output.transfer)
     size = plan_tile_size(header, cfg)
     if size is None:
         return None
+    _check_no_outlier_removal(input_path, cfg)  # (tiling.auto chose to tile)
     _check_crease_outputs(output_path, cfg)
     grid = TileGrid.cover(header.lo, header.hi, size, 0.0)
     timings: dict[str, float] = {}
@@ -494,6 +497,22 @@ def fit_tiled(
             shutil.rmtree(keep, ignore_errors=True)
             shutil.move(work, keep)
         shutil.rmtree(work, ignore_errors=True)
+
+
+def _check_no_outlier_removal(input_path: Path, cfg: ReconConfig) -> None:
+    """Refuse ``io.outliers`` in a tiled fit (an :class:`InputError`, exit 2).
+
+    The statistical removal's threshold is a median over the whole scan, which no tile sees,
+    and the tiles measure the scan's spacing before any of them is fitted: removing per tile
+    would judge each tile by its own points, after the spacing was taken with the outliers.
+    """
+    if cfg.io.outliers != "none":
+        raise InputError(
+            f"{input_path}: --remove-outliers (io.outliers: statistical) is not available in "
+            "tiled fits (--tile-size, --tiles auto): its threshold is taken over the whole "
+            "scan, which no tile sees; remove them first with `oprecon normals "
+            f"{input_path} -o cleaned.ply --remove-outliers`, then fit cleaned.ply tiled"
+        )
 
 
 def _check_crease_outputs(output_path: Path, cfg: ReconConfig) -> None:
