@@ -122,6 +122,20 @@ def no_proper_face(topology: dict[str, Any]) -> str:
     )
 
 
+#: What ``oprecon report`` suggests about crossings (the mesh may come from any tool).
+REPORT_CROSSING_HINT = (
+    "repair the mesh before such use (an oprecon mesh: refit with a larger --spacing, or remove "
+    "outliers from the input)"
+)
+
+
+def crossing_warning_of(report: dict[str, Any]) -> str | None:
+    """The warning about the crossing face pairs a ``quality_report`` counted (None: none)."""
+    from recon.fitting.mesh_warnings import crossing_warning
+
+    return crossing_warning(report.get("self_intersections") or 0, hint=REPORT_CROSSING_HINT)
+
+
 def format_quality(report: dict[str, Any], mesh_name: str, input_name: str | None) -> str:
     """The human table of a ``quality_report`` dict."""
     topo = report["topology"]
@@ -135,6 +149,7 @@ def format_quality(report: dict[str, Any], mesh_name: str, input_name: str | Non
             + [(label, fmt(topo[key])) for label, key in ORIENTATION_ROWS if key in topo]
             + [("self-intersections", fmt(report.get("self_intersections")))]
         ),
+        *([f"  warning: {w}"] if (w := crossing_warning_of(report)) else []),
         f"triangles ({tq['n_measured']:,} non-degenerate)",
     ]
     if not tq["n_measured"] and topo["n_faces"]:
@@ -248,6 +263,8 @@ def command(mesh_path: Path, input_path: Path | None, as_json: bool, png_path: P
     fit_path, history = load_fit_history(mesh_path)
     if not report["triangle_quality"]["n_measured"] and as_json:
         click.echo(f"oprecon: warning: {mesh_path}: {no_proper_face(report['topology'])}", err=True)
+    if as_json and (crossings := crossing_warning_of(report)):
+        click.echo(f"oprecon: warning: {mesh_path}: {crossings}", err=True)
 
     if png_path is not None:
         from recon.render import check_history, render_mesh_png

@@ -63,6 +63,7 @@ from ..winding import turn_closed_outward, turned_with_faces
 from .collector import survivors_frozen
 from .library import ConfigLike, check_progress, checked_memory, cloud_from_input, resolve_config
 from .memory import MemoryEstimate
+from .mesh_warnings import fit_warnings
 from .report import (
     SAMPLING_REACH,
     CreaseStats,
@@ -584,7 +585,7 @@ def _reconstruct(cloud: PointCloud, cfg: ReconConfig, on_progress: ProgressFn | 
         timings=Timings.from_phases(clock.phases),
         coverage=coverage[-1] if coverage else None,
         stop_reason=sched.stop_reason,
-        warnings=tuple(sched.warnings),
+        warnings=(*sched.warnings, *fit_warnings(measures, tri.stats, state.n, r0)),
         triangulation=TriangulationStats.from_dict(tri.stats),
         noise_estimate=surface.noise * r0,
         history=History.from_dict(sched.history),

@@ -42,6 +42,7 @@ import numpy as np
 from ..config import ReconConfig, config_to_dict, parse_size, with_values
 from ..errors import InputError
 from ..fitting.memory import check_memory, estimate_peak_memory
+from ..fitting.mesh_warnings import mesh_warnings
 from ..fitting.report import report_path_for
 from ..fitting.scale import (
     choose_spacing,
@@ -419,6 +420,8 @@ def fit_tiled(
         is_obj = output_path.suffix.lower() == ".obj"
         creases, crease_warnings = _crease_section(cfg, records, unmatched, d6, r0, is_obj)
         warnings += crease_warnings
+        # (no crossings warning: the tiles' counts include their halos, not the stitched mesh's)
+        warnings += mesh_warnings(topology, {}, particles=int(total), r0=r0)
         tile_times = records.tile_times()
         report: dict[str, Any] = {
             "oprecon_version": __version__,
