@@ -91,3 +91,11 @@ def test_info_shows_the_spacing_between_scan_lines(tmp_path):
     write_points(path, random_patch())
     d = json.loads(CliRunner().invoke(app, ["info", str(path), "--json"]).stdout)
     assert d["spacing"] == d["spacing_median_nn"]
+
+
+def test_a_small_change_of_the_spacing_is_not_announced():
+    """Regression: a sphere with 1 point in 3 in jittered clumps took a spacing 1.06x its
+    nearest-neighbour distance and warned "about 0.045 apart, 4 times their spacing"."""
+    cfg = ReconConfig()
+    assert scale.sampling_note(1.0, 1.2, 2.5, cfg) is None
+    assert "5 times" in scale.sampling_note(1.0, 1.25, 2.5, cfg)

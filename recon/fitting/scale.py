@@ -36,6 +36,7 @@ __all__ = [
     "MAX_GRID_CELLS",
     "MIN_AUTO_GAP",
     "MIN_SPACING_FACTOR",
+    "NOTE_SPACING_RATIO",
     "SPACING_SAMPLE_SEED",
     "SURROUND_RATIO",
     "SURROUND_SAMPLE",
@@ -69,6 +70,10 @@ MAX_GRID_CELLS = 2.0**60
 SURROUND_RATIO = 4.0
 #: Points whose surround distance is measured (a sample; the median moves by about 1 %).
 SURROUND_SAMPLE = 2000
+#: The fit says why r0 is what it is when the point spacing is at least this many times the
+#: median nearest-neighbour distance (a smaller change is no news: a sphere with 1 point in 3
+#: repeated in clumps, 1.06x).
+NOTE_SPACING_RATIO = 1.25
 #: Default max_gap, in median data spacings.
 AUTO_GAP = 10.0
 #: The default max_gap is at least this many r0 (a gap narrower than one particle spacing is
@@ -115,10 +120,13 @@ def sampled_spacing(nearest: float, surround: float) -> float:
 
 
 def sampling_note(nearest: float, spacing: float, r0: float, cfg: ReconConfig) -> str | None:
-    """What a fit says when the point spacing ``spacing`` is the one across scan lines
-    (larger than the median nearest-neighbour distance ``nearest``) and r0 follows it."""
+    """What a fit says when the point spacing ``spacing`` is the one across scan lines, at
+    least ``NOTE_SPACING_RATIO`` times the median nearest-neighbour distance ``nearest``, and
+    r0 follows it (None otherwise)."""
     s = cfg.seeds
-    if spacing <= nearest or s.spacing is not None or s.spacing_relative is not None:
+    if s.spacing is not None or s.spacing_relative is not None:
+        return None
+    if not spacing >= NOTE_SPACING_RATIO * nearest:
         return None
     return (
         f"the points lie in lines or clumps about {spacing * SURROUND_RATIO:.4g} apart, "
