@@ -37,7 +37,7 @@ STAGES = [
     ("recon.fitting.pipeline", "run_schedule"),
     ("recon.fitting.pipeline", "_trim"),
     ("recon.fitting.pipeline", "_triangulate"),
-    ("recon.fitting.pipeline", "data_spacing"),
+    ("recon.fitting.pipeline", "sampling_spacing"),
     ("recon.fitting.pipeline", "triangulate_particles"),
     ("recon.triangulate", "consistent_normals"),
     ("recon.triangulate", "ball_pivoting"),

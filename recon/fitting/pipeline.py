@@ -48,6 +48,7 @@ from ..geometry import bbox_diagonal, snap_to_precision
 from ..io.outliers import outlier_removal, outlier_summary, outlier_warnings
 from ..kernels.options import query_workers, thread_count
 from ..kernels.warm import warm_fit_kernels
+from ..near_duplicates import merged_cloud, near_duplicate_notes, near_duplicate_rows
 from ..neighbors import PointGrid
 from ..normal_scales import per_point_k_max
 from ..normal_signs import outward_across, resign_thin_parts
@@ -102,7 +103,7 @@ __all__ = [
 TRIM_GAP_FRACTION = 0.5
 #: A hole candidate counts as covered by data (and is filled) when the data point nearest to
 #: its projection onto the data lies within this distance [r0] times the local spacing, or
-#: times that data point's sampling spacing (:func:`data_spacing`) over the median one
+#: times that data point's sampling spacing (:func:`sampling_spacing`) over the median one
 #: (clipped to ``triangulation.max_density_scale``), whichever is larger: where the data is k
 #: times sparser than usual, a sample covers k times farther (uniformly sparse data keeps the
 #: test at r0, so small true holes stay open), or within :func:`cover_reach` of the data's
@@ -134,12 +135,6 @@ def _trim(state: ParticleState, surface: DataSurface, cfg: ReconConfig) -> int:
     return n_trimmed
 
 
-def data_spacing(surface: DataSurface) -> np.ndarray:
-    """Each data point's sampling spacing [r0] (:func:`sampling_spacing` of the surface's
-    points)."""
-    return sampling_spacing(surface.tree, surface.points)
-
-
 def sampling_spacing(tree: Any, points: np.ndarray) -> np.ndarray:
     """Each of ``points``' distance to its ``DENSITY_NEIGHBOURS``-th nearest neighbour in
     their k-d ``tree`` (0 when there are too few points to tell)."""
@@ -160,7 +155,7 @@ def density_spacing(
 
     The local point spacing is each data point's distance to its ``DENSITY_NEIGHBOURS``-th
     neighbour; a particle takes that of its nearest data point, divided by the median and by
-    ``DENSITY_TOLERANCE``. ``local``: :func:`data_spacing` of ``surface`` when already known.
+    ``DENSITY_TOLERANCE``. ``local``: :func:`sampling_spacing` of ``surface`` when known.
     """
     return local_density_scale(surface.tree, surface.points, positions, max_scale, local=local)
 
@@ -175,8 +170,8 @@ def local_density_scale(
 ) -> np.ndarray:
     """:func:`density_spacing` over a k-d ``tree`` of the data ``points`` [r0]; ``median`` is
     the median local spacing [r0] (default: that of ``points``; a tile of a tiled fit passes
-    the whole scan's); ``local``: each point's spacing (:func:`data_spacing`), queried here
-    when None."""
+    the whole scan's); ``local``: each point's spacing (:func:`sampling_spacing`), queried
+    here when None."""
     if max_scale <= 1.0 or len(points) <= DENSITY_NEIGHBOURS:
         return np.ones(len(positions))
     if local is None:
@@ -211,8 +206,8 @@ def cover_reach(median_spacing: float) -> float:
 def sparse_cover(sampling: np.ndarray, median: float, max_density_scale: float) -> np.ndarray:
     """How many times farther than ``HOLE_COVER_DISTANCE`` each data point covers a hole's
     inside: a point ``k`` times sparser than the ``median`` sampling spacing (``sampling``:
-    :func:`data_spacing`) covers ``k`` times farther, up to the same limit as the ball radii
-    (``max_density_scale``; 1 when that is off)."""
+    :func:`sampling_spacing`) covers ``k`` times farther, up to the same limit as the ball
+    radii (``max_density_scale``; 1 when that is off)."""
     ratio = sampling / max(float(median), 1e-12) if len(sampling) else sampling
     return np.clip(ratio, 1.0, max(max_density_scale, 1.0))
 
@@ -254,7 +249,7 @@ def _triangulate(
     tri_cfg = cfg.triangulation
     max_hole = tri_cfg.max_hole if tri_cfg.max_hole is not None else cfg.growth.max_gap
     spacing = None
-    sampling = data_spacing(surface)  # one k-NN query of the data serves both uses
+    sampling = sampling_spacing(surface.tree, surface.points)  # one k-NN query, both uses
     if tri_cfg.max_density_scale > 1.0:
         spacing = density_spacing(
             surface, state.position, tri_cfg.max_density_scale, local=sampling
@@ -426,14 +421,16 @@ def _fit_sheet(
     on_progress: ProgressFn | None,
     normals_k_max: int | None = None,
     detected: Creases | None = None,
+    clock: Clock | None = None,
 ) -> _Sheet:
     """Normals, r0, the schedule and the trim: everything before the triangulation.
 
     ``normals_k_max``: the widest neighbourhood a point's normal may take
     (:func:`recon.normals.estimate_normals`); None: ``MAX_SCALE`` x ``normals.k`` when
     ``normals.per_point_scale``, else k only (a tile's resolved k comes with its scan's).
-    ``detected``: :func:`fit_particles`' ``creases`` (no crease statistics then)."""
-    clock = Clock(cfg.dynamics.time_limit)
+    ``detected``: :func:`fit_particles`' ``creases`` (no crease statistics then); ``clock``:
+    the fit's so far (a refit without near-duplicates)."""
+    clock, config = clock or Clock(cfg.dynamics.time_limit), cfg  # (config: for a refit)
     warm_fit_kernels()  # the kernels' cached code loads beside the first stages
     rng = np.random.default_rng(cfg.seed)
     # Morton order: every neighbour query and per-point pass below touches nearby memory,
@@ -462,8 +459,13 @@ def _fit_sheet(
         found, creases = detected.take(order), None
     if found is not None:  # a crease fixes the normals' orientation across it
         normals, found, _ = orient_across_creases(points, normals, found, k=cfg.creases.k)
-    notes: list[str] = []  # r0 across scan lines
+    notes = near_duplicate_notes(cloud.info)  # copies merged, r0 across scan lines
     r0, d_nn = choose_spacing(points, cfg, tree, None if knn is None else knn[0][:, 1], notes)
+    if (keep := near_duplicate_rows(points, tree, knn)) is not None:
+        again = None if detected is None else detected.take(order[keep])  # (the tile's rows)
+        return _fit_sheet(
+            merged_cloud(cloud, keep), config, on_progress, normals_k_max, again, clock
+        )
     if normals_info.get("source") == "estimated":  # signs where a thin part's faces meet
         variation = variations.get(cfg.normals.k)
         normals, _ = resign_thin_parts(points, normals, cfg.normals.k, tree, variation, knn)
