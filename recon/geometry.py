@@ -31,6 +31,7 @@ __all__ = [
     "fit_plane",
     "median_nearest_neighbor_distance",
     "median_variation",
+    "SURROUND_RATIO",
     "surround_distances",
     "poisson_disk_thin",
     "poisson_disk_thin_graded",
@@ -169,8 +170,19 @@ def median_nearest_neighbor_distance(
     return float(np.median(dist[:, 1]))
 
 
+#: Median surround distance (:func:`surround_distances`) over this many median nearest-neighbour
+#: distances: the samples lie in lines (or clumps) farther apart than uniformly random samples
+#: would be (3.4-3.5 for those: random points on a plane, the clean dev scans; a jittered grid
+#: 1.8), and the point spacing is the surround distance over this
+#: (:func:`recon.fitting.scale.sampled_spacing`). Lines D apart then get r0 = 2.5 D / 4 = D /
+#: 1.6, no place more than 1.6 r0 from a sample, as random samples at the default r0 (3.4 /
+#: 2.5 = 1.4).
+SURROUND_RATIO = 4.0
 #: Neighbours asked for by :func:`surround_distances`.
 SURROUND_NEIGHBOURS = 32
+#: Neighbours asked for, as a multiple of ``SURROUND_NEIGHBOURS``, where those do not surround
+#: a point (scan lines over 16 times denser along than across).
+SURROUND_WIDE = 8
 #: A point is surrounded once its neighbours leave no angular gap wider than this [rad]
 #: round it in its tangent plane (120 deg: three directions at least).
 SURROUND_GAP = 2.0 * np.pi / 3.0
@@ -206,8 +218,10 @@ def surround_distances(
     Returns
     -------
     (m,) float64 [length]
-        A point the ``k`` nearest do not surround (its neighbours all on one line, or on one
-        side: a border) gets the ``k``-th distance, a lower bound.
+        A point the ``k`` nearest do not surround (dense scan lines) is measured again among
+        its ``SURROUND_WIDE`` x ``k`` nearest; one these do not surround either (its
+        neighbours all on one line, or on one side: a border) gets the last distance, a
+        lower bound.
 
     Examples
     --------
@@ -216,9 +230,22 @@ def surround_distances(
     >>> float(surround_distances(pts, np.array([7 * 40 + 20]), cKDTree(pts))[0])
     3.0
     """
-    k = min(int(k), len(points) - 1)
+    n_max = len(points) - 1
+    k = min(int(k), n_max)
     if len(rows) == 0 or k < 2:
         return np.zeros(len(rows))
+    out, left = _surround_within(points, rows, tree, k)
+    wide = min(SURROUND_WIDE * k, n_max)
+    if len(left) and wide > k:  # dense lines: their k nearest all on one line
+        out[left], _ = _surround_within(points, rows[left], tree, wide)
+    return out
+
+
+def _surround_within(
+    points: np.ndarray, rows: np.ndarray, tree: cKDTree, k: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`surround_distances` among each row's ``k`` nearest, and the positions (in
+    ``rows``) of those they do not surround (their distance: the ``k``-th)."""
     dist, nb = tree.query(points[rows], k + 1, workers=query_workers())
     dist, nb = dist[:, 1:], nb[:, 1:]
     offsets = points[nb] - points[rows][:, None, :]
@@ -226,17 +253,31 @@ def surround_distances(
     _, axes = np.linalg.eigh(np.matmul(centred.transpose(0, 2, 1), centred))
     plane = np.matmul(offsets, axes[:, :, 1:])  # (m, k, 2): along the two widest axes
     angle = np.arctan2(plane[:, :, 0], plane[:, :, 1])
+    # the fewest nearest neighbours (j) that leave no gap: a gap only closes as j grows, so
+    # bisect j between lo (not enough, or 2) and hi (enough, or k + 1: never)
+    m = len(rows)
+    lo, hi = np.full(m, 2), np.full(m, k + 1)
+    hi[_max_gap(angle, np.full(m, k)) < SURROUND_GAP] = k
+    while np.any(hi - lo > 1):
+        mid = (lo + hi) // 2
+        ok = _max_gap(angle, mid) < SURROUND_GAP
+        hi = np.where(ok & (hi - lo > 1), mid, hi)
+        lo = np.where(~ok & (hi - lo > 1), mid, lo)
+    found = hi <= k
     out = dist[:, -1].copy()
-    left = np.arange(len(rows))  # not surrounded yet
-    for j in range(3, k + 1):  # the nearest j neighbours: a gap only closes as j grows
-        around = np.sort(angle[left, :j], axis=1)
-        gaps = np.diff(around, axis=1, append=around[:, :1] + 2.0 * np.pi)
-        closed = gaps.max(axis=1) < SURROUND_GAP
-        out[left[closed]] = dist[left[closed], j - 1]
-        left = left[~closed]
-        if len(left) == 0:
-            break
-    return out
+    out[found] = dist[np.flatnonzero(found), hi[found] - 1]
+    return out, np.flatnonzero(~found)
+
+
+def _max_gap(angle: np.ndarray, count: np.ndarray) -> np.ndarray:
+    """The widest angular gap [rad] round each row among its first ``count`` angles."""
+    k = angle.shape[1]
+    valid = np.arange(k)[None, :] < count[:, None]
+    around = np.sort(np.where(valid, angle, 4.0), axis=1)  # the valid ones (<= pi) first
+    steps = np.diff(around, axis=1)
+    steps[~valid[:, 1:]] = 0.0  # (steps past the last valid angle)
+    last = np.take_along_axis(around, (count - 1)[:, None], axis=1)[:, 0]
+    return np.maximum(steps.max(axis=1), around[:, 0] + 2.0 * np.pi - last)
 
 
 def fit_plane(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -71,7 +71,7 @@ def test_a_scan_line_patch_is_fitted_whole(monkeypatch):
     result = reconstruct(cloud, ReconConfig())
     topo = result.report.topology
     assert (topo.components, topo.boundary_loops, topo.non_manifold_edges) == (1, 1, 0)
-    assert topo.largest_hole_perimeter == pytest.approx(16.0, rel=0.05)  # the 4 x 4 rim
+    assert topo.largest_hole_perimeter == pytest.approx(16.0, rel=0.1)  # the 4 x 4 rim
     assert any("lines or clumps" in w for w in result.report.warnings)
     monkeypatch.setattr(scale, "SURROUND_RATIO", np.inf)  # the spacing along the lines
     with pytest.raises(InputError, match="no triangles"):

@@ -48,7 +48,6 @@ from ..geometry import bbox_diagonal, snap_to_precision
 from ..io.outliers import outlier_removal, outlier_summary, outlier_warnings
 from ..kernels.options import query_workers, thread_count
 from ..kernels.warm import warm_fit_kernels
-from ..near_duplicates import merged_cloud, near_duplicate_notes, near_duplicate_rows
 from ..neighbors import PointGrid
 from ..normal_scales import per_point_k_max
 from ..normal_signs import outward_across, resign_thin_parts
@@ -57,6 +56,7 @@ from ..polish import polish_and_untangle
 from ..serialize import dumps
 from ..state import ParticleState
 from ..surface import DataSurface
+from ..thinning import thinned_cloud, thinned_rows, thinning_notes
 from ..triangulate import TriangulationResult, triangulate_particles
 from ..two_sided import closed_two_sided
 from ..version import __version__
@@ -459,13 +459,11 @@ def _fit_sheet(
         found, creases = detected.take(order), None
     if found is not None:  # a crease fixes the normals' orientation across it
         normals, found, _ = orient_across_creases(points, normals, found, k=cfg.creases.k)
-    notes = near_duplicate_notes(cloud.info)  # copies merged, r0 across scan lines
+    notes = thinning_notes(cloud.info, cfg)  # clumps merged, lines thinned, r0 across lines
     r0, d_nn = choose_spacing(points, cfg, tree, None if knn is None else knn[0][:, 1], notes)
-    if (keep := near_duplicate_rows(points, tree, knn)) is not None:
-        again = None if detected is None else detected.take(order[keep])  # (the tile's rows)
-        return _fit_sheet(
-            merged_cloud(cloud, keep), config, on_progress, normals_k_max, again, clock
-        )
+    if (thin := thinned_rows(points, tree, knn, d_nn)) is not None:  # then start again
+        again = None if detected is None else detected.take(order[thin[0]])  # (a tile's rows)
+        return _fit_sheet(thinned_cloud(cloud, *thin), config, on_progress, k_max, again, clock)
     if normals_info.get("source") == "estimated":  # signs where a thin part's faces meet
         variation = variations.get(cfg.normals.k)
         normals, _ = resign_thin_parts(points, normals, cfg.normals.k, tree, variation, knn)

@@ -23,11 +23,13 @@ from ..config import ReconConfig, with_values
 from ..errors import InputError
 from ..geometry import (
     SPACING_SAMPLE_SEED,
+    SURROUND_RATIO,
     bbox_diagonal,
     median_nearest_neighbor_distance,
     surround_distances,
 )
 from ..normals import choose_neighborhood_size
+from ..thinning import LINE_RATIO
 
 __all__ = [
     "AREA_PER_POINT",
@@ -61,19 +63,11 @@ HEX_AREA = 0.866
 MIN_SPACING_FACTOR = 0.8
 #: Largest cell grid (cells of side r0 over the data's bounding box) the neighbour search accepts.
 MAX_GRID_CELLS = 2.0**60
-#: Median surround distance (:func:`recon.geometry.surround_distances`) over this many median
-#: nearest-neighbour distances: the samples lie in lines (or clumps) farther apart than
-#: uniformly random samples would be (3.4-3.5 for those: random points on a plane, the clean
-#: dev scans; a jittered grid 1.8), and the point spacing is the surround distance over this.
-#: Lines D apart then get r0 = 2.5 D / 4 = D / 1.6, one r0 at most 1.6 r0 from a sample, as
-#: random samples at the default r0 (3.4 / 2.5 = 1.4).
-SURROUND_RATIO = 4.0
 #: Points whose surround distance is measured (a sample; the median moves by about 1 %).
 SURROUND_SAMPLE = 2000
 #: The fit says why r0 is what it is when the point spacing is at least this many times the
-#: median nearest-neighbour distance (a smaller change is no news: a sphere with 1 point in 3
-#: repeated in clumps, 1.06x).
-NOTE_SPACING_RATIO = 1.25
+#: median nearest-neighbour distance (where scan lines are thinned: :mod:`recon.thinning`).
+NOTE_SPACING_RATIO = LINE_RATIO
 #: Default max_gap, in median data spacings.
 AUTO_GAP = 10.0
 #: The default max_gap is at least this many r0 (a gap narrower than one particle spacing is
@@ -192,6 +186,8 @@ def choose_spacing(
     """
     rng = np.random.default_rng(SPACING_SAMPLE_SEED)
     d_nn = median_nearest_neighbor_distance(points, rng=rng, tree=tree, nearest=nearest)
+    if d_nn > 0.0 and nearest is not None and not np.all(nearest > 0.0):
+        d_nn = float(np.median(nearest[nearest > 0.0]))  # exact repeats kept: not lines
     spacing = sampled_spacing(d_nn, median_surround(points, tree))
     r0 = spacing_from_median(spacing, len(points), bbox_diagonal(points), cfg)
     note = sampling_note(d_nn, spacing, r0, cfg)

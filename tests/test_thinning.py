@@ -1,5 +1,6 @@
-"""recon.near_duplicates: one place sampled many times is merged before the fit (#11: a
-sphere with 100 of its points repeated 50 times at 1e-6 jitter came out with bumps of 8 r0)."""
+"""recon.thinning: points denser than the surface needs are thinned before the fit (#11):
+clumps (a sphere with 100 of its points repeated 50 times at 1e-6 jitter came out with bumps
+of 8 r0) and scan lines far denser along than across (an airborne strip in 28 pieces)."""
 
 from __future__ import annotations
 
@@ -7,11 +8,11 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-import recon.near_duplicates as near
-from recon.config import ReconConfig
+import recon.thinning as thinning
+from recon.config import ReconConfig, with_values
 from recon.fitting import reconstruct
 from recon.io import cloud_from_arrays
-from recon.near_duplicates import merged_cloud, near_duplicate_notes, near_duplicate_rows
+from recon.thinning import clump_rows, line_rows, thinned_cloud, thinning_notes
 
 
 def _grid(n: int = 10) -> np.ndarray:
@@ -23,18 +24,18 @@ def test_a_clump_is_thinned_to_one_point_per_tenth_of_a_spacing():
     rng = np.random.default_rng(0)
     clump = grid[55] + rng.normal(size=(30, 3)) * 1e-4
     pts = np.vstack([grid, clump])
-    keep = near_duplicate_rows(pts, cKDTree(pts))
+    keep = clump_rows(pts, cKDTree(pts))
     assert keep.tolist() == list(range(len(grid)))  # the clump goes: its grid point stays
     wide = np.vstack([grid, grid[55] + rng.normal(size=(60, 3)) * 0.05])
-    kept = near_duplicate_rows(wide, cKDTree(wide))
+    kept = clump_rows(wide, cKDTree(wide))
     assert kept[: len(grid)].tolist() == list(range(len(grid)))
     assert len(grid) + 3 < len(kept) < len(wide) - 30  # thinned, not to one point
     assert np.sort(cKDTree(wide[kept]).query(wide[kept], 2)[0][:, 1])[0] >= 0.1
     again = pts[keep]
-    assert near_duplicate_rows(again, cKDTree(again)) is None
+    assert clump_rows(again, cKDTree(again)) is None
     # given neighbours are used as queried
     tree = cKDTree(pts)
-    assert np.array_equal(near_duplicate_rows(pts, tree, tree.query(pts, 8)), keep)
+    assert np.array_equal(clump_rows(pts, tree, tree.query(pts, 8)), keep)
 
 
 def test_pairs_and_triples_are_chance_not_clumps():
@@ -42,24 +43,43 @@ def test_pairs_and_triples_are_chance_not_clumps():
     grid = _grid()
     for extra, clumped in ((4, False), (5, True)):
         pts = np.vstack([grid, grid[55] + 1e-3 * np.arange(1, extra + 1)[:, None] * [1, 0, 0]])
-        keep = near_duplicate_rows(pts, cKDTree(pts))
+        keep = clump_rows(pts, cKDTree(pts))
         assert (keep is not None) == clumped
         if clumped:
             assert len(keep) == len(grid)
 
 
-def test_the_merged_cloud_keeps_its_rows_aligned_and_counts_them():
+def test_the_thinned_cloud_keeps_its_rows_aligned_and_says_why():
     pts = np.array([[0, 0, 0], [1, 0, 0], [1, 1e-9, 0], [0, 1, 0], [1, 1, 0]], dtype=float)
     cloud = cloud_from_arrays(pts, colors=np.linspace(0, 1, 15).reshape(5, 3))
     cloud.attributes["intensity"] = np.arange(5.0)
-    out = merged_cloud(cloud, np.array([0, 1, 3, 4]))
+    out = thinned_cloud(cloud, np.array([0, 1, 3, 4]), {"kind": "clumps"})
     assert out.attributes["intensity"].tolist() == [0, 1, 3, 4]
     np.testing.assert_array_equal(out.colors, cloud.colors[[0, 1, 3, 4]])
-    assert (
-        out.info["n_near_duplicates_merged"] == 1 and "n_near_duplicates_merged" not in cloud.info
-    )
-    assert "1 points lay in clumps (5 or more others" in near_duplicate_notes(out.info)[0]
-    assert near_duplicate_notes(cloud.info) == []
+    assert out.info["thinned"] == [{"kind": "clumps", "removed": 1}]
+    assert "thinned" not in cloud.info
+    cfg = ReconConfig()
+    assert "1 points lay in clumps (5 or more others" in thinning_notes(out.info, cfg)[0]
+    assert thinning_notes(cloud.info, cfg) == []
+    lines = {"kind": "lines", "gap": 2.0, "nearest": 0.1, "radius": 0.5}
+    twice = thinned_cloud(out, np.array([0, 1]), lines)
+    notes = thinning_notes(twice.info, cfg)
+    assert len(notes) == 2 and "about 2 apart, 20 times" in notes[1] and "(2 went)" in notes[1]
+    given = with_values(cfg, seeds={"spacing": 0.3})  # r0 the user's: the lines' note is not
+    assert len(thinning_notes(twice.info, given)) == 1
+
+
+def test_scan_lines_are_thinned_to_one_point_per_spacing_and_random_samples_are_not():
+    x, y = np.meshgrid(np.arange(0.0, 20.0, 0.05), np.arange(0.0, 20.0, 2.0))
+    lines = np.c_[x.ravel(), y.ravel(), np.zeros(x.size)]
+    kept = line_rows(lines, 0.5, 0.05)
+    assert len(kept) == 10 * 40  # one per 0.5 along each of the 10 lines
+    tree = cKDTree(lines[kept])
+    assert tree.query(lines[kept], 2)[0][:, 1].min() >= 0.5
+    assert line_rows(lines, 0.0624, 0.05) is None  # under 1.25 x the nearest distance
+    rng = np.random.default_rng(0)
+    flat = np.c_[rng.uniform(0, 10, (3000, 2)), np.zeros(3000)]
+    assert thinning.thinned_rows(flat, cKDTree(flat), None, 0.1) is None
 
 
 def _sphere_with_copies() -> np.ndarray:
@@ -81,7 +101,7 @@ def test_a_sphere_with_points_repeated_at_tiny_jitter_stays_a_sphere(monkeypatch
     assert 2990 < result.report.input.points <= 3000 and result.report.topology.watertight
     assert any("points lay in clumps" in w for w in result.report.warnings)
     assert result.report.timings.normals > 0
-    monkeypatch.setattr(near, "NEAR_DUPLICATE", 0.0)
+    monkeypatch.setattr(thinning, "NEAR_DUPLICATE", 0.0)
     kept = reconstruct(cloud, ReconConfig())
     assert np.abs(np.linalg.norm(kept.mesh.vertices, axis=1) - 1.0).max() > 0.05
 
@@ -108,4 +128,30 @@ def test_a_tiles_given_creases_follow_the_merged_rows():
 def test_no_clump_no_merge(n):
     rng = np.random.default_rng(n)
     pts = rng.uniform(0, 1, (500, 3))
-    assert near_duplicate_rows(pts, cKDTree(pts)) is None
+    assert clump_rows(pts, cKDTree(pts)) is None
+
+
+def _plate_in_lines(gap: float = 0.04, along: float = 0.004) -> np.ndarray:
+    """A 1 x 1 plate 0.02 thick scanned on both faces in lines ``gap`` apart, random points
+    ``along`` apart on average along them."""
+    rng = np.random.default_rng(9)
+    faces = []
+    for z in (0.01, -0.01):
+        for y in np.arange(0.0, 1.0, gap):
+            x = rng.uniform(0.0, 1.0, int(1.0 / along))
+            faces.append(np.c_[x, np.full(len(x), y), np.full(len(x), z)])
+    return np.vstack(faces)
+
+
+def test_a_plate_scanned_in_lines_is_one_closed_piece(monkeypatch):
+    """A tester's plate scanned in lines (ratio 29) came out as 11 ribbons (16 here): each
+    point's 20 nearest lay on its own line. Thinned along the lines, it is one watertight
+    piece."""
+    cloud = cloud_from_arrays(_plate_in_lines())
+    result = reconstruct(cloud, ReconConfig())
+    topo = result.report.topology
+    assert (topo.components, topo.watertight, topo.genus) == (1, True, 0)
+    assert any("thinned to one point per" in w for w in result.report.warnings)
+    monkeypatch.setattr(thinning, "LINE_RATIO", np.inf)  # no thinning: ribbons
+    ribbons = reconstruct(cloud, ReconConfig()).report.topology
+    assert ribbons.components > 3 or not ribbons.watertight
