@@ -11,16 +11,31 @@ from recon.cli.fit import format_summary
 from recon.cli.main import app
 
 import recon
+import recon.thinning
 from recon.fitting.mesh_warnings import (
     FAR_DATA_R0,
     FRAGMENT_COMPONENTS,
+    MIN_LARGEST_SHARE,
+    MIN_ON_DATA,
     MIN_VERTEX_SHARE,
+    PIECES_COMPONENTS,
     crossing_warning,
     far_data_warning,
+    fit_warnings,
     fragment_warning,
+    largest_component_faces,
     mesh_warnings,
+    off_data_warning,
 )
-from recon.fitting.report import Fidelity, FitReport, Topology, TriangulationStats
+from recon.fitting.report import (
+    Fidelity,
+    FitReport,
+    MeshMeasures,
+    MeshToInput,
+    Topology,
+    TriangleQuality,
+    TriangulationStats,
+)
 from recon.io import write_mesh
 from recon.winding import MIN_COMPONENT_FACES
 
@@ -59,6 +74,23 @@ def fidelity(p95: float, within_r0: float = 1.0) -> Fidelity:
         p95_relative=p95,
         max_relative=2 * p95,
         within_r0=within_r0,
+    )
+
+
+def mesh_to_input(within_reach: float, reach: float = 0.01) -> MeshToInput:
+    return MeshToInput(
+        n=1000,
+        mean=reach / 3,
+        rms=reach / 2,
+        p95=reach,
+        max=2 * reach,
+        mean_relative=reach / 3,
+        rms_relative=reach / 2,
+        p95_relative=reach,
+        max_relative=2 * reach,
+        within_r0=within_reach,
+        reach=reach,
+        within_reach=within_reach,
     )
 
 
@@ -114,9 +146,61 @@ def test_fragment_warning_names_both_defects_in_one_sentence():
 
 
 def test_separate_objects_with_real_shares_are_not_fragments():
-    # two objects, and ten, each with thousands of faces: legitimate components
+    # two objects, and ten, each with thousands of faces: not debris (ten of a tenth each are
+    # warned about once their largest is counted: test_pieces_warning_...)
     assert fragment_warning(2, 30_000, 15_000, 15_000) is None
     assert fragment_warning(10, 10 * 2_000, 10 * 1_002, 10 * 1_002) is None
+
+
+def test_pieces_warning_at_the_largest_components_share():
+    n, faces = PIECES_COMPONENTS, 30_000
+    at = int(np.ceil(MIN_LARGEST_SHARE * faces))  # the largest holds exactly the share: quiet
+    assert fragment_warning(n, faces, faces // 2, faces // 2, at) is None
+    w = fragment_warning(n, faces, faces // 2, faces // 2, at - 1)
+    assert w is not None and f"falls apart into {n} components, the largest holding only 67%" in w
+    assert "separate objects" in w and "--max-gap" in w
+    assert "on average" not in w  # its pieces are not debris
+    # fewer components: maybe as many separate objects, whatever their shares
+    assert fragment_warning(n - 1, faces, faces // 2, faces // 2, faces // n) is None
+    # the largest component not counted: that rule skipped
+    assert fragment_warning(n, faces, faces // 2, faces // 2, None) is None
+
+
+def test_pieces_and_debris_in_one_sentence():
+    # 35 pieces of 628 faces on average (above the debris size), the largest 23.5 % of them
+    w = fragment_warning(35, 21_993, 12_000, 12_000, 5_178)
+    assert w is not None and "35 components, the largest holding only 24% of the faces" in w
+    # 100 pieces of debris, the largest 10 %: both said once
+    w = fragment_warning(100, 4_000, 3_000, 3_000, 400)
+    assert w is not None and w.count("falls apart") == 1 and w.count("--spacing") == 1
+    assert "100 components of 40 faces on average" in w and "the largest holding only 10%" in w
+
+
+def test_a_few_separate_objects_are_not_pieces():
+    # three objects of a third each, four of a quarter: legitimate components
+    assert fragment_warning(3, 30_000, 15_000, 15_000, 10_000) is None
+    assert fragment_warning(4, 40_000, 20_000, 20_000, 10_000) is None
+    # a main part with small non-debris pieces beside it that hold less than a third
+    assert fragment_warning(40, 30_000, 15_000, 15_000, 20_001) is None
+
+
+def test_largest_component_faces_counts_faces_through_shared_vertices():
+    # a strip of 3 faces, a bow-tie of 2 (joined at vertex 8) and a lone face
+    f = [[0, 1, 2], [1, 2, 3], [2, 3, 4], [5, 6, 8], [8, 9, 10], [11, 12, 13]]
+    assert largest_component_faces(f) == 3
+    assert largest_component_faces(np.asarray(f)[3:]) == 2
+    assert largest_component_faces(np.zeros((0, 3), dtype=np.int64)) == 0
+
+
+def test_off_data_warning_at_its_share():
+    r0 = 0.01
+    assert off_data_warning(MIN_ON_DATA, r0, r0) is None
+    w = off_data_warning(0.587, 0.02, r0)
+    assert w is not None and "only 58.7% of the mesh surface lies within reach (0.02, 2.0 r0)" in w
+    assert "--max-gap" in w and "bridges gaps" in w
+    w = off_data_warning(np.nextafter(MIN_ON_DATA, 0.0), r0, r0)
+    assert w is not None and "only 66.7%" in w
+    assert off_data_warning(None, None, r0) is None  # not measured
 
 
 def test_far_data_warning_at_its_distance():
@@ -152,6 +236,46 @@ def test_mesh_warnings_reads_sections_and_plain_dicts_alike():
     assert mesh_warnings(bad_args[0].to_dict(), {}, particles=5000, r0=0.01) == bad[1:2]
 
 
+def test_mesh_warnings_reads_the_mesh_on_the_data_and_the_largest_component():
+    topo, r0 = topology(components=PIECES_COMPONENTS, faces=30_000), 0.01
+    kw = {"particles": 15_000, "r0": r0, "fidelity": fidelity(0.005)}
+    assert (
+        mesh_warnings(topo, stats(), mesh_to_input=mesh_to_input(0.99), largest=29_000, **kw) == ()
+    )
+    both = mesh_warnings(topo, stats(), mesh_to_input=mesh_to_input(0.6), largest=9_000, **kw)
+    assert len(both) == 2
+    assert "the largest holding only 30%" in both[0] and "only 60.0% of the mesh" in both[1]
+    plain = mesh_warnings(
+        topo.to_dict(), {}, mesh_to_input=mesh_to_input(0.6).to_dict(), largest=9_000, **kw
+    )
+    assert plain == both
+
+
+def measures(components: int, faces: int, within_reach: float) -> MeshMeasures:
+    quality = TriangleQuality(1, *[1.0] * 9)
+    topo = topology(components=components, faces=faces, vertices=faces)
+    return MeshMeasures(topo, quality, 1.0, fidelity(0.001), mesh_to_input(within_reach))
+
+
+def strip(n: int, first: int) -> list[list[int]]:
+    """A strip of ``n`` triangles on the vertices ``first .. first + n + 1``."""
+    return [[first + i, first + i + 1, first + i + 2] for i in range(n)]
+
+
+def test_fit_warnings_counts_the_largest_component_from_the_faces():
+    # a main strip of 120 faces and 5 strips of 60 (above the debris size): 6 components, the
+    # largest 120 / 420 of the faces
+    faces = np.array(strip(120, 0) + sum((strip(60, 200 + 100 * i) for i in range(5)), []))
+    m = measures(6, len(faces), 0.99)
+    w = fit_warnings(m, {}, 420, 0.01, faces)
+    assert len(w) == 1 and "6 components, the largest holding only 29%" in w[0]
+    assert fit_warnings(m, {}, 420, 0.01) == ()  # no faces: that rule skipped
+    # fewer components than the rule needs: the faces are not even counted
+    assert fit_warnings(measures(4, len(faces), 0.99), {}, 420, 0.01, faces) == ()
+    off = fit_warnings(measures(1, len(faces), 0.5), {}, 420, 0.01, faces)
+    assert len(off) == 1 and "only 50.0% of the mesh surface" in off[0]
+
+
 # --------------------------------------------------------------------------------------------
 # end to end
 
@@ -170,9 +294,11 @@ def scan_lines(rings: int, per_ring: int, seed: int) -> np.ndarray:
     return np.vstack(rows)
 
 
-def test_a_fit_that_falls_apart_says_so_in_report_and_summary():
+def test_a_fit_that_falls_apart_says_so_in_report_and_summary(monkeypatch):
     # rings 0.19 apart, a spacing of 0.03 and gaps of at most 4 r0: the sheet cannot join the
-    # rings, the mesh is a scatter of small pieces far from most of the data
+    # rings, the mesh is a scatter of small pieces far from most of the data (with the lines
+    # thinned as by default it makes no triangle at all: exit 2)
+    monkeypatch.setattr(recon.thinning, "LINE_RATIO", np.inf)
     res = recon.fit(scan_lines(16, 125, seed=2), {"seeds.spacing": 0.03, "growth.max_gap": 4.0})
     rep = res.report
     assert rep.topology.components >= FRAGMENT_COMPONENTS
@@ -182,6 +308,21 @@ def test_a_fit_that_falls_apart_says_so_in_report_and_summary():
     summary = format_summary(rep)
     assert f"  warning: {falls_apart[0]}" in summary and f"  warning: {far[0]}" in summary
     assert FitReport.from_dict(rep.to_dict()).warnings == rep.warnings
+
+
+def test_a_fit_of_many_pieces_says_so_in_the_report():
+    # six unit spheres far apart at one spacing: six components of about a sixth of the faces
+    # each (more separate objects than the rule lets by), the largest well under 2/3
+    rng = np.random.default_rng(1)
+    clouds = []
+    for i, n in enumerate([1200, 600, 600, 600, 600, 600]):
+        p = rng.normal(size=(n, 3))
+        clouds.append(p / np.linalg.norm(p, axis=1, keepdims=True) + [5.0 * i, 0.0, 0.0])
+    rep = recon.fit(np.vstack(clouds), {"seeds.spacing": 0.1}).report
+    assert rep.topology.components == 6
+    pieces = [w for w in rep.warnings if "the largest holding only" in w]
+    assert len(pieces) == 1 and "6 components" in pieces[0]
+    assert not any("falls apart" in w for w in rep.warnings if w not in pieces)
 
 
 def test_a_sound_fit_has_no_mesh_warnings():
@@ -197,6 +338,8 @@ def test_a_sound_fit_has_no_mesh_warnings():
             particles=rep.particles,
             r0=rep.spacing,
             fidelity=rep.fidelity,
+            mesh_to_input=rep.mesh_to_input,
+            largest=rep.topology.n_faces,
         )
         == ()
     )

@@ -1,27 +1,41 @@
 """Warnings about a poor mesh, from the measures the fit report already has.
 
 A fit that completes can still write a mesh that downstream tools reject or that does not
-represent the data. :func:`mesh_warnings` reads the report's figures (no new computation) and
-returns one sentence per defect, naming the figure and what to try:
+represent the data. :func:`mesh_warnings` reads the report's figures and returns one sentence
+per defect, naming the figure and what to try; the one figure the report lacks, the largest
+component's face count, :func:`fit_warnings` counts from the faces in one pass, and only for a
+mesh of :data:`PIECES_COMPONENTS` components or more:
 
 - **crossings**: self-crossing face pairs left after untangling
   (``triangulation.self_intersections_left`` > 0);
 - **fragments**: the mesh falls apart. Either its components are debris-sized on average
   (at least :data:`FRAGMENT_COMPONENTS` components holding fewer than
   :data:`recon.winding.MIN_COMPONENT_FACES` faces each on average, the size below which the
-  triangulation drops a component as debris next to a real part), or the triangulation kept
-  fewer than :data:`MIN_VERTEX_SHARE` of the fitted particles as vertices (it meshes every
-  particle of a connected sheet, so most of the sheet became debris or was never joined);
+  triangulation drops a component as debris next to a real part), or it has at least
+  :data:`PIECES_COMPONENTS` components and the largest holds less than
+  :data:`MIN_LARGEST_SHARE` of the faces (a third of the surface or more lies in pieces apart
+  from the main one, however large they are), or the triangulation kept fewer than
+  :data:`MIN_VERTEX_SHARE` of the fitted particles as vertices (it meshes every particle of a
+  connected sheet, so most of the sheet became debris or was never joined);
 - **far data**: at least 5 % of the input points lie farther than :data:`FAR_DATA_R0` r0
   from the mesh (the fidelity's 95th percentile): the particles interact over a few r0, so
-  data that far is not represented by the surface.
+  data that far is not represented by the surface;
+- **mesh off the data**: less than :data:`MIN_ON_DATA` of the mesh surface lies within reach
+  of an input point (``mesh_to_input.within_reach``, the summary's "mesh on the data"; the
+  reach is max(r0, 2.1 median point spacings), beyond which a uniformly random sampling
+  leaves 5 % of its surface): a third of the mesh or more bridges gaps or grows past the data.
 
-Several separate objects give several components each with a real share of the faces: the
-mean component size then stays far above the debris limit and no warning is given. At their
-values here the rules are quiet on all 27 dev cases and on the held-out shapes of
+Separate objects are told from pieces by their number: a scan of up to
+``PIECES_COMPONENTS - 1`` objects is never warned about whatever their sizes, and several
+objects each holding thousands of faces keep the mean component far above the debris limit.
+A scan of :data:`PIECES_COMPONENTS` or more separate objects none of which holds
+:data:`MIN_LARGEST_SHARE` of the faces is warned about (the sentence says so), since face
+counts alone cannot tell it from a surface that fell into as many pieces. At their values here
+the rules are quiet on all 27 dev cases and on the held-out shapes of
 ``benchmarks/bench_thin_parts.py`` (3k and 40k points) at the defaults. A tiled fit has no
-fidelity and no crossing count of the stitched mesh (its tiles' counts include their halos):
-it gets the fragments warning only.
+fidelity, no mesh-to-data distances, no crossing count of the stitched mesh (its tiles'
+counts include their halos) and no per-component face counts (its streamed topology counts
+the components only): it gets the fragments warning's debris and vertex-share rules only.
 """
 
 from __future__ import annotations
@@ -30,26 +44,43 @@ from collections.abc import Mapping
 from dataclasses import asdict, is_dataclass
 from typing import TYPE_CHECKING, Any
 
+import numpy as np
+
+from ..mesh import vertex_components
 from ..winding import MIN_COMPONENT_FACES
 
 if TYPE_CHECKING:
-    from .report import Fidelity, MeshMeasures, Topology, TriangulationStats
+    from .report import Fidelity, MeshMeasures, MeshToInput, Topology, TriangulationStats
 
 __all__ = [
     "FAR_DATA_R0",
     "FIT_HINT",
     "FRAGMENT_COMPONENTS",
+    "MIN_LARGEST_SHARE",
+    "MIN_ON_DATA",
     "MIN_VERTEX_SHARE",
+    "PIECES_COMPONENTS",
     "crossing_warning",
     "far_data_warning",
     "fit_warnings",
     "fragment_warning",
+    "largest_component_faces",
     "mesh_warnings",
+    "off_data_warning",
 ]
 
 #: A mesh of at least this many components whose mean component has fewer than
 #: ``MIN_COMPONENT_FACES`` faces has fallen apart (one or two small parts are a small mesh).
 FRAGMENT_COMPONENTS = 3
+#: A mesh of at least this many components whose largest holds less than
+#: ``MIN_LARGEST_SHARE`` of the faces fell apart into pieces, even when they are not debris;
+#: fewer components may be as many separate objects (dev set: 1 component, 2 on the bunny with
+#: a missing part; held-out shapes: 1).
+PIECES_COMPONENTS = 5
+#: ... i.e. a third of the surface or more lies in other pieces than the main one (dev set and
+#: held-out shapes: the largest holds at least 94 % of the faces, the bunny with a missing
+#: part).
+MIN_LARGEST_SHARE = 2.0 / 3.0
 #: The triangulation meshes every particle of a connected sheet (dev set: 99-100 % of them
 #: become vertices); a mesh with fewer vertices than this share of the particles lost most of
 #: the sheet.
@@ -58,6 +89,14 @@ MIN_VERTEX_SHARE = 0.5
 #: when at least 5 % of them are (the fidelity's p95; dev set at most 1.5 r0, the 1 %-noise
 #: bunny).
 FAR_DATA_R0 = 3.0
+#: Share of the mesh surface within reach of an input point (``mesh_to_input.within_reach``)
+#: below which the mesh bridges gaps or grows past the data: a third of the surface or more
+#: has no data under it. A uniformly random sampling leaves 5 % of its surface beyond the
+#: reach (dev set: 0.94-1.0 on 24 of the 27 scans), but the reach follows the *median*
+#: spacing, so where the density falls the share drops on a sound mesh too (dev set: 0.83 on
+#: the non-uniform hemisphere, 0.84 on the non-uniform bunny, 0.88 on the sparse face; held-out:
+#: 0.73 on the 20x density gradient at 3k points): a mesh a third off the data stays below.
+MIN_ON_DATA = 2.0 / 3.0
 #: What to try about crossings left by a fit.
 FIT_HINT = "try a larger --spacing, or remove outliers from the input"
 
@@ -94,7 +133,9 @@ def crossing_warning(left: int, found: int | None = None, hint: str = FIT_HINT) 
     )
 
 
-def fragment_warning(components: int, faces: int, vertices: int, particles: int) -> str | None:
+def fragment_warning(
+    components: int, faces: int, vertices: int, particles: int, largest: int | None = None
+) -> str | None:
     """The warning for a mesh that fell apart (None when it did not).
 
     Parameters
@@ -103,13 +144,30 @@ def fragment_warning(components: int, faces: int, vertices: int, particles: int)
         The mesh's connected components, faces and vertices.
     particles : int
         The fitted particles the mesh was triangulated from (0: not known, that test skipped).
+    largest : int, optional
+        Faces of the largest component (None: not known, that test skipped;
+        :func:`largest_component_faces`).
     """
     parts = []
-    if components >= FRAGMENT_COMPONENTS and faces < MIN_COMPONENT_FACES * components:
-        parts.append(
-            f"falls apart into {components:,} components of {faces / components:.0f} faces "
-            f"on average (the triangulation's debris size is {MIN_COMPONENT_FACES})"
-        )
+    debris = components >= FRAGMENT_COMPONENTS and faces < MIN_COMPONENT_FACES * components
+    pieces = (
+        largest is not None
+        and components >= PIECES_COMPONENTS
+        and largest < MIN_LARGEST_SHARE * faces
+    )
+    if debris or pieces:
+        text = f"falls apart into {components:,} components"
+        if debris:
+            text += (
+                f" of {faces / components:.0f} faces on average (the triangulation's debris "
+                f"size is {MIN_COMPONENT_FACES})"
+            )
+        if pieces:
+            text += (
+                f", the largest holding only {largest / faces:.0%} of the faces (unless the "
+                "scan holds that many separate objects)"
+            )
+        parts.append(text)
     if particles > 0 and vertices < MIN_VERTEX_SHARE * particles:
         parts.append(
             f"has {vertices:,} vertices from {particles:,} fitted particles "
@@ -145,6 +203,54 @@ def far_data_warning(p95: float | None, within_r0: float | None, r0: float) -> s
     )
 
 
+def off_data_warning(within_reach: float | None, reach: float | None, r0: float) -> str | None:
+    """The warning for a mesh that lies off the data (None when it does not).
+
+    Parameters
+    ----------
+    within_reach : float or None
+        Share of the mesh surface within ``reach`` of an input point (None: not measured).
+    reach : float or None [length]
+        That reach (named in the sentence, in r0 too).
+    r0 : float [length]
+        The rest spacing.
+    """
+    if within_reach is None or not within_reach < MIN_ON_DATA:
+        return None
+    where = f" ({reach:.4g}, {reach / r0:.1f} r0)" if reach is not None and r0 > 0 else ""
+    return (
+        f"only {within_reach:.1%} of the mesh surface lies within reach{where} of an input "
+        "point (about 99 % on a sound fit of evenly sampled data): the mesh bridges gaps or "
+        "grows past the data; try a smaller --max-gap or a larger --spacing, or check the "
+        "normals (--viewpoint)"
+    )
+
+
+def largest_component_faces(faces: Any) -> int:
+    """Faces of a mesh's largest connected component (faces joined through shared vertices).
+
+    Parameters
+    ----------
+    faces : (F, 3) array_like of int
+        The mesh's triangles.
+
+    Returns
+    -------
+    int
+        0 for a mesh without faces.
+
+    Examples
+    --------
+    >>> largest_component_faces([[0, 1, 2], [1, 2, 3], [4, 5, 6]])
+    2
+    """
+    f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    if len(f) == 0:
+        return 0
+    count, labels = vertex_components(f, int(f.max()) + 1)
+    return int(np.bincount(labels[f[:, 0]], minlength=count).max())
+
+
 def mesh_warnings(
     topology: Topology | Mapping[str, Any],
     triangulation: TriangulationStats | Mapping[str, Any],
@@ -152,8 +258,10 @@ def mesh_warnings(
     particles: int,
     r0: float,
     fidelity: Fidelity | Mapping[str, Any] | None = None,
+    mesh_to_input: MeshToInput | Mapping[str, Any] | None = None,
+    largest: int | None = None,
 ) -> tuple[str, ...]:
-    """The warnings about a poor mesh, in the order crossings, fragments, far data.
+    """The warnings about a poor mesh, in the order crossings, fragments, far data, off data.
 
     Parameters
     ----------
@@ -169,6 +277,11 @@ def mesh_warnings(
     fidelity : Fidelity or mapping, optional
         The input-to-mesh distances (``p95``, ``within_r0``); None skips that warning (a tiled
         fit does not measure them).
+    mesh_to_input : MeshToInput or mapping, optional
+        The mesh-to-input distances (``within_reach``, ``reach``); None skips that warning.
+    largest : int, optional
+        Faces of the largest component (:func:`largest_component_faces`); None skips the
+        fragments warning's largest-share rule.
 
     Returns
     -------
@@ -176,21 +289,31 @@ def mesh_warnings(
         One sentence per defect found; empty for a sound mesh.
     """
     topo, tri, fid = _section(topology), _section(triangulation), _section(fidelity)
+    m2i = _section(mesh_to_input)
     found = tri.get("self_intersections_found")
     out = (
         crossing_warning(
             int(tri.get("self_intersections_left", 0)), None if found is None else int(found)
         ),
         fragment_warning(
-            int(topo["components"]), int(topo["n_faces"]), int(topo["n_vertices"]), particles
+            int(topo["components"]),
+            int(topo["n_faces"]),
+            int(topo["n_vertices"]),
+            particles,
+            largest,
         ),
         far_data_warning(fid.get("p95"), fid.get("within_r0"), r0),
+        off_data_warning(m2i.get("within_reach"), m2i.get("reach"), r0),
     )
     return tuple(w for w in out if w is not None)
 
 
 def fit_warnings(
-    measures: MeshMeasures, triangulation: Mapping[str, Any], particles: int, r0: float
+    measures: MeshMeasures,
+    triangulation: Mapping[str, Any],
+    particles: int,
+    r0: float,
+    faces: Any = None,
 ) -> tuple[str, ...]:
     """:func:`mesh_warnings` of an untiled fit: its measures and triangulation stats.
 
@@ -204,11 +327,18 @@ def fit_warnings(
         The fitted particles.
     r0 : float [length]
         The rest spacing.
+    faces : (F, 3) array_like of int, optional
+        The measured mesh's faces: the largest component's share is counted from them when the
+        mesh has at least :data:`PIECES_COMPONENTS` components (one pass over the faces; None
+        skips that rule).
     """
+    many = faces is not None and measures.topology.components >= PIECES_COMPONENTS
     return mesh_warnings(
         measures.topology,
         triangulation,
         particles=int(particles),
         r0=r0,
         fidelity=measures.fidelity,
+        mesh_to_input=measures.mesh_to_input,
+        largest=largest_component_faces(faces) if many else None,
     )
