@@ -302,10 +302,11 @@ def format_summary(report: FitReport) -> str:
     default=None,
     help="Remove stray points before the fit (io.outliers: statistical): those whose mean "
     "distance to their io.outlier_k (20) nearest exceeds the median of that distance by "
-    "io.outlier_std_ratio (3) robust standard deviations, as Open3D's "
-    "remove_statistical_outlier with median and MAD for mean and std. The summary's input "
-    "line counts them. Sparse parts of a nonuniformly sampled scan can go too; not with "
-    "tiled fits (clean first: oprecon normals --remove-outliers).",
+    "io.outlier_std_ratio (3) robust standard deviations and is over twice the median, as "
+    "Open3D's remove_statistical_outlier with median and MAD for mean and std. The summary's "
+    "input line counts them. Sparse parts of a nonuniformly sampled scan can go too (a "
+    "terrestrial scan's far range); not with tiled fits (clean first: oprecon normals "
+    "--remove-outliers).",
 )
 @click.option(
     "--tile-size",

@@ -83,7 +83,8 @@ ORIENTATIONS = NormalsConfig.__dataclass_fields__["orientation"].metadata["choic
     default=None,
     help="Remove stray points before the normals, as oprecon fit --remove-outliers does: "
     "those whose mean distance to their io.outlier_k nearest exceeds the median of that "
-    "distance by io.outlier_std_ratio robust standard deviations; the output keeps the rest "
+    "distance by io.outlier_std_ratio robust standard deviations and is over twice the "
+    "median; the output keeps the rest "
     "(a cleaned cloud for a tiled fit) [io.outliers: statistical].",
 )
 @click.option("--ascii", "ascii_", is_flag=True, default=None, help="ASCII PLY [io.ascii].")
