@@ -213,7 +213,14 @@ def far_fraction(mean: np.ndarray, indices: np.ndarray) -> float:
     times the median of their k nearest's (``indices``, :func:`local_ratio`); 0 for none."""
     if len(mean) == 0:
         return 0.0
-    return float(np.count_nonzero(local_ratio(mean, indices) > LOCAL_RATIO)) / len(mean)
+    if indices.shape[1] == 0:
+        return 0.0
+    # only a point over LOCAL_RATIO x its nearest's least can be over it x their median: the
+    # medians (most of the cost) are taken for those (bunny-clean: 20-35 -> a few ms)
+    maybe = np.flatnonzero(mean > LOCAL_RATIO * mean[indices].min(axis=1))
+    reference = np.median(mean[indices[maybe]], axis=1) if len(maybe) else np.zeros(0)
+    far = mean[maybe] > LOCAL_RATIO * reference  # (a reference of 0: coincident, not far)
+    return float(np.count_nonzero(far & (reference > 0.0))) / len(mean)
 
 
 def outlier_summary(
