@@ -23,6 +23,7 @@ def describe(path: Path, classes: list[int] | None = None) -> dict[str, Any]:
     """
     import numpy as np
 
+    from recon.cloud import spatial_order
     from recon.fitting.scale import median_surround, sampled_spacing
     from recon.geometry import (
         SPACING_SAMPLE_SEED,
@@ -32,10 +33,12 @@ def describe(path: Path, classes: list[int] | None = None) -> dict[str, Any]:
     from recon.io import read_points
 
     cloud = read_points(path, classes=classes)
+    # in the fit's (Morton) order: the same samples, whatever the order of the file's rows
+    ordered = cloud.points[spatial_order(cloud.points)]
     nearest = median_nearest_neighbor_distance(
-        cloud.points, rng=np.random.default_rng(SPACING_SAMPLE_SEED)
+        ordered, rng=np.random.default_rng(SPACING_SAMPLE_SEED)
     )
-    surround = median_surround(cloud.points) if len(cloud) > 2 else 0.0
+    surround = median_surround(ordered) if len(cloud) > 2 else 0.0
     pts = cloud.absolute_points()
     lo = pts.min(axis=0)
     hi = pts.max(axis=0)
@@ -102,9 +105,11 @@ def _vec(v: list[float]) -> str:
 
 def _spacing(d: dict[str, Any]) -> str:
     """The spacing row: the median nearest-neighbour distance, and the spacing across scan
-    lines when the fit takes that one instead."""
+    lines when the fit takes that one instead and says so (``NOTE_SPACING_RATIO``)."""
+    from recon.fitting.scale import NOTE_SPACING_RATIO
+
     out = f"{_num(d['spacing_median_nn'])} (median nearest-neighbour distance)"
-    if d["spacing"] > d["spacing_median_nn"]:
+    if d["spacing"] >= NOTE_SPACING_RATIO * d["spacing_median_nn"]:  # as the fit says it
         out += (
             f"; in lines or clumps {_num(d['spacing_surround'])} apart: a fit takes "
             f"{_num(d['spacing'])}"

@@ -16,7 +16,7 @@ from recon.config import ReconConfig, with_values
 from recon.errors import InputError
 from recon.fitting import reconstruct
 from recon.fitting.scale import SURROUND_RATIO, choose_spacing, sampled_spacing
-from recon.io import cloud_from_arrays, write_points
+from recon.io import cloud_from_arrays, read_points, write_points
 
 
 def scan_lines(n_lines: int = 24, per_line: int = 120, seed: int = 0) -> np.ndarray:
@@ -99,3 +99,18 @@ def test_a_small_change_of_the_spacing_is_not_announced():
     cfg = ReconConfig()
     assert scale.sampling_note(1.0, 1.2, 2.5, cfg) is None
     assert "5 times" in scale.sampling_note(1.0, 1.25, 2.5, cfg)
+
+
+def test_info_measures_the_spacing_in_the_fits_order(tmp_path):
+    """Regression: `oprecon info` sampled the points in the file's order, the fit in its
+    Morton order: near the threshold one said lines and the other not. Now info gives the
+    fit's spacing whatever the file's order (up to points tied in one Morton cell)."""
+    from recon.cloud import spatial_order
+
+    pts = np.random.default_rng(3).permutation(scan_lines())
+    path = tmp_path / "lines.ply"
+    write_points(path, pts)
+    d = json.loads(CliRunner().invoke(app, ["info", str(path), "--json"]).stdout)
+    read = read_points(path).points  # (as written)
+    _, spacing = choose_spacing(read[spatial_order(read)], ReconConfig())
+    assert d["spacing"] == pytest.approx(spacing, rel=1e-12)

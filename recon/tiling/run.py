@@ -39,6 +39,7 @@ from typing import Any
 
 import numpy as np
 
+from ..cloud import spatial_order
 from ..config import ReconConfig, config_to_dict, parse_size, with_values
 from ..errors import InputError
 from ..fitting.memory import check_memory, estimate_peak_memory
@@ -174,6 +175,7 @@ def _scan_scales(header: ScanHeader, store: Any, cfg: ReconConfig, runner: Any, 
     n_total = sum(store.counts.values())
     if header.cloud is not None:  # read whole: exactly as an untiled fit
         pts = header.cloud.points
+        pts = pts[spatial_order(pts)]  # the untiled fit's order: its spacing samples
         tree = cKDTree(pts)
         _, spacing = choose_spacing(pts, cfg, tree)
         near = tree.query(pts, DENSITY_NEIGHBOURS + 1)[0]
@@ -421,7 +423,9 @@ def fit_tiled(
         creases, crease_warnings = _crease_section(cfg, records, unmatched, d6, r0, is_obj)
         warnings += crease_warnings
         # (no crossings warning: the tiles' counts include their halos, not the stitched mesh's)
-        warnings += mesh_warnings(topology, {}, particles=int(total), r0=r0)
+        warnings += mesh_warnings(
+            topology, {}, particles=int(total), r0=r0, largest=stitched["largest_component_faces"]
+        )
         tile_times = records.tile_times()
         report: dict[str, Any] = {
             "oprecon_version": __version__,
