@@ -434,3 +434,31 @@ def test_a_tiled_las_fit_of_scan_lines_takes_the_spacing_across_them(tmp_path):
     assert any("lines or clumps" in w for w in b["warnings"]), b["warnings"]
     v, f = read_mesh(tmp_path / "b.ply")
     assert mesh_topology(v, f)["boundary_loops"] == 1
+
+
+def test_a_tiled_mesh_in_many_pieces_is_warned_of_as_an_untiled_one(tmp_path):
+    """Six separate patches, some cut by the tiles: the streamed topology counts the largest
+    component's faces, so a tiled fit gets the fragments warning's largest-share rule too
+    (it was skipped: the streamed topology counted the components only; the patches are far
+    above the debris size, so no other rule warns)."""
+    from recon.fitting.mesh_warnings import largest_component_faces
+
+    rng = np.random.default_rng(5)
+    parts = []
+    for x, y in [(0, 0), (4, 0), (8, 0), (0, 4), (4, 4), (8, 4)]:
+        xy = rng.uniform(0, 2.5, (800, 2))
+        z = 0.2 * np.sin(2.0 * xy[:, 0]) * np.cos(1.5 * xy[:, 1])
+        parts.append(np.column_stack([xy[:, 0] + x, xy[:, 1] + y, z]))
+    src, out = tmp_path / "six.ply", tmp_path / "mesh.ply"
+    write_points(src, np.vstack(parts))
+    res = _run(["fit", str(src), "-o", str(out), "--tile-size", "3", "--json", "-q"])
+    assert res.exit_code == 0, res.output
+    report = json.loads(res.stdout)
+    assert report["tiles"]["count"] > 6 and report["topology"]["components"] == 6
+    _, f = read_mesh(out)
+    share = largest_component_faces(f) / len(f)
+    assert share < 0.25
+    pieces = [w for w in report["warnings"] if "falls apart into 6 components" in w]
+    assert len(pieces) == 1, report["warnings"]
+    assert f"the largest holding only {share:.0%} of the faces" in pieces[0]
+    assert "average" not in pieces[0]  # not the debris rule

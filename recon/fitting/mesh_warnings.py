@@ -33,9 +33,9 @@ A scan of :data:`PIECES_COMPONENTS` or more separate objects none of which holds
 counts alone cannot tell it from a surface that fell into as many pieces. At their values here
 the rules are quiet on all 27 dev cases and on the held-out shapes of
 ``benchmarks/bench_thin_parts.py`` (3k and 40k points) at the defaults. A tiled fit has no
-fidelity, no mesh-to-data distances, no crossing count of the stitched mesh (its tiles'
-counts include their halos) and no per-component face counts (its streamed topology counts
-the components only): it gets the fragments warning's debris and vertex-share rules only.
+fidelity, no mesh-to-data distances and no crossing count of the stitched mesh (its tiles'
+counts include their halos): it gets the fragments warning only (its streamed topology counts
+the largest component's faces: :class:`recon.tiling.measure.TopologyAccumulator`).
 """
 
 from __future__ import annotations

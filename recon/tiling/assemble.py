@@ -279,9 +279,11 @@ def stitch_streamed(
     Returns a dict with ``store`` (:class:`VertexStore`), ``units`` (an iterable of the
     units' final faces in global ids, read when iterated), ``used``
     (:class:`~recon.tiling.vertices.UsedVertices`: the vertices the mesh uses),
-    ``topology``, ``quality``, ``seams``, ``repair``, ``coordinate_type`` (the PLY coordinate
-    type of the written vertices, :class:`recon.tiling.measure.CoordinateRange`) and ``memory``
-    (the largest sub-meshes held, for the report and the tests). ``n_properties``: per-vertex
+    ``topology``, ``largest_component_faces`` (the faces of the mesh's largest component,
+    for the fragments warning; not in the report), ``quality``, ``seams``, ``repair``,
+    ``coordinate_type`` (the PLY coordinate type of the written vertices,
+    :class:`recon.tiling.measure.CoordinateRange`) and ``memory`` (the largest sub-meshes
+    held, for the report and the tests). ``n_properties``: per-vertex
     properties the tiles wrote (copies of bow-tie vertices take their source's).
     """
     from .stitch import SEAM_BAND
@@ -443,6 +445,7 @@ def stitch_streamed(
         "used": used,
         "n_faces": acc.f,
         "topology": acc.topology(used.total),
+        "largest_component_faces": acc.largest_faces,  # set by acc.topology
         "coordinate_type": acc.coordinates.type(),
         "bounds": (acc.coordinates.lo, acc.coordinates.hi),
         "defects": acc.defects(),

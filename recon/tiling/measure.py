@@ -77,6 +77,10 @@ class TopologyAccumulator:
     file per :data:`LINK_BUCKET` vertex ids and are joined bucket by bucket at the end; the
     components' counts are one row each. Held to the end: the boundary edges (the mesh's
     loops) and the non-manifold edges and vertices.
+
+    :meth:`topology` also sets :attr:`largest_faces`, the faces of the mesh's largest
+    component (the fragments warning's largest-share rule,
+    :func:`recon.fitting.mesh_warnings.mesh_warnings`; not a key of the report's topology).
     """
 
     ANGLE_BINS = np.linspace(0.0, 60.0, 6001)
@@ -97,6 +101,8 @@ class TopologyAccumulator:
         self.links = BlockFiles(work, "links", 2)
         self.link_buckets: set[int] = set()
         self.n_nodes = 0
+        #: faces of the largest component, set by :meth:`topology` (None before)
+        self.largest_faces: int | None = None
         # triangle quality
         self.q_n = 0
         self.q_min_sum = 0.0
@@ -313,11 +319,17 @@ class TopologyAccumulator:
         }
 
     def topology(self, n_vertices_written: int) -> dict[str, Any]:
-        """The report's ``topology`` (the keys of :func:`recon.topology.mesh_topology`)."""
+        """The report's ``topology`` (the keys of :func:`recon.topology.mesh_topology`).
+
+        Also sets :attr:`largest_faces`: the faces of the largest component (the nodes' face
+        counts summed by component; 0 for a mesh without faces).
+        """
         counts = self.node_counts[: self.n_nodes]
         n_nodes = len(counts)
         comp = self._components()
         n_comp = len(np.unique(comp)) if n_nodes else 0
+        per_comp = np.bincount(comp, weights=counts[:, 2], minlength=1)
+        self.largest_faces = int(per_comp.max())
         n_boundary = int(sum(len(b) for b in self.boundary))
         n_loops, largest = 0, 0.0
         if n_boundary:
