@@ -220,7 +220,7 @@ def surround_distances(
     (m,) float64 [length]
         A point the ``k`` nearest do not surround (dense scan lines) is measured again among
         its ``SURROUND_WIDE`` x ``k`` nearest; one these do not surround either (its
-        neighbours all on one line, or on one side: a border) gets the last distance, a
+        neighbours all on one line, or on one side: a border) gets the ``k``-th distance, a
         lower bound.
 
     Examples
@@ -237,8 +237,11 @@ def surround_distances(
     out, left = _surround_within(points, rows, tree, k)
     wide = min(SURROUND_WIDE * k, n_max)
     if len(left) and wide > k:  # dense lines: their k nearest all on one line
-        out[left], _ = _surround_within(points, rows[left], tree, wide)
-    return out
+        again, still = _surround_within(points, rows[left], tree, wide)
+        found = np.ones(len(left), dtype=bool)
+        found[still] = False
+        out[left[found]] = again[found]  # (the rest keep the k-th distance: a border's
+    return out  # farthest of 8 k neighbours says nothing of its spacing)
 
 
 def _surround_within(

@@ -38,6 +38,7 @@ __all__ = [
     "LINE_THIN",
     "NEAR_DUPLICATE",
     "clump_rows",
+    "line_gap",
     "line_rows",
     "thinned_cloud",
     "thinned_rows",
@@ -149,24 +150,37 @@ def thinned_rows(
     tree: cKDTree,
     neighbors: tuple[np.ndarray, np.ndarray] | None,
     spacing: float,
+    info: dict[str, Any] | None = None,
 ) -> tuple[np.ndarray, dict[str, Any]] | None:
     """The rows a fit keeps of ``points`` (:func:`clump_rows`, else :func:`line_rows`) and why
     (the ``why`` of :func:`thinned_cloud`); None: all of them.
 
     ``neighbors``: the fit's shared k-nearest query (queried when None or narrow);
-    ``spacing``: the point spacing (:func:`recon.fitting.scale.choose_spacing`).
+    ``spacing``: the point spacing (:func:`recon.fitting.scale.choose_spacing`); ``info``:
+    the cloud's, whose lines were thinned already when it says so (once is enough: a few
+    dozen points in lines, measured again, thinned again to 10).
     """
     if neighbors is None or neighbors[0].shape[1] <= CLUMP:
         neighbors = tree.query(points, CLUMP + 1, workers=query_workers())
     keep = clump_rows(points, tree, neighbors)
     if keep is not None:
         return keep, {"kind": "clumps"}
+    if any(done["kind"] == "lines" for done in (info or {}).get("thinned", [])):
+        return None
     nearest = median_nearest(neighbors[0])
     keep = line_rows(points, spacing, nearest)
     if keep is None:
         return None
     why = {"kind": "lines", "gap": SURROUND_RATIO * spacing, "nearest": nearest}
     return keep, {**why, "radius": LINE_THIN * spacing}
+
+
+def line_gap(info: dict[str, Any]) -> float | None:
+    """The distance between the scan lines measured before the cloud (``info``: its) was
+    thinned along them (None: it was not): the fit started again keeps it, as a few dozen
+    points left measure their own farther apart."""
+    gaps = [done["gap"] for done in info.get("thinned", []) if done["kind"] == "lines"]
+    return gaps[-1] if gaps else None
 
 
 def thinned_cloud(cloud: PointCloud, keep: np.ndarray, why: dict[str, Any]) -> PointCloud:

@@ -155,3 +155,16 @@ def test_a_plate_scanned_in_lines_is_one_closed_piece(monkeypatch):
     monkeypatch.setattr(thinning, "LINE_RATIO", np.inf)  # no thinning: ribbons
     ribbons = reconstruct(cloud, ReconConfig()).report.topology
     assert ribbons.components > 3 or not ribbons.watertight
+
+
+def test_a_few_lines_are_thinned_once_and_said_once(monkeypatch):
+    """Regression: 6 lines of 8 points were thinned to 28 points, measured again (the few
+    left farther apart) and thinned again to 10, with two notes that disagreed on the gap."""
+    rng = np.random.default_rng(0)
+    pts = np.vstack(
+        [np.c_[rng.uniform(0, 1, 8), np.full(8, y), np.zeros(8)] for y in np.linspace(0, 1, 6)]
+    )
+    result = reconstruct(cloud_from_arrays(pts), ReconConfig())
+    lines = [w for w in result.report.warnings if "lines or clumps" in w]
+    assert len(lines) == 1 and "(20 went)" in lines[0]
+    assert result.report.input.points == 28

@@ -56,7 +56,7 @@ from ..polish import polish_and_untangle
 from ..serialize import dumps
 from ..state import ParticleState
 from ..surface import DataSurface
-from ..thinning import thinned_cloud, thinned_rows, thinning_notes
+from ..thinning import line_gap, thinned_cloud, thinned_rows, thinning_notes
 from ..triangulate import TriangulationResult, triangulate_particles
 from ..two_sided import closed_two_sided
 from ..version import __version__
@@ -460,8 +460,9 @@ def _fit_sheet(
     if found is not None:  # a crease fixes the normals' orientation across it
         normals, found, _ = orient_across_creases(points, normals, found, k=cfg.creases.k)
     notes = thinning_notes(cloud.info, cfg)  # clumps merged, lines thinned, r0 across lines
-    r0, d_nn = choose_spacing(points, cfg, tree, None if knn is None else knn[0][:, 1], notes)
-    if (thin := thinned_rows(points, tree, knn, d_nn)) is not None:  # then start again
+    nearest, gap = None if knn is None else knn[0][:, 1], line_gap(cloud.info)
+    r0, d_nn = choose_spacing(points, cfg, tree, nearest, notes, gap)
+    if (thin := thinned_rows(points, tree, knn, d_nn, cloud.info)) is not None:  # start again
         again = None if detected is None else detected.take(order[thin[0]])  # (a tile's rows)
         return _fit_sheet(thinned_cloud(cloud, *thin), config, on_progress, k_max, again, clock)
     if normals_info.get("source") == "estimated":  # signs where a thin part's faces meet

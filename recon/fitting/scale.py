@@ -148,6 +148,7 @@ def choose_spacing(
     tree: cKDTree | None = None,
     nearest: np.ndarray | None = None,
     notes: list[str] | None = None,
+    surround: float | None = None,
 ) -> tuple[float, float]:
     """Rest spacing r0 [length] and the point spacing of the data (:func:`sampled_spacing`:
     the median nearest-neighbour distance unless the samples lie in lines).
@@ -173,6 +174,9 @@ def choose_spacing(
         k-nearest query; see :func:`recon.geometry.median_nearest_neighbor_distance`).
     notes : list of str, optional
         Receives :func:`sampling_note` when r0 follows scan lines.
+    surround : float, optional
+        The median surround distance [length] when known (measured before the lines were
+        thinned: :func:`recon.thinning.line_gap`); no note then (the thinning's says it).
 
     Returns
     -------
@@ -188,9 +192,10 @@ def choose_spacing(
     d_nn = median_nearest_neighbor_distance(points, rng=rng, tree=tree, nearest=nearest)
     if d_nn > 0.0 and nearest is not None and not np.all(nearest > 0.0):
         d_nn = float(np.median(nearest[nearest > 0.0]))  # exact repeats kept: not lines
-    spacing = sampled_spacing(d_nn, median_surround(points, tree))
+    known = surround is not None
+    spacing = sampled_spacing(d_nn, surround if known else median_surround(points, tree))
     r0 = spacing_from_median(spacing, len(points), bbox_diagonal(points), cfg)
-    note = sampling_note(d_nn, spacing, r0, cfg)
+    note = None if known else sampling_note(d_nn, spacing, r0, cfg)
     if note is not None and notes is not None:
         notes.append(note)
     return r0, spacing
