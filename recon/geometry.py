@@ -220,8 +220,8 @@ def surround_distances(
     (m,) float64 [length]
         A point the ``k`` nearest do not surround (dense scan lines) is measured again among
         its ``SURROUND_WIDE`` x ``k`` nearest; one these do not surround either (its
-        neighbours all on one line, or on one side: a border) gets the ``k``-th distance, a
-        lower bound.
+        neighbours all on one line, or on one side: a border, every point of a strip two
+        rows wide) gets NaN: its distances say nothing of the spacing across.
 
     Examples
     --------
@@ -238,10 +238,10 @@ def surround_distances(
     wide = min(SURROUND_WIDE * k, n_max)
     if len(left) and wide > k:  # dense lines: their k nearest all on one line
         again, still = _surround_within(points, rows[left], tree, wide)
-        found = np.ones(len(left), dtype=bool)
-        found[still] = False
-        out[left[found]] = again[found]  # (the rest keep the k-th distance: a border's
-    return out  # farthest of 8 k neighbours says nothing of its spacing)
+        out[left] = again
+        left = left[still]
+    out[left] = np.nan  # on one side of all its neighbours: a border, or a lone line
+    return out
 
 
 def _surround_within(

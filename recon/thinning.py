@@ -35,6 +35,7 @@ from .kernels.options import query_workers
 __all__ = [
     "CLUMP",
     "LINE_RATIO",
+    "LINES_THINNED",
     "LINE_THIN",
     "NEAR_DUPLICATE",
     "clump_rows",
@@ -139,7 +140,7 @@ def line_rows(points: np.ndarray, spacing: float, nearest: float) -> np.ndarray 
     >>> len(lines), len(kept), np.round(np.diff(lines[kept[:3], 0]), 6).tolist()
     (2000, 400, [0.5, 0.5])
     """
-    if not spacing >= LINE_RATIO * nearest:
+    if not (nearest > 0.0 and spacing >= LINE_RATIO * nearest):  # (0: repeats kept)
         return None
     keep = np.flatnonzero(poisson_disk_thin(points, LINE_THIN * float(spacing)))
     return None if len(keep) == len(points) else keep
@@ -175,19 +176,28 @@ def thinned_rows(
     return keep, {**why, "radius": LINE_THIN * spacing}
 
 
-def line_gap(info: dict[str, Any]) -> float | None:
+def line_gap(info: dict[str, Any]) -> tuple[float, int] | None:
     """The distance between the scan lines measured before the cloud (``info``: its) was
-    thinned along them (None: it was not): the fit started again keeps it, as a few dozen
-    points left measure their own farther apart."""
-    gaps = [done["gap"] for done in info.get("thinned", []) if done["kind"] == "lines"]
-    return gaps[-1] if gaps else None
+    thinned along them, and its point count then (None: it was not thinned so): the fit
+    started again keeps both, so that r0 is the one the scan's own points give (as a tiled
+    fit's, which measures them before its tiles thin) and a few dozen points left do not
+    measure their own lines farther apart."""
+    done = [d for d in info.get("thinned", []) if d["kind"] == "lines"]
+    return (done[-1]["gap"], done[-1]["before"]) if done else None
 
 
 def thinned_cloud(cloud: PointCloud, keep: np.ndarray, why: dict[str, Any]) -> PointCloud:
     """``cloud`` with only the rows ``keep`` and ``why`` they were thinned in its info
-    (``thinned``: a list, one entry per thinning, with ``removed`` added)."""
-    done = [*cloud.info.get("thinned", []), {**why, "removed": len(cloud.points) - len(keep)}]
+    (``thinned``: a list, one entry per thinning, with ``removed`` and the count ``before``
+    added)."""
+    n = len(cloud.points)
+    done = [*cloud.info.get("thinned", []), {**why, "removed": n - len(keep), "before": n}]
     return replace(cloud.take(keep), info={**cloud.info, "thinned": done})
+
+
+#: How a note about thinned scan lines ends (a tiled fit says it once for the scan, not per
+#: tile).
+LINES_THINNED = "so that each point's neighbours reach across the lines"
 
 
 def thinning_notes(info: dict[str, Any], cfg: Any) -> list[str]:
@@ -202,13 +212,14 @@ def thinning_notes(info: dict[str, Any], cfg: Any) -> list[str]:
                 f"{NEAR_DUPLICATE:g} median point spacings: one place sampled many times) and "
                 "were merged before the fit: copies make local surfaces of no width"
             )
-        elif cfg.seeds.spacing is None and cfg.seeds.spacing_relative is None:
+        else:
             gap, along = done["gap"], done["nearest"]
-            notes.append(
+            note = (
                 f"the points lie in lines or clumps about {gap:.4g} apart, {gap / along:.0f} "
                 f"times their median spacing {along:.4g}: thinned to one point per "
-                f"{done['radius']:.4g} ({n:,} went) so that each point's neighbours reach "
-                "across the lines, and r0 follows the gaps between them (--spacing, "
-                "seeds.spacing, sets it)"
+                f"{done['radius']:.4g} ({n:,} of {done['before']:,} went) {LINES_THINNED}"
             )
+            if cfg.seeds.spacing is None and cfg.seeds.spacing_relative is None:
+                note += ", and r0 follows the gaps between them (--spacing, seeds.spacing, sets it)"
+            notes.append(note)
     return notes

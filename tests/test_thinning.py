@@ -56,7 +56,7 @@ def test_the_thinned_cloud_keeps_its_rows_aligned_and_says_why():
     out = thinned_cloud(cloud, np.array([0, 1, 3, 4]), {"kind": "clumps"})
     assert out.attributes["intensity"].tolist() == [0, 1, 3, 4]
     np.testing.assert_array_equal(out.colors, cloud.colors[[0, 1, 3, 4]])
-    assert out.info["thinned"] == [{"kind": "clumps", "removed": 1}]
+    assert out.info["thinned"] == [{"kind": "clumps", "removed": 1, "before": 5}]
     assert "thinned" not in cloud.info
     cfg = ReconConfig()
     assert "1 points lay in clumps (5 or more others" in thinning_notes(out.info, cfg)[0]
@@ -64,9 +64,11 @@ def test_the_thinned_cloud_keeps_its_rows_aligned_and_says_why():
     lines = {"kind": "lines", "gap": 2.0, "nearest": 0.1, "radius": 0.5}
     twice = thinned_cloud(out, np.array([0, 1]), lines)
     notes = thinning_notes(twice.info, cfg)
-    assert len(notes) == 2 and "about 2 apart, 20 times" in notes[1] and "(2 went)" in notes[1]
-    given = with_values(cfg, seeds={"spacing": 0.3})  # r0 the user's: the lines' note is not
-    assert len(thinning_notes(twice.info, given)) == 1
+    assert len(notes) == 2 and "about 2 apart, 20 times" in notes[1]
+    assert "(2 of 4 went)" in notes[1] and "r0 follows the gaps" in notes[1]
+    given = with_values(cfg, seeds={"spacing": 0.3})  # r0 the user's: the thinning is said
+    notes = thinning_notes(twice.info, given)
+    assert len(notes) == 2 and "r0 follows" not in notes[1] and "(2 of 4 went)" in notes[1]
 
 
 def test_scan_lines_are_thinned_to_one_point_per_spacing_and_random_samples_are_not():
@@ -166,5 +168,31 @@ def test_a_few_lines_are_thinned_once_and_said_once(monkeypatch):
     )
     result = reconstruct(cloud_from_arrays(pts), ReconConfig())
     lines = [w for w in result.report.warnings if "lines or clumps" in w]
-    assert len(lines) == 1 and "(20 went)" in lines[0]
-    assert result.report.input.points == 28
+    assert len(lines) == 1 and "about 0.2199 apart" in lines[0]  # 0.2 apart
+    went = int(lines[0].split("(")[1].split(" of 48 went")[0])
+    assert result.report.input.points == 48 - went
+
+
+def test_a_strip_two_rows_wide_is_not_taken_for_scan_lines():
+    """Regression: every point of a strip two rows wide is on a border, never surrounded;
+    with a lower bound for its surround distance the strip read as lines 5 spacings apart,
+    was thinned, and made no triangle. 4cd19ed fitted it (602 faces)."""
+    rng = np.random.default_rng(0)
+    x, y = np.meshgrid(np.arange(300) * 0.01, np.arange(2) * 0.01)
+    pts = np.c_[x.ravel(), y.ravel(), np.zeros(x.size)] + rng.normal(0, 1e-4, (x.size, 3))
+    result = reconstruct(cloud_from_arrays(pts), ReconConfig())
+    assert result.report.input.points == 600 and len(result.mesh.faces) > 500
+    assert not any("lines or clumps" in w for w in result.report.warnings)
+
+
+def test_repeats_kept_with_a_spacing_given_are_fitted():
+    """Regression: with io.merge_duplicates off, most points repeated and --spacing given
+    (as the refusal without it advises), the lines' thinning got a spacing of 0 and raised
+    ValueError (radius must be > 0)."""
+    rng = np.random.default_rng(0)
+    v = rng.normal(size=(2000, 3))
+    v /= np.linalg.norm(v, axis=1)[:, None]
+    cfg = with_values(ReconConfig(), io={"merge_duplicates": False}, seeds={"spacing": 0.1})
+    cloud = cloud_from_arrays(np.repeat(v, 3, axis=0), merge_duplicates=False)
+    result = reconstruct(cloud, cfg)
+    assert result.report.input.points == 6000 and len(result.mesh.faces) > 1000

@@ -45,6 +45,7 @@ __all__ = [
     "check_grid_size",
     "choose_spacing",
     "median_surround",
+    "surround_median",
     "sampled_spacing",
     "sampling_note",
     "spacing_from_median",
@@ -63,6 +64,9 @@ HEX_AREA = 0.866
 MIN_SPACING_FACTOR = 0.8
 #: Largest cell grid (cells of side r0 over the data's bounding box) the neighbour search accepts.
 MAX_GRID_CELLS = 2.0**60
+#: The share of the points measured that must be surrounded for their median to say anything
+#: (:func:`surround_median`; all but the borders on a scan, a third on three lines).
+MIN_SURROUNDED = 0.1
 #: Points whose surround distance is measured (a sample; the median moves by about 1 %).
 SURROUND_SAMPLE = 2000
 #: The fit says why r0 is what it is when the point spacing is at least this many times the
@@ -139,7 +143,17 @@ def median_surround(points: np.ndarray, tree: cKDTree | None = None) -> float:
         rng = np.random.default_rng(SPACING_SAMPLE_SEED)
         rows = np.sort(rng.choice(n, size=SURROUND_SAMPLE, replace=False))
     tree = cKDTree(points) if tree is None else tree
-    return float(np.median(surround_distances(points, rows, tree)))
+    return surround_median(surround_distances(points, rows, tree))
+
+
+def surround_median(distances: np.ndarray) -> float:
+    """The median of surround distances (:func:`recon.geometry.surround_distances`) over the
+    points they surround; 0 (no scan lines to tell) when fewer than ``MIN_SURROUNDED`` of them
+    are (a strip two rows wide, two lines)."""
+    found = distances[np.isfinite(distances)]
+    if len(found) == 0 or len(found) < MIN_SURROUNDED * len(distances):
+        return 0.0
+    return float(np.median(found))
 
 
 def choose_spacing(
@@ -148,7 +162,7 @@ def choose_spacing(
     tree: cKDTree | None = None,
     nearest: np.ndarray | None = None,
     notes: list[str] | None = None,
-    surround: float | None = None,
+    lines: tuple[float, int] | None = None,
 ) -> tuple[float, float]:
     """Rest spacing r0 [length] and the point spacing of the data (:func:`sampled_spacing`:
     the median nearest-neighbour distance unless the samples lie in lines).
@@ -174,9 +188,10 @@ def choose_spacing(
         k-nearest query; see :func:`recon.geometry.median_nearest_neighbor_distance`).
     notes : list of str, optional
         Receives :func:`sampling_note` when r0 follows scan lines.
-    surround : float, optional
-        The median surround distance [length] when known (measured before the lines were
-        thinned: :func:`recon.thinning.line_gap`); no note then (the thinning's says it).
+    lines : (float, int), optional
+        The median surround distance [length] and the point count measured before the lines
+        were thinned (:func:`recon.thinning.line_gap`): the spacing and r0 are theirs then,
+        and no note is made (the thinning's says it).
 
     Returns
     -------
@@ -192,10 +207,12 @@ def choose_spacing(
     d_nn = median_nearest_neighbor_distance(points, rng=rng, tree=tree, nearest=nearest)
     if d_nn > 0.0 and nearest is not None and not np.all(nearest > 0.0):
         d_nn = float(np.median(nearest[nearest > 0.0]))  # exact repeats kept: not lines
-    known = surround is not None
-    spacing = sampled_spacing(d_nn, surround if known else median_surround(points, tree))
-    r0 = spacing_from_median(spacing, len(points), bbox_diagonal(points), cfg)
-    note = None if known else sampling_note(d_nn, spacing, r0, cfg)
+    if lines is None:
+        spacing, n = sampled_spacing(d_nn, median_surround(points, tree)), len(points)
+    else:  # the spacing across the lines (the points left along them are about as far)
+        spacing, n = lines[0] / SURROUND_RATIO, lines[1]
+    r0 = spacing_from_median(spacing, n, bbox_diagonal(points), cfg)
+    note = None if lines is not None else sampling_note(d_nn, spacing, r0, cfg)
     if note is not None and notes is not None:
         notes.append(note)
     return r0, spacing

@@ -50,10 +50,12 @@ from ..fitting.scale import (
     sampled_spacing,
     sampling_note,
     spacing_from_median,
+    surround_median,
     with_max_gap,
 )
 from ..geometry import SPACING_SAMPLE_SEED, median_nearest_neighbor_distance
 from ..serialize import dumps
+from ..thinning import LINES_THINNED
 from ..version import __version__
 from .assemble import stitch_streamed
 from .executors import LazyTasks, TileEvent, run_tasks, tile_runner
@@ -209,7 +211,7 @@ def _scan_scales(header: ScanHeader, store: Any, cfg: ReconConfig, runner: Any, 
         raise InputError(f"{header.path}: too few points per tile to measure the point spacing")
     k = int(np.median(ks)) if ks else cfg.normals.k
     d_nn = float(np.median(d1))
-    spacing = sampled_spacing(d_nn, float(np.median(np.concatenate(arounds))))
+    spacing = sampled_spacing(d_nn, surround_median(np.concatenate(arounds)))
     return n_total, d_nn, spacing, float(np.median(d6)), k
 
 
@@ -418,7 +420,8 @@ def fit_tiled(
         peaks["stitch"] = peak_rss_mib(reset=True)
         topology, quality = stitched["topology"], stitched["quality"]
         timings["total"] = time.perf_counter() - t_start
-        warnings += records.warnings()
+        # (the tiles' notes of their thinned lines: the scan's note above says it once)
+        warnings += [w for w in records.warnings() if LINES_THINNED not in w]
         is_obj = output_path.suffix.lower() == ".obj"
         creases, crease_warnings = _crease_section(cfg, records, unmatched, d6, r0, is_obj)
         warnings += crease_warnings
