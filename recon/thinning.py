@@ -57,9 +57,9 @@ NEAR_DUPLICATE = 0.1
 #: random samples of a surface, and once in about 1e8 random samples along scan lines (the
 #: nearest-neighbour distance there is the one along the lines).
 CLUMP = 5
-#: The point spacing is the one across scan lines, and they are thinned, from this many median
-#: nearest-neighbour distances (the surround distance over ``SURROUND_RATIO`` 5 of them; a
-#: smaller change is no news: a sphere with 1 point in 3 repeated in clumps, 1.06).
+#: Scan lines are thinned, and the fit says the spacing across them, from a point spacing of
+#: this many median nearest-neighbour distances (a surround distance of 5 of them; a smaller
+#: change is no news: a sphere with 1 point in 3 repeated in clumps, 1.06).
 LINE_RATIO = 1.25
 #: Scan lines are thinned to one point per this many point spacings (the spacing across the
 #: lines over ``SURROUND_RATIO``): a line's 20 nearest then reach 10 spacings along it, past

@@ -429,7 +429,7 @@ def _fit_sheet(
     (:func:`recon.normals.estimate_normals`); None: ``MAX_SCALE`` x ``normals.k`` when
     ``normals.per_point_scale``, else k only (a tile's resolved k comes with its scan's).
     ``detected``: :func:`fit_particles`' ``creases`` (no crease statistics then); ``clock``:
-    the fit's so far (a refit without near-duplicates)."""
+    the fit's so far (a fit started again on thinned points)."""
     clock, config = clock or Clock(cfg.dynamics.time_limit), cfg  # (config: for a refit)
     warm_fit_kernels()  # the kernels' cached code loads beside the first stages
     rng = np.random.default_rng(cfg.seed)
