@@ -447,6 +447,12 @@ def _fit_sheet(
         k_max = per_point_k_max(cfg.normals.k, cfg.normals.per_point_scale)
     cfg = with_neighborhood_size(points, cfg, tree, variations)
     knn = shared_neighbors(points, cfg, tree)
+    notes = thinning_notes(cloud.info, cfg)  # clumps merged, lines thinned, r0 across lines
+    nearest, gap = None if knn is None else knn[0][:, 1], line_gap(cloud.info)
+    r0, d_nn = choose_spacing(points, cfg, tree, nearest, notes, gap)
+    if (thin := thinned_rows(points, tree, knn, d_nn, cloud.info)) is not None:  # no normals yet
+        again = None if detected is None else detected.take(order[thin[0]])  # (a tile's rows)
+        return _fit_sheet(thinned_cloud(cloud, *thin), config, on_progress, k_max, again, clock)
     normals, normals_info = compute_normals(
         cloud, cfg.normals, neighbors=knn, k_max=k_max, tree=tree
     )
@@ -459,12 +465,6 @@ def _fit_sheet(
         found, creases = detected.take(order), None
     if found is not None:  # a crease fixes the normals' orientation across it
         normals, found, _ = orient_across_creases(points, normals, found, k=cfg.creases.k)
-    notes = thinning_notes(cloud.info, cfg)  # clumps merged, lines thinned, r0 across lines
-    nearest, gap = None if knn is None else knn[0][:, 1], line_gap(cloud.info)
-    r0, d_nn = choose_spacing(points, cfg, tree, nearest, notes, gap)
-    if (thin := thinned_rows(points, tree, knn, d_nn, cloud.info)) is not None:  # start again
-        again = None if detected is None else detected.take(order[thin[0]])  # (a tile's rows)
-        return _fit_sheet(thinned_cloud(cloud, *thin), config, on_progress, k_max, again, clock)
     if normals_info.get("source") == "estimated":  # signs where a thin part's faces meet
         variation = variations.get(cfg.normals.k)
         normals, _ = resign_thin_parts(points, normals, cfg.normals.k, tree, variation, knn)

@@ -177,7 +177,7 @@ def winding_and_open(faces, n_vertices):  # pragma: no cover - numba
 
 
 @njit(inline="always", **EXACT_JIT_OPTIONS)
-def _corner_cross(vertices, v, x, y):  # pragma: no cover - numba
+def corner_cross(vertices, v, x, y):  # pragma: no cover - numba
     """The corner ``(v, x, y)``: squared lengths of ``d = x - v`` and ``e = y - v``, and
     ``d x e`` with the operations of ``np.cross`` (no fused multiply-add), so the same bits."""
     dx = vertices[x, 0] - vertices[v, 0]
@@ -202,7 +202,7 @@ def area_vectors(vertices, faces):  # pragma: no cover - numba
     nf = faces.shape[0]
     out = np.empty((nf, 3))
     for i in range(nf):
-        _, _, out[i, 0], out[i, 1], out[i, 2] = _corner_cross(
+        _, _, out[i, 0], out[i, 1], out[i, 2] = corner_cross(
             vertices, faces[i, 0], faces[i, 1], faces[i, 2]
         )
     return out
@@ -408,7 +408,7 @@ def _well_shaped(vertices, v, x, y, mx, my, mz, min_d2):  # pragma: no cover - n
     the angle above ``WELL_SHAPED_SINE``) whose plane is tilted less than
     ``arccos(WELL_SHAPED_COSINE)`` from the direction ``m``? Projected along ``m`` its
     sector is then a convex angle, measured the same way round, by any rounding."""
-    dd, ee, nx, ny, nz = _corner_cross(vertices, v, x, y)
+    dd, ee, nx, ny, nz = corner_cross(vertices, v, x, y)
     if dd < min_d2 or ee < min_d2:
         return False
     nn = nx * nx + ny * ny + nz * nz

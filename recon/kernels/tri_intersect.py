@@ -27,6 +27,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
+from .mesh_tables import corner_cross
 from .options import EXACT_JIT_OPTIONS
 
 #: Tolerance of the crossing test (in barycentric and segment parameters): a segment through
@@ -176,15 +177,7 @@ def faces_cross(vertices, f, g, work):  # pragma: no cover - numba
     # n = (a1 - a0) x (a2 - a0) of f, m of g: the component order of np.cross
     for row in range(2):
         i0, i1, i2 = (fa, fb, fc) if row == 0 else (ga, gb, gc)
-        e10 = vertices[i1, 0] - vertices[i0, 0]
-        e11 = vertices[i1, 1] - vertices[i0, 1]
-        e12 = vertices[i1, 2] - vertices[i0, 2]
-        e20 = vertices[i2, 0] - vertices[i0, 0]
-        e21 = vertices[i2, 1] - vertices[i0, 1]
-        e22 = vertices[i2, 2] - vertices[i0, 2]
-        work[row, 0] = e11 * e22 - e12 * e21
-        work[row, 1] = e12 * e20 - e10 * e22
-        work[row, 2] = e10 * e21 - e11 * e20
+        _, _, work[row, 0], work[row, 1], work[row, 2] = corner_cross(vertices, i0, i1, i2)
     # the plane of the larger face: np.dot(m, m) > np.dot(n, n) (f's on a tie)
     qn = work[0, 0] * work[0, 0] + work[0, 1] * work[0, 1] + work[0, 2] * work[0, 2]
     qm = work[1, 0] * work[1, 0] + work[1, 1] * work[1, 1] + work[1, 2] * work[1, 2]
@@ -268,16 +261,7 @@ def order_free(vertices, faces, margin, run_limit):  # pragma: no cover - numba
     nf = faces.shape[0]
     q = np.empty(nf)
     for i in range(nf):
-        i0, i1, i2 = faces[i, 0], faces[i, 1], faces[i, 2]
-        e10 = vertices[i1, 0] - vertices[i0, 0]
-        e11 = vertices[i1, 1] - vertices[i0, 1]
-        e12 = vertices[i1, 2] - vertices[i0, 2]
-        e20 = vertices[i2, 0] - vertices[i0, 0]
-        e21 = vertices[i2, 1] - vertices[i0, 1]
-        e22 = vertices[i2, 2] - vertices[i0, 2]
-        n0 = e11 * e22 - e12 * e21
-        n1 = e12 * e20 - e10 * e22
-        n2 = e10 * e21 - e11 * e20
+        _, _, n0, n1, n2 = corner_cross(vertices, faces[i, 0], faces[i, 1], faces[i, 2])
         q[i] = n0 * n0 + n1 * n1 + n2 * n2
         if not np.isfinite(q[i]):
             return False
