@@ -72,7 +72,7 @@ def describe(path: Path, classes: list[int] | None = None) -> dict[str, Any]:
 
 #: LAS/LAZ and E57 header facts copied from ``PointCloud.info``.
 _LIDAR_KEYS = ("point_format", "las_version", "compressed", "crs", "classes", "classes_kept")
-_LIDAR_KEYS += ("scans",)
+_LIDAR_KEYS += ("scans", "scan_positions")
 
 #: ASPRS standard class names (LAS 1.4, point formats 6-10; 0-12 also for formats 0-5).
 CLASS_NAMES = {
@@ -153,7 +153,9 @@ def format_table(d: dict[str, Any]) -> str:
         fmt = f"LAS {d['las_version']}, point format {d['point_format']}"
         rows.append(("point format", fmt + (" (LAZ)" if d.get("compressed") else "")))
     if "scans" in d:
-        rows.append(("scans", str(d["scans"])))
+        known = "scanner positions known (the normals face them)"
+        where = known if "scan_positions" in d else "scanner positions unknown"
+        rows.append(("scans", f"{d['scans']}, {where}"))
     if "crs" in d:
         crs = d["crs"] or "none in the file"
         rows.append(("CRS", crs if len(crs) <= 200 else crs[:197] + "..."))

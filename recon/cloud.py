@@ -57,6 +57,11 @@ class PointCloud:
         (float64, the file's scale, e.g. 0-65535 for LAS) and ``classification`` (uint8 for
         classes 0-255, as LAS has them; a PLY's other values in their own type) when the file
         has them.
+    viewpoints : (n, 3) float64 [length] or None
+        Where each point was scanned from, relative to ``origin`` like the points: an E57
+        file's scan positions (:mod:`recon.io.e57`). The normals are turned toward them when
+        ``normals.orientation`` is ``auto`` or ``viewpoint`` and no ``normals.viewpoint`` is
+        given. None when unknown.
     """
 
     points: np.ndarray
@@ -67,13 +72,14 @@ class PointCloud:
     format: str = ""
     info: dict[str, Any] = field(default_factory=dict)
     attributes: dict[str, np.ndarray] = field(default_factory=dict)
+    viewpoints: np.ndarray | None = None
 
     def __len__(self) -> int:
         return int(self.points.shape[0])
 
     def take(self, order: np.ndarray) -> PointCloud:
-        """The cloud with its rows (points, normals, colours, attributes) in ``order``; the
-        origin, path, format and info are the same."""
+        """The cloud with its rows (points, normals, colours, attributes, viewpoints) in
+        ``order``; the origin, path, format and info are the same."""
         order = np.asarray(order)
         return PointCloud(
             points=self.points[order],
@@ -84,6 +90,7 @@ class PointCloud:
             format=self.format,
             info=self.info,
             attributes={k: np.asarray(v)[order] for k, v in self.attributes.items()},
+            viewpoints=None if self.viewpoints is None else self.viewpoints[order],
         )
 
     def absolute_points(self) -> np.ndarray:

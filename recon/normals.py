@@ -27,7 +27,8 @@ That fixes the sign of each connected component up to one global choice, made pe
     and to a few outliers, and right for non-convex shapes (bunny, torus, bone), unlike the sign
     of ``n . (p - centroid)``. For a surface without thickness (a plane) the votes cancel.
 ``viewpoint``
-    For range scans: the majority of ``n . (v - p) / |v - p|`` must be positive.
+    For range scans: the majority of ``n . (v - p) / |v - p|`` must be positive; ``v`` is one
+    sensor position, or each point's own (the scan positions of an E57 file).
 ``auto``
     ``viewpoint`` when one is given. Otherwise each component is first tried ``outward``; when
     the outward votes are not decisive (``|sum| / sum|.| < 0.5``: the surface has no clear
@@ -78,6 +79,7 @@ from .normal_scales import (  # noqa: F401 (choose_neighborhood_size: the public
 )
 from .orientation_graph import edge_costs
 from .row_blocks import for_row_blocks, row_blocks
+from .sign_votes import component_votes
 from .thin_split import (
     SIDES_GAP,
     SIDES_K,
@@ -112,15 +114,9 @@ ORIENTATIONS = ("auto", "outward", "viewpoint", "none")
 _EDGE_EPSILON = 1e-6
 #: MST edges with |n_i . n_j| below this separate regions whose relative sign is voted.
 _REGION_TAU = 0.9
-#: Outward votes at least this decisive make ``auto`` treat a component as closed.
-_CLOSED_CONFIDENCE = 0.5
 #: A component whose deciding vote is weaker than this (or that is tiny) counts as guessed.
 _GUESS_CONFIDENCE = 0.2
 _MIN_COMPONENT = 10
-#: Extreme points per direction for the outward vote: this fraction of the component ...
-_EXTREME_FRACTION = 0.01
-#: ... but at most this many.
-_EXTREME_MAX = 200
 #: Points per chunk in the PCA (bounds memory at about chunk * k * 100 bytes).
 _CHUNK = 16384
 
@@ -284,19 +280,6 @@ def _pca_normals(
 # orientation
 
 
-def _fibonacci_directions(m: int = 25) -> np.ndarray:
-    """``m`` near-uniform unit vectors and their opposites, (2m, 3)."""
-    i = np.arange(m) + 0.5
-    z = 1.0 - 2.0 * i / m
-    phi = np.pi * (1.0 + 5.0**0.5) * i
-    r = np.sqrt(1.0 - z * z)
-    d = np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
-    return np.concatenate([d, -d])
-
-
-_DIRECTIONS = _fibonacci_directions()
-
-
 def _knn_graph(
     points: np.ndarray,
     normals: np.ndarray,
@@ -457,56 +440,6 @@ def _propagate_signs(
     return sign * reg_sign[region], labels, int(n_comp)
 
 
-def _component_sums(labels: np.ndarray, values: np.ndarray, n_comp: int) -> np.ndarray:
-    return np.bincount(labels, weights=values, minlength=n_comp)
-
-
-def _outward_votes(
-    points: np.ndarray, normals: np.ndarray, labels: np.ndarray, n_comp: int
-) -> tuple[np.ndarray, np.ndarray]:
-    """Per component: (sum of n . d over extreme points, sum of |n . d|)."""
-    score = np.zeros(n_comp)
-    weight = np.zeros(n_comp)
-    order = np.argsort(labels, kind="stable")
-    bounds = np.searchsorted(labels[order], np.arange(n_comp + 1))
-    for c in range(n_comp):
-        members = order[bounds[c] : bounds[c + 1]]
-        m = members.size
-        if m < 4:
-            continue
-        p = points[members]
-        nrm = normals[members]
-        t = int(np.clip(np.ceil(_EXTREME_FRACTION * m), 1, _EXTREME_MAX))
-        for d in _DIRECTIONS:
-            top = np.argpartition(-(p @ d), t - 1)[:t]
-            votes = nrm[top] @ d
-            score[c] += votes.sum()
-            weight[c] += np.abs(votes).sum()
-    return score, weight
-
-
-def _up_axes(points: np.ndarray, labels: np.ndarray, n_comp: int) -> np.ndarray:
-    """Per component the least-variance axis, signed toward +z (else +y, else +x)."""
-    count = np.bincount(labels, minlength=n_comp).astype(np.float64)
-    mean = np.stack([_component_sums(labels, points[:, i], n_comp) for i in range(3)], 1)
-    mean /= np.maximum(count, 1.0)[:, None]
-    centred = points - mean[labels]
-    cov = np.zeros((n_comp, 3, 3))
-    for i in range(3):
-        for j in range(i, 3):
-            cov[:, i, j] = cov[:, j, i] = _component_sums(
-                labels, centred[:, i] * centred[:, j], n_comp
-            )
-    _, vecs = np.linalg.eigh(cov)
-    axes = vecs[:, :, 0]
-    for c in range(n_comp):
-        a = axes[c]
-        ref = next((i for i in (2, 1, 0) if abs(a[i]) > 0.1), 2)
-        if a[ref] < 0:
-            axes[c] = -a
-    return axes
-
-
 def orient_normals(
     points: np.ndarray,
     normals: np.ndarray,
@@ -517,6 +450,7 @@ def orient_normals(
     neighbors: np.ndarray | None = None,
     thin_gap: float = SIDES_GAP,
     thin_gap_taper: float = TAPER_GAP,
+    scanners: bool = False,
 ) -> tuple[np.ndarray, OrientationInfo]:
     """Consistently orient normals (Hoppe et al. 1992 MST propagation, then a global sign).
 
@@ -537,9 +471,15 @@ def orient_normals(
         Neighbours per point in the orientation graph.
     orientation : {'auto', 'outward', 'viewpoint', 'none'}
         Global sign rule per connected component (see the module docstring).
-    viewpoint : (3,) float64 [length], optional
-        Sensor position in the same coordinates as ``points``. Required by ``'viewpoint'``;
-        with ``'auto'`` it selects ``'viewpoint'``.
+    viewpoint : (3,) or (n, 3) float64 [length], optional
+        Sensor position in the same coordinates as ``points``, or each point's own. Required
+        by ``'viewpoint'``; with ``'auto'`` it selects ``'viewpoint'``.
+    scanners : bool
+        ``viewpoint`` holds scanner positions the file gave rather than one the user chose
+        (an E57 file's scan poses, which some writers use to move merged points into place
+        instead). With ``'auto'``, a component whose normals do not face them as one (the
+        viewpoint vote ``|sum| / sum|.|`` below 0.5, as the outward vote's test for a closed
+        surface) is then signed as without a viewpoint.
     neighbors : (n, m) int, optional
         Each point's m nearest points, nearest first (itself among them); used for the graph
         when m covers its neighbourhood, else a query is made.
@@ -565,9 +505,13 @@ def orient_normals(
         )
     vp = None
     if viewpoint is not None:
-        vp = np.asarray(viewpoint, dtype=np.float64).reshape(-1)
-        if vp.shape != (3,) or not np.isfinite(vp).all():
-            raise ValueError(f"viewpoint: expected 3 finite numbers, got {viewpoint!r}")
+        vp = np.asarray(viewpoint, dtype=np.float64)
+        vp = vp.reshape(-1) if vp.size == 3 else vp
+        if vp.shape not in ((3,), pts.shape) or not np.isfinite(vp).all():
+            raise ValueError(
+                f"viewpoint: expected 3 finite numbers or one row of them per point, got "
+                f"shape {vp.shape}"
+            )
     if orientation == "viewpoint" and vp is None:
         raise ValueError("orientation 'viewpoint' needs a viewpoint")
     if k < 1:
@@ -580,31 +524,7 @@ def orient_normals(
     sign, labels, n_comp = _propagate_signs(nrm, graph, _REGION_TAU, flip)
     oriented = nrm * sign[:, None]
     sizes = np.bincount(labels, minlength=n_comp)
-
-    rule = np.full(n_comp, "none", dtype=object)
-    score = np.zeros(n_comp)
-    weight = np.zeros(n_comp)
-    if orientation == "viewpoint" or (orientation == "auto" and vp is not None):
-        to_view = vp - pts
-        dist = np.linalg.norm(to_view, axis=1)
-        s = np.einsum("ij,ij->i", oriented, to_view) / np.maximum(dist, 1e-300)
-        score = _component_sums(labels, s, n_comp)
-        weight = _component_sums(labels, np.abs(s), n_comp)
-        rule[:] = "viewpoint"
-    elif orientation in ("outward", "auto"):
-        score, weight = _outward_votes(pts, oriented, labels, n_comp)
-        rule[:] = "outward"
-        if orientation == "auto":
-            conf = np.abs(score) / np.maximum(weight, 1e-300)
-            open_c = conf < _CLOSED_CONFIDENCE
-            if open_c.any():
-                axes = _up_axes(pts, labels, n_comp)
-                s = np.einsum("ij,ij->i", oriented, axes[labels])
-                up_score = _component_sums(labels, s, n_comp)
-                up_weight = _component_sums(labels, np.abs(s), n_comp)
-                score = np.where(open_c, up_score, score)
-                weight = np.where(open_c, up_weight, weight)
-                rule[open_c] = "up"
+    score, weight, rule = component_votes(pts, oriented, labels, n_comp, orientation, vp, scanners)
     flip_c = score < 0.0
     oriented[flip_c[labels]] *= -1.0
     sign = np.where(flip_c[labels], -sign, sign)
@@ -701,7 +621,7 @@ def compute_normals(
     """
     t0 = time.perf_counter()
     where = str(cloud.path) if cloud.path is not None else "input"
-    if cfg.orientation == "viewpoint" and cfg.viewpoint is None:
+    if cfg.orientation == "viewpoint" and cfg.viewpoint is None and cloud.viewpoints is None:
         raise ConfigError("normals.orientation is 'viewpoint' but normals.viewpoint is not set")
     has_input = cloud.normals is not None
     if cfg.mode == "input" and not has_input:
@@ -724,7 +644,7 @@ def compute_normals(
             normals[bad] = _fill_normals(pts, normals, bad, cfg.k)
         info = {"source": "input", "n_filled": n_bad}
         if cfg.orientation in ("outward", "viewpoint") or (
-            cfg.orientation == "auto" and cfg.viewpoint is not None
+            cfg.orientation == "auto" and _viewpoint(cloud, cfg) is not None
         ):
             # an orientation asked for is applied to the file's normals too (their axes
             # kept, their signs made consistent and then global); by default their signs stay
@@ -760,21 +680,31 @@ def _orient(
 ) -> tuple[np.ndarray, dict[str, Any]]:
     """:func:`orient_normals` as the configuration asks (``viewpoint`` in file coordinates);
     the orientation fields of :class:`OrientationInfo` as a dict (``method`` among them)."""
-    viewpoint = None
-    if cfg.viewpoint is not None:
-        viewpoint = np.asarray(cfg.viewpoint, dtype=np.float64) - cloud.origin
     normals, oinfo = orient_normals(
         cloud.points,
         normals,
         k=cfg.orient_k,
         orientation=cfg.orientation,
-        viewpoint=viewpoint,
+        viewpoint=_viewpoint(cloud, cfg),
+        scanners=cfg.viewpoint is None,
         across_cost=cfg.thin_parts,
         thin_gap=cfg.thin_gap,
         thin_gap_taper=cfg.thin_gap_taper,
         neighbors=None if neighbors is None else neighbors[1],
     )
     return normals, oinfo.as_dict()
+
+
+def _viewpoint(cloud: PointCloud, cfg: NormalsConfig) -> np.ndarray | None:
+    """The sensor position the orientation takes, relative to the cloud's origin: the one the
+    configuration gives (file coordinates), else each point's own scanner when the file said
+    where its scans were made from (``cloud.viewpoints``), else None. Only the ``auto`` and
+    ``viewpoint`` rules take the scanners."""
+    if cfg.viewpoint is not None:
+        return np.asarray(cfg.viewpoint, dtype=np.float64) - cloud.origin
+    if cfg.orientation in ("auto", "viewpoint"):
+        return cloud.viewpoints
+    return None
 
 
 def _fill_normals(points: np.ndarray, normals: np.ndarray, bad: np.ndarray, k: int) -> np.ndarray:

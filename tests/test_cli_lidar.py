@@ -145,3 +145,48 @@ def test_fit_e57_scene(tmp_path):
     far = np.abs(xyz[:, 0] - (X0 + BX / 2)) > BX / 2 + 2
     rgb_v = np.column_stack([v["red"], v["green"], v["blue"]])
     assert np.all(rgb_v[far] == GREEN)
+    # the pose only georeferences the scene (its "scanner" at the terrain's corner, level
+    # with the ground): the normals do not face it, they face up as without it
+    assert _up_share(out) > 0.99
+
+
+def _up_share(path: Path) -> float:
+    """The share of the mesh's level area (faces within 45 deg of horizontal) facing up."""
+    ply = PlyData.read(str(path))
+    v = np.column_stack([ply["vertex"][c] for c in "xyz"]).astype(np.float64)
+    f = np.vstack(ply["face"]["vertex_indices"])
+    n = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+    level = np.abs(n[:, 2]) > np.sqrt(0.5) * np.linalg.norm(n, axis=1)
+    return float(np.abs(n[level & (n[:, 2] > 0), 2]).sum() / np.abs(n[level, 2]).sum())
+
+
+def cut(n: int = 3000, seed: int = 0) -> np.ndarray:
+    """A road in a cut, 4 x 3: flat 2 wide, banks rising 1 over 0.5 up to the scan's edges.
+    Its convex side faces down, so the outward vote (made for closed surfaces) turns it down."""
+    rng = np.random.default_rng(seed)
+    x = np.linspace(-2.0, 2.0, 4001)
+    z = np.clip((np.abs(x) - 1.0) / 0.5, 0.0, None)
+    s = np.r_[0.0, np.cumsum(np.hypot(np.diff(x), np.diff(z)))]
+    u = rng.uniform(0.0, s[-1], n)
+    return np.column_stack([np.interp(u, s, x), rng.uniform(0.0, 3.0, n), np.interp(u, s, z)])
+
+
+@pytest.mark.parametrize("tiles", [None, "1.5"])
+def test_fit_e57_faces_its_scanner(tmp_path, tiles):
+    """Regression: a road in a cut came out facing down (the outward vote, right for closed
+    shapes, wrong for a valley). The E57 file says where it was scanned from, 6 above the
+    road: the mesh faces up, tiled or not."""
+    pts = cut() + OFFSET
+    sensor = OFFSET + [0.0, 1.5, 6.0]
+    path = tmp_path / "cut.e57"
+    with pye57.E57(str(path), mode="w") as e57:
+        local = pts - sensor
+        e57.write_scan_raw(
+            {f"cartesian{c}": local[:, j].copy() for j, c in enumerate("XYZ")},
+            translation=sensor,
+        )
+    out = tmp_path / "mesh.ply"
+    more = [] if tiles is None else ["--tile-size", tiles]
+    res = CliRunner().invoke(app, ["fit", str(path), "-o", str(out), "--quiet", *FAST, *more])
+    assert res.exit_code == 0, res.output
+    assert _up_share(out) > 0.99

@@ -429,3 +429,70 @@ def test_info_on_e57_reports_scans_and_attributes(tmp_path):
     assert "scans          3" in res.output
     assert "attributes     intensity" in res.output
     assert "colours        yes" in res.output
+
+
+# --------------------------------------------------------------------------------------------
+# scanner positions
+
+
+def test_e57_points_carry_their_scans_positions(tmp_path):
+    """Each scan's pose translation is where it was scanned from: the points keep theirs
+    through the cleaning (a point repeated in the second scan is merged into the first's)
+    and through ``take``; ``oprecon info`` says the positions are known."""
+    rng = np.random.default_rng(3)
+    a, b = rng.integers(-64, 64, size=(2, 300, 3)) / 16.0  # exact in float32 and after moving
+    where = [OFFSET + [1.0, 2.0, 3.0], OFFSET + [-4.0, 0.0, 1.5]]
+    b = b[:200]
+    b[:20] = a[:20] + where[0] - where[1]  # the same places, seen by both scans
+    path = tmp_path / "two.e57"
+    with pye57.E57(str(path), mode="w") as e57:
+        for pts, t in ((a, where[0]), (b, where[1])):
+            local = pts.astype(np.float32)
+            data = {f"cartesian{c}": local[:, j].copy() for j, c in enumerate("XYZ")}
+            e57.write_scan_raw(data, translation=t)
+    cloud = read_points(path)
+    assert cloud.info["scan_positions"] == [list(w) for w in where]
+    assert len(cloud) == 480 and cloud.viewpoints.shape == (480, 3)
+    absolute = cloud.viewpoints + cloud.origin
+    seen = np.abs(absolute - where[0]).max(axis=1) < 1e-6
+    assert seen.sum() == 300 and np.abs(absolute[~seen] - where[1]).max() < 1e-6
+    # each point keeps its own scanner when the rows move
+    from_a = {tuple(r) for r in np.round(a + where[0], 6)}
+    rows = np.array([tuple(r) in from_a for r in np.round(cloud.absolute_points(), 6)])
+    assert np.array_equal(rows, seen)
+    order = np.random.default_rng(0).permutation(len(cloud))
+    assert np.array_equal(cloud.take(order).viewpoints, cloud.viewpoints[order])
+    res = CliRunner().invoke(app, ["info", str(path)])
+    assert res.exit_code == 0, res.output
+    assert "scans          2, scanner positions known (the normals face them)" in res.output
+
+
+def test_e57_scanner_position_is_known_from_a_pose_or_spherical_coordinates():
+    """A cartesian scan without a pose may hold points another program merged: no position."""
+    from recon.io.e57 import sensor_position
+
+    class Header:
+        def __init__(self, pose):
+            self.pose = pose
+            self.translation = np.array([1.0, 2.0, 3.0])
+
+        def has_pose(self):
+            return self.pose
+
+    xyz = {"cartesianX", "cartesianY", "cartesianZ"}
+    rae = {"sphericalRange", "sphericalAzimuth", "sphericalElevation"}
+    assert np.array_equal(sensor_position(Header(True), xyz), [1.0, 2.0, 3.0])
+    assert np.array_equal(sensor_position(Header(False), rae), [0.0, 0.0, 0.0])
+    assert sensor_position(Header(False), xyz) is None
+
+
+def test_cloud_from_arrays_checks_viewpoints():
+    from recon.io import cloud_from_arrays
+
+    p = np.random.default_rng(0).normal(size=(50, 3))
+    cloud = cloud_from_arrays(np.vstack([p, p[:5]]), viewpoints=np.ones((55, 3)))
+    assert cloud.viewpoints.shape == (50, 3)  # the repeats merged, their rows with them
+    with pytest.raises(InputError, match="viewpoints: expected shape"):
+        cloud_from_arrays(p, viewpoints=np.ones((49, 3)))
+    with pytest.raises(InputError, match="viewpoints: not every row is finite"):
+        cloud_from_arrays(p, viewpoints=np.full((50, 3), np.nan))

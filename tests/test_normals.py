@@ -159,6 +159,41 @@ def test_orient_viewpoint():
         assert info.component_methods == {"viewpoint": 1}
 
 
+def test_orient_toward_each_points_own_viewpoint():
+    """Two spheres, one scanned from inside (a room, one scanner) and one from outside (each
+    point by a scanner in front of it): each point's own scanner signs its component, inward
+    and outward."""
+    a, da = sphere(1500, 0)
+    b, db = sphere(1500, 1, centre=(10.0, 0.0, 0.0))
+    p, d = np.vstack([a, b]), np.vstack([da, db])
+    view = np.vstack([np.zeros((1500, 3)), b + 3.0 * db])
+    for scanners in (False, True):
+        n, info = orient_normals(p, scramble(d), viewpoint=view, scanners=scanners)
+        assert info.component_methods == {"viewpoint": 2}
+        assert np.all(np.einsum("ij,ij->i", n[:1500], d[:1500]) < 0)  # inside: inward
+        assert np.all(np.einsum("ij,ij->i", n[1500:], d[1500:]) > 0)  # outside: outward
+    with pytest.raises(ValueError, match="one row of them per point"):
+        orient_normals(p, d, viewpoint=view[:10])
+
+
+def test_orient_scanners_that_do_not_face_the_surface_are_not_used():
+    """A "scanner" that half of a surface faces and half does not (a scan pose that only
+    moves points into place, a georeference, is often so): with ``scanners`` its vote (about
+    0) does not sign the sphere, the outward vote does; a viewpoint the user gives is
+    obeyed as it is."""
+    p, d = sphere()
+    view = np.zeros_like(p)  # the centre: every normal faces away, a decisive vote (inside)
+    n, info = orient_normals(p, scramble(d), viewpoint=view, scanners=True)
+    assert info.component_methods == {"viewpoint": 1}
+    assert np.all(np.einsum("ij,ij->i", n, d) < 0)
+    view = np.tile([1000.0, 0.0, 0.0], (len(p), 1))  # half the sphere faces it
+    n, info = orient_normals(p, scramble(d), viewpoint=view, scanners=True)
+    assert info.component_methods == {"outward": 1}
+    assert np.all(np.einsum("ij,ij->i", n, d) > 0)
+    n, info = orient_normals(p, scramble(d), viewpoint=view, scanners=False)
+    assert info.component_methods == {"viewpoint": 1}
+
+
 def test_orient_two_components_each_outward():
     a, da = sphere(1500, 0)
     b, db = sphere(1500, 1, centre=(10.0, 0.0, 0.0))

@@ -212,6 +212,7 @@ def cloud_from_arrays(
     attributes: dict[str, np.ndarray] | None = None,
     merge_duplicates: bool = True,
     outliers: tuple[int, float] | None = None,
+    viewpoints: np.ndarray | None = None,
 ) -> PointCloud:
     """A :class:`PointCloud` from arrays, cleaned and checked exactly like a file.
 
@@ -227,6 +228,8 @@ def cloud_from_arrays(
     merge_duplicates : bool
     outliers : (k, std_ratio), optional
         Remove statistical outliers, as :func:`read_points`.
+    viewpoints : (n, 3) array_like [length], optional
+        Where each point was scanned from, absolute (``PointCloud.viewpoints``).
 
     Returns
     -------
@@ -243,9 +246,12 @@ def cloud_from_arrays(
     xyz = as_input_points(numeric_array(points, "points"), "points", where="input array")
     nrm = None if normals is None else np.asarray(numeric_array(normals, "normals"), np.float64)
     col = None if colors is None else unit_colors(colors)
-    for name, arr in (("normals", nrm), ("colors", col)):
+    view = None if viewpoints is None else np.asarray(numeric_array(viewpoints, "viewpoints"))
+    for name, arr in (("normals", nrm), ("colors", col), ("viewpoints", view)):
         if arr is not None and arr.shape != xyz.shape:
             raise input_error(None, f"{name}: expected shape {xyz.shape}, got {arr.shape}")
+    if view is not None and not np.isfinite(view).all():
+        raise input_error(None, "viewpoints: not every row is finite")
     attrs = {str(k): np.asarray(v) for k, v in (attributes or {}).items()}
     for name, arr in attrs.items():
         if arr.shape != (xyz.shape[0],):
@@ -255,7 +261,7 @@ def cloud_from_arrays(
         "elements": {"vertex": int(xyz.shape[0])},
         "properties": ["x", "y", "z"] + (["nx", "ny", "nz"] if nrm is not None else []),
     }
-    return make_cloud(None, "array", xyz, nrm, col, merge_duplicates, info, attrs, outliers)
+    return make_cloud(None, "array", xyz, nrm, col, merge_duplicates, info, attrs, outliers, view)
 
 
 def read_mesh(

@@ -18,7 +18,11 @@ import numpy as np
 
 from ..cloud import PointCloud
 from .common import input_error
+from .e57 import SCAN_KEY
 from .outliers import statistical_outliers
+
+#: The viewpoints' columns among the attributes while the points are cleaned.
+_VIEW_KEYS = ("_view_x", "_view_y", "_view_z")
 
 #: One logger for the io package (its messages name the file).
 logger = logging.getLogger("recon.io")
@@ -79,6 +83,7 @@ def make_cloud(
     info: dict[str, Any],
     attributes: dict[str, np.ndarray] | None = None,
     outliers: tuple[int, float] | None = None,
+    viewpoints: np.ndarray | None = None,
 ) -> PointCloud:
     """The cleaned :class:`~recon.cloud.PointCloud` of the columns a reader found.
 
@@ -101,6 +106,9 @@ def make_cloud(
         Remove statistical outliers after merging duplicates
         (:func:`~recon.io.outliers.statistical_outliers`; ``io.outliers``); the count goes
         into ``info["n_outliers_removed"]``. None keeps every point.
+    viewpoints : (n, 3) array_like [length], optional
+        Where each point was scanned from, absolute (``PointCloud.viewpoints``); an E57
+        reader's ``SCAN_KEY`` attribute and ``info["scan_positions"]`` give them too.
 
     Returns
     -------
@@ -114,10 +122,17 @@ def make_cloud(
     """
     xyz = np.ascontiguousarray(xyz, dtype=np.float64)
     attrs = dict(attributes or {})
+    if (scan := attrs.pop(SCAN_KEY, None)) is not None:  # each point's scanner (E57)
+        viewpoints = np.asarray(info["scan_positions"], dtype=np.float64)[scan]
+    if viewpoints is not None:  # (filtered with the points as three more columns)
+        view = np.asarray(viewpoints, dtype=np.float64)
+        attrs.update({key: view[:, j] for j, key in enumerate(_VIEW_KEYS)})
     points, origin, normals, colors = _clean_points(
         path, xyz, normals, colors, merge_duplicates, info, attrs, outliers
     )
-    return PointCloud(points, origin, normals, colors, path, fmt, info, attrs)
+    if _VIEW_KEYS[0] in attrs:
+        viewpoints = np.stack([attrs.pop(key) for key in _VIEW_KEYS], axis=1) - origin
+    return PointCloud(points, origin, normals, colors, path, fmt, info, attrs, viewpoints)
 
 
 def _clean_points(

@@ -6,6 +6,15 @@ coordinate frame), one scan at a time. Cartesian and spherical scans are both re
 converts spherical to cartesian). Coordinates are float64 throughout. E57 has no point
 classification; ``--classes`` is refused for E57 files.
 
+Each scan's sensor position is known where the file says where the scan's own frame lies: a
+scan with a pose (its translation is the sensor's position in the file's frame), or a scan in
+spherical coordinates (range, azimuth, elevation from the sensor: the sensor is the frame's
+origin). The points then carry it (``PointCloud.viewpoints``) and the normals face their own
+scanner (``normals.orientation`` ``auto`` or ``viewpoint``). A cartesian scan without a pose
+may hold points already moved into a shared frame (scans merged by the software that wrote the
+file), so its frame's origin says nothing of where it was scanned from; then no scan's
+position is used.
+
 References
 ----------
 [E57] ASTM E2807-11. "Standard specification for 3D imaging data exchange, version 1.0".
@@ -24,9 +33,13 @@ from .common import check_count, input_error, optional_module
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["read_points"]
+__all__ = ["SCAN_KEY", "read_points", "sensor_position"]
 
 _MAGIC = b"ASTM-E57"
+#: The attribute that carries each point's scan (its row of ``info["scan_positions"]``) from
+#: the reader to :func:`recon.io.clean.make_cloud`, which turns it into
+#: ``PointCloud.viewpoints`` (it is not one of the cloud's attributes).
+SCAN_KEY = "_scan"
 
 
 def _message(exc: BaseException) -> str:
@@ -49,7 +62,9 @@ def read_points(
     colors : (n, 3) float64 in [0, 1] or None
         When every scan has colours.
     attributes : dict
-        ``intensity`` (float64, the file's scale) when every scan has it.
+        ``intensity`` (float64, the file's scale) when every scan has it; ``SCAN_KEY``
+        (int32, each point's scan) when every scan's sensor position is known, which then
+        go into ``info["scan_positions"]`` (absolute coordinates, one row per scan).
     """
     with open(path, "rb") as fh:
         magic = fh.read(len(_MAGIC))
@@ -63,6 +78,7 @@ def read_points(
     xyz_parts: list[np.ndarray] = []
     rgb_parts: list[np.ndarray] = []
     int_parts: list[np.ndarray] = []
+    positions: list[np.ndarray | None] = []
     has_rgb = has_int = True
     n_declared = 0
     try:
@@ -87,6 +103,7 @@ def read_points(
                 )
             if has_int:
                 int_parts.append(np.asarray(data["intensity"], dtype=np.float64))
+            positions.append(sensor_position(headers[i], fields[i]))
     except Exception as exc:
         if type(exc).__name__ == "InputError":
             raise
@@ -108,7 +125,27 @@ def read_points(
         rgb = np.concatenate(rgb_parts).astype(np.float64)
         colors = rgb / (255.0 if rgb.size == 0 or rgb.max() <= 255 else 65535.0)
     attributes = {"intensity": np.concatenate(int_parts)} if has_int and int_parts else {}
+    if positions and all(p is not None for p in positions):  # (JSON in reports: lists)
+        sizes = [len(part) for part in xyz_parts]
+        attributes[SCAN_KEY] = np.repeat(np.arange(len(sizes), dtype=np.int32), sizes)
+        info["scan_positions"] = [[float(c) for c in p] for p in positions]
+    elif positions:
+        logger.info(
+            "%s: %d of %d scans are cartesian without a pose: their scanner positions are "
+            "unknown, so none is used to orient the normals (--viewpoint gives one)",
+            path, sum(p is None for p in positions), len(positions),
+        )  # fmt: skip
     return "e57", xyz, None, colors, attributes
+
+
+def sensor_position(header: Any, fields: set[str]) -> np.ndarray | None:
+    """Where the scan was made from, in the file's frame: its pose's translation when it has
+    a pose, the origin for a spherical scan without one, else unknown (None)."""
+    if header.has_pose():
+        return np.asarray(header.translation, dtype=np.float64).reshape(3)
+    if {"sphericalRange", "sphericalAzimuth", "sphericalElevation"} <= fields:
+        return np.zeros(3)
+    return None
 
 
 def _warn_partial(path: Path, fields: list[set[str]], has_rgb: bool, has_int: bool) -> None:

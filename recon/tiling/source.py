@@ -57,7 +57,8 @@ class TileStore:
     directory: Path
     grid: TileGrid
     counts: dict[int, int]
-    columns: int  # x y z, nx ny nz (has_normals), r g b (has_colors), then the attributes
+    #: x y z, nx ny nz (has_normals), r g b (has_colors), the attributes, then the viewpoint
+    columns: int
     has_normals: bool = False
     has_colors: bool = False
     color_scale: float = 1.0  # stored colour values times this are in [0, 1]
@@ -67,6 +68,8 @@ class TileStore:
     #: the bounding box of the points kept (``--classes`` drops some of the header's box)
     lo: np.ndarray | None = None
     hi: np.ndarray | None = None
+    #: each point's scanner position (three columns, last; ``PointCloud.viewpoints``)
+    has_viewpoints: bool = False
 
     def path(self, tile: int) -> Path:
         return self.directory / f"points-{tile}.f64"
@@ -85,6 +88,10 @@ class TileStore:
         """The per-point scalars of a tile's rows (name -> (n,) float64)."""
         c = 3 + 3 * self.has_normals + 3 * self.has_colors
         return {name: rows[:, c + j] for j, name in enumerate(self.attributes)}
+
+    def viewpoints(self, rows: np.ndarray) -> np.ndarray | None:
+        """Where a tile's rows were scanned from (absolute), or None."""
+        return rows[:, self.columns - 3 :] if self.has_viewpoints else None
 
     def tiles(self) -> list[int]:
         """The tiles that hold points, in index order."""
@@ -231,7 +238,7 @@ def split_input(header: ScanHeader, grid: TileGrid, directory: Path, cfg: Any) -
     counts: dict[int, int] = {}
     want_colors = bool(cfg.output.colors)
     attributes = tuple(cfg.output.transfer)
-    use_normals = has_colors = False
+    use_normals = has_colors = has_view = False
     if header.kind == "las":
         chunks: Iterator[np.ndarray] = _las_chunks(
             header.path, cfg.io.classes, cfg.io.max_points, want_colors, attributes
@@ -255,9 +262,14 @@ def split_input(header: ScanHeader, grid: TileGrid, directory: Path, cfg: Any) -
             check_transfer(cloud, attributes)
             cols = [np.asarray(cloud.attributes[a], dtype=np.float64) for a in attributes]
             rows = np.hstack([rows, np.column_stack(cols)])
+        if has_view := cloud.viewpoints is not None:
+            rows = np.hstack([rows, cloud.viewpoints + cloud.origin])
         chunks = iter([rows])
-    columns = 3 + 3 * use_normals + 3 * has_colors + len(attributes)
-    store = TileStore(directory, grid, counts, columns, use_normals, has_colors, 1.0, attributes)
+    columns = 3 + 3 * use_normals + 3 * has_colors + len(attributes) + 3 * has_view
+    store = TileStore(
+        directory, grid, counts, columns, use_normals, has_colors, 1.0, attributes,
+        has_viewpoints=has_view,
+    )  # fmt: skip
     top = 0.0
     c_rgb = 3 + 3 * use_normals
     lo, hi = np.full(3, np.inf), np.full(3, -np.inf)

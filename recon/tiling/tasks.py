@@ -202,13 +202,17 @@ def fit_task(job: FitJob) -> dict:
     if n_core >= MIN_TILE_POINTS:
         normals = job.store.normals(rows)
         try:
-            cloud = cloud_from_arrays(rows[:, :3], normals)
+            cloud = cloud_from_arrays(rows[:, :3], normals, viewpoints=job.store.viewpoints(rows))
             creases = None  # no point beyond the halo: the fit's own detection is the same
             if len(wide) > len(rows):
                 lo, hi = grid.core(job.tile)
                 creases = creases_around(
                     cloud,
-                    cloud_from_arrays(wide[:, :3], job.store.normals(wide)),
+                    cloud_from_arrays(
+                        wide[:, :3],
+                        job.store.normals(wide),
+                        viewpoints=job.store.viewpoints(wide),
+                    ),
                     cfg,
                     (lo - grid.halo, hi + grid.halo),
                     job.normals_k_max,
