@@ -51,7 +51,8 @@ class PointCloud:
         ``n_points`` (after cleaning), ``n_invalid_normals``, ``elements`` (name -> count),
         ``has_faces``, ``properties`` (vertex field names), ``normals_dropped`` (bool); LAS and
         E57 add ``point_format``, ``crs``, ``classes`` (class -> count in the file) and
-        ``classes_kept``.
+        ``classes_kept``; LAS/LAZ ``seen_from_above`` (its z is the elevation, its scanners
+        above the ground: :func:`recon.normals.scanner_positions`), E57 ``scan_positions``.
     attributes : dict of str -> (n,) array
         Per-point scalars beside the colours, row-aligned with ``points``: ``intensity``
         (float64, the file's scale, e.g. 0-65535 for LAS) and ``classification`` (uint8 for

@@ -621,7 +621,7 @@ def compute_normals(
     """
     t0 = time.perf_counter()
     where = str(cloud.path) if cloud.path is not None else "input"
-    if cfg.orientation == "viewpoint" and cfg.viewpoint is None and cloud.viewpoints is None:
+    if cfg.orientation == "viewpoint" and cfg.viewpoint is None and not _implied(cloud):
         raise ConfigError("normals.orientation is 'viewpoint' but normals.viewpoint is not set")
     has_input = cloud.normals is not None
     if cfg.mode == "input" and not has_input:
@@ -697,13 +697,31 @@ def _orient(
 
 def _viewpoint(cloud: PointCloud, cfg: NormalsConfig) -> np.ndarray | None:
     """The sensor position the orientation takes, relative to the cloud's origin: the one the
-    configuration gives (file coordinates), else each point's own scanner when the file said
-    where its scans were made from (``cloud.viewpoints``), else None. Only the ``auto`` and
-    ``viewpoint`` rules take the scanners."""
+    configuration gives (file coordinates), else the scanners the file implies
+    (:func:`scanner_positions`), else None. Only the ``auto`` and ``viewpoint`` rules take
+    the scanners."""
     if cfg.viewpoint is not None:
         return np.asarray(cfg.viewpoint, dtype=np.float64) - cloud.origin
     if cfg.orientation in ("auto", "viewpoint"):
+        return scanner_positions(cloud)
+    return None
+
+
+def _implied(cloud: PointCloud) -> bool:
+    """Whether the file implies where its points were seen from (:func:`scanner_positions`)."""
+    return cloud.viewpoints is not None or bool(cloud.info.get("seen_from_above"))
+
+
+def scanner_positions(cloud: PointCloud) -> np.ndarray | None:
+    """Where the file says each point was seen from (relative to the cloud's origin), or None:
+    its scan's position (``cloud.viewpoints``, an E57 file's), else straight above the point
+    for a cloud seen from above (``cloud.info["seen_from_above"]``: LAS/LAZ, whose z is the
+    elevation and whose scanners fly or drive above the ground), so that the vote for them
+    is that of ``n_z``."""
+    if cloud.viewpoints is not None:
         return cloud.viewpoints
+    if cloud.info.get("seen_from_above"):
+        return cloud.points + np.array([0.0, 0.0, 1.0])
     return None
 
 

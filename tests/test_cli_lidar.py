@@ -190,3 +190,21 @@ def test_fit_e57_faces_its_scanner(tmp_path, tiles):
     res = CliRunner().invoke(app, ["fit", str(path), "-o", str(out), "--quiet", *FAST, *more])
     assert res.exit_code == 0, res.output
     assert _up_share(out) > 0.99
+
+
+@pytest.mark.parametrize("tiles", [None, "1.5"])
+def test_fit_las_faces_up(tmp_path, tiles):
+    """Regression: the road in a cut came out facing down from a LAS file too. LAS's z is
+    the elevation and its scanners are above the ground: the normals face up, tiled or not
+    (and a closed shape in a LAS file, whose normals do not face up as one, stays outward:
+    ``tests/test_normals.py``)."""
+    pts = cut() + OFFSET
+    n = len(pts)
+    cls = np.full(n, GROUND, dtype=np.uint8)
+    rgb = np.tile(np.array(GREEN, dtype=np.uint8), (n, 1))
+    path = write_las(tmp_path / "cut.laz", pts, cls, rgb, np.zeros(n, dtype=np.uint16))
+    out = tmp_path / "mesh.ply"
+    more = [] if tiles is None else ["--tile-size", tiles]
+    res = CliRunner().invoke(app, ["fit", str(path), "-o", str(out), "--quiet", *FAST, *more])
+    assert res.exit_code == 0, res.output
+    assert _up_share(out) > 0.99

@@ -194,6 +194,28 @@ def test_orient_scanners_that_do_not_face_the_surface_are_not_used():
     assert info.component_methods == {"viewpoint": 1}
 
 
+def test_a_cloud_seen_from_above_faces_up_unless_closed():
+    """LAS clouds (``info["seen_from_above"]``): an open valley, whose convex side is below
+    (the outward vote turns it down), faces up; a closed sphere, whose normals do not face
+    up as one, stays outward."""
+    rng = np.random.default_rng(0)
+    xy = rng.uniform(-1.0, 1.0, (3000, 2))
+    valley = np.column_stack([xy, xy[:, 0] ** 2])
+    p, d = sphere()
+    cfg = NormalsConfig()
+    for pts, up in ((valley, True), (p, False)):
+        cloud = cloud_from_arrays(pts)
+        before, _ = compute_normals(cloud, cfg)
+        cloud.info["seen_from_above"] = True
+        after, info = compute_normals(cloud, cfg)
+        if up:
+            assert np.all(before[:, 2] < 0)  # the outward vote: down
+            assert np.all(after[:, 2] > 0) and info["component_methods"] == {"viewpoint": 1}
+        else:
+            assert np.array_equal(after, before)
+            assert np.all(np.einsum("ij,ij->i", after, d) > 0)
+
+
 def test_orient_two_components_each_outward():
     a, da = sphere(1500, 0)
     b, db = sphere(1500, 1, centre=(10.0, 0.0, 0.0))

@@ -198,6 +198,7 @@ def read_points(
         info["offsets"] = [float(o) for o in header.offsets]
         info["elements"] = {"vertex": n_total}
         info["properties"] = list(header.point_format.dimension_names)
+        info["seen_from_above"] = True  # z is the elevation (recon.normals.scanner_positions)
         counts = np.zeros(256, dtype=np.int64)
         parts: dict[str, list[np.ndarray]] = {"xyz": [], "rgb": [], "intensity": [], "cls": []}
         n_kept = 0

@@ -14,13 +14,16 @@ import itertools
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from ..errors import InputError
 from ..geometry import median_nearest_neighbor_distance
 from .grid import TileGrid
+
+if TYPE_CHECKING:
+    from ..cloud import PointCloud
 
 __all__ = ["ScanHeader", "TileStore", "read_box", "scan_header", "split_input", "spacing_sample"]
 
@@ -70,6 +73,8 @@ class TileStore:
     hi: np.ndarray | None = None
     #: each point's scanner position (three columns, last; ``PointCloud.viewpoints``)
     has_viewpoints: bool = False
+    #: the points were seen from above (LAS/LAZ: ``PointCloud.info["seen_from_above"]``)
+    seen_from_above: bool = False
 
     def path(self, tile: int) -> Path:
         return self.directory / f"points-{tile}.f64"
@@ -92,6 +97,16 @@ class TileStore:
     def viewpoints(self, rows: np.ndarray) -> np.ndarray | None:
         """Where a tile's rows were scanned from (absolute), or None."""
         return rows[:, self.columns - 3 :] if self.has_viewpoints else None
+
+    def cloud(self, rows: np.ndarray) -> PointCloud:
+        """A tile's rows as a cleaned cloud (:func:`recon.io.cloud_from_arrays`) with what the
+        fit needs of them: normals, viewpoints, and whether they were seen from above."""
+        from ..io import cloud_from_arrays
+
+        found = cloud_from_arrays(rows[:, :3], self.normals(rows), viewpoints=self.viewpoints(rows))
+        if self.seen_from_above:
+            found.info["seen_from_above"] = True
+        return found
 
     def tiles(self) -> list[int]:
         """The tiles that hold points, in index order."""
@@ -268,7 +283,7 @@ def split_input(header: ScanHeader, grid: TileGrid, directory: Path, cfg: Any) -
     columns = 3 + 3 * use_normals + 3 * has_colors + len(attributes) + 3 * has_view
     store = TileStore(
         directory, grid, counts, columns, use_normals, has_colors, 1.0, attributes,
-        has_viewpoints=has_view,
+        has_viewpoints=has_view, seen_from_above=header.kind == "las",
     )  # fmt: skip
     top = 0.0
     c_rgb = 3 + 3 * use_normals

@@ -174,7 +174,6 @@ def fit_task(job: FitJob) -> dict:
     from ..errors import InputError
     from ..fitting.pipeline import fit_particles
     from ..fitting.wide_creases import creases_around
-    from ..io import cloud_from_arrays
 
     t0 = time.perf_counter()
     _injected_failure(job, os.environ.get(_FAIL_ENV, ""))
@@ -200,19 +199,14 @@ def fit_task(job: FitJob) -> dict:
     rest = None
     crease = None
     if n_core >= MIN_TILE_POINTS:
-        normals = job.store.normals(rows)
         try:
-            cloud = cloud_from_arrays(rows[:, :3], normals, viewpoints=job.store.viewpoints(rows))
+            cloud = job.store.cloud(rows)
             creases = None  # no point beyond the halo: the fit's own detection is the same
             if len(wide) > len(rows):
                 lo, hi = grid.core(job.tile)
                 creases = creases_around(
                     cloud,
-                    cloud_from_arrays(
-                        wide[:, :3],
-                        job.store.normals(wide),
-                        viewpoints=job.store.viewpoints(wide),
-                    ),
+                    job.store.cloud(wide),
                     cfg,
                     (lo - grid.halo, hi + grid.halo),
                     job.normals_k_max,
