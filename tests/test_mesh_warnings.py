@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from types import SimpleNamespace
 
 import numpy as np
 from click.testing import CliRunner
@@ -20,6 +21,7 @@ from recon.fitting.mesh_warnings import (
     MIN_VERTEX_SHARE,
     PIECES_COMPONENTS,
     crossing_warning,
+    facing_warning,
     far_data_warning,
     fit_warnings,
     fragment_warning,
@@ -267,13 +269,39 @@ def test_fit_warnings_counts_the_largest_component_from_the_faces():
     # largest 120 / 420 of the faces
     faces = np.array(strip(120, 0) + sum((strip(60, 200 + 100 * i) for i in range(5)), []))
     m = measures(6, len(faces), 0.99)
-    w = fit_warnings(m, {}, 420, 0.01, faces)
+    tri = SimpleNamespace(stats={}, faces=faces, vertices=np.zeros((800, 3)))
+    w = fit_warnings(m, tri, 420, 0.01)
     assert len(w) == 1 and "6 components, the largest holding only 29%" in w[0]
-    assert fit_warnings(m, {}, 420, 0.01) == ()  # no faces: that rule skipped
     # fewer components than the rule needs: the faces are not even counted
-    assert fit_warnings(measures(4, len(faces), 0.99), {}, 420, 0.01, faces) == ()
-    off = fit_warnings(measures(1, len(faces), 0.5), {}, 420, 0.01, faces)
+    assert fit_warnings(measures(4, len(faces), 0.99), tri, 420, 0.01) == ()
+    off = fit_warnings(measures(1, len(faces), 0.5), tri, 420, 0.01)
     assert len(off) == 1 and "only 50.0% of the mesh surface" in off[0]
+
+
+def _valley(n: int = 30) -> tuple[np.ndarray, np.ndarray]:
+    """A grid over [-1, 1]^2 lifted to z = x^2, wound to face down (its convex side)."""
+    x, y = np.meshgrid(np.linspace(-1, 1, n), np.linspace(-1, 1, n), indexing="ij")
+    v = np.column_stack([x.ravel(), y.ravel(), x.ravel() ** 2])
+    i = np.arange(n - 1)[:, None] * n + np.arange(n - 1)[None, :]
+    i = i.ravel()
+    up = np.vstack([np.column_stack([i, i + n, i + 1]), np.column_stack([i + 1, i + n, i + n + 1])])
+    return v, up[:, ::-1]
+
+
+def test_facing_warning_names_an_open_mesh_the_outward_vote_turned_down():
+    v, down = _valley()
+    outward = {"orientation": "auto", "component_methods": {"outward": 1}}
+    w = facing_warning(v, down, 1, outward)
+    assert w is not None and "faces down" in w and "--viewpoint" in w
+    assert facing_warning(v, down[:, ::-1], 1, outward) is None  # facing up
+    assert facing_warning(v, down, 0, outward) is None  # closed: outward is right
+    for other in (
+        {"orientation": "auto", "component_methods": {"up": 1}},
+        {"orientation": "auto", "component_methods": {"viewpoint": 1}},
+        {"orientation": "outward", "component_methods": {"outward": 1}},  # asked for
+        {},
+    ):
+        assert facing_warning(v, down, 1, other) is None
 
 
 # --------------------------------------------------------------------------------------------
@@ -362,3 +390,17 @@ def test_report_command_warns_about_crossings(tmp_path):
     assert r.exit_code == 0, r.output
     n = json.loads(r.stdout)["self_intersections"]
     assert f"the mesh has {n:,} self-crossing face pairs" in r.stderr
+
+
+def test_a_valley_turned_down_by_the_outward_vote_says_so():
+    """A valley (z = x^2, its convex side below) from bare points is signed by the outward
+    vote and faces down: the fit says so and names --viewpoint; with a viewpoint above it
+    faces up and says nothing."""
+    rng = np.random.default_rng(0)
+    xy = rng.uniform(-1.0, 1.0, (3000, 2))
+    pts = np.column_stack([xy, xy[:, 0] ** 2])
+    rep = recon.fit(pts).report
+    assert rep.input.normals["component_methods"] == {"outward": 1}
+    assert sum("the open mesh faces down" in w for w in rep.warnings) == 1
+    rep = recon.fit(pts, {"normals.viewpoint": [0.0, 0.0, 10.0]}).report
+    assert not any("faces down" in w for w in rep.warnings)

@@ -23,7 +23,10 @@ mesh of :data:`PIECES_COMPONENTS` components or more:
 - **mesh off the data**: less than :data:`MIN_ON_DATA` of the mesh surface lies within reach
   of an input point (``mesh_to_input.within_reach``, the summary's "mesh on the data"; the
   reach is max(r0, 2.1 median point spacings), beyond which a uniformly random sampling
-  leaves 5 % of its surface): a third of the mesh or more bridges gaps or grows past the data.
+  leaves 5 % of its surface): a third of the mesh or more bridges gaps or grows past the data;
+- **facing down** (untiled fits): an open mesh whose normals the outward vote signed and whose
+  mean face normal points down (:func:`facing_warning`): a valley turned inside out, unless it
+  was seen from below.
 
 Separate objects are told from pieces by their number: a scan of up to
 ``PIECES_COMPONENTS - 1`` objects is never warned about whatever their sizes, and several
@@ -53,6 +56,7 @@ if TYPE_CHECKING:
     from .report import Fidelity, MeshMeasures, MeshToInput, Topology, TriangulationStats
 
 __all__ = [
+    "DOWN_FACING",
     "FAR_DATA_R0",
     "FIT_HINT",
     "FRAGMENT_COMPONENTS",
@@ -62,6 +66,7 @@ __all__ = [
     "PIECES_COMPONENTS",
     "crossing_warning",
     "far_data_warning",
+    "facing_warning",
     "fit_warnings",
     "fragment_warning",
     "largest_component_faces",
@@ -97,6 +102,9 @@ FAR_DATA_R0 = 3.0
 #: the non-uniform hemisphere, 0.84 on the non-uniform bunny, 0.88 on the sparse face; held-out:
 #: 0.73 on the 20x density gradient at 3k points): a mesh a third off the data stays below.
 MIN_ON_DATA = 2.0 / 3.0
+#: An open mesh signed by the outward vote whose area-weighted mean face normal has a z below
+#: minus this faces down (:func:`facing_warning`; dev set: the open scans' are +0.5 to +1).
+DOWN_FACING = 0.5
 #: What to try about crossings left by a fit.
 FIT_HINT = "try a larger --spacing, or remove outliers from the input"
 
@@ -310,35 +318,83 @@ def mesh_warnings(
 
 def fit_warnings(
     measures: MeshMeasures,
-    triangulation: Mapping[str, Any],
+    triangulation: Any,
     particles: int,
     r0: float,
-    faces: Any = None,
+    normals: Mapping[str, Any] | None = None,
 ) -> tuple[str, ...]:
-    """:func:`mesh_warnings` of an untiled fit: its measures and triangulation stats.
+    """:func:`mesh_warnings` of an untiled fit: its measures and triangulation, and
+    :func:`facing_warning`.
 
     Parameters
     ----------
     measures : MeshMeasures
         :func:`recon.fitting.report.measure_mesh` of the mesh.
-    triangulation : mapping
-        The triangulation's ``stats`` (with the self-intersection counts).
+    triangulation : TriangulationResult
+        Its ``stats`` (with the self-intersection counts), and the measured mesh's ``faces``
+        and ``vertices``: the largest component's share is counted from the faces when the
+        mesh has at least :data:`PIECES_COMPONENTS` components (one pass over the faces).
     particles : int
         The fitted particles.
     r0 : float [length]
         The rest spacing.
-    faces : (F, 3) array_like of int, optional
-        The measured mesh's faces: the largest component's share is counted from them when the
-        mesh has at least :data:`PIECES_COMPONENTS` components (one pass over the faces; None
-        skips that rule).
+    normals : mapping, optional
+        The report's ``input.normals`` (how they were oriented), for :func:`facing_warning`.
     """
-    many = faces is not None and measures.topology.components >= PIECES_COMPONENTS
-    return mesh_warnings(
+    faces = triangulation.faces
+    many = measures.topology.components >= PIECES_COMPONENTS
+    found = mesh_warnings(
         measures.topology,
-        triangulation,
+        triangulation.stats,
         particles=int(particles),
         r0=r0,
         fidelity=measures.fidelity,
         mesh_to_input=measures.mesh_to_input,
         largest=largest_component_faces(faces) if many else None,
+    )
+    loops = measures.topology.boundary_loops
+    facing = facing_warning(triangulation.vertices, faces, loops, normals or {})
+    return found if facing is None else (*found, facing)
+
+
+def facing_warning(
+    vertices: Any, faces: Any, boundary_loops: int, normals: Mapping[str, Any]
+) -> str | None:
+    """The warning for an open mesh that faces down because the outward vote signed it (None
+    otherwise).
+
+    The outward vote (``normals.orientation: auto`` without a viewpoint) is made for closed
+    surfaces: it turns an open surface's convex side out, so a valley or a road in a cut,
+    whose convex side is below, faces down. Nothing in the points says whether that is
+    wrong (a face seen by a camera looking up the z axis faces down rightly), so the fit says
+    so instead of turning it: when the mesh has a boundary, some part was signed by the
+    outward vote and the area-weighted mean of the face normals points down
+    (:data:`DOWN_FACING`; a closed surface's is 0). LAS/LAZ and E57 inputs say where they were
+    seen from (:func:`recon.normals.scanner_positions`) and are not signed so.
+
+    Parameters
+    ----------
+    vertices : (V, 3) array_like [length]
+    faces : (F, 3) array_like of int
+    boundary_loops : int
+        The mesh's boundary loops (0: closed, never warned about).
+    normals : mapping
+        The report's ``input.normals``: ``orientation`` and ``component_methods``.
+    """
+    methods = normals.get("component_methods") or {}
+    if boundary_loops == 0 or normals.get("orientation") != "auto" or "outward" not in methods:
+        return None
+    v, f = np.asarray(vertices, dtype=np.float64), np.asarray(faces)
+    if len(f) == 0:
+        return None
+    cross = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+    area = float(np.linalg.norm(cross, axis=1).sum())
+    down = float(cross[:, 2].sum()) / area if area > 0 else 0.0
+    if not down < -DOWN_FACING:
+        return None
+    return (
+        f"the open mesh faces down (the mean of its face normals has z {down:.2f}): the "
+        "outward vote, made for closed shapes, turned its convex side out; if it was seen "
+        "from above (terrain, a valley, a road in a cut), give a point above it: --viewpoint "
+        "X,Y,Z (file coordinates), or read it from LAS/LAZ or E57, which say so"
     )

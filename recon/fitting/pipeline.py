@@ -586,7 +586,7 @@ def _reconstruct(cloud: PointCloud, cfg: ReconConfig, on_progress: ProgressFn | 
         timings=Timings.from_phases(clock.phases),
         coverage=coverage[-1] if coverage else None,
         stop_reason=sched.stop_reason,
-        warnings=(*sched.warnings, *fit_warnings(measures, tri.stats, state.n, r0, tri.faces)),
+        warnings=(*sched.warnings, *fit_warnings(measures, tri, state.n, r0, normals_info)),
         triangulation=TriangulationStats.from_dict(tri.stats),
         noise_estimate=surface.noise * r0,
         history=History.from_dict(sched.history),
