@@ -484,6 +484,11 @@ def test_e57_scanner_position_is_known_from_a_pose_or_spherical_coordinates():
     assert np.array_equal(sensor_position(Header(True), xyz), [1.0, 2.0, 3.0])
     assert np.array_equal(sensor_position(Header(False), rae), [0.0, 0.0, 0.0])
     assert sensor_position(Header(False), xyz) is None
+    # a pose under terrain 250 m up (easting, northing, 0: a georeference) is not a scanner;
+    # one among the scan's points is
+    terrain = np.array([[0.0, 0.0, 250.0], [40.0, 30.0, 262.0]])
+    assert sensor_position(Header(True), xyz, terrain) is None
+    assert np.array_equal(sensor_position(Header(True), xyz, terrain + [0, 0, -249]), [1, 2, 3])
 
 
 def test_cloud_from_arrays_checks_viewpoints():

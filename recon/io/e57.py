@@ -12,8 +12,9 @@ spherical coordinates (range, azimuth, elevation from the sensor: the sensor is 
 origin). The points then carry it (``PointCloud.viewpoints``) and the normals face their own
 scanner (``normals.orientation`` ``auto`` or ``viewpoint``). A cartesian scan without a pose
 may hold points already moved into a shared frame (scans merged by the software that wrote the
-file), so its frame's origin says nothing of where it was scanned from; then no scan's
-position is used.
+file), so its frame's origin says nothing of where it was scanned from; a pose outside the
+scan's own points (beyond ``SURROUND_MARGIN`` of their bounding box) only georeferences them.
+Then no scan's position is used.
 
 References
 ----------
@@ -33,13 +34,16 @@ from .common import check_count, input_error, optional_module
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["SCAN_KEY", "read_points", "sensor_position"]
+__all__ = ["SCAN_KEY", "SURROUND_MARGIN", "read_points", "sensor_position"]
 
 _MAGIC = b"ASTM-E57"
 #: The attribute that carries each point's scan (its row of ``info["scan_positions"]``) from
 #: the reader to :func:`recon.io.clean.make_cloud`, which turns it into
 #: ``PointCloud.viewpoints`` (it is not one of the cloud's attributes).
 SCAN_KEY = "_scan"
+#: A scan position farther outside its scan's bounding box than this share of the box's
+#: diagonal is not where the scan was made from (:func:`sensor_position`).
+SURROUND_MARGIN = 0.1
 
 
 def _message(exc: BaseException) -> str:
@@ -103,7 +107,7 @@ def read_points(
                 )
             if has_int:
                 int_parts.append(np.asarray(data["intensity"], dtype=np.float64))
-            positions.append(sensor_position(headers[i], fields[i]))
+            positions.append(sensor_position(headers[i], fields[i], xyz_parts[-1]))
     except Exception as exc:
         if type(exc).__name__ == "InputError":
             raise
@@ -131,21 +135,36 @@ def read_points(
         info["scan_positions"] = [[float(c) for c in p] for p in positions]
     elif positions:
         logger.info(
-            "%s: %d of %d scans are cartesian without a pose: their scanner positions are "
-            "unknown, so none is used to orient the normals (--viewpoint gives one)",
+            "%s: %d of %d scans say nothing of where they were made (cartesian without a "
+            "pose, or a pose outside the scan's own points): no scanner position is used to "
+            "orient the normals (--viewpoint gives one)",
             path, sum(p is None for p in positions), len(positions),
         )  # fmt: skip
     return "e57", xyz, None, colors, attributes
 
 
-def sensor_position(header: Any, fields: set[str]) -> np.ndarray | None:
+def sensor_position(
+    header: Any, fields: set[str], points: np.ndarray | None = None
+) -> np.ndarray | None:
     """Where the scan was made from, in the file's frame: its pose's translation when it has
-    a pose, the origin for a spherical scan without one, else unknown (None)."""
+    a pose, the origin for a spherical scan without one, else unknown (None).
+
+    A scanner stands among what it scans: a position outside the bounding box of the scan's
+    own ``points`` (absolute), grown by ``SURROUND_MARGIN`` of its diagonal, is a pose that
+    only moves the points into place (a georeference: easting, northing and a height of 0
+    under terrain 250 m up), and unknown too."""
     if header.has_pose():
-        return np.asarray(header.translation, dtype=np.float64).reshape(3)
-    if {"sphericalRange", "sphericalAzimuth", "sphericalElevation"} <= fields:
-        return np.zeros(3)
-    return None
+        where = np.asarray(header.translation, dtype=np.float64).reshape(3)
+    elif {"sphericalRange", "sphericalAzimuth", "sphericalElevation"} <= fields:
+        where = np.zeros(3)
+    else:
+        return None
+    if points is not None and len(points):
+        lo, hi = points.min(axis=0), points.max(axis=0)
+        grow = SURROUND_MARGIN * float(np.linalg.norm(hi - lo))
+        if np.any(where < lo - grow) or np.any(where > hi + grow):
+            return None
+    return where
 
 
 def _warn_partial(path: Path, fields: list[set[str]], has_rgb: bool, has_int: bool) -> None:

@@ -73,8 +73,6 @@ class TileStore:
     hi: np.ndarray | None = None
     #: each point's scanner position (three columns, last; ``PointCloud.viewpoints``)
     has_viewpoints: bool = False
-    #: the points were seen from above (LAS/LAZ: ``PointCloud.info["seen_from_above"]``)
-    seen_from_above: bool = False
 
     def path(self, tile: int) -> Path:
         return self.directory / f"points-{tile}.f64"
@@ -100,13 +98,16 @@ class TileStore:
 
     def cloud(self, rows: np.ndarray) -> PointCloud:
         """A tile's rows as a cleaned cloud (:func:`recon.io.cloud_from_arrays`) with what the
-        fit needs of them: normals, viewpoints, and whether they were seen from above."""
+        fit needs of them: normals and viewpoints.
+
+        Not whether they were seen from above (LAS/LAZ, ``PointCloud.info["seen_from_above"]``):
+        a tile holds an open piece of a closed object, whose vote for facing up can be decisive
+        where the whole object's is not, and a tiled fit does not turn closed parts outward
+        after stitching (a statue in a LAS file, its underside sampled twice as densely, came
+        out wound inward in tiles of 1.0 and 1.3)."""
         from ..io import cloud_from_arrays
 
-        found = cloud_from_arrays(rows[:, :3], self.normals(rows), viewpoints=self.viewpoints(rows))
-        if self.seen_from_above:
-            found.info["seen_from_above"] = True
-        return found
+        return cloud_from_arrays(rows[:, :3], self.normals(rows), viewpoints=self.viewpoints(rows))
 
     def tiles(self) -> list[int]:
         """The tiles that hold points, in index order."""
@@ -283,7 +284,7 @@ def split_input(header: ScanHeader, grid: TileGrid, directory: Path, cfg: Any) -
     columns = 3 + 3 * use_normals + 3 * has_colors + len(attributes) + 3 * has_view
     store = TileStore(
         directory, grid, counts, columns, use_normals, has_colors, 1.0, attributes,
-        has_viewpoints=has_view, seen_from_above=header.kind == "las",
+        has_viewpoints=has_view,
     )  # fmt: skip
     top = 0.0
     c_rgb = 3 + 3 * use_normals
