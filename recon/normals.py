@@ -621,7 +621,7 @@ def compute_normals(
     """
     t0 = time.perf_counter()
     where = str(cloud.path) if cloud.path is not None else "input"
-    if cfg.orientation == "viewpoint" and cfg.viewpoint is None and not _implied(cloud):
+    if cfg.orientation == "viewpoint" and _viewpoint(cloud, cfg) is None:
         raise ConfigError("normals.orientation is 'viewpoint' but normals.viewpoint is not set")
     has_input = cloud.normals is not None
     if cfg.mode == "input" and not has_input:
@@ -705,11 +705,6 @@ def _viewpoint(cloud: PointCloud, cfg: NormalsConfig) -> np.ndarray | None:
     if cfg.orientation in ("auto", "viewpoint"):
         return scanner_positions(cloud)
     return None
-
-
-def _implied(cloud: PointCloud) -> bool:
-    """Whether the file implies where its points were seen from (:func:`scanner_positions`)."""
-    return cloud.viewpoints is not None or bool(cloud.info.get("seen_from_above"))
 
 
 def scanner_positions(cloud: PointCloud) -> np.ndarray | None:

@@ -49,10 +49,11 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ..mesh import vertex_components
+from ..mesh import face_area_vectors, vertex_components
 from ..winding import MIN_COMPONENT_FACES
 
 if TYPE_CHECKING:
+    from ..triangulate import TriangulationResult
     from .report import Fidelity, MeshMeasures, MeshToInput, Topology, TriangulationStats
 
 __all__ = [
@@ -318,7 +319,7 @@ def mesh_warnings(
 
 def fit_warnings(
     measures: MeshMeasures,
-    triangulation: Any,
+    triangulation: TriangulationResult,
     particles: int,
     r0: float,
     normals: Mapping[str, Any] | None = None,
@@ -384,10 +385,9 @@ def facing_warning(
     methods = normals.get("component_methods") or {}
     if boundary_loops == 0 or normals.get("orientation") != "auto" or "outward" not in methods:
         return None
-    v, f = np.asarray(vertices, dtype=np.float64), np.asarray(faces)
-    if len(f) == 0:
+    if len(faces) == 0:
         return None
-    cross = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+    cross = face_area_vectors(np.asarray(vertices, dtype=np.float64), np.asarray(faces))
     area = float(np.linalg.norm(cross, axis=1).sum())
     down = float(cross[:, 2].sum()) / area if area > 0 else 0.0
     if not down < -DOWN_FACING:
