@@ -518,6 +518,14 @@ class TilingConfig(Schema):
         2.0,
         50.0,
     )
+    task_time_limit: float | None = option(
+        None,
+        "Seconds one tile's task may run before it is taken for stuck, stopped and run once "
+        "more (a worker short of memory can hang); null = 120 s + 5 ms per point of the tile.",
+        0.0,
+        None,
+        lo_open=True,
+    )
 
     def check(self, prefix: str) -> None:
         parse_size(self.memory, f"{prefix}memory")

@@ -60,9 +60,10 @@ class deferred_interrupts:  # noqa: N801 - used like a function
 
     An interrupt that arrives at an unsafe point is retried every 20 ms (SIGALRM) until the
     main thread has left the fragile code. SIGTERM (``timeout``, ``kill``) is treated as Ctrl-C
-    when it has its default action, so that temporary files are removed then too. Does nothing
-    outside the main thread, when SIGINT has a custom handler already, or without
-    ``setitimer`` (Windows).
+    when it has its default action, so that temporary files are removed then too, also when
+    SIGINT is ignored (a process started in the background of a script: Ctrl-C stays
+    ignored). Does nothing outside the main thread, when SIGINT has a custom handler already,
+    or without ``setitimer`` (Windows).
 
     Parameters
     ----------
@@ -80,7 +81,9 @@ class deferred_interrupts:  # noqa: N801 - used like a function
     raised : threading.Event
         Set just before the block's KeyboardInterrupt is raised.
     active : bool
-        Whether the block holds interrupts back (see above): False outside it.
+        Whether the block holds Ctrl-C back (see above): False outside it.
+    term_only : bool
+        Whether the block holds back SIGTERM only (SIGINT was ignored): False outside it.
     """
 
     RETRY_S = 0.02
@@ -92,29 +95,37 @@ class deferred_interrupts:  # noqa: N801 - used like a function
         self.active = False
 
     def __enter__(self) -> deferred_interrupts:
-        self.active = (
-            hasattr(signal, "setitimer")
-            and threading.current_thread() is threading.main_thread()
-            and signal.getsignal(signal.SIGINT) is signal.default_int_handler
+        usable = (
+            hasattr(signal, "setitimer") and threading.current_thread() is threading.main_thread()
         )
-        if self.active:
-            self.old_alarm = signal.signal(signal.SIGALRM, self._handle)
-            signal.signal(signal.SIGINT, self._handle)
+        sigint = signal.getsignal(signal.SIGINT) if usable else None
+        self.active = usable and sigint is signal.default_int_handler
+        # started with Ctrl-C ignored (in the background of a script): SIGTERM still cleans up
+        self.term_only = usable and sigint == signal.SIG_IGN
+        if self.active or self.term_only:
             self.old_term = signal.getsignal(signal.SIGTERM)
             self.term = self.take_term or self.old_term == signal.SIG_DFL
+            if self.term_only and not self.term:
+                self.term_only = False
+                return self
+            self.old_alarm = signal.signal(signal.SIGALRM, self._handle)
+            if self.active:
+                signal.signal(signal.SIGINT, self._handle)
             if self.term:
                 signal.signal(signal.SIGTERM, self._handle)
         return self
 
     def __exit__(self, *exc: object) -> None:
-        if self.active:
+        if self.active or self.term_only:
             signal.setitimer(signal.ITIMER_REAL, 0.0)
-            done = self.once and self.raised.is_set()
-            signal.signal(signal.SIGINT, signal.SIG_IGN if done else signal.default_int_handler)
+            if self.active:
+                done = self.once and self.raised.is_set()
+                handler = signal.SIG_IGN if done else signal.default_int_handler
+                signal.signal(signal.SIGINT, handler)
             signal.signal(signal.SIGALRM, self.old_alarm)
             if self.term:
                 signal.signal(signal.SIGTERM, self.old_term)
-            self.active = False
+            self.active = self.term_only = False
 
     def _handle(self, signum: int, frame: Any) -> None:
         if self.once and self.raised.is_set():

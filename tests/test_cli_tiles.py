@@ -4,6 +4,7 @@ behind."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import signal
@@ -144,6 +145,34 @@ def test_a_tile_failing_twice_exits_1_with_its_bounds_and_writes_nothing(sheet_f
     assert "retrying" in res.stderr
     assert "Traceback" not in res.output
     assert sorted(p.name for p in tmp_path.iterdir()) == []
+
+
+def test_a_hung_tile_is_stopped_and_run_again(sheet_file, tmp_path):
+    """Regression: a tile whose worker hung (OpenBLAS spinning on a failed allocation) kept
+    the tiled fit waiting for ever. Past tiling.task_time_limit its worker is stopped and
+    the tile fitted again: the run ends with the mesh."""
+    out = tmp_path / "mesh.ply"
+    res = _run(
+        [
+            "fit",
+            str(sheet_file),
+            "-o",
+            str(out),
+            "--tile-size",
+            "4",
+            "--jobs",
+            "2",
+            "--set",
+            "tiling.task_time_limit=20",
+        ],  # fmt: skip
+        env={"OPRECON_TILE_FAIL": "1~"},
+    )
+    assert res.exit_code == 0, res.output
+    assert "tile 1 (0, 1, 0) [" in res.stderr and "ran longer than 20 s" in res.stderr
+    assert "taken for stuck" in res.stderr and "retrying" in res.stderr
+    topo = mesh_topology(*read_mesh(out)[:2])
+    assert topo["components"] == 1
+    assert _leftovers(tmp_path) == []
 
 
 @pytest.mark.parametrize(
@@ -321,6 +350,64 @@ def test_ctrl_c_during_the_tile_fits_exits_130_and_leaves_nothing(tmp_path):
         ["ps", "-o", "pid=,stat=", "-g", str(proc.pid)], capture_output=True, text=True
     ).stdout.split("\n")
     assert [line for line in alive if line.strip() and "Z" not in line.split()[-1]] == []
+
+
+def _group_alive(group: int) -> list[str]:
+    """The processes of session ``group`` that are not zombies (``ps`` lines)."""
+    lines = subprocess.run(
+        ["ps", "-o", "pid=,stat=,args=", "-g", str(group)], capture_output=True, text=True
+    ).stdout.splitlines()
+    return [line for line in lines if line.strip() and "Z" not in line.split()[1]]
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="workers die with it on Linux")
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGKILL])
+def test_a_coordinator_started_in_the_background_leaves_no_workers_behind(tmp_path, sig):
+    """Regression: started with Ctrl-C ignored (``oprecon fit ... &`` in a script) and sent
+    SIGTERM, the coordinator died at once: its work folder stayed and its workers ran on.
+    SIGTERM now cleans up as Ctrl-C does (exit 130, nothing left); killed outright
+    (SIGKILL), it still takes its workers with it."""
+    src = tmp_path / "sheet.ply"
+    write_points(src, _sheet(2500))
+    out_dir = tmp_path / "out"
+    out_dir.mkdir()
+    cmd = [str(OPRECON), "fit", str(src), "-o", str(out_dir / "m.ply"), "--tile-size", "4",
+           "--jobs", "2"]  # fmt: skip
+
+    def ignore_sigint() -> None:  # as a shell does for a background job of a script
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+    proc = subprocess.Popen(
+        cmd,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        preexec_fn=ignore_sigint,
+        start_new_session=True,
+        env={**os.environ, "OPRECON_TILE_FAIL": "0!~"},  # tile 0's worker hangs
+    )
+    try:
+        deadline = time.monotonic() + 90
+        while time.monotonic() < deadline and not list(out_dir.glob(".oprecon-tiles-*/hung-0")):
+            time.sleep(0.2)
+        assert proc.poll() is None, proc.stderr.read().decode()
+        assert len(_group_alive(proc.pid)) >= 3  # the coordinator and its two workers
+        os.kill(proc.pid, sig)  # the coordinator only
+        code = proc.wait(timeout=60)
+        deadline = time.monotonic() + 20
+        while time.monotonic() < deadline and _group_alive(proc.pid):
+            time.sleep(0.2)
+        assert _group_alive(proc.pid) == []
+    finally:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait()
+    if sig == signal.SIGTERM:
+        stderr = proc.stderr.read().decode()
+        assert code == 130, stderr[-2000:]
+        assert "interrupted" in stderr and "Traceback" not in stderr
+        assert os.listdir(out_dir) == []
+    else:
+        assert code == -signal.SIGKILL
 
 
 def test_las_colours_end_up_on_the_tiled_mesh(tmp_path):

@@ -84,3 +84,22 @@ def test_the_exit_hook_ignores_interrupts_and_is_registered_once(default_sigint,
         assert signal.getsignal(signal.SIGTERM) == term
     finally:
         signal.signal(signal.SIGTERM, old_term)
+
+
+def test_with_ctrl_c_ignored_sigterm_still_raises_and_ctrl_c_stays_ignored(default_sigint):
+    """A process started in the background of a script ignores SIGINT: SIGTERM must still
+    clean up (before, the block took nothing and SIGTERM killed the process on the spot)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    old_term = signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    try:
+        guard = deferred_interrupts()
+        with pytest.raises(KeyboardInterrupt), guard:
+            assert guard.term_only and not guard.active
+            assert signal.getsignal(signal.SIGINT) is signal.SIG_IGN
+            signal.pthread_kill(threading.main_thread().ident, signal.SIGTERM)
+            time.sleep(0.01)
+        assert signal.getsignal(signal.SIGINT) is signal.SIG_IGN
+        assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL
+        assert not guard.term_only
+    finally:
+        signal.signal(signal.SIGTERM, old_term)

@@ -174,6 +174,38 @@ def test_a_tile_failing_twice_is_reported_with_its_bounds(error, code):
     assert isinstance(err.value, OpreconError)
 
 
+def test_a_stuck_task_is_stopped_and_the_tasks_lost_with_it_are_not_charged():
+    """Regression: a worker short of memory spun without end inside OpenBLAS's allocator and
+    the tiled fit never finished (nothing bounded a task). A task past its budget is now
+    stopped and run once more; stopping it stops the pool's other workers, whose tasks run
+    again without counting as failures."""
+    from recon.tiling.executors import tile_runner
+
+    events, got = [], {}
+    tasks = {0: (time.sleep, (600,)), 1: (abs, (-1,)), 2: (abs, (-2,)), 3: (abs, (-3,))}
+    t0 = time.monotonic()
+    with tile_runner("local", 2) as runner, pytest.raises(TileError) as err:
+        run_tasks(runner, "fit", tasks, str, events.append, got.__setitem__, budget=lambda t: 2.0)
+    assert time.monotonic() - t0 < 60
+    assert err.value.exit_code == 1
+    assert "1 of 4 tile(s) failed twice" in str(err.value)
+    assert "0: TileStuck: ran longer than 2 s and was taken for stuck" in str(err.value)
+    assert got == {1: 1, 2: 2, 3: 3}
+    retries = [e.message for e in events if e.message]
+    assert len(retries) == 1 and retries[0].startswith("0 failed (TileStuck"), retries
+
+
+def test_a_tiles_budget_grows_with_its_points_unless_set():
+    from recon.tiling.run import TASK_BASE_S, TASK_S_PER_POINT, task_budget
+
+    budget = task_budget(ReconConfig(), {0: 0, 1: 100_000})
+    assert budget(0) == TASK_BASE_S
+    assert budget(1) == pytest.approx(TASK_BASE_S + 100_000 * TASK_S_PER_POINT)
+    assert budget(2) == TASK_BASE_S  # (a tile without points)
+    fixed = task_budget(with_values(ReconConfig(), tiling={"task_time_limit": 7}), {1: 10**6})
+    assert fixed(1) == 7.0
+
+
 class WindowRunner(ThreadRunner):
     """A thread runner that counts the tasks submitted and not yet finished."""
 

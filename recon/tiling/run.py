@@ -99,6 +99,14 @@ class TiledResult:
 #: held-out terrain at 6.5 r0: 18 loops against 1 untiled, 2 at 10 r0; the bunny at 5.5 r0:
 #: 76 loops, faces wound inside out; both clean from 11 r0 on; eighteenth round's hunt).
 SMALL_TILE_R0 = 12.0
+#: A tile's task running longer than TASK_BASE_S + TASK_S_PER_POINT x the points of its core
+#: is taken for stuck (tiling.task_time_limit overrides it): a worker short of memory can spin
+#: without end in OpenBLAS's allocator. The base covers a worker's first task, which also
+#: loads the kernels. Measured on 2 cores, 2 jobs: tiles of a 200k-point terrain (side 40,
+#: 16k-32k points) fitted in 0.2-0.25 ms a point, max 7.9 s (budget 200-280 s); a loaded
+#: machine ran the untiled million-point fit at 0.85 ms a point.
+TASK_BASE_S = 120.0
+TASK_S_PER_POINT = 5e-3
 
 
 def peak_rss_mib(reset: bool = False) -> float | None:
@@ -153,6 +161,15 @@ def plan_tile_size(header: ScanHeader, cfg: ReconConfig) -> float | None:
     )
 
 
+def task_budget(cfg: ReconConfig, counts: dict[int, int]) -> Callable[[int], float]:
+    """Seconds a tile's task may run before it is taken for stuck: ``tiling.task_time_limit``,
+    else :data:`TASK_BASE_S` plus :data:`TASK_S_PER_POINT` per point of the tile's core."""
+    limit = cfg.tiling.task_time_limit
+    if limit is not None:
+        return lambda t: float(limit)
+    return lambda t: TASK_BASE_S + TASK_S_PER_POINT * counts.get(t, 0)
+
+
 def _default_threads(
     cfg: ReconConfig, jobs: int, executor: str, scheduler: str | None
 ) -> int | None:
@@ -205,7 +222,15 @@ def _scan_scales(header: ScanHeader, store: Any, cfg: ReconConfig, runner: Any, 
             ks.append(r["k"])
 
     tiles = store.tiles()
-    run_tasks(runner, "spacing", LazyTasks(tiles, sample), store.grid.describe, emit, keep)
+    run_tasks(
+        runner,
+        "spacing",
+        LazyTasks(tiles, sample),
+        store.grid.describe,
+        emit,
+        keep,
+        budget=task_budget(cfg, store.counts),
+    )
     d1, d6 = np.concatenate(d1s), np.concatenate(d6s)
     if len(d1) == 0:
         raise InputError(f"{header.path}: too few points per tile to measure the point spacing")
@@ -338,6 +363,7 @@ def fit_tiled(
                 on_event,
                 records.add_fit,
                 deadline,
+                task_budget(cfg, store.counts),
             )
             timings["fit"] = time.perf_counter() - t0
             peaks["fit"] = peak_rss_mib(reset=True)
@@ -387,6 +413,7 @@ def fit_tiled(
                 on_event,
                 records.add_mesh,
                 deadline,
+                task_budget(cfg, store.counts),
             )
             timings["mesh"] = time.perf_counter() - t0
             peaks["mesh"] = peak_rss_mib(reset=True)

@@ -351,12 +351,17 @@ def vertex_attributes(
 
 def _injected_failure(job: FitJob, spec: str) -> None:
     """Tests of the retry: ``OPRECON_TILE_FAIL=3`` makes the first fit of tile 3 fail,
-    ``3!`` every fit of it."""
-    if spec.rstrip("!") != str(job.tile):
+    ``3!`` every fit of it; ``3~`` makes its first fit hang instead (sleep until stopped,
+    having written ``hung-3`` into the work folder), ``3!~`` every fit of it."""
+    if spec.rstrip("!~") != str(job.tile):
         return
     flag = Path(job.work) / f"failed-once-{job.tile}"
-    if spec.endswith("!") or not flag.exists():
+    if "!" in spec or not flag.exists():
         flag.write_text("")
+        if "~" in spec:
+            (Path(job.work) / f"hung-{job.tile}").write_text("")
+            while True:
+                time.sleep(1.0)
         raise RuntimeError(f"injected failure of tile {job.tile}")
 
 
